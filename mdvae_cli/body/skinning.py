@@ -1,0 +1,171 @@
+"""SMPL-family linear blend skinning in torch: small pure functions plus one nn.Module.
+
+Math names inside functions follow the SMPL paper: ``J`` joints, ``A`` relative joint
+transforms, ``W`` skinning weights. Every function is batched over a leading dim B (frames).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from mdvae_cli.body.data import NUM_BODY_JOINTS, BodyModelData
+from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+
+
+def blend_shapes(coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+    """Linear blend offsets.  coeffs: (B, K), dirs: (V, 3, K) -> (B, V, 3)"""
+    return torch.einsum("bk,vck->bvc", coeffs, dirs)
+
+
+def vertices_to_joints(J_regressor: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
+    """Regress joints.  J_regressor: (J, V), vertices: (B, V, 3) -> (B, J, 3)"""
+    return torch.einsum("jv,bvc->bjc", J_regressor, vertices)
+
+
+def pose_features(rotmats: torch.Tensor) -> torch.Tensor:
+    """SMPL pose-corrective input.  rotmats: (B, J, 3, 3) -> (B, 9 * (J - 1))"""
+    eye = torch.eye(3, dtype=rotmats.dtype, device=rotmats.device)
+    return (rotmats[:, 1:] - eye).flatten(1)
+
+
+def batch_rigid_transform(
+    rotmats: torch.Tensor, J: torch.Tensor, parents: list[int]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Forward kinematics.
+
+    rotmats: (B, J, 3, 3) local rotations; J: (B, J, 3) rest joint positions; parents: J ints.
+    Returns posed joints (B, J, 3) and relative transforms A (B, J, 4, 4) that map rest-pose
+    points to posed points for each joint.
+    """
+    B, n = J.shape[:2]
+    rel = J.clone()
+    rel[:, 1:] = J[:, 1:] - J[:, parents[1:]]
+    world_R = [rotmats[:, 0]]
+    world_t = [J[:, 0]]
+    for j in range(1, n):
+        p = parents[j]
+        world_R.append(world_R[p] @ rotmats[:, j])
+        world_t.append(world_t[p] + (world_R[p] @ rel[:, j, :, None])[..., 0])
+    R = torch.stack(world_R, dim=1)
+    t = torch.stack(world_t, dim=1)
+    # A maps a rest point x to R (x - J_rest) + t
+    t_rel = t - (R @ J[..., None])[..., 0]
+    A = torch.zeros(B, n, 4, 4, dtype=J.dtype, device=J.device)
+    A[..., :3, :3] = R
+    A[..., :3, 3] = t_rel
+    A[..., 3, 3] = 1.0
+    return t, A
+
+
+def skin_vertices(vertices: torch.Tensor, W: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+    """Linear blend skinning.  vertices: (B, V, 3), W: (V, J), A: (B, J, 4, 4) -> (B, V, 3)"""
+    T = torch.einsum("vj,bjkl->bvkl", W, A[..., :3, :])
+    return (T[..., :3] @ vertices[..., None])[..., 0] + T[..., 3]
+
+
+@dataclass
+class BodyOutput:
+    """Result of a body-model forward pass, in world coordinates (metres).
+
+    joints: (B, 22, 3) body joints; markers: (B, M, 3) virtual markers;
+    vertices: (B, V, 3) full mesh, or None when not requested.
+    """
+
+    joints: torch.Tensor
+    markers: torch.Tensor
+    vertices: torch.Tensor | None = None
+
+
+class BodyModel(nn.Module):
+    """Differentiable SMPL-family body: parameters -> joints, markers, vertices.
+
+    Built from a :class:`BodyModelData`; joints past the 22 body joints (hands, jaw, eyes) take
+    the pose given in ``pose_extra`` or stay at rest.
+    """
+
+    def __init__(self, data: BodyModelData, dtype: torch.dtype = torch.float32):
+        super().__init__()
+        self.data = data
+        self.parents = [int(p) for p in data.parents]
+        f = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype)  # noqa: E731
+        ids = torch.as_tensor(np.asarray(data.marker_vertex_ids), dtype=torch.long)
+        self.register_buffer("v_template", f(data.v_template))
+        self.register_buffer("shapedirs", f(data.shapedirs))
+        self.register_buffer("posedirs", f(data.posedirs))
+        self.register_buffer("weights", f(data.weights))
+        self.register_buffer("J_regressor", f(data.J_regressor))
+        self.register_buffer("marker_ids", ids)
+        # joints at rest depend only on betas: pre-regress template and shape directions
+        self.register_buffer("J_template", self.J_regressor @ self.v_template)
+        self.register_buffer(
+            "J_shapedirs", torch.einsum("jv,vck->jck", self.J_regressor, self.shapedirs)
+        )
+
+    @property
+    def num_betas(self) -> int:
+        return int(self.shapedirs.shape[2])
+
+    @property
+    def num_joints(self) -> int:
+        return int(self.J_regressor.shape[0])
+
+    def fit_betas(self, betas: torch.Tensor) -> torch.Tensor:
+        """Pad with zeros or truncate to this model's shape count.  (B, S') -> (B, S)"""
+        S = self.num_betas
+        if betas.shape[-1] >= S:
+            return betas[..., :S]
+        pad = torch.zeros(*betas.shape[:-1], S - betas.shape[-1], dtype=betas.dtype,
+                          device=betas.device)  # fmt: skip
+        return torch.cat([betas, pad], dim=-1)
+
+    def forward(
+        self,
+        root_orient: torch.Tensor,
+        pose_body: torch.Tensor,
+        trans: torch.Tensor | None = None,
+        betas: torch.Tensor | None = None,
+        pose_extra: torch.Tensor | None = None,
+        vertices: bool = False,
+    ) -> BodyOutput:
+        """Pose the body.
+
+        root_orient: (B, 3) axis-angle; pose_body: (B, 21, 3) axis-angle; trans: (B, 3) or None;
+        betas: (B, S') or (S',) or None (any length S', padded/truncated);
+        pose_extra: (B, J - 22, 3) axis-angle for the remaining joints, or None for rest;
+        vertices: also return the full mesh (costly), else only joints and markers.
+        """
+        B = root_orient.shape[0]
+        dtype, device = self.v_template.dtype, self.v_template.device
+        if betas is None:
+            betas = torch.zeros(B, self.num_betas, dtype=dtype, device=device)
+        betas = self.fit_betas(betas.to(dtype))
+        if betas.ndim == 1:
+            betas = betas.expand(B, -1)
+        rotvecs = [root_orient.reshape(B, 1, 3), pose_body.reshape(B, NUM_BODY_JOINTS - 1, 3)]
+        n_extra = self.num_joints - NUM_BODY_JOINTS
+        if n_extra:
+            if pose_extra is None:
+                pose_extra = torch.zeros(B, n_extra, 3, dtype=dtype, device=device)
+            rotvecs.append(pose_extra.reshape(B, n_extra, 3))
+        R = rotvec_to_rotmat(torch.cat(rotvecs, dim=1).to(dtype))
+        J_rest = self.J_template + torch.einsum("bk,jck->bjc", betas, self.J_shapedirs)
+        J_posed, A = batch_rigid_transform(R, J_rest, self.parents)
+        feats = pose_features(R)
+
+        if vertices:
+            ids = slice(None)
+        else:
+            ids = self.marker_ids
+        v = self.v_template[ids] + blend_shapes(betas, self.shapedirs[ids])
+        v = v + blend_shapes(feats, self.posedirs[ids])
+        v = skin_vertices(v, self.weights[ids], A)
+        joints = J_posed[:, :NUM_BODY_JOINTS]
+        if trans is not None:
+            offset = trans.to(dtype).reshape(B, 1, 3)
+            joints, v = joints + offset, v + offset
+        markers = v[:, self.marker_ids] if vertices else v
+        return BodyOutput(joints=joints, markers=markers, vertices=v if vertices else None)

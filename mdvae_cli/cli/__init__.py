@@ -1,0 +1,1 @@
+"""The ``mdvae`` command line: thin click commands over the library."""

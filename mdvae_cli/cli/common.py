@@ -1,0 +1,93 @@
+"""What every command shares: the console, error handling, common options, batch runs."""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from mdvae_cli.errors import MdvaeError, NotAvailableError
+
+#: the one console for human-readable output; machine output (--json) goes to stdout directly
+console = Console(stderr=True, highlight=False)
+
+
+def fail(message: str, code: int = 1) -> None:
+    """Print ``error: message`` (one line) and exit with ``code``."""
+    console.print(f"[bold red]error:[/] {message}", soft_wrap=True, markup=True)
+    sys.exit(code)
+
+
+def handle_errors(fn: Callable) -> Callable:
+    """Turn library exceptions into one-line errors with a non-zero exit code.
+
+    MdvaeError -> exit 1 (NotAvailableError -> exit 2); any other exception -> exit 1 with its
+    type and message, unless MDVAE_DEBUG=1, which re-raises for a traceback.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except NotAvailableError as exc:
+            fail(str(exc), code=2)
+        except MdvaeError as exc:
+            fail(str(exc))
+        except KeyboardInterrupt:
+            fail("interrupted", code=130)
+        except (click.exceptions.Exit, click.ClickException, SystemExit):
+            raise
+        except Exception as exc:
+            if os.environ.get("MDVAE_DEBUG"):
+                raise
+            fail(f"{type(exc).__name__}: {exc} (set MDVAE_DEBUG=1 for a traceback)")
+
+    return wrapper
+
+
+def body_model_option(fn: Callable) -> Callable:
+    """``--body-model PATH``: an SMPL/SMPL-H/SMPL-X file; default the built-in body."""
+    return click.option(
+        "--body-model",
+        "body_model",
+        type=click.Path(path_type=Path),
+        default=None,
+        help="SMPL .pkl, SMPL-H or SMPL-X .npz body-model file (default: the built-in body).",
+    )(fn)
+
+
+def allow_pickle_option(fn: Callable) -> Callable:
+    return click.option(
+        "--allow-pickle",
+        is_flag=True,
+        help="Allow motion files that contain pickled Python objects (runs their code: only "
+        "for files you trust).",
+    )(fn)
+
+
+def progress_bar(transient: bool = False) -> Progress:
+    """A rich progress bar on the shared console (hidden when stderr is not a terminal)."""
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        TextColumn("{task.fields[info]}"),
+        console=console,
+        transient=transient,
+        disable=not console.is_terminal,
+    )

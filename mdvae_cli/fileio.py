@@ -1,0 +1,60 @@
+"""File-system helpers shared by every writer: atomic output, input discovery."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from mdvae_cli.errors import InputError
+
+
+def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Path] = ()) -> None:
+    """Write a file by calling ``write(tmp)`` on a temporary name, then renaming it to ``path``.
+
+    ``forbid`` lists input files: writing onto one of them is refused (inputs are never
+    overwritten). The temporary keeps ``path``'s suffix so writers that look at it still work.
+    """
+    path = Path(path)
+    target = path.resolve()
+    for p in forbid:
+        if Path(p).exists() and Path(p).resolve() == target:
+            raise InputError(f"refusing to overwrite the input file {p}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+MOTION_SUFFIXES = (".npz",)
+
+
+def expand_inputs(
+    inputs: Iterable[Path], suffixes: tuple[str, ...] = MOTION_SUFFIXES
+) -> list[tuple[Path, Path]]:
+    """Expand files and folders into ``(file, relative_path)`` pairs, sorted.
+
+    A folder contributes every file below it whose name ends in one of ``suffixes``
+    (``.gz`` variants included), with its path relative to the folder; a file given directly
+    contributes its own name. A missing path raises InputError.
+    """
+    out: list[tuple[Path, Path]] = []
+    for item in inputs:
+        item = Path(item)
+        if item.is_dir():
+            for f in sorted(item.rglob("*")):
+                name = f.name[:-3] if f.name.endswith(".gz") else f.name
+                if f.is_file() and name.endswith(suffixes) and not f.name.startswith("."):
+                    out.append((f, f.relative_to(item)))
+        elif item.exists():
+            out.append((item, Path(item.name)))
+        else:
+            raise InputError(f"no such file or folder: {item}")
+    return out

@@ -1,0 +1,96 @@
+"""The Motion dataclass: one SMPL-family motion clip in numpy."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from mdvae_cli.body.data import NUM_BODY_JOINTS
+
+#: AMASS ``poses`` widths we read, and the layout name of each.
+POSE_WIDTHS = {156: "smplh", 165: "smplx", 72: "smpl", 66: "body"}
+
+
+@dataclass
+class Motion:
+    """One motion clip. T frames.
+
+    Attributes:
+        root_orient: (T, 3) global orientation, axis-angle.
+        pose_body: (T, 21, 3) body-joint axis-angles (SMPL joints 1..21).
+        trans: (T, 3) root translation, metres, z-up (AMASS convention).
+        betas: (S,) body shape, as many coefficients as the file had.
+        fps: frames per second, > 0.
+        pose_extra: (T, K) the rest of ``poses`` after the 66 body columns (hands, jaw, eyes),
+            carried through untouched; K = poses width - 66.
+        gender: "neutral", "male" or "female" (as the file says).
+        joint_mask: (T, 22) bool, True where a body joint was observed; None = all observed.
+        extras: other keys of the source file, written back unchanged.
+        layout: how the source stored things (fps key, gender as bytes), to write the same way.
+        notes: remarks made while reading (padded betas, missing keys) for the user.
+    """
+
+    root_orient: np.ndarray
+    pose_body: np.ndarray
+    trans: np.ndarray
+    betas: np.ndarray
+    fps: float
+    pose_extra: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    gender: str = "neutral"
+    joint_mask: np.ndarray | None = None
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+    layout: dict[str, object] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        T = self.root_orient.shape[0]
+        if self.pose_extra.shape[0] != T:
+            self.pose_extra = np.zeros((T, self.pose_extra.shape[1] if self.pose_extra.ndim == 2
+                                        else 0))  # fmt: skip
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.root_orient.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return (self.num_frames - 1) / self.fps
+
+    @property
+    def poses(self) -> np.ndarray:
+        """(T, 66 + K) the AMASS ``poses`` array."""
+        T = self.num_frames
+        return np.concatenate(
+            [self.root_orient, self.pose_body.reshape(T, (NUM_BODY_JOINTS - 1) * 3),
+             self.pose_extra.reshape(T, -1)], axis=1,
+        )  # fmt: skip
+
+    def with_body(self, root_orient=None, pose_body=None, trans=None) -> Motion:
+        """A copy with some body parameters replaced (same T)."""
+        return replace(
+            self,
+            root_orient=self.root_orient if root_orient is None else root_orient,
+            pose_body=self.pose_body if pose_body is None else pose_body,
+            trans=self.trans if trans is None else trans,
+            extras=dict(self.extras),
+            layout=dict(self.layout),
+            notes=list(self.notes),
+        )
+
+    @staticmethod
+    def from_poses(
+        poses: np.ndarray, trans: np.ndarray, betas: np.ndarray, fps: float, **kwargs
+    ) -> Motion:
+        """Split an AMASS ``poses`` array (T, W) with W >= 66 into a Motion."""
+        T = poses.shape[0]
+        return Motion(
+            root_orient=poses[:, :3].copy(),
+            pose_body=poses[:, 3:66].reshape(T, NUM_BODY_JOINTS - 1, 3).copy(),
+            trans=np.asarray(trans, dtype=np.float64).copy(),
+            betas=np.asarray(betas, dtype=np.float64).copy(),
+            fps=float(fps),
+            pose_extra=poses[:, 66:].copy(),
+            **kwargs,
+        )

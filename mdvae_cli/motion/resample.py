@@ -1,0 +1,74 @@
+"""Change a motion's frame rate: slerp on rotations, lerp on translation."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mdvae_cli.geometry.rotations import rotvec_slerp
+from mdvae_cli.motion.motion import Motion
+
+
+def resample_times(num_frames: int, fps_in: float, fps_out: float) -> np.ndarray:
+    """Fractional source-frame indices of the output frames.  -> (T_out,)
+
+    Output frames are spaced 1/fps_out apart from the first source frame and never run past
+    the last one.
+    """
+    duration = (num_frames - 1) / fps_in
+    n_out = int(np.floor(duration * fps_out + 1e-6)) + 1
+    return np.arange(n_out) * (fps_in / fps_out)
+
+
+def interp_linear(values: np.ndarray, src: np.ndarray) -> np.ndarray:
+    """Linear interpolation along axis 0 at fractional indices.  (T, ...), (T',) -> (T', ...)"""
+    i0 = np.clip(np.floor(src).astype(int), 0, len(values) - 1)
+    i1 = np.clip(i0 + 1, 0, len(values) - 1)
+    w = (src - i0).reshape(-1, *([1] * (values.ndim - 1)))
+    return values[i0] * (1.0 - w) + values[i1] * w
+
+
+def interp_rotvec(rotvecs: np.ndarray, src: np.ndarray) -> np.ndarray:
+    """Slerp axis-angles along axis 0 at fractional indices.  (T, ..., 3), (T',) -> (T', ..., 3)"""
+    i0 = np.clip(np.floor(src).astype(int), 0, len(rotvecs) - 1)
+    i1 = np.clip(i0 + 1, 0, len(rotvecs) - 1)
+    w = torch.as_tensor(src - i0).reshape(-1, *([1] * (rotvecs.ndim - 2)))
+    r = torch.as_tensor(rotvecs, dtype=torch.float64)
+    return rotvec_slerp(r[i0], r[i1], w.expand(r[i0].shape[:-1])).numpy()
+
+
+def resample_motion(motion: Motion, fps_out: float) -> Motion:
+    """Resample to ``fps_out``; returns ``motion`` itself when the rate already matches.
+
+    Per-frame extras (arrays whose first dim is T, numeric) are linearly interpolated; the
+    joint mask takes the nearest frame.
+    """
+    if abs(motion.fps - fps_out) < 1e-9:
+        return motion
+    T = motion.num_frames
+    src = resample_times(T, motion.fps, fps_out)
+    extra = motion.pose_extra
+    if extra.shape[1] % 3 == 0 and extra.shape[1] > 0:
+        extra = interp_rotvec(extra.reshape(T, -1, 3), src).reshape(len(src), -1)
+    else:
+        extra = interp_linear(extra, src)
+    extras = {}
+    for k, v in motion.extras.items():
+        per_frame = v.ndim >= 1 and v.shape[0] == T and np.issubdtype(v.dtype, np.number)
+        extras[k] = interp_linear(v.astype(np.float64), src).astype(v.dtype) if per_frame else v
+    mask = None
+    if motion.joint_mask is not None:
+        mask = motion.joint_mask[np.clip(np.rint(src).astype(int), 0, T - 1)]
+    return Motion(
+        root_orient=interp_rotvec(motion.root_orient, src),
+        pose_body=interp_rotvec(motion.pose_body, src),
+        trans=interp_linear(motion.trans, src),
+        betas=motion.betas.copy(),
+        fps=float(fps_out),
+        pose_extra=extra,
+        gender=motion.gender,
+        joint_mask=mask,
+        extras=extras,
+        layout=dict(motion.layout),
+        notes=list(motion.notes),
+    )
