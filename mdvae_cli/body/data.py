@@ -93,7 +93,7 @@ class BodyModelData:
              f"J_regressor must be ({J}, {V}), got {self.J_regressor.shape}"),
             (self.weights.shape == (V, J), f"weights must be ({V}, {J}), got {self.weights.shape}"),
             (self.parents.shape == (J,), f"parents must be ({J},), got {self.parents.shape}"),
-            (J >= NUM_BODY_JOINTS, f"a body model needs at least {NUM_BODY_JOINTS} joints, has {J}"),
+            (J >= NUM_BODY_JOINTS, f"needs at least {NUM_BODY_JOINTS} joints, has {J}"),
             (self.faces.ndim == 2 and self.faces.shape[1] == 3, "faces must be (F, 3)"),
             (len(self.joint_names) == J, f"{len(self.joint_names)} joint names for {J} joints"),
             (self.marker_vertex_ids.ndim == 1 and len(self.marker_vertex_ids) > 0
