@@ -130,13 +130,15 @@ class BodyModel(nn.Module):
         betas: torch.Tensor | None = None,
         pose_extra: torch.Tensor | None = None,
         vertices: bool = False,
+        vertex_ids: torch.Tensor | None = None,
     ) -> BodyOutput:
         """Pose the body.
 
         root_orient: (B, 3) axis-angle; pose_body: (B, 21, 3) axis-angle; trans: (B, 3) or None;
         betas: (B, S') or (S',) or None (any length S', padded/truncated);
         pose_extra: (B, J - 22, 3) axis-angle for the remaining joints, or None for rest;
-        vertices: also return the full mesh (costly), else only joints and markers.
+        vertices: also return the full mesh (costly), else only joints and markers;
+        vertex_ids: (K,) return only these vertices (plus markers) in ``vertices``.
         """
         B = root_orient.shape[0]
         dtype, device = self.v_template.dtype, self.v_template.device
@@ -156,8 +158,11 @@ class BodyModel(nn.Module):
         J_posed, A = batch_rigid_transform(R, J_rest, self.parents)
         feats = pose_features(R)
 
+        n_markers = self.marker_ids.shape[0]
         if vertices:
             ids = slice(None)
+        elif vertex_ids is not None:
+            ids = torch.cat([self.marker_ids, vertex_ids.to(self.marker_ids.device)])
         else:
             ids = self.marker_ids
         v = self.v_template[ids] + blend_shapes(betas, self.shapedirs[ids])
@@ -167,5 +172,13 @@ class BodyModel(nn.Module):
         if trans is not None:
             offset = trans.to(dtype).reshape(B, 1, 3)
             joints, v = joints + offset, v + offset
-        markers = v[:, self.marker_ids] if vertices else v
-        return BodyOutput(joints=joints, markers=markers, vertices=v if vertices else None)
+        if vertices:
+            return BodyOutput(joints=joints, markers=v[:, self.marker_ids], vertices=v)
+        if vertex_ids is not None:
+            return BodyOutput(joints=joints, markers=v[:, :n_markers], vertices=v[:, n_markers:])
+        return BodyOutput(joints=joints, markers=v)
+
+    def pelvis_rest(self, betas: torch.Tensor) -> torch.Tensor:
+        """Rest-pose pelvis joint for each shape.  betas: (B, S') -> (B, 3)"""
+        betas = self.fit_betas(betas.to(self.J_template.dtype))
+        return self.J_template[0] + betas @ self.J_shapedirs[0].T

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -27,7 +28,7 @@ console = Console(stderr=True, highlight=False)
 
 def fail(message: str, code: int = 1) -> None:
     """Print ``error: message`` (one line) and exit with ``code``."""
-    console.print(f"[bold red]error:[/] {message}", soft_wrap=True, markup=True)
+    console.print(f"[bold red]error:[/] {escape(' '.join(str(message).split()))}", soft_wrap=True)
     sys.exit(code)
 
 

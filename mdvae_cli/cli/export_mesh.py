@@ -1,3 +1,60 @@
-"""Placeholder: filled in by its issue."""
+"""``mdvae export-mesh``: write one posed body mesh per frame."""
 
-COMMANDS: list = []
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from mdvae_cli.body.formats import load_body_model
+from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
+from mdvae_cli.cli.common import allow_pickle_option, body_model_option, handle_errors
+from mdvae_cli.export import MESH_FORMATS, as_body_model, export_mesh_sequence
+from mdvae_cli.motion.npz_io import load_motion
+
+
+@click.command("export-mesh")
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    help="Output folder: frame_000000.<format>, ... (one sub-folder per file for several inputs).",
+)  # fmt: skip
+@click.option(
+    "--format", "fmt", type=click.Choice(MESH_FORMATS), default="ply", show_default=True,
+    help="Mesh file format.",
+)  # fmt: skip
+@click.option(
+    "--every", type=click.IntRange(min=1), default=1, show_default=True,
+    help="Write every N-th frame (files keep the source frame number).",
+)  # fmt: skip
+@body_model_option
+@allow_pickle_option
+@json_option
+@handle_errors
+def export_mesh(inputs, out, fmt, every, body_model, allow_pickle, as_json) -> None:
+    """Export the posed body mesh of each frame as .ply or .obj.
+
+    One input file writes into --out itself; several files or a folder write
+    --out/<relative path without .npz>/frame_NNNNNN.<format>.
+
+    \b
+    Example:
+      mdvae export-mesh walk.npz --out walk_meshes --format obj --every 2
+    """
+    jobs = plan_jobs(inputs, out, out_suffix=None)
+    body = as_body_model(load_body_model(body_model))
+    sources = tuple(job.source for job in jobs)
+
+    def process(job: FileJob) -> dict[str, int]:
+        motion = load_motion(job.source, allow_pickle=allow_pickle)
+        print_notes(job.relpath, motion.notes)
+        written = export_mesh_sequence(motion, body, job.output, fmt, every=every, forbid=sources)
+        return {"meshes": len(written)}
+
+    report = run_batch(jobs, process, "export-mesh")
+    if as_json:
+        emit_json(report.to_dict())
+    report.exit()
+
+
+COMMANDS = [export_mesh]

@@ -171,11 +171,11 @@ def quat_slerp(q0: torch.Tensor, q1: torch.Tensor, t: torch.Tensor | float) -> t
     q0, q1: (..., 4) unit quaternions; t: scalar or (...) in [0, 1] -> (..., 4)
     """
     t = torch.as_tensor(t, dtype=q0.dtype, device=q0.device)
-    dot = (q0 * q1).sum(-1)
-    q1 = torch.where(dot[..., None] < 0, -q1, q1)
-    dot = dot.abs().clamp(max=1.0)
-    close = dot > 0.9995
-    omega = torch.acos(torch.where(close, torch.zeros_like(dot), dot))
+    dot = (q0 * q1).sum(-1, keepdim=True)
+    q1 = torch.where(dot < 0, -q1, q1)
+    # the angle between the quaternions, accurate also when they are nearly equal
+    omega = 2.0 * torch.atan2((q1 - q0).norm(dim=-1), (q1 + q0).norm(dim=-1))
+    close = omega < 1e-6
     sin_omega = torch.where(close, torch.ones_like(omega), torch.sin(omega))
     w0 = torch.where(close, 1.0 - t, torch.sin((1.0 - t) * omega) / sin_omega)
     w1 = torch.where(close, t, torch.sin(t * omega) / sin_omega)

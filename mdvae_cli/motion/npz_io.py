@@ -43,10 +43,10 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
         raise InputError(f"no such file: {path}")
     if path.is_dir():
         raise InputError(f"{path} is a folder, expected an .npz file")
+    if not zipfile.is_zipfile(path):
+        raise InputError(f"{path}: not an .npz archive")
     try:
         with np.load(path, allow_pickle=allow_pickle) as npz:
-            if not isinstance(npz, np.lib.npyio.NpzFile):
-                raise InputError(f"{path}: not an .npz archive (a bare .npy array)")
             data = {k: npz[k] for k in npz.files}
     except InputError:
         raise

@@ -1,0 +1,214 @@
+"""Run one function over many input files: output planning, progress, per-file failures.
+
+Every file command (add-noise, eval, export-mesh, denoise, import) follows the same contract:
+
+* inputs are files and/or folders; a folder contributes every matching file below it, and its
+  tree is mirrored under the output folder (:func:`plan_jobs`);
+* a file that fails prints one ``error: <file>: <why>`` line and the run goes on; the command
+  exits 1 when any file failed (:func:`run_batch`, :meth:`BatchReport.exit`);
+* ``--json`` puts one JSON document on stdout and nothing else there (:func:`emit_json`);
+  human-readable output stays on the shared stderr console.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.markup import escape
+
+from mdvae_cli.cli.common import console, progress_bar
+from mdvae_cli.errors import InputError, MdvaeError
+from mdvae_cli.fileio import MOTION_SUFFIXES, expand_inputs
+
+
+@dataclass
+class FileJob:
+    """One unit of work.
+
+    relpath: the file's path relative to the folder it was found in (its name when given
+        directly); used for display, mirroring and per-file seeds.
+    source: the input file. output: where the result goes (None when nothing is written).
+    data: anything else the command needs (e.g. the matching prediction file).
+    """
+
+    relpath: Path
+    source: Path
+    output: Path | None = None
+    data: Any = None
+
+
+@dataclass
+class FileOutcome:
+    """What happened to one job: ``result`` (whatever the function returned) or ``error``."""
+
+    job: FileJob
+    result: Any = None
+    error: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: file, input, output, ok, error, result (``to_dict()`` of it if any)."""
+        result = self.result
+        if hasattr(result, "to_dict"):
+            result = result.to_dict()
+        return {
+            "file": self.job.relpath.as_posix(),
+            "input": str(self.job.source),
+            "output": None if self.job.output is None else str(self.job.output),
+            "ok": self.ok,
+            "error": self.error,
+            "result": result if self.ok else None,
+        }
+
+
+@dataclass
+class BatchReport:
+    outcomes: list[FileOutcome] = field(default_factory=list)
+
+    @property
+    def succeeded(self) -> list[FileOutcome]:
+        return [o for o in self.outcomes if o.ok]
+
+    @property
+    def failed(self) -> list[FileOutcome]:
+        return [o for o in self.outcomes if not o.ok]
+
+    @property
+    def exit_code(self) -> int:
+        return 1 if self.failed else 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "files": [o.to_dict() for o in self.outcomes],
+            "succeeded": len(self.succeeded),
+            "failed": len(self.failed),
+        }
+
+    def exit(self) -> None:
+        """End the command with exit code 1 when any file failed (returns otherwise)."""
+        if self.failed:
+            sys.exit(1)
+
+
+def strip_gz(relpath: Path) -> Path:
+    """``a/b.npz.gz`` -> ``a/b.npz`` (outputs are written uncompressed)."""
+    return relpath.with_suffix("") if relpath.suffix == ".gz" else relpath
+
+
+def plan_jobs(
+    inputs: Sequence[Path],
+    out: Path | None,
+    suffixes: tuple[str, ...] = MOTION_SUFFIXES,
+    out_suffix: str | None = ".npz",
+    rename: Callable[[Path], Path] | None = None,
+) -> list[FileJob]:
+    """Expand ``inputs`` (files/folders) into jobs and choose each output path.
+
+    With ``out_suffix`` (file outputs): one input file and an ``out`` ending in ``out_suffix``
+    writes exactly ``out``; otherwise ``out`` is a folder and each output is ``out/relpath``
+    (``rename(relpath)`` when given). With ``out_suffix=None`` (folder outputs, e.g. meshes):
+    one input file writes into ``out`` itself, several into ``out/<relpath without suffix>``.
+    Raises InputError for no inputs, no matching files, an output folder that is an input
+    folder, or a file where a folder is needed.
+    """
+    if not inputs:
+        raise InputError("no input files given")
+    items = expand_inputs(inputs, suffixes)
+    if not items:
+        names = ", ".join(str(p) for p in inputs)
+        raise InputError(f"no {'/'.join(suffixes)} files found in {names}")
+    if out is None:
+        return [FileJob(rel, src) for src, rel in items]
+    out = Path(out)
+    single = len(inputs) == 1 and Path(inputs[0]).is_file()
+    for item in inputs:
+        if Path(item).is_dir() and out.exists() and out.resolve() == Path(item).resolve():
+            raise InputError(f"the output folder {out} is an input folder; choose another")
+
+    if out_suffix is None:
+        if single:
+            return [FileJob(items[0][1], items[0][0], out)]
+        return [FileJob(rel, src, out / strip_gz(rel).with_suffix("")) for src, rel in items]
+
+    if single and out.suffix == out_suffix:
+        return [FileJob(items[0][1], items[0][0], out)]
+    if (out.exists() and not out.is_dir()) or (not out.exists() and out.suffix == out_suffix):
+        raise InputError(f"with a folder or several inputs, the output {out} must be a folder")
+    rename = rename or strip_gz
+    return [FileJob(rel, src, out / rename(rel)) for src, rel in items]
+
+
+def _message(job: FileJob, exc: BaseException) -> str:
+    text = str(exc) if isinstance(exc, MdvaeError) else f"{type(exc).__name__}: {exc}"
+    text = " ".join(text.split())  # one line
+    named = [str(job.source)] + ([str(job.data)] if isinstance(job.data, Path) else [])
+    return text if any(name in text for name in named) else f"{job.source}: {text}"
+
+
+def run_batch(
+    jobs: Sequence[FileJob],
+    fn: Callable[[FileJob], Any],
+    description: str,
+    quiet: bool = False,
+    on_success: Callable[[FileOutcome], None] | None = None,
+) -> BatchReport:
+    """Call ``fn(job)`` for each job, with a progress bar; collect results and failures.
+
+    A failing job (any exception but KeyboardInterrupt) prints one ``error: ...`` line and
+    the loop goes on; MDVAE_DEBUG=1 re-raises instead, for a traceback. ``on_success`` is
+    called after each good job (e.g. to print a line). With several jobs a summary line
+    follows, unless ``quiet``.
+    """
+    report = BatchReport()
+    debug = bool(os.environ.get("MDVAE_DEBUG"))
+    with progress_bar() as progress:
+        task = progress.add_task(description, total=len(jobs), info="")
+        for job in jobs:
+            progress.update(task, info=escape(job.relpath.as_posix()))
+            try:
+                outcome = FileOutcome(job, result=fn(job))
+            except KeyboardInterrupt:
+                raise
+            except Exception as exc:
+                if debug:
+                    raise
+                outcome = FileOutcome(job, error=_message(job, exc))
+                console.print(f"[bold red]error:[/] {escape(outcome.error)}", soft_wrap=True)
+            else:
+                if on_success is not None:
+                    on_success(outcome)
+            report.outcomes.append(outcome)
+            progress.advance(task)
+    if len(jobs) > 1 and not quiet:
+        n_bad = len(report.failed)
+        tail = f", [red]{n_bad} failed[/]" if n_bad else ""
+        console.print(f"{description}: {len(report.succeeded)} of {len(jobs)} files done{tail}")
+    return report
+
+
+def print_notes(relpath: Path, notes: Iterable[str]) -> None:
+    """Show remarks made while reading a file (e.g. padded betas) as dim ``note:`` lines."""
+    for note in notes:
+        console.print(f"[dim]note: {escape(relpath.as_posix())}: {escape(note)}[/]", soft_wrap=True)
+
+
+def emit_json(data: Any) -> None:
+    """Write one JSON document to stdout (the only thing a --json run puts there)."""
+    click.echo(json.dumps(data, indent=2, allow_nan=False))
+
+
+def json_option(fn: Callable) -> Callable:
+    """``--json``: machine-readable results on stdout."""
+    return click.option(
+        "--json", "as_json", is_flag=True, help="Print results as JSON on stdout (for pipelines)."
+    )(fn)

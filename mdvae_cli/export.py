@@ -1,0 +1,122 @@
+"""Motion -> posed body meshes -> one ``.ply`` / ``.obj`` file per frame (via trimesh).
+
+:func:`pose_motion_chunks` turns a Motion into body-model outputs a chunk of frames at a time
+(bounded memory); evaluation reuses it. :func:`export_mesh_sequence` writes the meshes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.data import NUM_BODY_JOINTS, BodyModelData
+from mdvae_cli.body.skinning import BodyModel, BodyOutput
+from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import write_atomic
+from mdvae_cli.motion.motion import Motion
+
+#: mesh file formats :func:`export_mesh_sequence` writes
+MESH_FORMATS = ("ply", "obj")
+
+#: frames posed at once; a full SMPL mesh chunk of 256 frames needs ~100 MB of float32 work space
+DEFAULT_CHUNK_FRAMES = 256
+
+
+def as_body_model(body: BodyModel | BodyModelData) -> BodyModel:
+    """Wrap model arrays in a :class:`BodyModel` (float32, CPU); pass a BodyModel through."""
+    if isinstance(body, BodyModel):
+        return body
+    return BodyModel(body)
+
+
+def pose_motion_chunks(
+    motion: Motion,
+    body: BodyModel | BodyModelData,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    vertices: bool = True,
+    betas: np.ndarray | None = None,
+    frames: Iterable[int] | None = None,
+) -> Iterator[tuple[np.ndarray, BodyOutput]]:
+    """Pose ``motion`` with ``body`` a chunk of frames at a time.
+
+    betas: (S,) shape to use instead of the motion's own (e.g. the ground truth's).
+    frames: the frame indices to pose (default all T), in order.
+    Yields ``(indices (C,), BodyOutput)`` with joints (C, 22, 3), markers (C, M, 3) and, when
+    ``vertices``, vertices (C, V, 3), in metres. Hand/face joints take ``motion.pose_extra``
+    when its width matches the model's extra joints, else the rest pose.
+    """
+    if chunk_frames < 1:
+        raise InputError(f"chunk_frames must be >= 1, got {chunk_frames}")
+    model = as_body_model(body)
+    dtype = model.v_template.dtype
+    device = model.v_template.device
+    index = np.arange(motion.num_frames) if frames is None else np.asarray(list(frames), int)
+    shape = torch.as_tensor(motion.betas if betas is None else betas, dtype=dtype, device=device)
+    n_extra = model.num_joints - NUM_BODY_JOINTS
+    use_extra = n_extra > 0 and motion.pose_extra.shape[1] == 3 * n_extra
+
+    def tensor(a: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(np.ascontiguousarray(a), dtype=dtype, device=device)
+
+    for start in range(0, len(index), chunk_frames):
+        ids = index[start : start + chunk_frames]
+        extra = None
+        if use_extra:
+            extra = tensor(motion.pose_extra[ids]).reshape(len(ids), n_extra, 3)
+        with torch.no_grad():  # not around the yield: grad mode must not leak to the caller
+            out = model(
+                tensor(motion.root_orient[ids]),
+                tensor(motion.pose_body[ids]),
+                tensor(motion.trans[ids]),
+                shape,
+                pose_extra=extra,
+                vertices=vertices,
+            )
+        yield ids, out
+
+
+def export_mesh_sequence(
+    motion: Motion,
+    body: BodyModel | BodyModelData,
+    out_dir: Path | str,
+    fmt: str = "ply",
+    every: int = 1,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    forbid: Iterable[Path] = (),
+    progress: Callable[[int], None] | None = None,
+) -> list[Path]:
+    """Write the posed mesh of every ``every``-th frame to ``out_dir/frame_NNNNNN.<fmt>``.
+
+    NNNNNN is the source frame index (0-based, six digits), so ``every=2`` writes frame_000000,
+    frame_000002, ... Each file is written to a temporary name and renamed; ``forbid`` lists
+    files never to overwrite. ``progress(n)`` is called after each chunk with the number of
+    files just written. Returns the written paths, in frame order.
+    """
+    fmt = fmt.lower().lstrip(".")
+    if fmt not in MESH_FORMATS:
+        raise InputError(f"unknown mesh format {fmt!r}; choose one of {', '.join(MESH_FORMATS)}")
+    if every < 1:
+        raise InputError(f"--every must be >= 1, got {every}")
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"{out_dir} exists and is not a folder")
+    import trimesh  # heavy import, only needed here
+
+    model = as_body_model(body)
+    faces = np.asarray(model.data.faces, dtype=np.int64)
+    forbid = tuple(Path(p) for p in forbid)
+    frames = range(0, motion.num_frames, every)
+    written: list[Path] = []
+    for ids, out in pose_motion_chunks(motion, model, chunk_frames, vertices=True, frames=frames):
+        verts = out.vertices.double().cpu().numpy()
+        for t, v in zip(ids, verts, strict=True):
+            mesh = trimesh.Trimesh(vertices=v, faces=faces, process=False)
+            path = out_dir / f"frame_{int(t):06d}.{fmt}"
+            write_atomic(path, lambda tmp, m=mesh: m.export(tmp, file_type=fmt), forbid=forbid)
+            written.append(path)
+        if progress is not None:
+            progress(len(ids))
+    return written

@@ -1,0 +1,64 @@
+"""Checkpoints that are safe to load: tensors in an .npz (no pickle) plus JSON metadata."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import write_atomic
+
+
+def save_checkpoint(path: Path, tensors: dict[str, torch.Tensor], meta: dict) -> None:
+    """Write ``path`` (.npz of tensors) and ``path.with_suffix('.json')`` (meta), atomically."""
+    path = Path(path)
+    arrays = {k: v.detach().cpu().numpy() for k, v in tensors.items()}
+
+    def write_npz(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+
+    write_atomic(path, write_npz)
+    write_atomic(
+        path.with_suffix(".json"),
+        lambda tmp: tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n"),
+    )
+
+
+def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
+    """Read a checkpoint written by :func:`save_checkpoint`; never unpickles anything."""
+    path = Path(path)
+    meta_path = path.with_suffix(".json")
+    if not path.exists() or not meta_path.exists():
+        raise InputError(f"checkpoint {path} (with {meta_path.name}) not found")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            tensors = {k: torch.from_numpy(npz[k].copy()) for k in npz.files}
+        meta = json.loads(meta_path.read_text())
+    except (ValueError, OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"checkpoint {path} is unreadable ({exc})") from None
+    return tensors, meta
+
+
+def optimizer_to_tensors(opt: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict]:
+    """Split an optimizer state dict into flat tensors and JSON-able groups."""
+    sd = opt.state_dict()
+    tensors = {}
+    for idx, state in sd["state"].items():
+        for key, value in state.items():
+            tensors[f"optim/{idx}/{key}"] = torch.as_tensor(value)
+    return tensors, {"param_groups": sd["param_groups"]}
+
+
+def optimizer_from_tensors(tensors: dict[str, torch.Tensor], groups: dict) -> dict:
+    """Inverse of :func:`optimizer_to_tensors`: a state dict for ``load_state_dict``."""
+    state: dict[int, dict] = {}
+    for name, value in tensors.items():
+        if not name.startswith("optim/"):
+            continue
+        _, idx, key = name.split("/", 2)
+        state.setdefault(int(idx), {})[key] = value
+    return {"state": state, "param_groups": groups["param_groups"]}

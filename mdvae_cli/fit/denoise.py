@@ -1,0 +1,216 @@
+"""Denoise motions with a fitted Denoiser: windows -> one forward pass -> blended motion.
+
+Any length and rate: a motion is resampled to 30 Hz, cut into overlapping windows of
+``window + 1`` frames (frame 0 is x0), each window canonicalised, denoised in one batched pass
+(regression mode: posterior means), moved back to the world, blended across overlaps (slerp on
+rotations, lerp on translation) and resampled back to the input's own frame times. Hands, extra
+keys and the file layout are carried through untouched.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
+from mdvae_cli.geometry.rotations import rotvec_slerp
+from mdvae_cli.model.denoiser import Denoiser, observe
+from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.resample import interp_linear, interp_rotvec, resample_motion
+from mdvae_cli.motion.state import BodyParams, state_to_params
+from mdvae_cli.motion.windows import CanonicalFrame, uncanonicalize, window_starts
+
+
+@dataclass
+class WindowGroup:
+    """Windows of one length, ready for the networks.
+
+    yn: (N, L, 138) normalised noisy states; y3d: (N, L, 65, 3); betas: (N, S);
+    frame: the canonical frames; pelvis: (N, 3); owners: (motion index, start) per window;
+    weight: (N, L, 65) observation weights (joint mask), or None.
+    """
+
+    yn: torch.Tensor
+    y3d: torch.Tensor
+    betas: torch.Tensor
+    frame: CanonicalFrame
+    pelvis: torch.Tensor
+    owners: list[tuple[int, int]] = field(default_factory=list)
+    weight: torch.Tensor | None = None
+
+    def __len__(self) -> int:
+        return int(self.yn.shape[0])
+
+    def batch(self, idx: torch.Tensor) -> WindowGroup:
+        w = None if self.weight is None else self.weight[idx]
+        frame = CanonicalFrame(self.frame.yaw[idx], self.frame.origin[idx])
+        return WindowGroup(
+            self.yn[idx],
+            self.y3d[idx],
+            self.betas[idx],
+            frame,
+            self.pelvis[idx],
+            [self.owners[i] for i in idx.tolist()],
+            w,
+        )
+
+
+def make_windows(
+    motions: list[Motion], denoiser: Denoiser, body: BodyModel, window: int = 60, stride: int = 45
+) -> list[WindowGroup]:
+    """Cut motions already at 30 Hz into windows of ``window + 1`` frames (shorter motions
+    give one window of their own length), grouped by length."""
+    L = window + 1
+    by_len: dict[int, list] = {}
+    for mi, motion in enumerate(motions):
+        p = motion_to_params(motion)
+        betas = body.fit_betas(torch.as_tensor(motion.betas, dtype=torch.float32)[None])[0]
+        T = motion.num_frames
+        length = min(L, T)
+        for s in window_starts(T, length, stride):
+            sl = slice(s, s + length)
+            mask = None if motion.joint_mask is None else torch.as_tensor(motion.joint_mask[sl])
+            by_len.setdefault(length, []).append(
+                (mi, s, p.root_orient[sl], p.pose_body[sl], p.trans[sl], betas, mask)
+            )
+    groups = []
+    norm = denoiser.prior.normalizer
+    for _, items in sorted(by_len.items()):
+        stack = lambda k, items=items: torch.stack([it[k] for it in items])  # noqa: E731
+        params = BodyParams(stack(2), stack(3), stack(4))
+        betas = stack(5)
+        with torch.no_grad():
+            states, frame = chunk_states(params, betas, body)
+            y3d = observe(body, states, betas)
+        weight = None
+        if any(it[6] is not None for it in items):
+            masks = [
+                it[6] if it[6] is not None else torch.ones(len(it[2]), 22, dtype=torch.bool)
+                for it in items
+            ]
+            joints = torch.stack(masks).float()
+            weight = torch.cat([joints, torch.ones(*joints.shape[:2], 43)], dim=-1)
+        groups.append(
+            WindowGroup(
+                norm.normalize(states),
+                y3d,
+                betas,
+                frame,
+                body.pelvis_rest(betas),
+                [(it[0], it[1]) for it in items],
+                weight,
+            )
+        )
+    return groups
+
+
+@torch.no_grad()
+def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 1024) -> BodyParams:
+    """Regression mode on a group: posterior means, back in world coordinates.
+
+    -> BodyParams with (N, L, ...) tensors
+    """
+    denoiser.eval()
+    outs = []
+    for i in range(0, len(group), batch_size):
+        idx = torch.arange(i, min(i + batch_size, len(group)))
+        g = group.batch(idx)
+        x_hat = denoiser.infer(g.yn)["x_hat"]
+        outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
+    return BodyParams(
+        *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
+    )
+
+
+def blend_windows(num_frames: int, starts: list[int], windows: list[BodyParams]) -> BodyParams:
+    """Stitch windows (each (L, ...)) into one (T, ...) sequence; overlaps cross-fade linearly
+    (slerp for rotations) from the earlier window to the later one."""
+    root = torch.zeros(num_frames, 3)
+    pose = torch.zeros(num_frames, 21, 3)
+    trans = torch.zeros(num_frames, 3)
+    written = 0
+    for s, w in sorted(zip(starts, windows, strict=True), key=lambda sw: sw[0]):
+        L = w.trans.shape[0]
+        ov = max(0, min(written - s, L))
+        if ov:
+            a = torch.arange(1, ov + 1, dtype=torch.float32) / (ov + 1)
+            sl = slice(s, s + ov)
+            root[sl] = rotvec_slerp(root[sl], w.root_orient[:ov], a[:, None].expand(ov, 1)[:, 0])
+            pose[sl] = rotvec_slerp(pose[sl], w.pose_body[:ov], a[:, None].expand(ov, 21))
+            trans[sl] = trans[sl] * (1 - a[:, None]) + w.trans[:ov] * a[:, None]
+        root[s + ov : s + L] = w.root_orient[ov:]
+        pose[s + ov : s + L] = w.pose_body[ov:]
+        trans[s + ov : s + L] = w.trans[ov:]
+        written = max(written, s + L)
+    return BodyParams(root, pose, trans)
+
+
+def to_input_rate(params30: BodyParams, source: Motion) -> BodyParams:
+    """Sample a 30 Hz result at the source's own frame times (same frame count as the input)."""
+    if abs(source.fps - MODEL_FPS) < 1e-9:
+        return params30
+    T30 = params30.trans.shape[0]
+    src = np.clip(np.arange(source.num_frames) * (MODEL_FPS / source.fps), 0, T30 - 1)
+    return BodyParams(
+        torch.as_tensor(interp_rotvec(params30.root_orient.double().numpy(), src)),
+        torch.as_tensor(interp_rotvec(params30.pose_body.double().numpy(), src)),
+        torch.as_tensor(interp_linear(params30.trans.double().numpy(), src)),
+    )
+
+
+def assemble(
+    motions: list[Motion],
+    motions30: list[Motion],
+    groups: list[WindowGroup],
+    predictions: list[BodyParams],
+) -> list[Motion]:
+    """Blend every motion's windows and write the results into copies of the input motions."""
+    per_motion: dict[int, list[tuple[int, BodyParams]]] = {}
+    for g, pred in zip(groups, predictions, strict=True):
+        for k, (mi, s) in enumerate(g.owners):
+            one = BodyParams(pred.root_orient[k], pred.pose_body[k], pred.trans[k])
+            per_motion.setdefault(mi, []).append((s, one))
+    out = []
+    for mi, (motion, m30) in enumerate(zip(motions, motions30, strict=True)):
+        items = per_motion[mi]
+        p30 = blend_windows(m30.num_frames, [s for s, _ in items], [w for _, w in items])
+        p = to_input_rate(p30, motion)
+        out.append(
+            motion.with_body(
+                root_orient=p.root_orient.double().numpy(),
+                pose_body=p.pose_body.double().numpy(),
+                trans=p.trans.double().numpy(),
+            )
+        )
+    return out
+
+
+def denoise_motions(
+    motions: list[Motion],
+    denoiser: Denoiser,
+    body: BodyModel,
+    window: int = 60,
+    stride: int = 45,
+    optimize_steps: int = 0,
+    lr: float = 3e-4,
+    batch_size: int = 64,
+    seed: int = 0,
+    progress=None,
+) -> list[Motion]:
+    """Denoise whole motions (any length and rate) in one batch.
+
+    Regression mode (``optimize_steps=0``): one forward pass. Optimisation mode: first adapt
+    the inference networks to these very motions for ``optimize_steps`` ELBO steps (this
+    modifies ``denoiser``; pass a copy to keep the original), then predict.
+    """
+    motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
+    groups = make_windows(motions30, denoiser, body, window, stride)
+    if optimize_steps > 0:
+        from mdvae_cli.fit.fit_dataset import fit_denoiser
+
+        fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, progress)
+    preds = [predict_windows(denoiser, g) for g in groups]
+    return assemble(motions, motions30, groups, preds)

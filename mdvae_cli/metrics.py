@@ -1,0 +1,215 @@
+"""Evaluation metrics: V2V, MPJPE, joint acceleration, acceleration error.
+
+The metric functions are pure: they take torch tensors or numpy arrays (and return the same
+kind), in whatever length unit they are given, and return per-frame values; a metric over a
+clip is the mean of those. :func:`evaluate_pair` poses two motions with a body model and
+reduces everything to one :class:`EvalResult` in the units of the paper's tables (cm, m/s^2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.data import BodyModelData
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.errors import InputError
+from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, as_body_model, pose_motion_chunks
+from mdvae_cli.motion.motion import Motion
+
+Array = torch.Tensor | np.ndarray
+
+
+def _torch(x: Array) -> torch.Tensor:
+    return x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))
+
+
+def _like(result: torch.Tensor, reference: Array) -> Array:
+    return result if isinstance(reference, torch.Tensor) else result.numpy()
+
+
+def mean_point_error(pred: Array, gt: Array) -> Array:
+    """Mean Euclidean distance between corresponding points.  (..., N, 3), (..., N, 3) -> (...)"""
+    p, g = _torch(pred), _torch(gt)
+    return _like(torch.linalg.vector_norm(p - g, dim=-1).mean(dim=-1), pred)
+
+
+def mpjpe(pred_joints: Array, gt_joints: Array) -> Array:
+    """Mean per-joint position error, per frame.  (..., J, 3), (..., J, 3) -> (...)
+
+    In world coordinates (no alignment); the tool uses the 22 body joints.
+    """
+    return mean_point_error(pred_joints, gt_joints)
+
+
+def v2v(
+    pred_vertices: Array,
+    gt_vertices: Array,
+    pred_pelvis: Array | None = None,
+    gt_pelvis: Array | None = None,
+) -> Array:
+    """Mean vertex-to-vertex error, per frame.  (..., V, 3), (..., V, 3) -> (...)
+
+    With ``pred_pelvis`` and ``gt_pelvis`` ((..., 3) each), every mesh first has its own
+    pelvis joint subtracted (root-relative V2V, as in Motion-DVAE's tables); without them
+    the error is absolute.
+    """
+    if (pred_pelvis is None) != (gt_pelvis is None):
+        raise ValueError("give both pred_pelvis and gt_pelvis, or neither")
+    p, g = _torch(pred_vertices), _torch(gt_vertices)
+    if pred_pelvis is not None:
+        p = p - _torch(pred_pelvis).unsqueeze(-2)
+        g = g - _torch(gt_pelvis).unsqueeze(-2)
+    return _like(torch.linalg.vector_norm(p - g, dim=-1).mean(dim=-1), pred_vertices)
+
+
+def acceleration(positions: Array, fps: float) -> Array:
+    """Central second difference.  positions (..., T, J, 3) -> (..., T - 2, J, 3)
+
+    a[t] = (x[t-1] - 2 x[t] + x[t+1]) * fps^2, for the inner frames t = 1 .. T-2; in
+    (position unit)/s^2.
+    """
+    x = _torch(positions)
+    a = (x[..., :-2, :, :] - 2.0 * x[..., 1:-1, :, :] + x[..., 2:, :, :]) * (float(fps) ** 2)
+    return _like(a, positions)
+
+
+def joint_acceleration(joints: Array, fps: float) -> Array:
+    """Mean acceleration magnitude over joints, per inner frame.  (..., T, J, 3) -> (..., T - 2)"""
+    a = _torch(acceleration(_torch(joints), fps))
+    return _like(torch.linalg.vector_norm(a, dim=-1).mean(dim=-1), joints)
+
+
+def acceleration_error(pred_joints: Array, gt_joints: Array, fps: float) -> Array:
+    """Mean norm of the difference of accelerations, per inner frame.
+
+    (..., T, J, 3), (..., T, J, 3) -> (..., T - 2)
+    """
+    diff = _torch(pred_joints) - _torch(gt_joints)
+    return _like(_torch(joint_acceleration(diff, fps)), pred_joints)
+
+
+@dataclass
+class EvalResult:
+    """Metrics of one prediction against its ground truth (or a frame-weighted mean of many).
+
+    num_frames: frames compared; fps: their frame rate (None for a mean over mixed rates).
+    v2v_cm: root-relative vertex error, cm; v2v_abs_cm: absolute vertex error, cm;
+    mpjpe_cm: absolute error of the 22 body joints, cm;
+    accel_gt / accel_pred: mean joint acceleration magnitude, m/s^2;
+    accel_error: mean norm of the acceleration difference, m/s^2.
+    The acceleration fields are None for clips under 3 frames.
+    """
+
+    num_frames: int
+    fps: float | None
+    v2v_cm: float
+    v2v_abs_cm: float
+    mpjpe_cm: float
+    accel_gt: float | None
+    accel_pred: float | None
+    accel_error: float | None
+
+    @property
+    def accel_frames(self) -> int:
+        """Number of inner frames the accelerations average over (0 when undefined)."""
+        return 0 if self.accel_gt is None else max(self.num_frames - 2, 0)
+
+    def to_dict(self) -> dict[str, float | int | None]:
+        return asdict(self)
+
+
+def check_compatible(gt: Motion, pred: Motion) -> None:
+    """Raise InputError unless the two motions have the same frame rate and length."""
+    if abs(gt.fps - pred.fps) > 1e-6 * max(gt.fps, 1.0):
+        raise InputError(
+            f"frame rates differ: ground truth {gt.fps:g} fps, prediction {pred.fps:g} fps"
+        )
+    if gt.num_frames != pred.num_frames:
+        raise InputError(
+            f"lengths differ: ground truth {gt.num_frames} frames, "
+            f"prediction {pred.num_frames} frames"
+        )
+
+
+def evaluate_pair(
+    gt: Motion,
+    pred: Motion,
+    body: BodyModel | BodyModelData,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+) -> EvalResult:
+    """Compare ``pred`` with ``gt`` through ``body`` (both posed with the ground-truth betas).
+
+    Meshes are built ``chunk_frames`` at a time, so memory does not grow with clip length; the
+    (T, 22, 3) joint tracks are kept whole for the accelerations. Raises InputError when the
+    frame rates or lengths differ.
+    """
+    check_compatible(gt, pred)
+    model = as_body_model(body)
+    T = gt.num_frames
+    sums = {"v2v": 0.0, "v2v_abs": 0.0, "mpjpe": 0.0}
+    joints_gt = np.empty((T, 22, 3))
+    joints_pred = np.empty((T, 22, 3))
+    chunks = zip(
+        pose_motion_chunks(gt, model, chunk_frames, vertices=True, betas=gt.betas),
+        pose_motion_chunks(pred, model, chunk_frames, vertices=True, betas=gt.betas),
+        strict=True,
+    )
+    for (ids, out_gt), (_, out_pred) in chunks:
+        jg, jp = out_gt.joints.double(), out_pred.joints.double()
+        vg, vp = out_gt.vertices.double(), out_pred.vertices.double()
+        sums["v2v"] += float(v2v(vp, vg, jp[:, 0], jg[:, 0]).sum())
+        sums["v2v_abs"] += float(v2v(vp, vg).sum())
+        sums["mpjpe"] += float(mpjpe(jp, jg).sum())
+        joints_gt[ids] = jg.numpy()
+        joints_pred[ids] = jp.numpy()
+
+    accel_gt = accel_pred = accel_err = None
+    if T >= 3:
+        accel_gt = float(joint_acceleration(joints_gt, gt.fps).mean())
+        accel_pred = float(joint_acceleration(joints_pred, gt.fps).mean())
+        accel_err = float(acceleration_error(joints_pred, joints_gt, gt.fps).mean())
+    return EvalResult(
+        num_frames=T,
+        fps=float(gt.fps),
+        v2v_cm=100.0 * sums["v2v"] / T,
+        v2v_abs_cm=100.0 * sums["v2v_abs"] / T,
+        mpjpe_cm=100.0 * sums["mpjpe"] / T,
+        accel_gt=accel_gt,
+        accel_pred=accel_pred,
+        accel_error=accel_err,
+    )
+
+
+def mean_result(results: Sequence[EvalResult]) -> EvalResult:
+    """Frame-weighted mean: every frame of every clip counts once (inner frames for accelerations).
+
+    Equals pooling all frames of all clips, so a long clip weighs more than a short one.
+    """
+    if not results:
+        raise ValueError("mean_result needs at least one result")
+    n = sum(r.num_frames for r in results)
+    n_acc = sum(r.accel_frames for r in results)
+    rates = {r.fps for r in results}
+
+    def frames_mean(name: str) -> float:
+        return sum(getattr(r, name) * r.num_frames for r in results) / n
+
+    def accel_mean(name: str) -> float | None:
+        if n_acc == 0:
+            return None
+        return sum(getattr(r, name) * r.accel_frames for r in results if r.accel_frames) / n_acc
+
+    return EvalResult(
+        num_frames=n,
+        fps=rates.pop() if len(rates) == 1 else None,
+        v2v_cm=frames_mean("v2v_cm"),
+        v2v_abs_cm=frames_mean("v2v_abs_cm"),
+        mpjpe_cm=frames_mean("mpjpe_cm"),
+        accel_gt=accel_mean("accel_gt"),
+        accel_pred=accel_mean("accel_pred"),
+        accel_error=accel_mean("accel_error"),
+    )

@@ -1,0 +1,183 @@
+"""Unsupervised learned denoising (paper Sec. 4): inference networks and the ELBO of Eq. 12-15.
+
+Observations of a window (B windows, T + 1 frames incl. frame 0):
+  yn  (B, T+1, 138)  the noisy states, normalised with the prior's normaliser (canonical frame)
+  y3d (B, T+1, 65, 3) the 22 joints + 43 virtual markers of M_beta(noisy parameters), metres
+Generative model: x_t = decoder(x0, z_{1:t}) as in the prior (frozen), y3d_t ~ N(M(x_t), v_t)
+with v_t,j,d ~ IG(lam/2, lam/2) in units of ``obs_unit`` metres (heavy-tailed Student-t for small
+lam, nearly Gaussian with unit variance for large lam).
+Inference networks (trained): encoder q_phi (initialised from the prior's), x0_predictor
+q_omega(x0 | y_{0:T}) (Gaussian), noise_predictor q_gamma(v_t | z_{1:t}, y_t, x0) (Inverse-Gamma).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import asdict, dataclass, fields
+
+import torch
+from torch import nn
+
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
+from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
+from mdvae_cli.model.prior_model import PriorModel
+from mdvae_cli.motion.state import state_to_params
+
+
+@dataclass
+class DenoiserConfig:
+    """Noise model and inference-network sizes.
+
+    lam: Inverse-Gamma prior IG(lam/2, lam/2) on the observation variances.
+    obs_unit: metres per observation unit (the scale at which v ~ 1 under the prior).
+    hidden_dim: width of the x0 and noise predictors.
+    """
+
+    lam: float = 1000.0
+    obs_unit: float = 0.05
+    hidden_dim: int = 128
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> DenoiserConfig:
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+class X0Predictor(nn.Module):
+    """q_omega(x0 | y_{0:T}) = N(mu, sigma): bidirectional GRU read at frame 0, residual on y_0."""
+
+    def __init__(self, state_dim: int, hidden: int):
+        super().__init__()
+        self.rnn = nn.GRU(state_dim, hidden, batch_first=True, bidirectional=True)
+        self.head = mlp(2 * hidden + state_dim, hidden, 2 * state_dim)
+        nn.init.zeros_(self.head[-1].weight)
+        nn.init.zeros_(self.head[-1].bias)
+
+    def forward(self, yn: torch.Tensor) -> Gaussian:
+        """yn: (B, T+1, D) -> Gaussian over normalised x0, (B, D)"""
+        out, _ = self.rnn(yn)
+        delta, logvar = self.head(torch.cat([out[:, 0], yn[:, 0]], dim=-1)).chunk(2, dim=-1)
+        return Gaussian(yn[:, 0] + delta, (logvar - 4.0).clamp(-12.0, 4.0))
+
+
+class NoisePredictor(nn.Module):
+    """q_gamma(v_t | z_{1:t}, y_t, x0) = IG(alpha, beta) per observation coordinate.
+
+    It reads the decoder state h_t (a summary of x0 and z_{1:t}) and the observation y_t.
+    """
+
+    def __init__(self, hidden_dim: int, state_dim: int, obs_dim: int, width: int):
+        super().__init__()
+        self.head = mlp(hidden_dim + state_dim, width, 2 * obs_dim)
+        nn.init.zeros_(self.head[-1].weight)
+        nn.init.zeros_(self.head[-1].bias)
+
+    def forward(self, h: torch.Tensor, yn: torch.Tensor, lam: float):
+        """h: (B, T+1, H), yn: (B, T+1, D) -> alpha, beta (B, T+1, obs_dim), both > 0.
+
+        At zero output it returns the prior IG(lam/2, lam/2).
+        """
+        a, b = self.head(torch.cat([h, yn], dim=-1)).chunk(2, dim=-1)
+        alpha = 1.0 + (lam / 2 - 1.0) * torch.exp(a.clamp(-8.0, 8.0))
+        beta = (lam / 2) * torch.exp(b.clamp(-12.0, 12.0))
+        return alpha, beta
+
+
+class Denoiser(nn.Module):
+    """The frozen prior (prior + decoder) with the trainable inference networks."""
+
+    def __init__(self, prior: PriorModel, cfg: DenoiserConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.prior = prior
+        for p in self.prior.parameters():
+            p.requires_grad_(False)
+        mc = prior.cfg
+        self.encoder: Encoder = copy.deepcopy(prior.dvae.encoder)
+        for p in self.encoder.parameters():
+            p.requires_grad_(True)
+        self.x0_predictor = X0Predictor(mc.state_dim, cfg.hidden_dim)
+        self.noise_predictor = NoisePredictor(
+            mc.hidden_dim, mc.state_dim, mc.obs_dim, cfg.hidden_dim
+        )
+
+    def trainable_parameters(self) -> list[nn.Parameter]:
+        """phi, gamma, omega: encoder, noise predictor, x0 predictor."""
+        mods = (self.encoder, self.x0_predictor, self.noise_predictor)
+        return [p for m in mods for p in m.parameters()]
+
+    def train(self, mode: bool = True) -> Denoiser:
+        super().train(mode)
+        self.prior.eval()  # the generative model stays fixed
+        return self
+
+    def infer(self, yn: torch.Tensor, sample: bool = False, generator=None):
+        """Posterior means (or samples) of x0 and z, and the decoded states.
+
+        yn: (B, T+1, D) -> dict with x_hat (B, T+1, D) in state units, x_hat_n normalised,
+        x0 posterior, z posterior, prior over z, decoder states h (B, T+1, H)
+        """
+        dvae = self.prior.dvae
+        q_x0 = self.x0_predictor(yn)
+        x0n = q_x0.sample(generator) if sample else q_x0.mean
+        z, q_z = self.encoder(yn[:, 1:], x0n, sample=sample, generator=generator)
+        p_z = dvae.prior(z, x0n)
+        x_mean, h = dvae.decoder(z, x0n)
+        h0 = dvae.decoder.init(x0n)[:, None]
+        x_hat_n = torch.cat([x0n[:, None], x_mean], dim=1)
+        return {
+            "x_hat_n": x_hat_n,
+            "x_hat": self.prior.normalizer.denormalize(x_hat_n),
+            "q_x0": q_x0,
+            "q_z": q_z,
+            "p_z": p_z,
+            "h": torch.cat([h0, h], dim=1),
+        }
+
+    def elbo(
+        self,
+        yn: torch.Tensor,
+        y3d: torch.Tensor,
+        betas: torch.Tensor,
+        body: BodyModel,
+        obs_weight: torch.Tensor | None = None,
+        generator=None,
+    ) -> dict[str, torch.Tensor]:
+        """Negative ELBO per frame (Eq. 12-15) with one Monte-Carlo sample of x0 and z.
+
+        yn: (B, T+1, D); y3d: (B, T+1, 65, 3) metres; betas: (B, S);
+        obs_weight: (B, T+1, 65) 1 for observed points, 0 for missing (or None).
+        """
+        out = self.infer(yn, sample=True, generator=generator)
+        B, T1 = yn.shape[:2]
+        pred = observe(body, out["x_hat"], betas)
+        sq = ((y3d - pred) / self.cfg.obs_unit) ** 2  # (B, T+1, 65, 3)
+        alpha, beta = self.noise_predictor(out["h"], yn, self.cfg.lam)
+        inv_v, log_v = inverse_gamma_expectations(alpha, beta)
+        inv_v, log_v = inv_v.reshape(sq.shape), log_v.reshape(sq.shape)
+        rec = 0.5 * (inv_v * sq + log_v)
+        if obs_weight is not None:
+            rec = rec * obs_weight[..., None]
+        kl_z = gaussian_kl(out["q_z"].mean, out["q_z"].logvar, out["p_z"].mean, out["p_z"].logvar)
+        kl_v = inverse_gamma_kl(alpha, beta, self.cfg.lam / 2, self.cfg.lam / 2)
+        n = B * T1
+        terms = {
+            "rec": rec.sum() / n,
+            "kl_z": kl_z.sum() / n,
+            "kl_noise": kl_v.sum() / n,
+            "err_cm": ((y3d - pred).norm(dim=-1).mean() * 100).detach(),
+        }
+        terms["loss"] = terms["rec"] + terms["kl_z"] + terms["kl_noise"]
+        return terms
+
+
+def observe(body: BodyModel, x: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
+    """y3d = [joints, markers] of states.  x: (B, T, 138), betas: (B, S) -> (B, T, 65, 3)"""
+    B, T = x.shape[:2]
+    p = state_to_params(x.reshape(B * T, -1))
+    out = body(p.root_orient, p.pose_body, p.trans, betas.repeat_interleave(T, 0))
+    return torch.cat([out.joints, out.markers], dim=1).reshape(B, T, -1, 3)

@@ -1,0 +1,168 @@
+"""Motion-DVAE (paper Sec. 3.2): prior, decoder and encoder networks.
+
+All tensors here live in the *normalised canonical* state space (see ``Normalizer``):
+x0: (B, D) initial state, x: (B, T, D) states x_1..x_T, z: (B, T, L) latents.
+
+* prior    p(z_t | z_{1:t-1}, x0) = N(mu, sigma): forward GRU over past latents, h_0 = f(x0).
+* decoder  p(x_t | z_{1:t}, x0) = N(mu_x, I): forward GRU over latents, h_0 = g(x0); it never
+  sees past x (cheap sampling, no posterior collapse).
+* encoder  q(z_t | z_{1:t-1}, x_{t:T}, x0): backward GRU over x_{t:T} combined with a forward
+  GRU over the sampled z_{1:t-1}, h_0 = e(x0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from mdvae_cli.model.config import ModelConfig
+
+
+def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(d_in, d_hidden), nn.SiLU(), nn.Linear(d_hidden, d_out))
+
+
+@dataclass
+class Gaussian:
+    """Diagonal Gaussian.  mean, logvar: (..., L)"""
+
+    mean: torch.Tensor
+    logvar: torch.Tensor
+
+    def sample(self, generator: torch.Generator | None = None) -> torch.Tensor:
+        eps = torch.randn(
+            self.mean.shape, generator=generator, dtype=self.mean.dtype, device=self.mean.device
+        )
+        return self.mean + torch.exp(0.5 * self.logvar) * eps
+
+
+class Prior(nn.Module):
+    """p(z_t | z_{1:t-1}, x0)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.init = nn.Sequential(nn.Linear(cfg.state_dim, cfg.hidden_dim), nn.Tanh())
+        self.rnn = nn.GRU(cfg.latent_dim, cfg.hidden_dim, batch_first=True)
+        self.head = mlp(cfg.hidden_dim, cfg.mlp_dim, 2 * cfg.latent_dim)
+
+    def forward(self, z: torch.Tensor, x0: torch.Tensor) -> Gaussian:
+        """All T prior distributions given latents (teacher forcing).
+
+        z: (B, T, L) -> Gaussian with (B, T, L) parameters; step t sees z_{1:t-1}.
+        """
+        z_past = torch.cat([torch.zeros_like(z[:, :1]), z[:, :-1]], dim=1)
+        h, _ = self.rnn(z_past, self.init(x0)[None])
+        mean, logvar = self.head(h).chunk(2, dim=-1)
+        return Gaussian(mean, logvar.clamp(-12.0, 6.0))
+
+    def step(self, z_prev: torch.Tensor, h: torch.Tensor) -> tuple[Gaussian, torch.Tensor]:
+        """One step for sampling.  z_prev: (B, L), h: (1, B, H)"""
+        out, h = self.rnn(z_prev[:, None], h)
+        mean, logvar = self.head(out[:, 0]).chunk(2, dim=-1)
+        return Gaussian(mean, logvar.clamp(-12.0, 6.0)), h
+
+
+class Decoder(nn.Module):
+    """mu_theta_x(z_{1:t}, x0): the mean of p(x_t | z_{1:t}, x0)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.init = nn.Sequential(nn.Linear(cfg.state_dim, cfg.hidden_dim), nn.Tanh())
+        self.rnn = nn.GRU(cfg.latent_dim, cfg.hidden_dim, batch_first=True)
+        self.head = mlp(cfg.hidden_dim, cfg.mlp_dim, cfg.state_dim)
+
+    def forward(self, z: torch.Tensor, x0: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """z: (B, T, L), x0: (B, D) -> mean states (B, T, D) and hidden states (B, T, H).
+
+        The mean is a residual on x0, so an untrained decoder already stays near the start.
+        """
+        h, _ = self.rnn(z, self.init(x0)[None])
+        return x0[:, None] + self.head(h), h
+
+
+class Encoder(nn.Module):
+    """q_phi(z_t | z_{1:t-1}, x_{t:T}, x0)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        H = cfg.hidden_dim
+        self.backward_rnn = nn.GRU(cfg.state_dim, H, batch_first=True)
+        self.backward_init = nn.Sequential(nn.Linear(cfg.state_dim, H), nn.Tanh())
+        self.init = nn.Sequential(nn.Linear(cfg.state_dim, H), nn.Tanh())
+        self.cell = nn.GRUCell(cfg.latent_dim, H)
+        self.head = mlp(2 * H, cfg.mlp_dim, 2 * cfg.latent_dim)
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        x0: torch.Tensor,
+        sample: bool = True,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, Gaussian]:
+        """Sample (or take the mean of) z_1..z_T sequentially.
+
+        x: (B, T, D), x0: (B, D) -> z (B, T, L) and the posteriors (B, T, L).
+        """
+        g, _ = self.backward_rnn(x.flip(1), self.backward_init(x0)[None])
+        g = g.flip(1)  # g_t summarises x_{t:T}
+        h = self.init(x0)
+        z_prev = x.new_zeros(x.shape[0], self.cell.input_size)
+        zs, means, logvars = [], [], []
+        for t in range(x.shape[1]):
+            h = self.cell(z_prev, h)
+            mean, logvar = self.head(torch.cat([g[:, t], h], dim=-1)).chunk(2, dim=-1)
+            logvar = logvar.clamp(-12.0, 6.0)
+            if sample:
+                eps = torch.randn(
+                    mean.shape, generator=generator, dtype=mean.dtype, device=mean.device
+                )
+                z_prev = mean + torch.exp(0.5 * logvar) * eps
+            else:
+                z_prev = mean
+            zs.append(z_prev)
+            means.append(mean)
+            logvars.append(logvar)
+        stack = lambda v: torch.stack(v, dim=1)  # noqa: E731
+        return stack(zs), Gaussian(stack(means), stack(logvars))
+
+
+class MotionDVAE(nn.Module):
+    """The generative model (prior + decoder) and its inference network (encoder)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.prior = Prior(cfg)
+        self.decoder = Decoder(cfg)
+        self.encoder = Encoder(cfg)
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        x0: torch.Tensor,
+        sample: bool = True,
+        generator: torch.Generator | None = None,
+    ):
+        """Encode then decode.  x: (B, T, D), x0: (B, D) ->
+        (x_mean (B, T, D), z (B, T, L), posterior, prior)."""
+        z, posterior = self.encoder(x, x0, sample=sample, generator=generator)
+        prior = self.prior(z, x0)
+        x_mean, _ = self.decoder(z, x0)
+        return x_mean, z, posterior, prior
+
+    @torch.no_grad()
+    def sample(
+        self, x0: torch.Tensor, num_frames: int, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """Generate x_1..x_T from the prior alone.  x0: (B, D) -> (B, T, D) decoder means."""
+        h = self.prior.init(x0)[None]
+        z_prev = x0.new_zeros(x0.shape[0], self.cfg.latent_dim)
+        zs = []
+        for _ in range(num_frames):
+            dist, h = self.prior.step(z_prev, h)
+            z_prev = dist.sample(generator)
+            zs.append(z_prev)
+        x_mean, _ = self.decoder(torch.stack(zs, dim=1), x0)
+        return x_mean

@@ -1,0 +1,52 @@
+"""The unit a prior checkpoint stores: Motion-DVAE + state normaliser + its config."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.fit.checkpoint import load_checkpoint
+from mdvae_cli.model.config import ModelConfig
+from mdvae_cli.model.dvae import MotionDVAE
+from mdvae_cli.model.normalizer import Normalizer
+
+
+class PriorModel(nn.Module):
+    """Motion-DVAE networks plus the normaliser of the states they were trained on."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.dvae = MotionDVAE(cfg)
+        self.normalizer = Normalizer(cfg.state_dim)
+
+    @torch.no_grad()
+    def sample(self, x0: torch.Tensor, num_frames: int, generator=None) -> torch.Tensor:
+        """Prior samples in state units.  x0: (B, D) canonical state -> (B, T, D)"""
+        x0n = self.normalizer.normalize(x0)
+        return self.normalizer.denormalize(self.dvae.sample(x0n, num_frames, generator))
+
+
+def model_tensors(model: nn.Module, prefix: str = "model/") -> dict[str, torch.Tensor]:
+    return {prefix + k: v for k, v in model.state_dict().items()}
+
+
+def load_prior(path: Path | str) -> tuple[PriorModel, dict]:
+    """Load a prior from a checkpoint file (``*.npz`` + ``*.json``) or a training run folder
+    (its ``best.npz``). Returns the model in eval mode and the checkpoint metadata."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "best.npz"
+    tensors, meta = load_checkpoint(path)
+    if "model_config" not in meta:
+        raise InputError(f"{path} is not a Motion-DVAE prior checkpoint (no model_config)")
+    model = PriorModel(ModelConfig.from_dict(meta["model_config"]))
+    state = {k[len("model/") :]: v for k, v in tensors.items() if k.startswith("model/")}
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise InputError(f"{path}: weights do not match its config ({exc})") from None
+    return model.eval(), meta

@@ -1,0 +1,219 @@
+"""Motion-DVAE prior: loss terms, a tiny training run, checkpoints, resume, sampling, DDP."""
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from mdvae_cli.cli.main import cli
+from mdvae_cli.fit.train_prior import TrainConfig, train_prior
+from mdvae_cli.model.config import ModelConfig
+from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
+from mdvae_cli.model.prior_model import PriorModel, load_prior
+from tests.conftest import motion_arrays
+
+TINY = ModelConfig(latent_dim=8, hidden_dim=32, mlp_dim=32)
+
+
+def write_corpus(folder: Path, n: int = 4, T: int = 90) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        arrays = motion_arrays(T=T, width=156, fps=30.0, seed=i)
+        arrays["poses"][:, 0] = np.pi / 2  # upright in z-up
+        with open(folder / f"clip{i}.npz", "wb") as fh:
+            np.savez(fh, **arrays)
+    return folder
+
+
+def tiny_config(data: Path, **kw) -> TrainConfig:
+    base = dict(
+        data=[str(data)],
+        window=20,
+        stride=5,
+        batch_size=8,
+        epochs=2,
+        lr=3e-3,
+        kl_warmup_steps=10,
+        body_vertices=32,
+        model=TINY,
+        device="cpu",
+    )
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_gaussian_kl_matches_monte_carlo():
+    g = torch.Generator().manual_seed(0)
+    mq, lq, mp, lp = (torch.randn(4, generator=g, dtype=torch.float64) * 0.5 for _ in range(4))
+    samples = mq + torch.exp(0.5 * lq) * torch.randn(200000, 4, generator=g, dtype=torch.float64)
+    log_q = -0.5 * (lq + (samples - mq) ** 2 / torch.exp(lq))
+    log_p = -0.5 * (lp + (samples - mp) ** 2 / torch.exp(lp))
+    mc = (log_q - log_p).mean(0).sum()
+    assert abs(float(gaussian_kl(mq, lq, mp, lp)) - float(mc)) < 0.02
+    assert float(gaussian_kl(mq, lq, mq, lq)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_inverse_gamma_expectations_and_kl_match_monte_carlo():
+    alpha, beta = torch.tensor(3.5, dtype=torch.float64), torch.tensor(2.0, dtype=torch.float64)
+    gamma = torch.distributions.Gamma(alpha, beta)  # 1/v ~ Gamma(alpha, rate beta)
+    inv_v = gamma.sample((400000,))
+    e_inv, e_log = inverse_gamma_expectations(alpha, beta)
+    assert float(e_inv) == pytest.approx(float(inv_v.mean()), rel=5e-3)
+    assert float(e_log) == pytest.approx(float((-torch.log(inv_v)).mean()), abs=5e-3)
+    prior = torch.distributions.Gamma(
+        torch.tensor(5.0, dtype=torch.float64), torch.tensor(5.0, dtype=torch.float64)
+    )
+    mc = (gamma.log_prob(inv_v) - prior.log_prob(inv_v)).mean()
+    assert float(inverse_gamma_kl(alpha, beta, 5.0, 5.0)) == pytest.approx(float(mc), abs=0.01)
+    assert float(inverse_gamma_kl(alpha, beta, 3.5, 2.0)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_networks_shapes_and_causality():
+    torch.manual_seed(0)
+    model = PriorModel(TINY)
+    x, x0 = torch.randn(3, 12, 138), torch.randn(3, 138)
+    x_mean, z, post, prior = model.dvae(x, x0)
+    assert x_mean.shape == (3, 12, 138) and z.shape == (3, 12, 8)
+    assert post.mean.shape == prior.mean.shape == (3, 12, 8)
+    # the decoder is causal in z: changing z_8 leaves x_1..x_7 unchanged
+    z2 = z.clone()
+    z2[:, 7] += 1.0
+    a, _ = model.dvae.decoder(z, x0)
+    b, _ = model.dvae.decoder(z2, x0)
+    torch.testing.assert_close(a[:, :7], b[:, :7])
+    assert (a[:, 7:] - b[:, 7:]).abs().max() > 1e-4
+    # the prior at step t only sees z_1..z_{t-1}
+    pa, pb = model.dvae.prior(z, x0), model.dvae.prior(z2, x0)
+    torch.testing.assert_close(pa.mean[:, :8], pb.mean[:, :8])
+    samples = model.sample(torch.randn(2, 138), 15, generator=torch.Generator().manual_seed(1))
+    assert samples.shape == (2, 15, 138) and torch.isfinite(samples).all()
+
+
+def test_tiny_training_lowers_loss_and_resumes(tmp_path):
+    data = write_corpus(tmp_path / "data")
+    log = []
+    run = tmp_path / "run"
+    summary = train_prior(
+        tiny_config(data, epochs=5, kl_warmup_steps=0, lr=1e-2), run, progress=lambda d: log.append(d)
+    )
+    losses = [d["loss"] for d in log if "loss" in d]
+    assert len(losses) == summary.steps > 10
+    first, last = np.mean(losses[:3]), np.mean(losses[-3:])
+    assert last < 0.7 * first, (first, last)
+    for name in ("config.json", "best.npz", "best.json", "last.npz", "last.json", "log.jsonl"):
+        assert (run / name).exists()
+    model, meta = load_prior(run)
+    assert meta["model_config"]["latent_dim"] == 8
+    assert torch.isfinite(model.normalizer.std).all()
+    # resume: two more epochs continue from the saved step count
+    cfg = json.loads((run / "config.json").read_text())
+    cfg["epochs"] = 7
+    (run / "config.json").write_text(json.dumps(cfg))
+    resumed = train_prior(TrainConfig.from_dict(cfg), run, resume=True)
+    assert resumed.steps == summary.steps + 2 * (summary.steps // 5)
+    assert len((run / "log.jsonl").read_text().splitlines()) == 7
+
+
+def test_checkpoints_hold_no_pickles(tmp_path):
+    data = write_corpus(tmp_path / "data", n=2, T=40)
+    train_prior(tiny_config(data, epochs=1), tmp_path / "run", max_steps=2)
+    with np.load(tmp_path / "run" / "last.npz", allow_pickle=False) as z:
+        assert all(z[k].dtype != object for k in z.files)
+
+
+def test_cli_train_prior_and_sample(tmp_path):
+    data = write_corpus(tmp_path / "data", n=3, T=60)
+    runner = CliRunner()
+    res = runner.invoke(
+        cli,
+        [
+            "train-prior",
+            str(data),
+            "-o",
+            str(tmp_path / "run"),
+            "--window",
+            "20",
+            "--batch-size",
+            "8",
+            "--epochs",
+            "1",
+            "--latent-dim",
+            "8",
+            "--hidden-dim",
+            "32",
+            "--device",
+            "cpu",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(
+        cli,
+        [
+            "sample",
+            "--from",
+            str(data / "clip0.npz"),
+            "--frames",
+            "45",
+            "--prior",
+            str(tmp_path / "run"),
+            "-o",
+            str(tmp_path / "s.npz"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    with np.load(tmp_path / "s.npz") as z:
+        assert z["poses"].shape == (45, 156) and np.isfinite(z["poses"]).all()
+        assert float(z["mocap_framerate"]) == 30.0
+    res = runner.invoke(cli, ["train-prior", str(tmp_path / "nothing"), "-o", str(tmp_path / "r2")])
+    assert res.exit_code == 1 and "error:" in res.output and "Traceback" not in res.output
+
+
+def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
+    data = write_corpus(tmp_path / "data", n=4, T=60)
+    run = tmp_path / "run"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node",
+        "2",
+        "-m",
+        "mdvae_cli.cli.main",
+        "train-prior",
+        str(data),
+        "-o",
+        str(run),
+        "--window",
+        "20",
+        "--stride",
+        "5",
+        "--batch-size",
+        "4",
+        "--epochs",
+        "3",
+        "--latent-dim",
+        "8",
+        "--hidden-dim",
+        "32",
+        "--device",
+        "cpu",
+        "--max-steps",
+        "4",
+        "--threads",
+        "1",
+    ]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((run / "summary.json").read_text())
+    digests = summary["rank_digests"]
+    assert len(digests) == 2 and digests[0] == digests[1]
+    assert summary["steps"] == 4 and not math.isnan(summary["best_val_loss"])
