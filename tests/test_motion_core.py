@@ -33,10 +33,15 @@ def test_npz_round_trip_keeps_layout_and_extras(tmp_path, width):
     T = 12
     poses = rng.normal(0, 0.3, (T, width)).astype(np.float32)
     src = write_npz(
-        tmp_path / "in.npz", poses=poses, trans=rng.normal(size=(T, 3)), betas=np.arange(16.0),
-        gender=np.array(b"female"), mocap_frame_rate=np.array(60.0), dmpls=np.ones((T, 8)),
+        tmp_path / "in.npz",
+        poses=poses,
+        trans=rng.normal(size=(T, 3)),
+        betas=np.arange(16.0),
+        gender=np.array(b"female"),
+        mocap_frame_rate=np.array(60.0),
+        dmpls=np.ones((T, 8)),
         surface_model_type=np.array("smplh"),
-    )  # fmt: skip
+    )
     m = load_motion(src)
     assert m.num_frames == T and m.fps == 60.0 and m.gender == "female"
     assert m.pose_body.shape == (T, 21, 3) and m.pose_extra.shape == (T, width - 66)
@@ -44,8 +49,15 @@ def test_npz_round_trip_keeps_layout_and_extras(tmp_path, width):
     out = tmp_path / "out.npz"
     save_motion(m, out)
     with np.load(out) as z:
-        assert set(z.files) == {"poses", "trans", "betas", "gender", "mocap_frame_rate", "dmpls",
-                                "surface_model_type"}  # fmt: skip
+        assert set(z.files) == {
+            "poses",
+            "trans",
+            "betas",
+            "gender",
+            "mocap_frame_rate",
+            "dmpls",
+            "surface_model_type",
+        }
         assert z["poses"].dtype == np.float32 and z["poses"].shape == (T, width)
         assert z["gender"].item() == b"female"
         np.testing.assert_array_equal(z["dmpls"], np.ones((T, 8)))
@@ -92,8 +104,12 @@ def test_not_npz_truncated_and_missing(tmp_path):
 
 
 def test_pickled_arrays_need_allow_pickle(tmp_path):
-    f = write_npz(tmp_path / "p.npz", poses=np.zeros((3, 66)), mocap_framerate=30.0,
-                  meta=np.array([{"a": 1}], dtype=object))  # fmt: skip
+    f = write_npz(
+        tmp_path / "p.npz",
+        poses=np.zeros((3, 66)),
+        mocap_framerate=30.0,
+        meta=np.array([{"a": 1}], dtype=object),
+    )
     with pytest.raises(InputError, match="allow-pickle"):
         load_motion(f)
     assert load_motion(f, allow_pickle=True).num_frames == 3
@@ -104,8 +120,13 @@ def test_resample_constant_speed_rotation_and_translation():
     t = np.arange(T) / fps
     pose_body = np.zeros((T, 21, 3))
     pose_body[:, 3, 2] = 1.5 * t  # 1.5 rad/s about z
-    m = Motion(root_orient=np.zeros((T, 3)), pose_body=pose_body,
-               trans=np.stack([2.0 * t, 0 * t, 0 * t], 1), betas=np.zeros(10), fps=fps)  # fmt: skip
+    m = Motion(
+        root_orient=np.zeros((T, 3)),
+        pose_body=pose_body,
+        trans=np.stack([2.0 * t, 0 * t, 0 * t], 1),
+        betas=np.zeros(10),
+        fps=fps,
+    )
     r = resample_motion(m, 30.0)
     assert r.num_frames == 31 and r.fps == 30.0
     t30 = np.arange(31) / 30.0
@@ -118,20 +139,28 @@ def test_resample_constant_speed_rotation_and_translation():
 def test_state_round_trip_and_velocities():
     T, fps = 20, 30.0
     g = torch.Generator().manual_seed(0)
-    p = BodyParams(torch.randn(T, 3, generator=g, dtype=torch.float64),
-                   torch.randn(T, 21, 3, generator=g, dtype=torch.float64),
-                   torch.randn(T, 3, generator=g, dtype=torch.float64))  # fmt: skip
+    p = BodyParams(
+        torch.randn(T, 3, generator=g, dtype=torch.float64),
+        torch.randn(T, 21, 3, generator=g, dtype=torch.float64),
+        torch.randn(T, 3, generator=g, dtype=torch.float64),
+    )
     x = params_to_state(p, fps)
     assert x.shape == (T, STATE_DIM)
     back = state_to_params(x)
-    for a, b in ((p.root_orient, back.root_orient), (p.pose_body, back.pose_body),
-                 (p.trans, back.trans)):  # fmt: skip
+    for a, b in (
+        (p.root_orient, back.root_orient),
+        (p.pose_body, back.pose_body),
+        (p.trans, back.trans),
+    ):
         torch.testing.assert_close(a, b)
     torch.testing.assert_close(x[3, TRANS_VEL], (p.trans[3] - p.trans[2]) * fps)
     torch.testing.assert_close(x[0, POSE_VEL], x[1, POSE_VEL])  # forward difference at t=0
     # linear motion: constant velocity
-    lin = BodyParams(p.root_orient * 0, p.pose_body * 0,
-                     torch.arange(T, dtype=torch.float64)[:, None] * torch.tensor([0.1, 0, 0]))  # fmt: skip
+    lin = BodyParams(
+        p.root_orient * 0,
+        p.pose_body * 0,
+        torch.arange(T, dtype=torch.float64)[:, None] * torch.tensor([0.1, 0, 0]),
+    )
     v = params_to_state(lin, fps)[:, TRANS_VEL]
     torch.testing.assert_close(v, torch.tensor([3.0, 0, 0], dtype=torch.float64).expand(T, 3))
 
@@ -140,15 +169,20 @@ def test_canonicalize_round_trip_and_canonical_pose():
     B, T = 3, 10
     g = torch.Generator().manual_seed(1)
     root = torch.randn(B, T, 3, generator=g, dtype=torch.float64)
-    p = BodyParams(root, 0.3 * torch.randn(B, T, 21, 3, generator=g, dtype=torch.float64),
-                   torch.randn(B, T, 3, generator=g, dtype=torch.float64))  # fmt: skip
+    p = BodyParams(
+        root,
+        0.3 * torch.randn(B, T, 21, 3, generator=g, dtype=torch.float64),
+        torch.randn(B, T, 3, generator=g, dtype=torch.float64),
+    )
     pelvis = torch.randn(B, 3, generator=g, dtype=torch.float64) * 0.2
     canon, frame = canonicalize(p, pelvis)
-    torch.testing.assert_close(heading(canon.root_orient[:, 0]), torch.zeros(B, dtype=torch.float64),
-                               atol=1e-9, rtol=0)  # fmt: skip
+    torch.testing.assert_close(
+        heading(canon.root_orient[:, 0]), torch.zeros(B, dtype=torch.float64), atol=1e-9, rtol=0
+    )
     world_pelvis0 = canon.trans[:, 0] + pelvis
-    torch.testing.assert_close(world_pelvis0[:, :2], torch.zeros(B, 2, dtype=torch.float64),
-                               atol=1e-9, rtol=0)  # fmt: skip
+    torch.testing.assert_close(
+        world_pelvis0[:, :2], torch.zeros(B, 2, dtype=torch.float64), atol=1e-9, rtol=0
+    )
     # height kept
     torch.testing.assert_close(world_pelvis0[:, 2], (p.trans[:, 0] + pelvis)[:, 2])
     back = uncanonicalize(canon, frame, pelvis)

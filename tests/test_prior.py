@@ -101,7 +101,9 @@ def test_tiny_training_lowers_loss_and_resumes(tmp_path):
     log = []
     run = tmp_path / "run"
     summary = train_prior(
-        tiny_config(data, epochs=5, kl_warmup_steps=0, lr=1e-2), run, progress=lambda d: log.append(d)
+        tiny_config(data, epochs=5, kl_warmup_steps=0, lr=1e-2),
+        run,
+        progress=lambda d: log.append(d),
     )
     losses = [d["loss"] for d in log if "loss" in d]
     assert len(losses) == summary.steps > 10

@@ -33,8 +33,12 @@ def test_known_rotation_90_about_z(dtype):
     s = math.sqrt(0.5)
     torch.testing.assert_close(q, torch.tensor([s, 0, 0, s], dtype=dtype), atol=tol(dtype), rtol=0)
     # x axis maps to y axis
-    torch.testing.assert_close(m @ torch.tensor([1.0, 0, 0], dtype=dtype),
-                               torch.tensor([0.0, 1, 0], dtype=dtype), atol=tol(dtype), rtol=0)  # fmt: skip
+    torch.testing.assert_close(
+        m @ torch.tensor([1.0, 0, 0], dtype=dtype),
+        torch.tensor([0.0, 1, 0], dtype=dtype),
+        atol=tol(dtype),
+        rtol=0,
+    )
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -44,19 +48,24 @@ def test_round_trips(dtype, shape):
     m = R.rotvec_to_rotmat(r)
     assert m.shape == (*shape[:-1], 3, 3)
     torch.testing.assert_close(R.rotmat_to_rotvec(m), r, atol=100 * tol(dtype), rtol=0)
-    torch.testing.assert_close(R.quat_to_rotvec(R.rotvec_to_quat(r)), r, atol=10 * tol(dtype),
-                               rtol=0)  # fmt: skip
-    torch.testing.assert_close(R.quat_to_rotmat(R.rotmat_to_quat(m)), m, atol=10 * tol(dtype),
-                               rtol=0)  # fmt: skip
-    torch.testing.assert_close(R.rot6d_to_rotmat(R.rotmat_to_rot6d(m)), m, atol=10 * tol(dtype),
-                               rtol=0)  # fmt: skip
-    torch.testing.assert_close(R.rot6d_to_rotvec(R.rotvec_to_rot6d(r)), r, atol=100 * tol(dtype),
-                               rtol=0)  # fmt: skip
+    torch.testing.assert_close(
+        R.quat_to_rotvec(R.rotvec_to_quat(r)), r, atol=10 * tol(dtype), rtol=0
+    )
+    torch.testing.assert_close(
+        R.quat_to_rotmat(R.rotmat_to_quat(m)), m, atol=10 * tol(dtype), rtol=0
+    )
+    torch.testing.assert_close(
+        R.rot6d_to_rotmat(R.rotmat_to_rot6d(m)), m, atol=10 * tol(dtype), rtol=0
+    )
+    torch.testing.assert_close(
+        R.rot6d_to_rotvec(R.rotvec_to_rot6d(r)), r, atol=100 * tol(dtype), rtol=0
+    )
     # orthonormal with det +1
     eye = torch.eye(3, dtype=dtype).expand(m.shape)
     torch.testing.assert_close(m @ m.transpose(-1, -2), eye, atol=10 * tol(dtype), rtol=0)
-    torch.testing.assert_close(torch.linalg.det(m), torch.ones(shape[:-1], dtype=dtype),
-                               atol=10 * tol(dtype), rtol=0)  # fmt: skip
+    torch.testing.assert_close(
+        torch.linalg.det(m), torch.ones(shape[:-1], dtype=dtype), atol=10 * tol(dtype), rtol=0
+    )
 
 
 def test_quaternion_scalar_first_and_product_matches_matrices():
@@ -69,8 +78,9 @@ def test_quaternion_scalar_first_and_product_matches_matrices():
 @pytest.mark.parametrize("dtype", DTYPES)
 def test_near_pi_is_stable(dtype):
     for angle in (math.pi - 1e-6, math.pi):
-        r = torch.tensor([[angle, 0.0, 0.0], [0.0, angle / math.sqrt(2), angle / math.sqrt(2)]],
-                         dtype=dtype)  # fmt: skip
+        r = torch.tensor(
+            [[angle, 0.0, 0.0], [0.0, angle / math.sqrt(2), angle / math.sqrt(2)]], dtype=dtype
+        )
         m = R.rotvec_to_rotmat(r)
         back = R.rotmat_to_rotvec(m)
         assert torch.isfinite(back).all()

@@ -18,7 +18,8 @@ from mdvae_cli.geometry.rotations import rotvec_to_rotmat
 
 def blend_shapes(coeffs: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
     """Linear blend offsets.  coeffs: (B, K), dirs: (V, 3, K) -> (B, V, 3)"""
-    return torch.einsum("bk,vck->bvc", coeffs, dirs)
+    V, C, K = dirs.shape
+    return (coeffs @ dirs.reshape(V * C, K).T).reshape(-1, V, C)
 
 
 def vertices_to_joints(J_regressor: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
@@ -63,7 +64,8 @@ def batch_rigid_transform(
 
 def skin_vertices(vertices: torch.Tensor, W: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
     """Linear blend skinning.  vertices: (B, V, 3), W: (V, J), A: (B, J, 4, 4) -> (B, V, 3)"""
-    T = torch.einsum("vj,bjkl->bvkl", W, A[..., :3, :])
+    B, J = A.shape[:2]
+    T = (W @ A[..., :3, :].reshape(B, J, 12)).reshape(B, -1, 3, 4)  # per-vertex blended transform
     return (T[..., :3] @ vertices[..., None])[..., 0] + T[..., 3]
 
 

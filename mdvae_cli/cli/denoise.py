@@ -122,9 +122,6 @@ def denoise(
         raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
     jobs = plan_jobs(inputs, out)
     sources = tuple(job.source for job in jobs)
-    denoiser, _ = load_denoiser(denoiser_path)
-    body = BodyModel(load_body_model(body_model))
-
     loaded: dict[Path, object] = {}
 
     def read(job: FileJob) -> None:
@@ -134,6 +131,9 @@ def denoise(
 
     report = run_batch(jobs, read, "reading", quiet=True)
     good = [o.job for o in report.succeeded]
+    if good:
+        denoiser, _ = load_denoiser(denoiser_path)
+        body = BodyModel(load_body_model(body_model))
     stride = window - overlap
     results: dict[Path, object] = {}
     timings: dict[Path, float] = {}

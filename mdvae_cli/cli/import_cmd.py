@@ -1,3 +1,296 @@
-"""Placeholder: filled in by its issue."""
+"""``mdvae import``: mocap files (BVH, ASF/AMC) -> AMASS-style .npz on the SMPL skeleton."""
 
-COMMANDS: list = []
+from __future__ import annotations
+
+import json
+import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+import click
+import numpy as np
+import torch
+from rich.markup import escape
+from rich.table import Table
+
+from mdvae_cli.body.formats import load_body_model
+from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, run_batch, strip_gz
+from mdvae_cli.cli.common import body_model_option, console, handle_errors
+from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import write_atomic
+from mdvae_cli.motion import cmu
+from mdvae_cli.motion.asfamc import AsfSkeleton, load_asf
+from mdvae_cli.motion.npz_io import save_motion
+from mdvae_cli.motion.retarget import (
+    BodyJoints,
+    RetargetSettings,
+    fit_betas,
+    import_motion,
+    load_source,
+    skeleton_key,
+    walking_speed,
+)
+
+SUFFIXES = (".bvh", ".amc")
+
+
+def _output_name(relpath: Path) -> Path:
+    return strip_gz(relpath).with_suffix(".npz")
+
+
+def _is(path: Path, suffix: str) -> bool:
+    return path.name.lower().removesuffix(".gz").endswith(suffix)
+
+
+def _find_asf(path: Path) -> Path | None:
+    """The skeleton next to an AMC file: ``<subject>.asf``, else the folder's only .asf."""
+    ids = cmu.trial_of(path)
+    if ids is not None:
+        for name in (f"{ids[0]}.asf", f"{ids[0]}.asf.gz"):
+            if (path.parent / name).is_file():
+                return path.parent / name
+    found = [p for p in sorted(path.parent.iterdir()) if _is(p, ".asf")]
+    return found[0] if len(found) == 1 else None
+
+
+class _Importer:
+    """Imports one file; keeps the body, parsed skeletons and betas fitted once per skeleton.
+    Built once per process (each ``--jobs`` worker builds its own)."""
+
+    def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf):
+        torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
+        self.body = BodyJoints(load_body_model(body_model))
+        self.out, self.fps, self.settings = out, fps, settings
+        self.source_fps, self.scale, self.asf = source_fps, scale, asf
+        self.skeletons: dict[Path, AsfSkeleton] = {}
+        self.betas: dict[str, np.ndarray] = {}
+
+    def __call__(self, job: FileJob) -> dict:
+        item: cmu.CorpusItem | None = job.data
+        skeleton, fps = (item.skeleton, item.fps) if item else (None, self.source_fps)
+        if item is None and _is(job.source, ".amc"):
+            skeleton = self.asf or _find_asf(job.source)
+            if skeleton is None:
+                raise InputError(f"{job.source}: no skeleton found next to it; pass --asf FILE")
+        if skeleton is not None:
+            if skeleton not in self.skeletons:
+                self.skeletons[skeleton] = load_asf(skeleton)
+            skeleton = self.skeletons[skeleton]
+        src = load_source(job.source, skeleton, fps=fps, scale=self.scale)
+        key = skeleton_key(src)
+        if key not in self.betas:
+            self.betas[key] = fit_betas(src, self.body)
+        meta: dict = {"file": job.relpath.as_posix(), "skeleton_key": key}
+        if item is not None:
+            donor = f"{cmu.DONOR_SUBJECT}.asf" if item.donor else None
+            meta.update(subject=item.subject, trial=item.trial, split=item.split,
+                        description=item.description, donor_skeleton=donor)  # fmt: skip
+        result = import_motion(src, self.body, self.fps, self.betas[key], self.settings, meta)
+        motion = result.motion
+        save_motion(motion, job.output, forbid=(job.source,))
+        out = job.output
+        out = out.relative_to(self.out) if out.is_relative_to(self.out) else out
+        row = {
+            "output": out.as_posix(),
+            "format": item.kind if item else src.info["format"],
+            "frames": motion.num_frames,
+            "fps": motion.fps,
+            "source_fps": src.fps,
+            "retarget_error_mm": round(1000 * result.mean_error, 2),
+            "retarget_error_direct_mm": round(1000 * result.direct_error, 2),
+            "sole_height_mean_cm": round(100 * float(result.sole_height.mean()), 2),
+            "floor_tilt_deg": round(result.floor_tilt_deg, 2),
+            "speed_mps": round(walking_speed(motion.trans, motion.fps), 3),
+            "skeleton_key": key,
+        }
+        if item is not None:
+            row.update({k: meta[k] for k in ("subject", "trial", "split", "description")},
+                       donor_skeleton=item.donor)  # fmt: skip
+        return row
+
+
+_WORKER: _Importer | None = None
+
+
+def _start_worker(*args) -> None:
+    global _WORKER
+    _WORKER = _Importer(*args)
+
+
+def _work(job: FileJob) -> dict:
+    return _WORKER(job)
+
+
+def _write_json(path: Path, data: dict) -> None:
+    write_atomic(path, lambda tmp: tmp.write_text(json.dumps(data, indent=2) + "\n"))
+
+
+def _print_summary(summary: dict) -> None:
+    table = Table(title="import summary", title_justify="left")
+    for col in ("format", "files", "frames", "mean joint error"):
+        table.add_column(col, justify="left" if col == "format" else "right")
+    for fmt, row in summary["by_format"].items():
+        table.add_row(fmt, str(row["files"]), str(row["frames"]), f"{row['retarget_error_mm']} mm")
+    if summary["by_format"]:
+        table.add_row("all", str(summary["succeeded"]), str(summary["frames"]),
+                      f"{summary['retarget_error_mm']} mm", style="bold")  # fmt: skip
+        console.print(table)
+    for name, s in summary.get("splits", {}).items():
+        console.print(f"{name}: {s['files']} files, {s['frames']} frames, "
+                      f"subjects {' '.join(s['subjects'])}")  # fmt: skip
+    walk = summary.get("walking")
+    if walk and walk["files"]:
+        speed = walk["speed_mps"]
+        console.print(f"walking trials: {walk['files']}, mean lowest-sole height "
+                      f"{walk['sole_height_mean_cm']} cm, speed {speed['min']}-{speed['max']} "
+                      f"m/s (mean {speed['mean']})")  # fmt: skip
+    if summary["skipped"]:
+        console.print(f"skipped: {len(summary['skipped'])} (duplicates, held-out donor files)")
+    console.print(f"{summary['succeeded']} of {summary['succeeded'] + summary['failed']} files "
+                  f"imported in {summary['elapsed_s']} s")  # fmt: skip
+
+
+@click.command("import")
+@click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    help="Output folder (inputs mirrored below it), or an .npz for a single input file.",
+)  # fmt: skip
+@click.option(
+    "--fps", type=float, default=30.0, show_default=True,
+    help="Frame rate of the output; 0 keeps the source's.",
+)  # fmt: skip
+@click.option(
+    "--asf", type=click.Path(path_type=Path, dir_okay=False),
+    help="Skeleton for .amc inputs (default: <subject>.asf or the only .asf next to each). "
+    "An .asf among INPUTS does the same.",
+)  # fmt: skip
+@click.option(
+    "--source-fps", type=float,
+    help="The inputs' true frame rate, when their files are wrong (AMC files assume 120).",
+)  # fmt: skip
+@click.option(
+    "--scale", type=float, metavar="METRES",
+    help="Metres per file unit (default: ASF units; BVH guessed from the skeleton's height).",
+)  # fmt: skip
+@click.option(
+    "--floor", type=click.Choice(["plane", "flat", "none"]), default="plane", show_default=True,
+    help="Put the ground under the soles at z=0, levelling a slightly tilted capture floor "
+    "(plane), only shift heights (flat), or keep the source's heights (none).",
+)  # fmt: skip
+@click.option(
+    "--cmu-corpus", is_flag=True,
+    help="INPUTS is one CMU corpus folder (asfamc/, bvh/, asfamc_noasf/): apply its 60 Hz "
+    "subjects, donor skeleton and duplicates, and write split.json and summary.json.",
+)  # fmt: skip
+@click.option(
+    "--split", "split_file", type=click.Path(path_type=Path, dir_okay=False),
+    help="With --cmu-corpus: JSON {val_subjects, test_subjects} (default: the subjects of "
+    "weights_recipe/cmu_split.json).",
+)  # fmt: skip
+@click.option(
+    "-j", "--jobs", "jobs_n", type=click.IntRange(min=1), default=1, show_default=True,
+    help="Worker processes (one CPU core each).",
+)  # fmt: skip
+@body_model_option
+@json_option
+@handle_errors
+def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, split_file,
+                   jobs_n, body_model, as_json) -> None:  # fmt: skip
+    """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton.
+
+    Each motion is retargeted onto the body model (the built-in body by default): its shape is
+    fitted once per skeleton to the source's bone lengths, then the root and the 21 body joints
+    are solved per frame to match the source's joint positions. Output: z-up, floor at z=0,
+    gender "neutral", resampled to --fps, with a 'source' record (JSON) of where it came from.
+    The mean joint position error of the retarget is printed per file.
+
+    \b
+    Examples:
+      mdvae import walk.bvh -o walk.npz
+      mdvae import 07.asf 07_01.amc.gz 07_02.amc.gz -o out/
+      mdvae import ../shared/data/cmu -o data/cmu_amass --cmu-corpus --jobs 2
+    """
+    started = time.perf_counter()
+    if fps < 0:
+        raise InputError(f"--fps must be >= 0, got {fps:g}")
+    for name, value in (("--source-fps", source_fps), ("--scale", scale)):
+        if value is not None and not value > 0:
+            raise InputError(f"{name} must be > 0, got {value:g}")
+    out, out_fps = Path(out), (fps if fps > 0 else None)
+    asf_inputs = [p for p in inputs if _is(p, ".asf")]
+    inputs = [p for p in inputs if not _is(p, ".asf")]
+    if asf_inputs:
+        if asf is not None or len(asf_inputs) > 1:
+            raise InputError("give one skeleton: an .asf input or --asf, not several")
+        asf = asf_inputs[0]
+    if asf is not None and not Path(asf).is_file():
+        raise InputError(f"no such skeleton file: {asf}")
+
+    skipped: list[dict] = []
+    if cmu_corpus:
+        if len(inputs) != 1 or not inputs[0].is_dir():
+            raise InputError("--cmu-corpus takes exactly one corpus folder")
+        if asf is not None or source_fps is not None:
+            raise InputError("--cmu-corpus sets skeletons and frame rates itself: drop --asf, "
+                             "--source-fps")  # fmt: skip
+        if out.exists() and out.resolve() == inputs[0].resolve():
+            raise InputError("the output folder is the corpus folder; choose another")
+        spec = cmu.load_split_spec(split_file)
+        jobs = []
+        for item in cmu.plan_corpus(inputs[0], spec):
+            if item.skip:
+                skipped.append({"file": item.relpath.as_posix(), "reason": item.skip})
+            else:
+                jobs.append(FileJob(item.relpath, item.path, out / _output_name(item.relpath),
+                                    data=item))  # fmt: skip
+    else:
+        if split_file is not None:
+            raise InputError("--split only goes with --cmu-corpus")
+        jobs = plan_jobs(inputs, out, suffixes=SUFFIXES, rename=_output_name)
+    outputs = [j.output for j in jobs]
+    if len(set(outputs)) != len(outputs):
+        dup = next(o for o in outputs if outputs.count(o) > 1)
+        raise InputError(f"two inputs would both be written to {dup}; import them separately")
+
+    settings = RetargetSettings(floor=floor).validate()
+    args = (body_model, out, out_fps, settings, source_fps, scale, asf)
+    pool = None
+    if jobs_n > 1 and len(jobs) > 1:
+        pool = ProcessPoolExecutor(min(jobs_n, len(jobs)), mp_context=get_context("spawn"),
+                                   initializer=_start_worker, initargs=args)  # fmt: skip
+        futures = {id(job): pool.submit(_work, job) for job in jobs}
+
+        def process(job: FileJob) -> dict:
+            return futures[id(job)].result()
+    else:
+        process = _Importer(*args)
+
+    def show(outcome) -> None:
+        r = outcome.result
+        console.print(f"{escape(outcome.job.relpath.as_posix())}: {r['frames']} frames at "
+                      f"{r['fps']:g} fps, joint error {r['retarget_error_mm']:.1f} mm",
+                      soft_wrap=True, highlight=False)  # fmt: skip
+
+    try:
+        report = run_batch(jobs, process, "import", quiet=True, on_success=show)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    rows = [o.result for o in report.succeeded]
+    summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps, **cmu.error_summary(rows)}
+    if cmu_corpus:
+        summary.update(cmu.corpus_summary(rows))
+    summary["elapsed_s"] = round(time.perf_counter() - started, 1)
+    if cmu_corpus:
+        _write_json(out / "split.json", cmu.split_document(rows, spec, out_fps))
+        _write_json(out / "summary.json", summary)
+    if as_json:
+        emit_json(summary)
+    else:
+        _print_summary(summary)
+    report.exit()
+
+
+COMMANDS = [import_command]

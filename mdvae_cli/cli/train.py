@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from mdvae_cli.cli.common import body_model_option, console, handle_errors, progress_bar
-from mdvae_cli.errors import InputError, NotAvailableError
+from mdvae_cli.errors import InputError
 
 
 class StepReporter:
@@ -34,6 +34,8 @@ class StepReporter:
         self.progress.update(
             self.task, completed=info["step"], info=f"ep {info['epoch'] + 1} {terms}"
         )
+        if not console.is_terminal and info["step"] % 50 == 0:  # logs of batch jobs
+            console.print(f"step {info['step']}/{total} ep {info['epoch'] + 1} {terms}")
 
 
 @click.command("train-prior")
@@ -64,9 +66,9 @@ class StepReporter:
 @click.option("--epochs", type=int, help="Passes over the training windows [40].")
 @click.option("--lr", type=float, help="Adam learning rate (cosine-decayed) [1e-3].")
 @click.option("--kl-warmup", "kl_warmup_steps", type=int, help="KL warm-up steps [1500].")
-@click.option("--body-weight", type=float, help="Weight of the mesh/joint regulariser (per cm²) [0.1].")
+@click.option("--body-weight", type=float, help="Weight of the mesh/joint term, per cm² [0.1].")
 @click.option("--latent-dim", type=int, help="z_t width [32].")
-@click.option("--hidden-dim", type=int, help="Recurrent state width [256].")
+@click.option("--hidden-dim", type=int, help="Recurrent state width [128].")
 @click.option("--seed", type=int, help="Random seed [0].")
 @click.option("--device", help="cpu, cuda, cuda:N or auto [auto].")
 @click.option("--resume", is_flag=True, help="Continue the run in RUN_DIR from last.npz.")
@@ -132,12 +134,106 @@ def train_prior(
     )
 
 
-@click.command("fit-dataset", context_settings={"ignore_unknown_options": True})
-@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+@click.command("fit-dataset")
+@click.argument("noisy", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "-o",
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Denoiser folder: config.json, denoiser.npz/.json, log.jsonl.",
+)
+@click.option(
+    "--prior",
+    "prior_path",
+    type=click.Path(path_type=Path),
+    help="Prior checkpoint or train-prior run folder (default: the shipped prior).",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path, exists=True),
+    help="A config.json to start from; options given here override it.",
+)
+@click.option(
+    "--lam",
+    type=float,
+    help="lambda of the IG(lam/2, lam/2) noise prior: large = "
+    "Gaussian noise (noisy mocap), small = heavy-tailed (outliers, video) [1000].",
+)
+@click.option("--obs-unit", type=float, help="Metres per observation unit (noise scale) [0.05].")
+@click.option("--window", type=int, help="Frames per window at 30 Hz [60].")
+@click.option("--stride", type=int, help="Frames between window starts [10].")
+@click.option("--batch-size", type=int, help="Windows per step [64].")
+@click.option("--epochs", type=int, help="Passes over the windows [10].")
+@click.option("--lr", type=float, help="Adam learning rate [3e-4].")
+@click.option("--seed", type=int, help="Random seed [0].")
+@click.option("--device", help="cpu, cuda, cuda:N or auto [auto].")
+@click.option("--resume", is_flag=True, help="Continue from OUT/denoiser.npz.")
+@click.option("--max-steps", type=int, default=None, help="Stop after this many steps.")
+@click.option("--threads", type=int, default=None, help="CPU threads for torch.")
+@body_model_option
 @handle_errors
-def fit_dataset(args) -> None:
-    """Fit the denoiser to a folder of noisy files, unsupervised (not yet available)."""
-    raise NotAvailableError("fit-dataset is not yet available in this version")
+def fit_dataset(
+    noisy, out_dir, prior_path, config_file, resume, max_steps, threads, body_model, **overrides
+) -> None:
+    """Fit the denoiser to noisy motion files, unsupervised (no clean data needed).
+
+    Learns the encoder, initial-state predictor and noise predictor by maximising the ELBO of
+    the noisy observations (22 joints + 43 markers) under the frozen prior (paper Sec. 4.2).
+    The result denoises new files in one pass: `mdvae denoise --denoiser OUT ...`.
+
+    \b
+    Example:
+      mdvae fit-dataset noisy_takes/ -o runs/denoiser --epochs 20
+    """
+    import torch
+
+    from mdvae_cli.fit.fit_dataset import FitConfig
+    from mdvae_cli.fit.fit_dataset import fit_dataset as run
+
+    if threads:
+        torch.set_num_threads(threads)
+    if resume:
+        cfg_path = out_dir / "config.json"
+        if not cfg_path.exists():
+            raise InputError(f"nothing to resume: {cfg_path} not found")
+        cfg = FitConfig.from_dict(json.loads(cfg_path.read_text()))
+    elif config_file is not None:
+        cfg = FitConfig.from_dict(json.loads(Path(config_file).read_text()))
+    else:
+        cfg = FitConfig()
+    if not resume:
+        cfg.data = [str(p) for p in noisy]
+        if prior_path is not None:
+            cfg.prior = str(prior_path)
+        if body_model is not None:
+            cfg.body_model = str(body_model)
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        if key in ("lam", "obs_unit"):
+            setattr(cfg.denoiser, key, value)
+        else:
+            setattr(cfg, key, value)
+    with progress_bar() as progress:
+        task = progress.add_task("fitting", total=None, info="")
+
+        def tick(info: dict) -> None:
+            progress.update(
+                task,
+                total=info["steps"],
+                completed=info["step"],
+                info=f"loss {info['loss']:.2f} rec {info['rec']:.2f} "
+                f"kl_z {info['kl_z']:.2f} err {info['err_cm']:.1f} cm",
+            )
+
+        summary = run(cfg, out_dir, resume=resume, progress=tick, max_steps=max_steps)
+    console.print(
+        f"fitted {summary.steps} steps on {summary.windows} windows in {summary.seconds:.0f} s; "
+        f"loss {summary.first_loss:.3f} -> {summary.last_loss:.3f}; denoiser in {out_dir}"
+    )
 
 
 COMMANDS = [train_prior, fit_dataset]

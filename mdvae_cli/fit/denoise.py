@@ -44,12 +44,12 @@ class WindowGroup:
     def __len__(self) -> int:
         return int(self.yn.shape[0])
 
-    def batch(self, idx: torch.Tensor) -> WindowGroup:
+    def batch(self, idx: torch.Tensor, with_y3d: bool = True) -> WindowGroup:
         w = None if self.weight is None else self.weight[idx]
         frame = CanonicalFrame(self.frame.yaw[idx], self.frame.origin[idx])
         return WindowGroup(
             self.yn[idx],
-            self.y3d[idx],
+            self.y3d[idx] if with_y3d else self.y3d,
             self.betas[idx],
             frame,
             self.pelvis[idx],
@@ -59,10 +59,18 @@ class WindowGroup:
 
 
 def make_windows(
-    motions: list[Motion], denoiser: Denoiser, body: BodyModel, window: int = 60, stride: int = 45
+    motions: list[Motion],
+    denoiser: Denoiser,
+    body: BodyModel,
+    window: int = 60,
+    stride: int = 45,
+    observations: bool = True,
 ) -> list[WindowGroup]:
     """Cut motions already at 30 Hz into windows of ``window + 1`` frames (shorter motions
-    give one window of their own length), grouped by length."""
+    give one window of their own length), grouped by length.
+
+    ``observations=False`` skips the 3D observations y3d (regression mode does not need them;
+    the group then holds an empty y3d)."""
     L = window + 1
     by_len: dict[int, list] = {}
     for mi, motion in enumerate(motions):
@@ -84,7 +92,7 @@ def make_windows(
         betas = stack(5)
         with torch.no_grad():
             states, frame = chunk_states(params, betas, body)
-            y3d = observe(body, states, betas)
+            y3d = observe(body, states, betas) if observations else states.new_zeros(0)
         weight = None
         if any(it[6] is not None for it in items):
             masks = [
@@ -117,7 +125,7 @@ def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 10
     outs = []
     for i in range(0, len(group), batch_size):
         idx = torch.arange(i, min(i + batch_size, len(group)))
-        g = group.batch(idx)
+        g = group.batch(idx, with_y3d=False)
         x_hat = denoiser.infer(g.yn)["x_hat"]
         outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
@@ -207,7 +215,7 @@ def denoise_motions(
     modifies ``denoiser``; pass a copy to keep the original), then predict.
     """
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
-    groups = make_windows(motions30, denoiser, body, window, stride)
+    groups = make_windows(motions30, denoiser, body, window, stride, optimize_steps > 0)
     if optimize_steps > 0:
         from mdvae_cli.fit.fit_dataset import fit_denoiser
 

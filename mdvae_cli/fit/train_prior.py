@@ -51,6 +51,7 @@ class TrainConfig:
     kl_max: float = 1.0
     body_weight: float = 0.1
     body_vertices: int = 256
+    body_frame_stride: int = 4
     grad_clip: float = 5.0
     seed: int = 0
     body_model: str | None = None
@@ -104,19 +105,24 @@ def prior_losses(
     vertex_ids: torch.Tensor,
     kl_w: float,
     body_w: float,
+    frame_stride: int = 1,
 ) -> dict[str, torch.Tensor]:
     """Negative ELBO (per frame) + body regulariser for a batch.
 
-    ``forward`` is the (possibly DDP-wrapped) ``model.dvae``. Returns the terms and ``loss``.
+    ``forward`` is the (possibly DDP-wrapped) ``model.dvae``. The body term is evaluated on
+    every ``frame_stride``-th frame from a random phase (an unbiased, cheaper estimate).
+    Returns the terms and ``loss``.
     """
     norm = model.normalizer
     xn, x0n = norm.normalize(batch.x), norm.normalize(batch.x0)
     x_mean, _, post, prior = forward(xn, x0n)
     recon = 0.5 * ((xn - x_mean) ** 2).sum(-1).mean()
     kl = gaussian_kl(post.mean, post.logvar, prior.mean, prior.logvar).mean()
-    pts_hat = body_points(body, norm.denormalize(x_mean), batch.betas, vertex_ids)
+    phase = int(torch.randint(frame_stride, (1,))) if frame_stride > 1 else 0
+    frames = slice(phase, None, frame_stride)
+    pts_hat = body_points(body, norm.denormalize(x_mean[:, frames]), batch.betas, vertex_ids)
     with torch.no_grad():
-        pts_gt = body_points(body, batch.x, batch.betas, vertex_ids)
+        pts_gt = body_points(body, batch.x[:, frames], batch.betas, vertex_ids)
     body_mse = ((pts_hat - pts_gt) ** 2).sum(-1).mean() * 1e4  # cm^2
     loss = recon + kl_w * kl + body_w * body_mse
     return {"loss": loss, "recon": recon, "kl": kl, "body_cm2": body_mse}
@@ -242,7 +248,16 @@ def train_prior(
                 for g in opt.param_groups:
                     g["lr"] = lr
                 kl_w = cfg.kl_max * kl_weight(step, cfg.kl_warmup_steps)
-                terms = prior_losses(model, forward, batch, body, vertex_ids, kl_w, cfg.body_weight)
+                terms = prior_losses(
+                    model,
+                    forward,
+                    batch,
+                    body,
+                    vertex_ids,
+                    kl_w,
+                    cfg.body_weight,
+                    cfg.body_frame_stride,
+                )
                 opt.zero_grad(set_to_none=True)
                 terms["loss"].backward()
                 torch.nn.utils.clip_grad_norm_(model.dvae.parameters(), cfg.grad_clip)

@@ -17,7 +17,7 @@ class ModelConfig:
 
     state_dim: int = STATE_DIM
     latent_dim: int = 32
-    hidden_dim: int = 256
+    hidden_dim: int = 128
     mlp_dim: int = 256
     obs_dim: int = (22 + 43) * 3
 

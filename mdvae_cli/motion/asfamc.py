@@ -214,15 +214,11 @@ def _key_values(lines: list[str], path: str):
 
 def _bone(block: list[str], path: str) -> AsfBone:
     fields: dict[str, list[str]] = {}
-    last = None
     for ln in block:
         words = ln.split()
         key = words[0].lower()
-        if key.startswith("("):  # continuation of 'limits'
-            continue
-        fields[key] = words[1:]
-        last = key
-    del last
+        if not key.startswith("("):  # "(" lines continue 'limits'
+            fields[key] = words[1:]
     name = fields.get("name", [None])[0]
     if not name:
         raise InputError(f"{path}: a bone block has no name")
@@ -260,7 +256,7 @@ def load_asf(path: Path | str) -> AsfSkeleton:
 def _axis_frame(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:
     """C = R_last ... R_first for ASF ``axis`` angles given in application order.  -> (3, 3)"""
     a = np.deg2rad(angles) if degrees else np.asarray(angles, dtype=np.float64)
-    by_axis = dict(zip("XYZ", a))
+    by_axis = dict(zip("XYZ", a, strict=True))
     rev = order[::-1]
     return euler_to_rotmat(np.array([[by_axis[c] for c in rev]]), rev.lower())[0]
 
@@ -336,7 +332,7 @@ def _fast_amc(tokens: list[str], order: list[str], layout: dict[str, int], block
 
 def _slow_amc(lines: list[str], layout: dict[str, int], path: str) -> dict[str, np.ndarray]:
     frames: list[dict[str, list[float]]] = []
-    for number, ln in enumerate(lines, start=1):
+    for ln in lines:
         words = ln.split()
         if not words or words[0].startswith("#"):
             continue
@@ -389,7 +385,7 @@ def load_amc(
     layout.update({name: len(b.dofs) for name, b in skeleton.bones.items()})
     values, amc_degrees = _read_amc_values(text, layout, path)
     degrees = skeleton.degrees if amc_degrees is None else amc_degrees
-    T = next(iter(values.values())).shape[0]
+    T = T_file = next(iter(values.values())).shape[0]
     if max_frames is not None:
         T = min(T, max_frames)
         values = {k: v[:T] for k, v in values.items()}
@@ -410,7 +406,9 @@ def load_amc(
     index = {"root": 0}
     parent_of = {kid: p for p, kids in skeleton.children.items() for kid in kids}
 
-    root_vals = values.get("root", np.zeros((T, len(skeleton.root_order))))
+    for name, n in layout.items():  # bones the AMC never mentions stay at rest
+        values.setdefault(name, np.zeros((T, n)))
+    root_vals = values["root"]
     t_cols = {ch[1]: i for i, ch in enumerate(skeleton.root_order) if ch.startswith("t")}
     r_cols = [(i, ch[1]) for i, ch in enumerate(skeleton.root_order) if ch.startswith("r")]
     root_pos = np.tile(skeleton.root_position, (T, 1))
@@ -449,7 +447,7 @@ def load_amc(
         notes.append("translation/length dofs on bones are ignored")
     info = {"format": "amc", "skeleton": Path(skeleton.path).name, "unit": unit,
             "metres_per_unit": float(metres), "fps_in_file": float(fps),
-            "frames_in_file": int(next(iter(values.values())).shape[0])}  # fmt: skip
+            "frames_in_file": int(T_file)}  # fmt: skip
     return SourceMotion(
         names=tuple(names),
         parents=np.array(parents, dtype=np.int64),

@@ -69,13 +69,6 @@ class SourceMotion:
     def index(self, name: str) -> int:
         return self.names.index(name)
 
-    def frames(self, sl: slice) -> SourceMotion:
-        """A copy holding only the frames ``sl``."""
-        return replace(
-            self, rotations=self.rotations[sl].copy(), root_positions=self.root_positions[sl].copy(),
-            info=dict(self.info), notes=list(self.notes),
-        )  # fmt: skip
-
     def with_fps(self, fps: float) -> SourceMotion:
         """The same frames declared at another rate (e.g. CMU's 60 Hz captures labelled 120)."""
         return replace(self, fps=float(fps), info=dict(self.info), notes=list(self.notes))
@@ -165,13 +158,17 @@ def resample_source(src: SourceMotion, fps: float) -> SourceMotion:
     T = src.num_frames
     n_out = int(math.floor((T - 1) / src.fps * fps + 1e-6)) + 1
     t = np.arange(n_out) * (src.fps / fps)
-    i0 = np.clip(np.floor(t).astype(int), 0, T - 1)
+    i0 = np.clip(np.floor(t + 1e-9).astype(int), 0, T - 1)
     i1 = np.clip(i0 + 1, 0, T - 1)
-    w = t - i0
-    q = rotmat_to_quat(torch.from_numpy(src.rotations))
-    wq = torch.from_numpy(w)[:, None].expand(n_out, src.num_joints)
-    rot = quat_to_rotmat(quat_slerp(q[i0], q[i1], wq)).numpy()
+    w = np.clip(t - i0, 0.0, 1.0)
+    rot = src.rotations[i0].copy()
     root = src.root_positions[i0] * (1 - w[:, None]) + src.root_positions[i1] * w[:, None]
+    mid = np.flatnonzero(w > 1e-9)  # frames between two source frames (none for 120 -> 30)
+    if len(mid):
+        q0 = rotmat_to_quat(torch.from_numpy(src.rotations[i0[mid]]))
+        q1 = rotmat_to_quat(torch.from_numpy(src.rotations[i1[mid]]))
+        wq = torch.from_numpy(w[mid])[:, None].expand(len(mid), src.num_joints)
+        rot[mid] = quat_to_rotmat(quat_slerp(q0, q1, wq)).numpy()
     out = replace(src, rotations=rot, root_positions=root, fps=float(fps), info=dict(src.info),
                   notes=list(src.notes))  # fmt: skip
     return out
@@ -204,7 +201,7 @@ class _Tokens:
     def expect(self, word: str) -> None:
         tok = self.next(repr(word))
         if tok.upper() != word.upper():
-            raise InputError(f"{self.path}: malformed BVH hierarchy: expected {word!r}, got {tok!r}")
+            raise InputError(f"{self.path}: malformed BVH: expected {word!r}, got {tok!r}")
 
     def number(self, what: str) -> float:
         tok = self.next(what)
@@ -321,11 +318,19 @@ def load_bvh(
         raise InputError(f"{path}: motion data contains NaN or infinite values")
     data = values.reshape(found, C)
 
+    notes: list[str] = []
     cmuconvert = _CMUCONVERT_SIGNATURE <= set(names)
     if drop_first is None:
         drop_first = cmuconvert
     if drop_first:
         data = data[1:]
+    blank = ~np.any(data != 0.0, axis=1)  # every channel exactly 0: an exporter's empty frame
+    if blank.all():
+        raise InputError(f"{path}: every frame is blank (all channels 0)")
+    first, last = int(np.argmin(blank)), len(blank) - int(np.argmin(blank[::-1]))
+    if first or last < len(blank):
+        notes.append(f"dropped {first + len(blank) - last} blank frame(s) at the start/end")
+        data = data[first:last]
     if max_frames is not None:
         data = data[:max_frames]
     T = data.shape[0]
@@ -334,7 +339,6 @@ def load_bvh(
 
     info: dict = {"format": "bvh", "dropped_first_frame": bool(drop_first),
                   "cmuconvert": cmuconvert, "frames_in_file": n_frames}  # fmt: skip
-    notes: list[str] = []
     J = len(names)
     rest = offsets.copy()
     root_pos = np.zeros((T, 3)) + offsets[0]

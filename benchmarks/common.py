@@ -1,0 +1,313 @@
+"""Helpers shared by the benchmark scripts: clips, noise seeds, file-to-file timing, evaluation
+with each ground truth posed only once, and a description of the machine.
+
+Nothing here prints or writes outside the folders it is given.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable, Hashable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, pose_motion_chunks
+from mdvae_cli.metrics import (
+    EvalResult,
+    acceleration_error,
+    joint_acceleration,
+    mean_result,
+    mpjpe,
+    v2v,
+)
+from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.noise import add_pose_noise, file_rng
+from mdvae_cli.motion.npz_io import load_motion, save_motion
+from mdvae_cli.motion.resample import resample_motion
+
+# --------------------------------------------------------------------------------------------
+# clips
+
+
+@dataclass
+class Clip:
+    """A fixed-length piece of a motion file.  name: ``<relative path>#<first frame>``."""
+
+    name: str
+    motion: Motion
+
+
+def slice_motion(motion: Motion, start: int, stop: int) -> Motion:
+    """Frames [start, stop) of a motion as a new Motion; per-frame extra arrays (first dim T,
+    numeric) are sliced too, the others kept."""
+    T = motion.num_frames
+    sl = slice(start, stop)
+    extras = {
+        k: (v[sl].copy() if v.ndim >= 1 and v.shape[0] == T and v.dtype.kind in "biuf" else v)
+        for k, v in motion.extras.items()
+    }
+    return replace(
+        motion,
+        root_orient=motion.root_orient[sl].copy(),
+        pose_body=motion.pose_body[sl].copy(),
+        trans=motion.trans[sl].copy(),
+        pose_extra=motion.pose_extra[sl].copy(),
+        joint_mask=None if motion.joint_mask is None else motion.joint_mask[sl].copy(),
+        extras=extras,
+        layout=dict(motion.layout),
+        notes=[],
+    )
+
+
+def cut_clips(motion: Motion, length: int, name: str) -> list[Clip]:
+    """Non-overlapping clips of exactly ``length`` frames from the start; the remainder (fewer
+    than ``length`` frames) is dropped."""
+    if length < 3:
+        raise ValueError(f"clips need at least 3 frames (for accelerations), got {length}")
+    starts = range(0, motion.num_frames - length + 1, length)
+    return [Clip(f"{name}#{s}", slice_motion(motion, s, s + length)) for s in starts]
+
+
+def pick_evenly(items: Sequence, n: int | None) -> list:
+    """At most ``n`` items spread evenly over the sequence (its order kept); None = all."""
+    if n is None or n >= len(items):
+        return list(items)
+    if n <= 0:
+        return []
+    idx = np.unique(np.linspace(0, len(items) - 1, n).round().astype(int))
+    return [items[i] for i in idx]
+
+
+def load_clips(
+    files: Sequence[Path],
+    root: Path,
+    length: int,
+    fps: float = 30.0,
+    max_clips: int | None = None,
+    on_file: Callable[[Path], None] | None = None,
+) -> list[Clip]:
+    """Load files, resample to ``fps``, cut them into ``length``-frame clips and keep at most
+    ``max_clips`` of them, spread evenly over all files (so every subject keeps a share)."""
+    clips: list[Clip] = []
+    for f in files:
+        motion = resample_motion(load_motion(f), fps)
+        clips += cut_clips(motion, length, Path(f).relative_to(root).as_posix())
+        if on_file is not None:
+            on_file(Path(f))
+    return pick_evenly(clips, max_clips)
+
+
+def add_noise(clips: Sequence[Clip], sigma: float, seed: int) -> list[Motion]:
+    """Pose-NDF noise on every clip, with a stream fixed by (seed, clip name, sigma): the same
+    clip gets the same noise whatever the selection or order of the others."""
+    return [
+        add_pose_noise(c.motion, sigma, file_rng(seed, f"{c.name}@sigma={sigma:g}")) for c in clips
+    ]
+
+
+# --------------------------------------------------------------------------------------------
+# timing
+
+
+@dataclass
+class Timing:
+    """Wall-clock seconds spent on ``frames`` frames."""
+
+    seconds: float
+    frames: int
+
+    @property
+    def s_per_frame(self) -> float:
+        return self.seconds / max(self.frames, 1)
+
+    @property
+    def frames_per_s(self) -> float:
+        return self.frames / self.seconds if self.seconds > 0 else float("inf")
+
+
+def write_motions(motions: Sequence[Motion], folder: Path) -> list[Path]:
+    """Save motions as ``clip_00000.npz``, ... in ``folder`` (created). -> the paths, in order"""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / f"clip_{i:05d}.npz" for i in range(len(motions))]
+    for m, p in zip(motions, paths, strict=True):
+        save_motion(m, p)
+    return paths
+
+
+def file_to_file(
+    files: Sequence[Path],
+    out_dir: Path,
+    process: Callable[[list[Motion]], list[Motion]],
+) -> tuple[list[Motion], Timing]:
+    """Time one file-to-file run: load every file, ``process`` them all in one call, save every
+    result into ``out_dir``. -> (the processed motions, the timing over all their frames)"""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    motions = [load_motion(f) for f in files]
+    outs = process(motions)
+    for m, f in zip(outs, files, strict=True):
+        save_motion(m, out_dir / Path(f).name)
+    seconds = time.perf_counter() - start
+    return outs, Timing(seconds, sum(m.num_frames for m in motions))
+
+
+def warm_median_seconds(run: Callable[[], object], repeats: int) -> float:
+    """Median wall-clock seconds of ``repeats`` calls after one untimed warm-up call."""
+    run()
+    times = []
+    for _ in range(max(1, repeats)):
+        start = time.perf_counter()
+        run()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def compact(pred: Motion, gt: Motion) -> Motion:
+    """What evaluation needs of a prediction: its body parameters (float32, the body model's
+    precision) on a copy of the ground truth clip, so hands and shape share its arrays."""
+    f32 = lambda a: np.asarray(a, dtype=np.float32)  # noqa: E731
+    return gt.with_body(f32(pred.root_orient), f32(pred.pose_body), f32(pred.trans))
+
+
+# --------------------------------------------------------------------------------------------
+# evaluation
+
+
+@dataclass
+class _Posed:
+    joints: torch.Tensor  # (T, 22, 3) float64
+    vertices: torch.Tensor  # (T, V, 3) float64
+
+
+def _pose(motion: Motion, body: BodyModel, betas: np.ndarray) -> _Posed:
+    chunks = list(
+        pose_motion_chunks(motion, body, DEFAULT_CHUNK_FRAMES, vertices=True, betas=betas)
+    )
+    return _Posed(
+        torch.cat([o.joints for _, o in chunks]).double(),
+        torch.cat([o.vertices for _, o in chunks]).double(),
+    )
+
+
+def _compare(gt: _Posed, pred: _Posed, fps: float) -> EvalResult:
+    """The numbers of :func:`mdvae_cli.metrics.evaluate_pair`, from already posed meshes."""
+    T = gt.joints.shape[0]
+    jg, jp = gt.joints, pred.joints
+    accel = [None, None, None]
+    if T >= 3:
+        accel = [
+            float(joint_acceleration(jg, fps).mean()),
+            float(joint_acceleration(jp, fps).mean()),
+            float(acceleration_error(jp, jg, fps).mean()),
+        ]
+    return EvalResult(
+        num_frames=T,
+        fps=float(fps),
+        v2v_cm=100.0 * float(v2v(pred.vertices, gt.vertices, jp[:, 0], jg[:, 0]).sum()) / T,
+        v2v_abs_cm=100.0 * float(v2v(pred.vertices, gt.vertices).sum()) / T,
+        mpjpe_cm=100.0 * float(mpjpe(jp, jg).sum()) / T,
+        accel_gt=accel[0],
+        accel_pred=accel[1],
+        accel_error=accel[2],
+    )
+
+
+def evaluate_clips(
+    gt: Sequence[Motion],
+    predictions: Mapping[Hashable, Sequence[Motion]],
+    body: BodyModel,
+) -> dict[Hashable, EvalResult]:
+    """Frame-weighted mean metrics of every prediction set against the same ground truths.
+
+    Same numbers as ``mean_result([evaluate_pair(g, p, body) ...])`` per set, but each ground
+    truth clip is posed once for all sets. Every sequence in ``predictions`` lines up with ``gt``
+    (and may compute its items lazily, see :class:`LazyMap`).
+    """
+    per_key: dict[Hashable, list[EvalResult]] = {k: [] for k in predictions}
+    for i, g in enumerate(gt):
+        posed_gt = _pose(g, body, g.betas)
+        for key, preds in predictions.items():
+            per_key[key].append(_compare(posed_gt, _pose(preds[i], body, g.betas), g.fps))
+    return {k: mean_result(v) for k, v in per_key.items()}
+
+
+class LazyMap(Sequence):
+    """``fn(items[i])`` computed when item i is read, never stored."""
+
+    def __init__(self, fn: Callable, items: Sequence):
+        self.fn, self.items = fn, items
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, i):
+        return self.fn(self.items[i])
+
+    def __iter__(self) -> Iterator:
+        return (self.fn(x) for x in self.items)
+
+
+# --------------------------------------------------------------------------------------------
+# markdown
+
+
+def markdown_table(header: Sequence[str], body: Sequence[Sequence[str]]) -> str:
+    """A GitHub markdown table from header cells and rows of cells."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in body]
+    return "\n".join(lines)
+
+
+def write_section(path: Path, section: str, begin: str, end: str) -> None:
+    """Put ``section`` (which starts with the ``begin`` marker line and ends with ``end``) into
+    the markdown file ``path``: it replaces the marked section if there is one, else it is
+    appended; the rest of the file is kept. A new file gets a title."""
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    i, j = text.find(begin), text.find(end)
+    if i >= 0 and j > i:
+        text = text[:i] + section.rstrip("\n") + text[j + len(end) :]
+    else:
+        text = text.rstrip("\n") + "\n\n" + section
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text if text.endswith("\n") else text + "\n")
+
+
+# --------------------------------------------------------------------------------------------
+# machine
+
+
+def cpu_model() -> str:
+    """The CPU model name from /proc/cpuinfo (Linux), else what ``platform`` knows."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown"
+
+
+def machine_description() -> dict[str, str]:
+    """What the timings depend on: CPU, cores, library versions, threads, date."""
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        usable = os.cpu_count() or 0
+    return {
+        "cpu": cpu_model(),
+        "logical cores": str(os.cpu_count()),
+        "cores usable by this process": str(usable),
+        "torch threads": str(torch.get_num_threads()),
+        "torch": torch.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "os": f"{platform.system()} {platform.release()}",
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    }

@@ -1,0 +1,140 @@
+"""Benchmark of a Motion-DVAE prior on held-out motion (issue: shipped prior quality).
+
+Prints a markdown table:
+* reconstruction V2V (cm, root-relative and absolute) of 60-frame windows through
+  encoder -> decoder (posterior means), and the KL per step;
+* 10-second prior samples started from real first frames: joint acceleration (m/s^2) vs real
+  motion, the lowest foot height over the sample (drift through the floor) and the largest
+  joint speed (exploding joints).
+
+    python benchmarks/prior.py [--prior PATH] [--corpus data/cmu_amass] [--split test]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.formats import load_body_model
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.fit.data import MODEL_FPS, WindowSet, load_windows, select_files
+from mdvae_cli.fit.sample import sample_motion
+from mdvae_cli.model.losses import gaussian_kl
+from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.motion.resample import resample_motion
+from mdvae_cli.motion.state import state_to_params
+from mdvae_cli.weights import default_weights
+
+FEET = (7, 8, 10, 11)  # ankles and feet
+
+
+@torch.no_grad()
+def reconstruction(prior, body, windows: WindowSet, batch: int = 256) -> dict[str, float]:
+    """Encoder -> decoder on windows (posterior means); V2V on the full mesh."""
+    norm = prior.normalizer
+    v2v, v2v_abs, kls, n = 0.0, 0.0, 0.0, 0
+    for i in range(0, len(windows), batch):
+        w = windows.subset(torch.arange(i, min(i + batch, len(windows))))
+        xn, x0n = norm.normalize(w.x), norm.normalize(w.x0)
+        z, post = prior.dvae.encoder(xn, x0n, sample=False)
+        p = prior.dvae.prior(z, x0n)
+        x_mean, _ = prior.dvae.decoder(z, x0n)
+        kls += float(gaussian_kl(post.mean, post.logvar, p.mean, p.logvar).sum())
+        B, T = w.x.shape[:2]
+        betas = w.betas.repeat_interleave(T, 0)
+        outs = []
+        for x in (norm.denormalize(x_mean), w.x):
+            q = state_to_params(x.reshape(B * T, -1))
+            outs.append(body(q.root_orient, q.pose_body, q.trans, betas, vertices=True))
+        hat, gt = outs
+        v2v_abs += float((hat.vertices - gt.vertices).norm(dim=-1).mean(-1).sum())
+        rel_hat = hat.vertices - hat.joints[:, :1]
+        rel_gt = gt.vertices - gt.joints[:, :1]
+        v2v += float((rel_hat - rel_gt).norm(dim=-1).mean(-1).sum())
+        n += B * T
+    return {"v2v_cm": 100 * v2v / n, "v2v_abs_cm": 100 * v2v_abs / n, "kl_per_step": kls / n}
+
+
+@torch.no_grad()
+def samples(prior, body, files: list[Path], seconds: float, seed: int) -> dict[str, float]:
+    """Prior samples from each file's first frame vs the real motion of the same length."""
+    frames = int(seconds * MODEL_FPS)
+    acc_s, acc_r, min_feet, floor_real, max_speed = [], [], [], [], []
+    for k, f in enumerate(files):
+        real = resample_motion(load_motion(f), MODEL_FPS)
+        gen = sample_motion(prior, body, real, frames, seed=seed + k)
+        for motion, acc in ((gen, acc_s), (real, acc_r)):
+            j = joints(body, motion)
+            a = (j[:-2] - 2 * j[1:-1] + j[2:]) * MODEL_FPS**2
+            acc.append(float(np.linalg.norm(a, axis=-1).mean()))
+        jg, jr = joints(body, gen), joints(body, real)
+        floor = float(jr[:, FEET, 2].min())
+        floor_real.append(floor)
+        min_feet.append(float(jg[:, FEET, 2].min()) - floor)
+        max_speed.append(float(np.linalg.norm(np.diff(jg, axis=0), axis=-1).max() * MODEL_FPS))
+    return {
+        "accel_samples": float(np.mean(acc_s)),
+        "accel_real": float(np.mean(acc_r)),
+        "lowest_foot_cm": 100 * float(np.min(min_feet)),
+        "mean_lowest_foot_cm": 100 * float(np.mean(min_feet)),
+        "max_joint_speed": float(np.max(max_speed)),
+    }
+
+
+def joints(body, motion) -> np.ndarray:
+    t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
+    out = body(t(motion.root_orient), t(motion.pose_body), t(motion.trans), t(motion.betas)[None])
+    return out.joints.numpy()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--prior", default=None, help="prior checkpoint/run (default: shipped)")
+    ap.add_argument("--corpus", default="data/cmu_amass")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--max-files", type=int, default=40)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--json", default=None, help="also write the figures here")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    start = time.time()
+    prior, meta = load_prior(args.prior or default_weights("prior"))
+    body = BodyModel(load_body_model(meta["train_config"].get("body_model")))
+    corpus = Path(args.corpus)
+    files = select_files([corpus], corpus / "split.json", args.split)[: args.max_files]
+    windows = load_windows(files, body, 60, 60)
+    rec = reconstruction(prior, body, windows)
+    long_files = [f for f in files if load_motion(f).duration >= args.seconds]
+    smp = samples(prior, body, long_files, args.seconds, seed=0)
+    print(
+        f"Prior benchmark on the {args.split} split: {len(files)} files, {len(windows)} "
+        f"windows of 60 frames, {len(long_files)} samples of {args.seconds:g} s "
+        f"({platform.processor() or platform.machine()}, torch {torch.__version__}, "
+        f"{time.time() - start:.0f} s)\n"
+    )
+    print("| metric | value |\n|---|---|")
+    print(f"| reconstruction V2V, root-relative (cm) | {rec['v2v_cm']:.2f} |")
+    print(f"| reconstruction V2V, absolute (cm) | {rec['v2v_abs_cm']:.2f} |")
+    print(f"| KL per step (nats) | {rec['kl_per_step']:.2f} |")
+    print(f"| joint acceleration, prior samples (m/s²) | {smp['accel_samples']:.2f} |")
+    print(f"| joint acceleration, real motion (m/s²) | {smp['accel_real']:.2f} |")
+    print(f"| ratio samples / real | {smp['accel_samples'] / smp['accel_real']:.2f} |")
+    print(
+        f"| lowest foot in samples vs real floor (cm, worst / mean) | "
+        f"{smp['lowest_foot_cm']:.1f} / {smp['mean_lowest_foot_cm']:.1f} |"
+    )
+    print(f"| largest joint speed in samples (m/s) | {smp['max_joint_speed']:.1f} |")
+    if args.json:
+        Path(args.json).write_text(json.dumps({**rec, **smp}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,263 @@
+"""Classical temporal filters a studio would try first: Gaussian and Savitzky-Golay smoothing.
+
+Both are local polynomial least-squares smoothers applied along time, pure numpy:
+
+* **Savitzky-Golay** (``window`` odd, ``order``): every frame takes the value at that frame of the
+  polynomial of degree ``order`` fitted (unweighted least squares) to the ``window`` frames
+  around it. At the ends the window does not shrink: it slides inward and stays the first (last)
+  ``window`` frames, and the fitted polynomial is evaluated at the edge frame ("fit at the
+  ends", the ``interp`` edge mode of common tools). A polynomial of degree <= ``order`` is
+  therefore reproduced exactly at every frame, edges included. A motion shorter than the window
+  is fitted by one polynomial over all its frames (degree capped at T - 1).
+* **Gaussian** (``sigma_frames``): a Gaussian kernel truncated at 4 sigma. Away from the ends
+  this is the plain normalised Gaussian convolution. Within 4 sigma of an end, the kernel is cut
+  at the end and the frame takes the value of the Gaussian-weighted straight-line fit to the
+  frames left under it. In the interior this is the same as plain convolution, because a
+  symmetric kernel fits no slope. At the ends it keeps a constant-velocity drift instead of
+  pulling the end frames towards the inside, which reflect- or nearest-padding would do.
+
+Rotations are smoothed as quaternions: each joint's axis-angle track is converted to unit
+quaternions, made sign-continuous over time (each quaternion flipped into the hemisphere of its
+predecessor, so q and -q, which are the same rotation, never alternate), and the 4 components
+are filtered like any signal, renormalised and converted back. Each output frame keeps the
+axis-angle branch of its input frame (angles in [0, 2*pi)). For example, a track unwrapped past
+pi stays unwrapped, and a track in the usual [0, pi] convention stays in that convention.
+Translation is filtered directly. Hands, face, betas and extra keys are left untouched.
+Parameters are in frames, whatever the motion's frame rate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.motion.motion import Motion
+
+#: The Gaussian kernel is cut at this many standard deviations.
+GAUSSIAN_TRUNCATE = 4.0
+
+Weights = Callable[[np.ndarray], np.ndarray]
+
+
+# --------------------------------------------------------------------------------------------
+# local polynomial fits
+
+
+def local_poly_coefficients(
+    positions: np.ndarray, order: int, at: float = 0.0, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """Linear weights c such that ``c @ y`` is the fitted polynomial's value at ``at``.
+
+    The polynomial of degree ``order`` is the weighted least-squares fit to the samples ``y``
+    taken at ``positions``.  positions: (n,), weights: (n,) >= 0 or None (all 1) -> c: (n,)
+    The degree is capped at n - 1. The weights sum to 1 (a constant is reproduced).
+    """
+    u = np.asarray(positions, dtype=np.float64) - float(at)
+    n = u.shape[0]
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
+    scale = max(float(np.abs(u).max()), 1.0)  # conditioning: offsets in [-1, 1]
+    A = np.vander(u / scale, min(order, n - 1) + 1, increasing=True)  # (n, p + 1)
+    sw = np.sqrt(w)
+    return np.linalg.pinv(A * sw[:, None])[0] * sw
+
+
+def savgol_coefficients(window: int, order: int) -> np.ndarray:
+    """Savitzky-Golay smoothing weights for the centre frame.  -> (window,)
+
+    ``c @ y[t - h : t + h + 1]`` (h = window // 2) is the smoothed value at frame t.
+    """
+    _check_savgol(window, order)
+    h = window // 2
+    return local_poly_coefficients(np.arange(-h, h + 1), order)
+
+
+def gaussian_coefficients(sigma_frames: float) -> np.ndarray:
+    """Normalised Gaussian kernel, truncated at 4 sigma.  -> (2r + 1,), r = ceil(4 sigma)"""
+    _check_sigma(sigma_frames)
+    r = _gaussian_radius(sigma_frames)
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma_frames) ** 2)
+    return k / k.sum()
+
+
+def _smooth_local_poly(
+    x: np.ndarray, half: int, order: int, weight: Weights, slide: bool
+) -> np.ndarray:
+    """Smooth along axis 0 with local polynomial fits.  x: (T, ...) -> (T, ...)
+
+    Frames whose centred window of 2*half + 1 frames fits inside the clip use one shared
+    coefficient row, applied as a convolution. The first and last ``half`` frames get their
+    own row: a window slid inward (``slide``) or cut at the end, with ``weight(offsets)``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    T = x.shape[0]
+    if T == 0 or half == 0:
+        return x.copy()
+    W = 2 * half + 1
+    out = np.empty_like(x)
+    if T >= W:
+        offsets = np.arange(-half, half + 1)
+        c = local_poly_coefficients(offsets, order, 0.0, weight(offsets))
+        inner = out[half : T - half]
+        inner[...] = c[0] * x[: T - W + 1]
+        for k in range(1, W):
+            inner += c[k] * x[k : T - W + 1 + k]
+    edge = sorted(set(range(min(half, T))) | set(range(max(T - half, 0), T)))
+    for t in edge:
+        if slide:
+            lo = min(max(t - half, 0), max(T - W, 0))
+            hi = min(lo + W, T)
+        else:
+            lo, hi = max(t - half, 0), min(t + half + 1, T)
+        idx = np.arange(lo, hi)
+        c = local_poly_coefficients(idx, order, t, weight(idx - t))
+        out[t] = np.tensordot(c, x[lo:hi], axes=1)
+    return out
+
+
+def savgol_smooth(x: np.ndarray, window: int, order: int) -> np.ndarray:
+    """Savitzky-Golay smoothing along axis 0 (fit at the ends).  x: (T, ...) -> (T, ...)
+
+    window: odd number of frames >= 1; order: polynomial degree, 0 <= order < window.
+    """
+    _check_savgol(window, order)
+    return _smooth_local_poly(x, window // 2, order, np.ones_like, slide=True)
+
+
+def gaussian_smooth(x: np.ndarray, sigma_frames: float) -> np.ndarray:
+    """Gaussian smoothing along axis 0 (linear fit at the ends).  x: (T, ...) -> (T, ...)
+
+    sigma_frames: standard deviation in frames, >= 0 (0 returns a copy).
+    """
+    _check_sigma(sigma_frames)
+    if sigma_frames == 0:
+        return np.array(x, dtype=np.float64)
+    return _smooth_local_poly(
+        x,
+        _gaussian_radius(sigma_frames),
+        1,
+        lambda d: np.exp(-0.5 * (d / sigma_frames) ** 2),
+        slide=False,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# rotations
+
+
+def _rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 4) scalar first. w = cos(angle / 2) keeps the branch: w < 0 for angles
+    in (pi, 3 pi)."""
+    theta = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    half = 0.5 * theta
+    scale = 0.5 * np.sinc(half / np.pi)  # sin(half) / theta, exact at 0
+    return np.concatenate([np.cos(half), rotvec * scale], axis=-1)
+
+
+def _quat_to_rotvec(quat: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) -> (..., 3) with angle 2 atan2(|v|, w) in [0, 2 pi).
+
+    q and -q give the two branches (angle a about n, or 2 pi - a about -n). A quaternion close
+    to -1 is the identity seen from the far branch, whose axis is undefined, so it is read as +1.
+    """
+    far = (quat[..., :1] < 0) & (np.linalg.norm(quat[..., 1:], axis=-1, keepdims=True) < 1e-6)
+    q = np.where(far, -quat, quat)
+    w, v = q[..., 0], q[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, w)
+    factor = np.where(s > 0, angle / np.where(s > 0, s, 1.0), 2.0 / np.where(s > 0, 1.0, w))
+    return v * factor[..., None]
+
+
+def _hemisphere_align(quat: np.ndarray) -> np.ndarray:
+    """Flip signs so consecutive quaternions along axis 0 have a dot product >= 0.
+    (T, ..., 4) -> (T, ..., 4)"""
+    if quat.shape[0] < 2:
+        return quat.copy()
+    dots = np.sum(quat[1:] * quat[:-1], axis=-1, keepdims=True)
+    steps = np.where(dots < 0, -1.0, 1.0)
+    sign = np.concatenate([np.ones_like(steps[:1]), np.cumprod(steps, axis=0)], axis=0)
+    return quat * sign
+
+
+def smooth_rotvecs(rotvec: np.ndarray, smooth: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """Smooth axis-angle tracks over time as sign-continuous quaternions.
+
+    rotvec: (T, ..., 3); smooth: a filter along axis 0, (T, D) -> (T, D). -> (T, ..., 3), each
+    frame on its input frame's axis-angle branch (see the module docstring).
+    """
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    T = rotvec.shape[0]
+    q_in = _rotvec_to_quat(rotvec)
+    q = _hemisphere_align(q_in)
+    q_hat = smooth(q.reshape(T, -1)).reshape(q.shape)
+    norm = np.linalg.norm(q_hat, axis=-1, keepdims=True)
+    q_hat = np.where(norm > 1e-6, q_hat / np.maximum(norm, 1e-12), q)  # degenerate: keep input
+    q_hat = np.where(np.sum(q_hat * q_in, axis=-1, keepdims=True) < 0, -q_hat, q_hat)
+    return _quat_to_rotvec(q_hat)
+
+
+# --------------------------------------------------------------------------------------------
+# motions
+
+
+def filter_motion(motion: Motion, smooth: Callable[[np.ndarray], np.ndarray]) -> Motion:
+    """Apply a temporal filter ((T, D) -> (T, D)) to the body pose, root orientation (as
+    quaternions) and translation of ``motion``; a new Motion, everything else unchanged."""
+    T = motion.num_frames
+    rotvecs = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)  # (T,22,3)
+    smoothed = smooth_rotvecs(rotvecs, smooth)
+    trans = smooth(np.asarray(motion.trans, dtype=np.float64).reshape(T, 3))
+    return motion.with_body(
+        root_orient=smoothed[:, 0].copy(), pose_body=smoothed[:, 1:].copy(), trans=trans
+    )
+
+
+def gaussian_filter_motion(motion: Motion, sigma_frames: float) -> Motion:
+    """Gaussian smoothing of body pose, root orientation and translation over time.
+
+    sigma_frames: kernel standard deviation in frames (> 0; 0 returns an unchanged copy).
+    Same T and fps; hands, betas and extras untouched. Raises InputError on a bad sigma.
+    """
+    _check_sigma(sigma_frames)
+    return filter_motion(motion, lambda x: gaussian_smooth(x, sigma_frames))
+
+
+def savgol_filter_motion(motion: Motion, window: int, order: int) -> Motion:
+    """Savitzky-Golay smoothing of body pose, root orientation and translation over time.
+
+    window: odd number of frames; order: polynomial degree, 0 <= order < window.
+    Same T and fps; hands, betas and extras untouched. Raises InputError on bad parameters.
+    """
+    _check_savgol(window, order)
+    return filter_motion(motion, lambda x: savgol_smooth(x, window, order))
+
+
+# --------------------------------------------------------------------------------------------
+# validation
+
+
+def _gaussian_radius(sigma_frames: float) -> int:
+    return max(1, math.ceil(GAUSSIAN_TRUNCATE * sigma_frames))
+
+
+def _check_sigma(sigma_frames: float) -> None:
+    try:
+        finite = math.isfinite(float(sigma_frames))
+    except (TypeError, ValueError):
+        finite = False
+    if not finite:
+        raise InputError(f"Gaussian sigma must be a finite number of frames, got {sigma_frames!r}")
+    if sigma_frames < 0:
+        raise InputError(f"Gaussian sigma must be >= 0 frames, got {sigma_frames:g}")
+
+
+def _check_savgol(window: int, order: int) -> None:
+    if not isinstance(window, int | np.integer) or window < 1 or window % 2 == 0:
+        raise InputError(f"Savitzky-Golay window must be an odd number of frames, got {window!r}")
+    if not isinstance(order, int | np.integer) or not 0 <= order < window:
+        raise InputError(
+            f"Savitzky-Golay order must be between 0 and window - 1 ({window - 1}), got {order!r}"
+        )

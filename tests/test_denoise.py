@@ -1,0 +1,271 @@
+"""Unsupervised denoising: ELBO training, regression/optimisation modes, files in and out."""
+
+import json
+import resource
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from mdvae_cli.body.builtin import builtin_body_model
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.cli.main import cli
+from mdvae_cli.fit.denoise import blend_windows, denoise_motions
+from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_denoiser
+from mdvae_cli.fit.train_prior import train_prior
+from mdvae_cli.metrics import evaluate_pair
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.motion.noise import add_pose_noise
+from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.motion.state import BodyParams
+from tests.test_prior import tiny_config, write_corpus
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+@pytest.fixture(scope="module")
+def tiny_prior(tmp_path_factory):
+    root = tmp_path_factory.mktemp("prior")
+    data = write_corpus(root / "clean", n=4, T=90)
+    train_prior(tiny_config(data, epochs=2), root / "run")
+    return root
+
+
+@pytest.fixture(scope="module")
+def noisy_dir(tiny_prior):
+    out = tiny_prior / "noisy"
+    out.mkdir(exist_ok=True)
+    rng = np.random.default_rng(0)
+    for f in sorted((tiny_prior / "clean").glob("*.npz")):
+        with np.load(f) as z:
+            arrays = dict(z)
+        arrays["poses"][:, 3:66] += rng.normal(0, 0.15, arrays["poses"][:, 3:66].shape)
+        with open(out / f.name, "wb") as fh:
+            np.savez(fh, **arrays)
+    return out
+
+
+def test_fit_dataset_lowers_its_loss_and_saves_a_loadable_denoiser(tiny_prior, noisy_dir, tmp_path):
+    log = []
+    cfg = FitConfig(
+        data=[str(noisy_dir)],
+        prior=str(tiny_prior / "run"),
+        window=20,
+        stride=5,
+        batch_size=8,
+        epochs=6,
+        lr=3e-3,
+        device="cpu",
+        denoiser=DenoiserConfig(lam=20.0, obs_unit=0.05, hidden_dim=16),
+    )
+    summary = fit_dataset(cfg, tmp_path / "den", progress=lambda d: log.append(d["loss"]))
+    assert summary.steps == len(log) > 20
+    assert np.mean(log[-5:]) < 0.8 * np.mean(log[:5]), (log[:5], log[-5:])
+    den, meta = load_denoiser(tmp_path / "den")
+    assert meta["denoiser_config"]["lam"] == 20.0
+    # the prior inside is frozen: identical to the one it started from
+    prior, _ = load_prior(tiny_prior / "run")
+    for a, b in zip(prior.state_dict().values(), den.prior.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b)
+    # resume continues the step count
+    cfg.epochs = 7
+    resumed = fit_dataset(cfg, tmp_path / "den", resume=True)
+    assert resumed.steps > summary.steps
+
+
+def test_optimization_mode_changes_only_the_inference_networks(tiny_prior, noisy_dir):
+    prior, _ = load_prior(tiny_prior / "run")
+    den = Denoiser(prior, DenoiserConfig(hidden_dim=16))
+    before = {k: v.clone() for k, v in den.state_dict().items()}
+    body = BodyModel(builtin_body_model())
+    motion = load_motion(noisy_dir / "clip0.npz")
+    out = denoise_motions([motion], den, body, window=20, stride=15, optimize_steps=3)
+    assert out[0].num_frames == motion.num_frames
+    after = den.state_dict()
+    changed = {k for k in before if not torch.equal(before[k], after[k])}
+    assert changed and all(not k.startswith("prior.") for k in changed)
+    assert any(k.startswith("encoder.") for k in changed)
+    assert any(k.startswith("x0_predictor.") for k in changed)
+
+
+def test_blend_windows_reproduces_a_consistent_sequence():
+    T, L = 50, 20
+    g = torch.Generator().manual_seed(0)
+    full = BodyParams(
+        torch.randn(T, 3, generator=g) * 0.5,
+        torch.randn(T, 21, 3, generator=g) * 0.3,
+        torch.randn(T, 3, generator=g),
+    )
+    starts = [0, 15, 30]
+    windows = [
+        BodyParams(full.root_orient[s : s + L], full.pose_body[s : s + L], full.trans[s : s + L])
+        for s in starts
+    ]
+    out = blend_windows(T, starts, windows)
+    torch.testing.assert_close(out.trans, full.trans)
+    torch.testing.assert_close(out.pose_body, full.pose_body, atol=1e-5, rtol=0)
+    # two different windows: the overlap cross-fades from the first to the second
+    a = BodyParams(torch.zeros(L, 3), torch.zeros(L, 21, 3), torch.zeros(L, 3))
+    b = BodyParams(torch.zeros(L, 3), torch.zeros(L, 21, 3), torch.ones(L, 3))
+    mix = blend_windows(30, [0, 10], [a, b])
+    ramp = mix.trans[10:20, 0]
+    assert torch.all(ramp[1:] > ramp[:-1]) and 0 < ramp[0] < 0.2 and 0.8 < ramp[-1] < 1
+    assert float(mix.trans[25, 0]) == 1.0 and float(mix.trans[5, 0]) == 0.0
+
+
+def write_denoiser(tiny_prior: Path, out: Path) -> Path:
+    prior, _ = load_prior(tiny_prior / "run")
+    from mdvae_cli.fit.fit_dataset import save_denoiser
+
+    save_denoiser(out / "denoiser.npz", Denoiser(prior, DenoiserConfig(hidden_dim=16)), {})
+    return out
+
+
+def test_cli_denoise_keeps_layout_frames_and_extras(tiny_prior, make_motion_file, tmp_path):
+    den = write_denoiser(tiny_prior, tmp_path / "den")
+    src = make_motion_file(
+        "take.npz",
+        T=97,
+        width=165,
+        fps=60.0,
+        dmpls=np.ones((97, 8)),
+        mocap_framerate=None,
+        mocap_frame_rate=np.array(60.0),
+    )
+    before = src.read_bytes()
+    out = tmp_path / "clean.npz"
+    res = CliRunner().invoke(
+        cli,
+        [
+            "denoise",
+            str(src),
+            "-o",
+            str(out),
+            "--denoiser",
+            str(den),
+            "--window",
+            "20",
+            "--overlap",
+            "5",
+            "--json",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert report["succeeded"] == 1 and report["mode"] == "regression"
+    assert src.read_bytes() == before
+    with np.load(src) as a, np.load(out) as b:
+        assert set(a.files) == set(b.files)
+        assert b["poses"].shape == (97, 165) and np.isfinite(b["poses"]).all()
+        np.testing.assert_array_equal(a["poses"][:, 66:], b["poses"][:, 66:])  # hands, face
+        np.testing.assert_array_equal(a["dmpls"], b["dmpls"])
+        np.testing.assert_array_equal(a["betas"], b["betas"])
+        assert float(b["mocap_frame_rate"]) == 60.0
+
+
+def test_cli_denoise_optimize_folder_meshes_and_failures(tiny_prior, noisy_dir, tmp_path):
+    den = write_denoiser(tiny_prior, tmp_path / "den")
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    for f in sorted(noisy_dir.glob("*.npz"))[:2]:
+        (inputs / f.name).write_bytes(f.read_bytes())
+    (inputs / "broken.npz").write_text("not a zip")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(
+        cli,
+        [
+            "denoise",
+            str(inputs),
+            "-o",
+            str(out),
+            "--denoiser",
+            str(den),
+            "--window",
+            "20",
+            "--overlap",
+            "5",
+            "--optimize",
+            "2",
+            "--per-file",
+            "--mesh-dir",
+            str(tmp_path / "mesh"),
+            "--mesh-format",
+            "obj",
+        ],
+    )
+    assert res.exit_code == 1  # one file failed, the others were written
+    assert "broken.npz" in res.output and "Traceback" not in res.output
+    assert sorted(p.name for p in out.glob("*.npz")) == ["clip0.npz", "clip1.npz"]
+    assert not (out / "broken.npz").exists()
+    assert len(list((tmp_path / "mesh" / "clip0").glob("*.obj"))) == 90
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["missing.npz"], "no such file"),
+        (["{bad}"], "not an .npz"),
+    ],
+)
+def test_cli_denoise_bad_inputs_write_nothing(tmp_path, args, message):
+    bad = tmp_path / "bad.npz"
+    bad.write_text("garbage")
+    args = [a.replace("{bad}", str(bad)) for a in args]
+    out = tmp_path / "o.npz"
+    res = CliRunner().invoke(cli, ["denoise", *args, "-o", str(out)])
+    assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output
+    assert not out.exists()
+
+
+def shipped_denoiser_available() -> bool:
+    from mdvae_cli.weights import default_weights
+
+    try:
+        default_weights("denoiser")
+    except Exception:
+        return False
+    return True
+
+
+def test_shipped_denoiser_lowers_the_error_of_a_noisy_clip():
+    clean = load_motion(EXAMPLES / "walk.npz")
+    noisy = add_pose_noise(clean, 0.15, np.random.default_rng(7))
+    den, _ = load_denoiser(None)
+    body = BodyModel(builtin_body_model())
+    out = denoise_motions([noisy], den, body)[0]
+    before = evaluate_pair(clean, noisy, body).v2v_cm
+    after = evaluate_pair(clean, out, body).v2v_cm
+    assert after < 0.75 * before, (before, after)
+
+
+def test_ten_minute_file_denoises_in_bounded_memory(tmp_path):
+    T = 10 * 60 * 30
+    t = np.arange(T)[:, None] / 30.0
+    poses = np.zeros((T, 156))
+    poses[:, 0] = np.pi / 2
+    poses[:, 3:66] = 0.3 * np.sin(2 * np.pi * 0.7 * t + np.arange(63)[None])
+    trans = np.concatenate([np.cos(t / 10), np.sin(t / 10), 0.9 + 0 * t], 1)
+    src = tmp_path / "long.npz"
+    np.savez(src, poses=poses, trans=trans, betas=np.zeros(16), mocap_framerate=30.0)
+    code = (
+        "import resource, sys; from mdvae_cli.cli.main import cli\n"
+        "try:\n cli(sys.argv[1:])\nexcept SystemExit as e:\n code = e.code\n"
+        "print('MAXRSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\nsys.exit(code)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code, "denoise", str(src), "-o", str(tmp_path / "out.npz")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-1500:]
+    maxrss_mb = int(proc.stdout.split("MAXRSS")[1]) / 1024
+    assert maxrss_mb < 1500, maxrss_mb
+    with np.load(tmp_path / "out.npz") as z:
+        assert z["poses"].shape == (T, 156)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss > 0
