@@ -137,7 +137,7 @@ class BodyModel(nn.Module):
         """Pose the body.
 
         root_orient: (B, 3) axis-angle; pose_body: (B, 21, 3) axis-angle; trans: (B, 3) or None;
-        betas: (B, S') or (S',) or None (any length S', padded/truncated);
+        betas: (B, S'), (1, S') or (S',) or None (any length S', padded/truncated);
         pose_extra: (B, J - 22, 3) axis-angle for the remaining joints, or None for rest;
         vertices: also return the full mesh (costly), else only joints and markers;
         vertex_ids: (K,) return only these vertices (plus markers) in ``vertices``.
@@ -147,8 +147,8 @@ class BodyModel(nn.Module):
         if betas is None:
             betas = torch.zeros(B, self.num_betas, dtype=dtype, device=device)
         betas = self.fit_betas(betas.to(dtype))
-        if betas.ndim == 1:
-            betas = betas.expand(B, -1)
+        if betas.ndim == 1 or betas.shape[0] == 1:
+            betas = betas.reshape(1, -1).expand(B, -1)
         rotvecs = [root_orient.reshape(B, 1, 3), pose_body.reshape(B, NUM_BODY_JOINTS - 1, 3)]
         n_extra = self.num_joints - NUM_BODY_JOINTS
         if n_extra:

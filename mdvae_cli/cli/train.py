@@ -38,6 +38,36 @@ class StepReporter:
             console.print(f"step {info['step']}/{total} ep {info['epoch'] + 1} {terms}")
 
 
+def start_config(cls, run_dir: Path, resume: bool, config_file: Path | None):
+    """The config to run: the run's own (resume), a given file, or the defaults."""
+    if resume:
+        path = Path(run_dir) / "config.json"
+        if not path.exists():
+            raise InputError(f"nothing to resume: {path} not found")
+    else:
+        path = config_file
+    if path is None:
+        return cls()
+    try:
+        return cls.from_dict(json.loads(Path(path).read_text()))
+    except (OSError, ValueError, TypeError) as exc:
+        raise InputError(f"config {path} is unreadable ({exc})") from None
+
+
+def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) -> None:
+    """Set the options given on the command line; ``nested`` names sub-config fields.
+
+    On resume, options that would change the network's shape are refused.
+    """
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        target = getattr(cfg, nested[key]) if key in nested else cfg
+        if resume and key in nested and nested[key] == "model" and getattr(target, key) != value:
+            raise InputError(f"--{key.replace('_', '-')} cannot change when resuming a run")
+        setattr(target, key, value)
+
+
 @click.command("train-prior")
 @click.argument("data", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
@@ -98,28 +128,16 @@ def train_prior(
 
     if threads:
         torch.set_num_threads(threads)
-    if resume:
-        cfg_path = run_dir / "config.json"
-        if not cfg_path.exists():
-            raise InputError(f"nothing to resume: {cfg_path} not found")
-        cfg = TrainConfig.from_dict(json.loads(cfg_path.read_text()))
-    elif config_file is not None:
-        cfg = TrainConfig.from_dict(json.loads(Path(config_file).read_text()))
-    else:
-        cfg = TrainConfig()
+    cfg = start_config(TrainConfig, run_dir, resume, config_file)
     if not resume:
         cfg.data = [str(p) for p in data]
         if split_file is not None:
             cfg.split_file = str(split_file)
         if body_model is not None:
             cfg.body_model = str(body_model)
-        for key, value in overrides.items():
-            if value is None:
-                continue
-            if key in ("latent_dim", "hidden_dim"):
-                setattr(cfg.model, key, value)
-            else:
-                setattr(cfg, key, value)
+    apply_overrides(
+        cfg, overrides, nested={"latent_dim": "model", "hidden_dim": "model"}, resume=resume
+    )
     with progress_bar() as progress:
         summary = run(
             cfg,
@@ -195,28 +213,16 @@ def fit_dataset(
 
     if threads:
         torch.set_num_threads(threads)
-    if resume:
-        cfg_path = out_dir / "config.json"
-        if not cfg_path.exists():
-            raise InputError(f"nothing to resume: {cfg_path} not found")
-        cfg = FitConfig.from_dict(json.loads(cfg_path.read_text()))
-    elif config_file is not None:
-        cfg = FitConfig.from_dict(json.loads(Path(config_file).read_text()))
-    else:
-        cfg = FitConfig()
+    cfg = start_config(FitConfig, out_dir, resume, config_file)
     if not resume:
         cfg.data = [str(p) for p in noisy]
         if prior_path is not None:
             cfg.prior = str(prior_path)
         if body_model is not None:
             cfg.body_model = str(body_model)
-    for key, value in overrides.items():
-        if value is None:
-            continue
-        if key in ("lam", "obs_unit"):
-            setattr(cfg.denoiser, key, value)
-        else:
-            setattr(cfg, key, value)
+    apply_overrides(
+        cfg, overrides, nested={"lam": "denoiser", "obs_unit": "denoiser"}, resume=resume
+    )
     with progress_bar() as progress:
         task = progress.add_task("fitting", total=None, info="")
 

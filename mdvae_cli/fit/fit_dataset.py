@@ -192,8 +192,8 @@ def fit_dataset(
     else:
         prior, _ = load_prior(cfg.prior if cfg.prior else default_weights("prior"))
         denoiser, done = Denoiser(prior, cfg.denoiser), 0
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     body = BodyModel(load_body_model(cfg.body_model))
     files = [f for f, _ in expand_inputs([Path(p) for p in cfg.data])]
     if not files:

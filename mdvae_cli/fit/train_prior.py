@@ -224,7 +224,7 @@ def train_prior(
             model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model/")})
             opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
             first_epoch, step, best = meta["epoch"] + 1, meta["step"], meta["best_val_loss"]
-        elif dist.is_main:
+        if dist.is_main:
             run_dir.mkdir(parents=True, exist_ok=True)
             (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
         forward = DistributedDataParallel(model.dvae) if dist.enabled else model.dvae

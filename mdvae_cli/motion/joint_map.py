@@ -1,0 +1,265 @@
+"""How a source skeleton reads as SMPL: the joint map, the canonical axes, the attached points.
+
+* :func:`build_joint_map` finds, by name, the source joints for the SMPL joints with a clear
+  anatomical counterpart (*direct* joints: hips, knees, ankles, toe bases, shoulders, elbows,
+  wrists) and the anchors (pelvis, head, collars) the others hang from.
+* :func:`canonical_rotation` / :func:`canonicalise` turn the source world (a signed axis
+  permutation read off the rest pose) so that up is +y, the body's left +x and forward +z,
+  SMPL's own frame.
+* :func:`attach_offsets` places the *attached* SMPL joints (pelvis, spine1-3, neck, head,
+  collars the source lacks): a fixed offset in the frame of a source joint, taken from the
+  body's rest pose once its shape is known.
+
+Plain numpy, no torch and no files: used by :mod:`mdvae_cli.motion.fit_shape` and
+:mod:`mdvae_cli.motion.retarget`.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES
+from mdvae_cli.errors import InputError
+from mdvae_cli.motion.bvh import SourceMotion
+
+_N = NUM_BODY_JOINTS
+_IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
+
+#: source joint names (normalised: lower case, no namespace, no ``_ - . space``) per SMPL joint;
+#: the first that exists wins. Left side only; the right is derived.
+_ALIASES: dict[str, tuple[str, ...]] = {
+    "pelvis": ("root", "hips", "pelvis", "hip"),
+    "left_hip": ("lfemur", "leftupleg", "leftthigh", "lefthip", "lthigh", "lhip", "leftupperleg",
+                 "lupleg"),
+    "left_knee": ("ltibia", "leftleg", "leftshin", "leftknee", "lshin", "lknee", "leftlowerleg"),
+    "left_ankle": ("lfoot", "leftfoot", "leftankle", "lankle"),
+    "left_foot": ("ltoes", "lefttoebase", "lefttoe", "lefttoes", "ltoe", "lefttoebase"),
+    "left_shoulder": ("lhumerus", "leftarm", "leftupperarm", "leftuparm", "lshldr", "lshoulder",
+                      "leftshoulder"),
+    "left_collar": ("lclavicle", "leftshoulder", "leftcollar", "lcollar", "leftclavicle",
+                    "lclav"),
+    "left_elbow": ("lradius", "leftforearm", "leftlowerarm", "leftelbow", "lforearm", "lelbow"),
+    "left_wrist": ("lhand", "lefthand", "leftwrist", "lwrist"),
+    "head": ("head",),
+}  # fmt: skip
+
+#: SMPL joints that must be found in the source
+_REQUIRED = ("pelvis", "left_hip", "left_knee", "left_ankle", "left_shoulder", "left_elbow",
+             "left_wrist", "head")  # fmt: skip
+_DIRECT = ("left_hip", "left_knee", "left_ankle", "left_foot", "left_shoulder", "left_elbow",
+           "left_wrist")  # fmt: skip
+_SPINE = ("spine1", "spine2", "spine3", "neck", "head")
+
+
+def _sides(name: str) -> list[str]:
+    return [name, "right" + name[4:]] if name.startswith("left") else [name]
+
+
+def _right_alias(alias: str) -> str:
+    if alias.startswith("left"):
+        return "right" + alias[4:]
+    if alias[0] == "l":
+        return "r" + alias[1:]
+    return alias
+
+
+def normalise_name(name: str) -> str:
+    """``mixamorig:Left_Up-Leg`` -> ``leftupleg``."""
+    name = re.split(r"[:|]", name)[-1]
+    return re.sub(r"[\s_.\-]", "", name).lower()
+
+
+@dataclass
+class JointMap:
+    """How the 22 SMPL body joints read a source skeleton.  Indices are source joint indices.
+
+    anchor: SMPL joint name -> source joint found by name (direct joints, pelvis, head, collars).
+    attach: (22,) source joint carrying each SMPL joint's target; offset: (22, 3) the target's
+    offset in that joint's frame (zero for direct joints; set by :func:`attach_offsets`).
+    rot_source: (22,) source joint whose global rotation starts each SMPL joint's rotation.
+    direct: (22,) bool. chain: source joints from the pelvis to the head anchor.
+    """
+
+    anchor: dict[str, int]
+    attach: np.ndarray
+    rot_source: np.ndarray
+    direct: np.ndarray
+    chain: list[int]
+    offset: np.ndarray = field(default_factory=lambda: np.zeros((_N, 3)))
+
+    def describe(self, names: tuple[str, ...]) -> dict[str, str]:
+        """SMPL joint -> the source joint it follows (``~`` marks an attached point)."""
+        return {
+            SMPL_JOINT_NAMES[j]: ("" if self.direct[j] else "~") + names[self.attach[j]]
+            for j in range(_N)
+        }
+
+
+def _path(parents: np.ndarray, a: int, b: int) -> list[int]:
+    """Source joints from ancestor a down to b (both included); [] if a is not an ancestor."""
+    out = [b]
+    while out[-1] != a:
+        p = int(parents[out[-1]])
+        if p < 0:
+            return []
+        out.append(p)
+    return out[::-1]
+
+
+def _find_anchors(src: SourceMotion) -> dict[str, int]:
+    """SMPL joint name -> source joint, by name; InputError when a required one is missing."""
+    norm: dict[str, int] = {}
+    for i, n in enumerate(src.names):
+        if not src.end_site[i]:
+            norm.setdefault(normalise_name(n), i)
+    anchor: dict[str, int] = {}
+    for smpl, aliases in _ALIASES.items():
+        for side, name in zip(("l", "r"), _sides(smpl), strict=False):
+            names = aliases if side == "l" else tuple(_right_alias(a) for a in aliases)
+            taken = set(anchor.values())
+            hit = next((norm[a] for a in names if a in norm and norm[a] not in taken), None)
+            if hit is not None:
+                anchor[name] = hit
+    for smpl in _REQUIRED:
+        for name in _sides(smpl):
+            if name not in anchor:
+                more = ", ..." if len(src.names) > 12 else ""
+                raise InputError(
+                    f"cannot map the skeleton onto SMPL: no joint for {name} (looked for "
+                    f"{', '.join(_ALIASES[smpl][:4])}, ...; joints: {', '.join(src.names[:12])}"
+                    f"{more})"
+                )
+    return anchor
+
+
+def _through_zero_offsets(src: SourceMotion, j: int) -> int:
+    """Follow zero-length, non-thumb children down from j (cmuconvert's hands start so)."""
+    while True:
+        kids = [
+            k
+            for k in np.flatnonzero(src.parents == j)
+            if not src.end_site[k]
+            and np.linalg.norm(src.offsets[k]) < 1e-6
+            and "thumb" not in src.names[k].lower()
+        ]
+        if not kids:
+            return int(j)
+        j = kids[0]
+
+
+def build_joint_map(src: SourceMotion) -> JointMap:
+    """Find the SMPL joints in ``src`` by name (CMU ASF, CMU/MotionBuilder/Mixamo BVH, ...).
+
+    Spine joints (and collars the source lacks) are left for :func:`attach_offsets`, which
+    places them once the body's shape is known. Raises InputError naming the first SMPL joint
+    that cannot be found.
+    """
+    anchor = _find_anchors(src)
+    parents = src.parents
+    chain = _path(parents, anchor["pelvis"], anchor["head"])
+    if not chain:
+        raise InputError("cannot map the skeleton onto SMPL: the head is not below the pelvis")
+    attach = np.full(_N, -1, dtype=np.int64)
+    rot = np.full(_N, -1, dtype=np.int64)
+    direct = np.zeros(_N, dtype=bool)
+    for smpl in _DIRECT:
+        for name in _sides(smpl):
+            if name in anchor:
+                attach[_IDX[name]] = anchor[name]
+                direct[_IDX[name]] = True
+    if src.info.get("cmuconvert"):
+        # cmuconvert drops CMU's wrist segment: its hand joint sits ~9 cm short of the wrist,
+        # so the body's wrist becomes a point further along the forearm (attach_offsets)
+        direct[[_IDX["left_wrist"], _IDX["right_wrist"]]] = False
+    attach[0] = rot[0] = anchor["pelvis"]
+    for side in ("left", "right"):
+        if f"{side}_foot" not in anchor:  # no toes: a point in the ankle's frame
+            attach[_IDX[f"{side}_foot"]] = anchor[f"{side}_ankle"]
+        collar = anchor.get(f"{side}_collar")
+        path = _path(parents, collar, anchor[f"{side}_shoulder"]) if collar is not None else []
+        if len(path) >= 2:
+            attach[_IDX[f"{side}_collar"]], rot[_IDX[f"{side}_collar"]] = collar, path[-2]
+        # rotation sources: the last source joint before the next anchor down the limb
+        for a, b in (("hip", "knee"), ("knee", "ankle"), ("ankle", "foot"),
+                     ("shoulder", "elbow"), ("elbow", "wrist")):  # fmt: skip
+            ja, jb = anchor[f"{side}_{a}"], anchor.get(f"{side}_{b}")
+            path = _path(parents, ja, jb) if jb is not None else []
+            rot[_IDX[f"{side}_{a}"]] = path[-2] if len(path) >= 2 else ja
+        for leaf in ("foot", "wrist"):  # leaves: their own frame (past zero-length joints)
+            j = _IDX[f"{side}_{leaf}"]
+            rot[j] = _through_zero_offsets(src, attach[j])
+    return JointMap(anchor=anchor, attach=attach, rot_source=rot, direct=direct, chain=chain)
+
+
+def canonical_rotation(src: SourceMotion, jmap: JointMap) -> np.ndarray:
+    """The signed axis permutation S (det +1) taking the source world to SMPL's: up +y, the
+    body's left +x, forward +z, read off the rest pose.  -> (3, 3)"""
+    rest = src.rest_positions()
+    up = rest[jmap.anchor["head"]] - rest[jmap.anchor["pelvis"]]
+    left = rest[jmap.anchor["left_hip"]] - rest[jmap.anchor["right_hip"]]
+    iu = int(np.argmax(np.abs(up)))
+    left = left.copy()
+    left[iu] = 0.0
+    il = int(np.argmax(np.abs(left)))
+    if np.linalg.norm(left) < 1e-9 or il == iu:
+        raise InputError("cannot tell left from right in the source rest pose")
+    S = np.zeros((3, 3))
+    S[1, iu] = np.sign(up[iu])
+    S[0, il] = np.sign(left[il])
+    S[2] = np.cross(S[0], S[1])
+    return S
+
+
+def canonicalise(src: SourceMotion, S: np.ndarray) -> SourceMotion:
+    """``src`` expressed in the world turned by S (positions S p, rotations S R S^T)."""
+    if np.allclose(S, np.eye(3)):
+        return src
+    rot = np.einsum("ab,tjbc,dc->tjad", S, src.rotations, S)
+    return replace(src, offsets=src.offsets @ S.T, root_positions=src.root_positions @ S.T,
+                   rotations=rot, info=dict(src.info), notes=list(src.notes))  # fmt: skip
+
+
+def _last_below(heights: np.ndarray, chain: list[int], h: float) -> int:
+    """The last chain joint whose rest height is at most h (the first joint if none is)."""
+    below = [c for c, hc in zip(chain, heights, strict=True) if hc <= h + 1e-3]
+    return below[-1] if below else chain[0]
+
+
+def attach_offsets(src: SourceMotion, jmap: JointMap, rest_joints: np.ndarray) -> JointMap:
+    """Place the attached (non-direct) SMPL joints on the source skeleton.
+
+    The body's rest joints ``rest_joints`` (J, 3) are moved so that its hip centre meets the
+    source's; spine joints and missing collars then ride on the last source spine joint below
+    them, and every attached joint keeps its rest offset from its carrier.  Fills in
+    ``attach``, ``rot_source`` and ``offset`` of a copy of ``jmap``.
+    """
+    rest = src.rest_positions()
+    X = np.asarray(rest_joints)[:_N]
+    hips = (rest[jmap.anchor["left_hip"]] + rest[jmap.anchor["right_hip"]]) / 2
+    X = X + (hips - (X[1] + X[2]) / 2)
+    chain = jmap.chain
+    heights = rest[chain, 1]
+    attach, rot = jmap.attach.copy(), jmap.rot_source.copy()
+    for name, child in zip(_SPINE, ("spine2", "spine3", "neck", "head", None), strict=True):
+        j = _IDX[name]
+        attach[j] = _last_below(heights, chain, X[j, 1])
+        if child is None:
+            rot[j] = _through_zero_offsets(src, jmap.anchor["head"])
+        else:
+            rot[j] = _last_below(heights, chain, (X[j, 1] + X[_IDX[child], 1]) / 2)
+    for side in ("left", "right"):  # collars the source lacks ride on the spine
+        j = _IDX[f"{side}_collar"]
+        if attach[j] < 0:
+            attach[j] = rot[j] = _last_below(heights, chain, X[j, 1])
+    offset = np.where(jmap.direct[:, None], 0.0, X - rest[attach])
+    for side in ("left", "right"):
+        j, e = _IDX[f"{side}_wrist"], _IDX[f"{side}_elbow"]
+        if not jmap.direct[j]:  # further along the source forearm, to the body's forearm length
+            d = rest[attach[j]] - rest[attach[e]]
+            n = np.linalg.norm(d)
+            offset[j] = d / n * (np.linalg.norm(X[j] - X[e]) - n)
+    return JointMap(anchor=dict(jmap.anchor), attach=attach, rot_source=rot,
+                    direct=jmap.direct.copy(), chain=list(chain), offset=offset)  # fmt: skip
