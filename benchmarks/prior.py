@@ -63,13 +63,15 @@ def reconstruction(prior, body, windows: WindowSet, batch: int = 256) -> dict[st
 
 
 @torch.no_grad()
-def samples(prior, body, files: list[Path], seconds: float, seed: int) -> dict[str, float]:
+def samples(
+    prior, body, files: list[Path], seconds: float, seed: int, temperature: float = 1.0
+) -> dict[str, float]:
     """Prior samples from each file's first frame vs the real motion of the same length."""
     frames = int(seconds * MODEL_FPS)
     acc_s, acc_r, min_feet, floor_real, max_speed = [], [], [], [], []
     for k, f in enumerate(files):
         real = resample_motion(load_motion(f), MODEL_FPS)
-        gen = sample_motion(prior, body, real, frames, seed=seed + k)
+        gen = sample_motion(prior, body, real, frames, seed=seed + k, temperature=temperature)
         for motion, acc in ((gen, acc_s), (real, acc_r)):
             j = joints(body, motion)
             a = (j[:-2] - 2 * j[1:-1] + j[2:]) * MODEL_FPS**2
@@ -102,6 +104,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--max-files", type=int, default=40)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--temperatures", default="1.0,0.5", help="prior sampling temperatures")
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -113,25 +116,35 @@ def main() -> None:
     windows = load_windows(files, body, 60, 60)
     rec = reconstruction(prior, body, windows)
     long_files = [f for f in files if load_motion(f).duration >= args.seconds]
-    smp = samples(prior, body, long_files, args.seconds, seed=0)
+    temps = [float(t) for t in args.temperatures.split(",")]
+    smps = {t: samples(prior, body, long_files, args.seconds, seed=0, temperature=t) for t in temps}
     print(
         f"Prior benchmark on the {args.split} split: {len(files)} files, {len(windows)} "
         f"windows of 60 frames, {len(long_files)} samples of {args.seconds:g} s "
         f"({platform.processor() or platform.machine()}, torch {torch.__version__}, "
         f"{time.time() - start:.0f} s)\n"
     )
-    print("| metric | value |\n|---|---|")
-    print(f"| reconstruction V2V, root-relative (cm) | {rec['v2v_cm']:.2f} |")
-    print(f"| reconstruction V2V, absolute (cm) | {rec['v2v_abs_cm']:.2f} |")
-    print(f"| KL per step (nats) | {rec['kl_per_step']:.2f} |")
-    print(f"| joint acceleration, prior samples (m/s²) | {smp['accel_samples']:.2f} |")
-    print(f"| joint acceleration, real motion (m/s²) | {smp['accel_real']:.2f} |")
-    print(f"| ratio samples / real | {smp['accel_samples'] / smp['accel_real']:.2f} |")
+    print("| reconstruction (encoder -> decoder, posterior means) | value |\n|---|---|")
+    print(f"| V2V, root-relative (cm) | {rec['v2v_cm']:.2f} |")
+    print(f"| V2V, absolute (cm) | {rec['v2v_abs_cm']:.2f} |")
+    print(f"| KL per step (nats) | {rec['kl_per_step']:.2f} |\n")
+    print("| prior samples, temperature | " + " | ".join(f"{t:g}" for t in temps) + " |")
+    print("|---|" + "---|" * len(temps))
+    real = next(iter(smps.values()))["accel_real"]
+    rows = [
+        (f"joint acceleration (m/s²), real motion: {real:.2f}", "accel_samples", "%.2f"),
+        ("lowest foot vs real floor, worst (cm)", "lowest_foot_cm", "%.1f"),
+        ("lowest foot vs real floor, mean (cm)", "mean_lowest_foot_cm", "%.1f"),
+        ("largest joint speed (m/s)", "max_joint_speed", "%.1f"),
+    ]
+    for label, key, fmt in rows:
+        print(f"| {label} | " + " | ".join(fmt % smps[t][key] for t in temps) + " |")
     print(
-        f"| lowest foot in samples vs real floor (cm, worst / mean) | "
-        f"{smp['lowest_foot_cm']:.1f} / {smp['mean_lowest_foot_cm']:.1f} |"
+        "| acceleration ratio samples / real | "
+        + " | ".join(f"{smps[t]['accel_samples'] / real:.2f}" for t in temps)
+        + " |"
     )
-    print(f"| largest joint speed in samples (m/s) | {smp['max_joint_speed']:.1f} |")
+    smp = {f"T{t:g}_{k}": v for t in temps for k, v in smps[t].items()}
     if args.json:
         Path(args.json).write_text(json.dumps({**rec, **smp}, indent=2) + "\n")
 

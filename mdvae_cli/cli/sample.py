@@ -32,10 +32,17 @@ from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console
     help="Prior checkpoint or train-prior run folder (default: the shipped prior).",
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option(
+    "--temperature",
+    type=click.FloatRange(min=0.0),
+    default=1.0,
+    show_default=True,
+    help="Scale of the prior's spread: 1 = exact samples, lower = smoother motion.",
+)
 @body_model_option
 @allow_pickle_option
 @handle_errors
-def sample(start, frames, out, prior_path, seed, body_model, allow_pickle) -> None:
+def sample(start, frames, out, prior_path, seed, temperature, body_model, allow_pickle) -> None:
     """Generate motion from the Motion-DVAE prior alone.
 
     The first frame of --from is the initial state x0; latents are drawn from the prior and
@@ -55,7 +62,7 @@ def sample(start, frames, out, prior_path, seed, body_model, allow_pickle) -> No
     motion = load_motion(start, allow_pickle=allow_pickle)
     prior, _ = load_prior(prior_path if prior_path is not None else default_weights("prior"))
     body = BodyModel(load_body_model(body_model))
-    result = sample_motion(prior, body, motion, frames, seed=seed)
+    result = sample_motion(prior, body, motion, frames, seed=seed, temperature=temperature)
     save_motion(result, out, forbid=(start,))
     console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
 

@@ -96,7 +96,14 @@ def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) 
 @click.option("--epochs", type=int, help="Passes over the training windows [40].")
 @click.option("--lr", type=float, help="Adam learning rate (cosine-decayed) [1e-3].")
 @click.option("--kl-warmup", "kl_warmup_steps", type=int, help="KL warm-up steps [1500].")
+@click.option("--kl-max", type=float, help="Final KL weight after warm-up (1 = the ELBO) [1].")
 @click.option("--body-weight", type=float, help="Weight of the mesh/joint term, per cm² [0.1].")
+@click.option(
+    "--velocity-std-scale",
+    type=float,
+    help="Widen the velocities' normalisation scale by this factor, giving them less "
+    "weight in the reconstruction [1].",
+)
 @click.option("--latent-dim", type=int, help="z_t width [32].")
 @click.option("--hidden-dim", type=int, help="Recurrent state width [128].")
 @click.option("--seed", type=int, help="Random seed [0].")
@@ -185,7 +192,8 @@ def train_prior(
 @click.option("--stride", type=int, help="Frames between window starts [10].")
 @click.option("--batch-size", type=int, help="Windows per step [64].")
 @click.option("--epochs", type=int, help="Passes over the windows [10].")
-@click.option("--lr", type=float, help="Adam learning rate [3e-4].")
+@click.option("--lr", type=float, help="Adam learning rate, cosine-decayed to --lr-final [3e-3].")
+@click.option("--lr-final", type=float, help="Final learning rate [3e-4].")
 @click.option("--seed", type=int, help="Random seed [0].")
 @click.option("--device", help="cpu, cuda, cuda:N or auto [auto].")
 @click.option("--resume", is_flag=True, help="Continue from OUT/denoiser.npz.")

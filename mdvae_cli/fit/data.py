@@ -42,14 +42,18 @@ class WindowSet:
 
 
 def chunk_states(
-    params: BodyParams, betas: torch.Tensor, body: BodyModel, fps: float = MODEL_FPS
+    params: BodyParams,
+    betas: torch.Tensor,
+    body: BodyModel,
+    fps: float = MODEL_FPS,
+    velocity_window: int = 1,
 ) -> tuple[torch.Tensor, CanonicalFrame]:
     """Canonicalise chunks and build their states.
 
     params: (B, T+1, ...) chunks whose frame 0 is x0; betas: (B, S) -> states (B, T+1, 138)
     """
     canon, frame = canonicalize(params, body.pelvis_rest(betas))
-    return params_to_state(canon, fps), frame
+    return params_to_state(canon, fps, velocity_window), frame
 
 
 def motion_to_params(motion: Motion, dtype=torch.float32) -> BodyParams:

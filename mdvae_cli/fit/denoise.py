@@ -91,7 +91,9 @@ def make_windows(
         params = BodyParams(stack(2), stack(3), stack(4))
         betas = stack(5)
         with torch.no_grad():
-            states, frame = chunk_states(params, betas, body)
+            states, frame = chunk_states(
+                params, betas, body, velocity_window=denoiser.cfg.velocity_window
+            )
             y3d = observe(body, states, betas) if observations else states.new_zeros(0)
         weight = None
         if any(it[6] is not None for it in items):

@@ -41,7 +41,8 @@ class FitConfig:
     stride: int = 10
     batch_size: int = 64
     epochs: int = 10
-    lr: float = 3e-4
+    lr: float = 3e-3
+    lr_final: float = 3e-4
     seed: int = 0
     body_model: str | None = None
     device: str = "auto"
@@ -75,11 +76,16 @@ def fit_denoiser(
     seed: int = 0,
     progress: Callable[[dict], None] | None = None,
     device: torch.device | None = None,
+    lr_final: float | None = None,
+    checkpoint: Callable[[int], None] | None = None,
+    checkpoint_every: int = 200,
 ) -> list[float]:
     """Maximise the ELBO over phi, gamma, omega for ``steps`` Adam steps on ``groups``.
 
     Batches cycle through a seeded permutation of all windows (each group separately, larger
-    groups visited in proportion). Returns the loss of every step.
+    groups visited in proportion). With ``lr_final`` the learning rate decays from ``lr`` to it
+    on a cosine; ``checkpoint(step)`` is called every ``checkpoint_every`` steps. Returns the
+    loss of every step.
     """
     device = device or torch.device("cpu")
     opt = torch.optim.Adam(denoiser.trainable_parameters(), lr=lr)
@@ -98,6 +104,10 @@ def fit_denoiser(
         idx = perms[gi][cursors[gi] : cursors[gi] + batch_size]
         cursors[gi] += batch_size
         b = g.batch(idx)
+        if lr_final is not None:
+            frac = step / max(1, steps)
+            for group in opt.param_groups:
+                group["lr"] = lr_final + 0.5 * (lr - lr_final) * (1 + math.cos(math.pi * frac))
         w = None if b.weight is None else b.weight.to(device)
         terms = denoiser.elbo(b.yn.to(device), b.y3d.to(device), b.betas.to(device), body, w)
         opt.zero_grad(set_to_none=True)
@@ -107,6 +117,10 @@ def fit_denoiser(
         losses.append(terms["loss"].item())
         if progress is not None:
             progress({"step": step + 1, "steps": steps, **{k: v.item() for k, v in terms.items()}})
+        if checkpoint is not None and (step + 1) % checkpoint_every == 0:
+            denoiser.eval()
+            checkpoint(step + 1)
+            denoiser.train()
     denoiser.eval()
     return losses
 
@@ -205,6 +219,11 @@ def fit_dataset(
         steps = min(steps, max_steps)
     denoiser.to(device)
     body.to(device)
+
+    def save(step: int) -> None:
+        meta = {"fit_config": cfg.to_dict(), "steps": done + step}
+        save_denoiser(out_dir / "denoiser.npz", denoiser, meta)
+
     losses = fit_denoiser(
         denoiser,
         groups,
@@ -215,6 +234,8 @@ def fit_dataset(
         seed=cfg.seed + done,
         progress=progress,
         device=device,
+        lr_final=cfg.lr_final,
+        checkpoint=save,
     )
     denoiser.cpu()
     meta = {

@@ -22,6 +22,7 @@ def sample_motion(
     num_frames: int,
     seed: int = 0,
     window: int = 60,
+    temperature: float = 1.0,
 ) -> Motion:
     """``num_frames`` frames at 30 Hz sampled from p(x | x0), x0 = the start's first frame.
 
@@ -41,7 +42,7 @@ def sample_motion(
     while made < num_frames:
         states, frame = chunk_states(first, betas, body)
         n = min(window, num_frames - made)
-        x = prior.sample(states[:, 0], n, generator=gen)
+        x = prior.sample(states[:, 0], n, generator=gen, temperature=temperature)
         world = uncanonicalize(state_to_params(x), frame, pelvis)
         pieces.append(world)
         made += n

@@ -32,7 +32,14 @@ from mdvae_cli.fit.distributed import (
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, kl_weight
 from mdvae_cli.model.prior_model import PriorModel, model_tensors
-from mdvae_cli.motion.state import state_to_params
+from mdvae_cli.motion.state import POSE_VEL, ROOT_VEL, TRANS_VEL, state_to_params
+
+#: the velocity columns of the state (r dot, phi dot, Theta dot)
+VELOCITY_DIMS = [
+    *range(TRANS_VEL.start, TRANS_VEL.stop),
+    *range(ROOT_VEL.start, ROOT_VEL.stop),
+    *range(POSE_VEL.start, POSE_VEL.stop),
+]
 
 
 @dataclass
@@ -52,6 +59,7 @@ class TrainConfig:
     body_weight: float = 0.1
     body_vertices: int = 256
     body_frame_stride: int = 4
+    velocity_std_scale: float = 1.0
     grad_clip: float = 5.0
     seed: int = 0
     body_model: str | None = None
@@ -214,6 +222,7 @@ def train_prior(
 
         model = PriorModel(cfg.model)
         model.normalizer.fit(torch.cat([train.x0[:, None], train.x], dim=1))
+        model.normalizer.scale_std(VELOCITY_DIMS, cfg.velocity_std_scale)
         model.to(device)
         opt = torch.optim.Adam(model.dvae.parameters(), lr=cfg.lr)
         steps_per_epoch = max(1, len(train) // (cfg.batch_size * dist.world_size))

@@ -32,11 +32,17 @@ class DenoiserConfig:
     lam: Inverse-Gamma prior IG(lam/2, lam/2) on the observation variances.
     obs_unit: metres per observation unit (the scale at which v ~ 1 under the prior).
     hidden_dim: width of the x0 and noise predictors.
+    velocity_window: frames of the local line fit that gives the noisy states' velocities
+        (1 = plain finite differences, which turn per-frame noise into huge velocities).
+    x0_window: the x0 predictor's base estimate is a least-squares line through the first
+        ``x0_window`` noisy states evaluated at frame 0 (1 = the noisy first state itself).
     """
 
     lam: float = 1000.0
     obs_unit: float = 0.05
     hidden_dim: int = 128
+    velocity_window: int = 1
+    x0_window: int = 1
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -47,11 +53,22 @@ class DenoiserConfig:
         return cls(**{k: v for k, v in d.items() if k in names})
 
 
-class X0Predictor(nn.Module):
-    """q_omega(x0 | y_{0:T}) = N(mu, sigma): bidirectional GRU read at frame 0, residual on y_0."""
+def line_start_weights(n: int) -> torch.Tensor:
+    """Weights c with ``c @ y[:n]`` = the least-squares line through y_0..y_{n-1} at 0.  (n,)"""
+    if n <= 1:
+        return torch.ones(1)
+    k = torch.arange(n, dtype=torch.float64)
+    c = (2 * (2 * n - 1) - 6 * k) / (n * (n + 1))
+    return c.float()
 
-    def __init__(self, state_dim: int, hidden: int):
+
+class X0Predictor(nn.Module):
+    """q_omega(x0 | y_{0:T}) = N(mu, sigma): bidirectional GRU read at frame 0, residual on a
+    base estimate (the noisy first state, or a line fitted through the first frames)."""
+
+    def __init__(self, state_dim: int, hidden: int, base_window: int = 1):
         super().__init__()
+        self.register_buffer("base_weights", line_start_weights(base_window), persistent=False)
         self.rnn = nn.GRU(state_dim, hidden, batch_first=True, bidirectional=True)
         self.head = mlp(2 * hidden + state_dim, hidden, 2 * state_dim)
         nn.init.zeros_(self.head[-1].weight)
@@ -60,8 +77,11 @@ class X0Predictor(nn.Module):
     def forward(self, yn: torch.Tensor) -> Gaussian:
         """yn: (B, T+1, D) -> Gaussian over normalised x0, (B, D)"""
         out, _ = self.rnn(yn)
-        delta, logvar = self.head(torch.cat([out[:, 0], yn[:, 0]], dim=-1)).chunk(2, dim=-1)
-        return Gaussian(yn[:, 0] + delta, (logvar - 4.0).clamp(-12.0, 4.0))
+        n = min(self.base_weights.shape[0], yn.shape[1])
+        w = line_start_weights(n).to(yn) if n < self.base_weights.shape[0] else self.base_weights
+        base = torch.einsum("k,bkd->bd", w, yn[:, :n])
+        delta, logvar = self.head(torch.cat([out[:, 0], base], dim=-1)).chunk(2, dim=-1)
+        return Gaussian(base + delta, (logvar - 4.0).clamp(-12.0, 4.0))
 
 
 class NoisePredictor(nn.Module):
@@ -100,7 +120,7 @@ class Denoiser(nn.Module):
         self.encoder: Encoder = copy.deepcopy(prior.dvae.encoder)
         for p in self.encoder.parameters():
             p.requires_grad_(True)
-        self.x0_predictor = X0Predictor(mc.state_dim, cfg.hidden_dim)
+        self.x0_predictor = X0Predictor(mc.state_dim, cfg.hidden_dim, cfg.x0_window)
         self.noise_predictor = NoisePredictor(
             mc.hidden_dim, mc.state_dim, mc.obs_dim, cfg.hidden_dim
         )

@@ -154,15 +154,24 @@ class MotionDVAE(nn.Module):
 
     @torch.no_grad()
     def sample(
-        self, x0: torch.Tensor, num_frames: int, generator: torch.Generator | None = None
+        self,
+        x0: torch.Tensor,
+        num_frames: int,
+        generator: torch.Generator | None = None,
+        temperature: float = 1.0,
     ) -> torch.Tensor:
-        """Generate x_1..x_T from the prior alone.  x0: (B, D) -> (B, T, D) decoder means."""
+        """Generate x_1..x_T from the prior alone.  x0: (B, D) -> (B, T, D) decoder means.
+
+        ``temperature`` scales the prior's standard deviations (1 = exact prior samples;
+        below 1 trades diversity for smoother, more typical motion).
+        """
         h = self.prior.init(x0)[None]
         z_prev = x0.new_zeros(x0.shape[0], self.cfg.latent_dim)
         zs = []
         for _ in range(num_frames):
             dist, h = self.prior.step(z_prev, h)
-            z_prev = dist.sample(generator)
+            logvar = dist.logvar + 2.0 * torch.log(torch.tensor(max(temperature, 1e-6)))
+            z_prev = Gaussian(dist.mean, logvar).sample(generator)
             zs.append(z_prev)
         x_mean, _ = self.decoder(torch.stack(zs, dim=1), x0)
         return x_mean

@@ -24,6 +24,13 @@ class Normalizer(nn.Module):
         self.std.copy_(flat.std(0).clamp_min(min_std).to(self.std.dtype))
         return self
 
+    @torch.no_grad()
+    def scale_std(self, dims: list[int], factor: float) -> Normalizer:
+        """Widen (factor > 1) the scale of some dimensions: under the decoder's N(mu, I) in
+        normalised units this gives them a proportionally larger variance, i.e. less weight."""
+        self.std[dims] *= factor
+        return self
+
     def normalize(self, x: torch.Tensor) -> torch.Tensor:
         """(..., D) -> (..., D)"""
         return (x - self.mean) / self.std

@@ -24,10 +24,13 @@ class PriorModel(nn.Module):
         self.normalizer = Normalizer(cfg.state_dim)
 
     @torch.no_grad()
-    def sample(self, x0: torch.Tensor, num_frames: int, generator=None) -> torch.Tensor:
+    def sample(
+        self, x0: torch.Tensor, num_frames: int, generator=None, temperature: float = 1.0
+    ) -> torch.Tensor:
         """Prior samples in state units.  x0: (B, D) canonical state -> (B, T, D)"""
         x0n = self.normalizer.normalize(x0)
-        return self.normalizer.denormalize(self.dvae.sample(x0n, num_frames, generator))
+        x = self.dvae.sample(x0n, num_frames, generator, temperature)
+        return self.normalizer.denormalize(x)
 
 
 def model_tensors(model: nn.Module, prefix: str = "model/") -> dict[str, torch.Tensor]:

@@ -29,6 +29,31 @@ def finite_difference(p: torch.Tensor, fps: float, dim: int = -2) -> torch.Tenso
     return torch.cat([first, d], dim=dim)
 
 
+def smoothed_difference(p: torch.Tensor, fps: float, window: int, dim: int = -2) -> torch.Tensor:
+    """Velocity by a local least-squares line over ``window`` frames (a Savitzky-Golay first
+    derivative), for noisy observations where plain differences amplify the noise.
+
+    The ends are extended by odd reflection (2 p[0] - p[k]), which keeps linear trends, so a
+    constant-velocity motion gets its exact velocity everywhere.
+    p: (..., T, D) -> (..., T, D); ``window`` odd >= 3 (1 gives :func:`finite_difference`).
+    """
+    if window <= 1:
+        return finite_difference(p, fps, dim)
+    h = window // 2
+    x = p.movedim(dim, -1)  # (..., D, T)
+    T = x.shape[-1]
+    k = torch.arange(1, h + 1, device=p.device)
+    idx_lo = k.clamp(max=T - 1).flip(0)
+    idx_hi = (T - 1 - k).clamp(min=0)
+    lo = 2 * x[..., :1] - x[..., idx_lo]
+    hi = 2 * x[..., -1:] - x[..., idx_hi]
+    padded = torch.cat([lo, x, hi], dim=-1)
+    taps = torch.arange(-h, h + 1, dtype=p.dtype, device=p.device)
+    weights = taps / (taps**2).sum()
+    v = (padded.unfold(-1, window, 1) * weights).sum(-1) * fps
+    return v.movedim(-1, dim)
+
+
 @dataclass
 class BodyParams:
     """Body parameters of a sequence.  root_orient (..., T, 3), pose_body (..., T, 21, 3),
@@ -39,14 +64,15 @@ class BodyParams:
     trans: torch.Tensor
 
 
-def params_to_state(params: BodyParams, fps: float) -> torch.Tensor:
-    """Assemble the state.  -> x (..., T, 138)"""
+def params_to_state(params: BodyParams, fps: float, velocity_window: int = 1) -> torch.Tensor:
+    """Assemble the state.  -> x (..., T, 138)
+
+    ``velocity_window`` > 1 takes velocities by :func:`smoothed_difference` (noisy inputs).
+    """
     r, phi = params.trans, params.root_orient
     theta = params.pose_body.flatten(-2)
-    return torch.cat(
-        [r, finite_difference(r, fps), phi, finite_difference(phi, fps), theta,
-         finite_difference(theta, fps)], dim=-1,
-    )  # fmt: skip
+    vel = lambda p: smoothed_difference(p, fps, velocity_window)  # noqa: E731
+    return torch.cat([r, vel(r), phi, vel(phi), theta, vel(theta)], dim=-1)
 
 
 def state_to_params(x: torch.Tensor) -> BodyParams:
