@@ -322,3 +322,12 @@ def test_cli_denoise_with_an_smplh_layout_body_model(tmp_path, make_motion_file)
     )
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["mean"]["v2v_cm"] > 0
+
+
+def test_x0_line_base_recovers_a_linear_trend():
+    from mdvae_cli.model.denoiser import line_start_weights
+
+    c = line_start_weights(9)
+    y = 5.0 + 2.0 * torch.arange(9.0)
+    assert float(c.sum()) == pytest.approx(1.0) and float(c @ y) == pytest.approx(5.0, abs=1e-5)
+    assert line_start_weights(1).tolist() == [1.0]

