@@ -141,27 +141,26 @@ def denoise(
     def run(group: list[FileJob]) -> None:
         model = copy.deepcopy(denoiser) if optimize_steps else denoiser
         start = time.perf_counter()
-        if optimize_steps:
-            with progress_bar(transient=True) as progress:
-                task = progress.add_task("optimising", total=optimize_steps, info="")
+        with progress_bar(transient=True) as progress:
+            task = progress.add_task(
+                "optimising", total=optimize_steps or 1, visible=False, info=""
+            )
 
-                def tick(info: dict) -> None:
-                    progress.update(task, completed=info["step"], info=f"loss {info['loss']:.2f}")
-
-                cleaned = denoise_motions(
-                    [loaded[j.source] for j in group],
-                    model,
-                    body,
-                    window,
-                    stride,
-                    optimize_steps,
-                    lr,
-                    seed=seed,
-                    progress=tick,
+            def tick(info: dict) -> None:
+                progress.update(
+                    task, visible=True, completed=info["step"], info=f"loss {info['loss']:.2f}"
                 )
-        else:
+
             cleaned = denoise_motions(
-                [loaded[j.source] for j in group], model, body, window, stride
+                [loaded[j.source] for j in group],
+                model,
+                body,
+                window,
+                stride,
+                optimize_steps=optimize_steps,
+                lr=lr,
+                seed=seed,
+                progress=tick,
             )
         seconds = time.perf_counter() - start
         frames = sum(loaded[j.source].num_frames for j in group)
