@@ -43,7 +43,7 @@ def reconstruction(prior, body, windows: WindowSet, batch: int = 256) -> dict[st
     for i in range(0, len(windows), batch):
         w = windows.subset(torch.arange(i, min(i + batch, len(windows))))
         xn, x0n = norm.normalize(w.x), norm.normalize(w.x0)
-        z, post = prior.dvae.encoder(xn, x0n, sample=False)
+        z, post = prior.dvae.encoder(xn, x0n, sample=False, decoder=prior.dvae.decoder)
         p = prior.dvae.prior(z, x0n)
         x_mean, _ = prior.dvae.decoder(z, x0n)
         kls += float(gaussian_kl(post.mean, post.logvar, p.mean, p.logvar).sum())

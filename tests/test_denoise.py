@@ -331,3 +331,20 @@ def test_x0_line_base_recovers_a_linear_trend():
     y = 5.0 + 2.0 * torch.arange(9.0)
     assert float(c.sum()) == pytest.approx(1.0) and float(c @ y) == pytest.approx(5.0, abs=1e-5)
     assert line_start_weights(1).tolist() == [1.0]
+
+
+def test_x0_predictor_reads_the_whole_window_and_old_configs_keep_their_layout():
+    from mdvae_cli.model.denoiser import X0Predictor
+
+    assert DenoiserConfig().x0_bidirectional is False
+    assert DenoiserConfig.from_dict({"lam": 10.0}).x0_bidirectional is True  # older files
+    torch.manual_seed(0)
+    for bidirectional in (False, True):
+        pred = X0Predictor(138, 16, base_window=3, bidirectional=bidirectional)
+        torch.nn.init.normal_(pred.head[-1].weight, std=0.1)
+        y = torch.randn(2, 12, 138)
+        y2 = y.clone()
+        y2[:, -1] += 5.0  # the last frame changes the estimate of frame 0
+        a, b = pred(y), pred(y2)
+        assert a.mean.shape == (2, 138)
+        assert (a.mean - b.mean).abs().max() > 1e-5

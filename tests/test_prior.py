@@ -5,6 +5,7 @@ import math
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +13,16 @@ import pytest
 import torch
 from click.testing import CliRunner
 
+from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
-from mdvae_cli.fit.train_prior import TrainConfig, train_prior
+from mdvae_cli.fit.data import WindowSet
+from mdvae_cli.fit.train_prior import (
+    VELOCITY_DIMS,
+    TrainConfig,
+    prior_losses,
+    train_prior,
+    widen_state,
+)
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel, load_prior
@@ -121,6 +130,67 @@ def test_tiny_training_lowers_loss_and_resumes(tmp_path):
     resumed = train_prior(TrainConfig.from_dict(cfg), run, resume=True)
     assert resumed.steps == summary.steps + 2 * (summary.steps // 5)
     assert len((run / "log.jsonl").read_text().splitlines()) == 7
+
+
+def test_init_from_widens_an_older_architecture_exactly(tmp_path):
+    """A prior without the decoder z-skip / encoder-reads-decoder links fine-tunes into the
+    current architecture: the new input columns start at zero, so it computes the same."""
+    data = write_corpus(tmp_path / "data", n=2, T=40)
+    legacy = replace(TINY, decoder_z_skip=False, encoder_reads_decoder=False, encoder_x_skip=False)
+    train_prior(tiny_config(data, epochs=1, model=legacy), tmp_path / "old", max_steps=2)
+    old, meta = load_prior(tmp_path / "old")
+    assert meta["model_config"]["decoder_z_skip"] is False
+    new = PriorModel(TINY)
+    new.load_state_dict(widen_state(old.state_dict(), new.state_dict()))
+    g = torch.Generator().manual_seed(0)
+    x, x0 = torch.randn(2, 9, 138, generator=g), torch.randn(2, 138, generator=g)
+    with torch.no_grad():
+        z_old, q_old = old.dvae.encoder(x, x0, sample=False)
+        z_new, q_new = new.dvae.encoder(x, x0, sample=False, decoder=new.dvae.decoder)
+        torch.testing.assert_close(q_new.mean, q_old.mean)
+        torch.testing.assert_close(new.dvae.decoder(z_new, x0)[0], old.dvae.decoder(z_old, x0)[0])
+    with pytest.raises(ValueError, match="decoder="):
+        new.dvae.encoder(x, x0)
+    # a fine-tuning run from it, with a sharper decoder likelihood, starts from those weights
+    cfg = tiny_config(data, epochs=1, init_from=str(tmp_path / "old" / "best.npz"))
+    cfg.recon_weight = 10.0
+    log = []
+    train_prior(cfg, tmp_path / "new", progress=log.append, max_steps=1)
+    first = next(d for d in log if "loss" in d)
+    assert first["loss"] > 10.0 * first["recon"] * 0.999  # the weighted term is in the loss
+    bad = widen_state(old.state_dict(), new.state_dict())
+    bad["dvae.decoder.head.0.weight"] = torch.zeros(3, 3)
+    with pytest.raises(ValueError, match="shape"):
+        widen_state(bad, new.state_dict())
+
+
+def test_reconstruction_weights_scale_the_right_columns(tiny_body):
+    """recon_w = 1/sigma_x^2 on every column, velocity_w scales the velocity columns only."""
+    torch.manual_seed(0)
+    model = PriorModel(TINY)
+    g = torch.Generator().manual_seed(3)
+    batch = WindowSet(
+        torch.randn(2, 138, generator=g) * 0.1, torch.randn(2, 6, 138, generator=g) * 0.1,
+        torch.zeros(2, 10),
+    )  # fmt: skip
+    body = BodyModel(tiny_body)
+    ids = torch.arange(4)
+    args = (model, model.dvae, batch, body, ids, 0.0, 0.0)
+    norm = model.normalizer
+    with torch.no_grad():
+        torch.manual_seed(1)
+        base = prior_losses(*args)
+        torch.manual_seed(1)
+        no_vel = prior_losses(*args, 1, 10.0, 0.0)
+        torch.manual_seed(1)
+        x_mean = model.dvae(norm.normalize(batch.x), norm.normalize(batch.x0))[0]
+    sq = (norm.normalize(batch.x) - x_mean) ** 2
+    keep = [d for d in range(138) if d not in VELOCITY_DIMS]
+    expected = 10.0 * 0.5 * sq[..., keep].sum(-1).mean()
+    assert float(base["loss"]) == pytest.approx(float(base["recon"]), rel=1e-6)
+    assert float(no_vel["recon"]) == pytest.approx(float(base["recon"]), rel=1e-6)
+    assert float(no_vel["loss"]) == pytest.approx(float(expected), rel=1e-5)
+    assert float(no_vel["loss"]) < 10.0 * float(no_vel["recon"])
 
 
 def test_checkpoints_hold_no_pickles(tmp_path):

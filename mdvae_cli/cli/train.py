@@ -99,6 +99,23 @@ def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) 
 @click.option("--kl-max", type=float, help="Final KL weight after warm-up (1 = the ELBO) [1].")
 @click.option("--body-weight", type=float, help="Weight of the mesh/joint term, per cm² [0.1].")
 @click.option(
+    "--recon-weight",
+    type=float,
+    help="1/sigma_x^2 of the decoder Gaussian in normalised units (1 = N(mu, I)); larger "
+    "puts more information in the latents and reconstructs more exactly [1].",
+)
+@click.option(
+    "--velocity-weight",
+    type=float,
+    help="Scales the reconstruction weight of the velocity columns (they are redundant with "
+    "the positions and noisy; the body term does not see them) [1].",
+)
+@click.option(
+    "--init-from",
+    type=click.Path(path_type=Path, exists=True),
+    help="Start from this prior checkpoint (weights and normaliser): fine-tuning.",
+)
+@click.option(
     "--velocity-std-scale",
     type=float,
     help="Widen the velocities' normalisation scale by this factor, giving them less "
@@ -106,6 +123,21 @@ def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) 
 )
 @click.option("--latent-dim", type=int, help="z_t width [32].")
 @click.option("--hidden-dim", type=int, help="Recurrent state width [128].")
+@click.option(
+    "--decoder-z-skip/--no-decoder-z-skip",
+    default=None,
+    help="Decoder head reads z_t beside its recurrent state [on for new runs].",
+)
+@click.option(
+    "--encoder-x-skip/--no-encoder-x-skip",
+    default=None,
+    help="Encoder head reads x_t beside the backward summary of x_{t:T} [on for new runs].",
+)
+@click.option(
+    "--encoder-reads-decoder/--no-encoder-reads-decoder",
+    default=None,
+    help="Encoder also reads the decoder's state after z_{1:t-1} [on for new runs].",
+)
 @click.option("--seed", type=int, help="Random seed [0].")
 @click.option("--device", help="cpu, cuda, cuda:N or auto [auto].")
 @click.option("--resume", is_flag=True, help="Continue the run in RUN_DIR from last.npz.")
@@ -142,8 +174,19 @@ def train_prior(
             cfg.split_file = str(split_file)
         if body_model is not None:
             cfg.body_model = str(body_model)
+    if overrides.get("init_from") is not None:
+        overrides["init_from"] = str(overrides["init_from"])
     apply_overrides(
-        cfg, overrides, nested={"latent_dim": "model", "hidden_dim": "model"}, resume=resume
+        cfg,
+        overrides,
+        nested={
+            "latent_dim": "model",
+            "hidden_dim": "model",
+            "decoder_z_skip": "model",
+            "encoder_reads_decoder": "model",
+            "encoder_x_skip": "model",
+        },
+        resume=resume,
     )
     with progress_bar() as progress:
         summary = run(

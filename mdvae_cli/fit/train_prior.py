@@ -56,6 +56,8 @@ class TrainConfig:
     lr_final: float = 1e-4
     kl_warmup_steps: int = 1500
     kl_max: float = 1.0
+    recon_weight: float = 1.0
+    velocity_weight: float = 1.0
     body_weight: float = 0.1
     body_vertices: int = 256
     body_frame_stride: int = 4
@@ -65,6 +67,7 @@ class TrainConfig:
     body_model: str | None = None
     device: str = "auto"
     max_val_windows: int = 512
+    init_from: str | None = None
     model: ModelConfig = field(default_factory=ModelConfig)
 
     def to_dict(self) -> dict:
@@ -114,8 +117,14 @@ def prior_losses(
     kl_w: float,
     body_w: float,
     frame_stride: int = 1,
+    recon_w: float = 1.0,
+    velocity_w: float = 1.0,
 ) -> dict[str, torch.Tensor]:
     """Negative ELBO (per frame) + body regulariser for a batch.
+
+    ``recon_w`` = 1 / sigma_x^2: the decoder's Gaussian is N(mu_x, sigma_x^2 I) in normalised
+    units (1 = the paper's N(mu_x, I)); ``velocity_w`` scales that weight on the velocity
+    columns (a wider variance there). ``recon`` is reported unweighted.
 
     ``forward`` is the (possibly DDP-wrapped) ``model.dvae``. The body term is evaluated on
     every ``frame_stride``-th frame from a random phase (an unbiased, cheaper estimate).
@@ -132,7 +141,13 @@ def prior_losses(
     with torch.no_grad():
         pts_gt = body_points(body, batch.x[:, frames], batch.betas, vertex_ids)
     body_mse = ((pts_hat - pts_gt) ** 2).sum(-1).mean() * 1e4  # cm^2
-    loss = recon + kl_w * kl + body_w * body_mse
+    if velocity_w != 1.0:
+        dims = torch.as_tensor(VELOCITY_DIMS, device=xn.device)
+        sq = ((xn - x_mean) ** 2)[..., dims].sum(-1).mean()
+        fit = recon + 0.5 * (velocity_w - 1.0) * sq
+    else:
+        fit = recon
+    loss = recon_w * fit + kl_w * kl + body_w * body_mse
     return {"loss": loss, "recon": recon, "kl": kl, "body_cm2": body_mse}
 
 
@@ -155,7 +170,18 @@ def evaluate(
     for i in range(0, len(data), batch_size):
         batch = data.subset(torch.arange(i, min(i + batch_size, len(data))))
         batch = WindowSet(*(t.to(device) for t in (batch.x0, batch.x, batch.betas)))
-        terms = prior_losses(model, model.dvae, batch, body, vertex_ids, 1.0, cfg.body_weight)
+        terms = prior_losses(
+            model,
+            model.dvae,
+            batch,
+            body,
+            vertex_ids,
+            1.0,
+            cfg.body_weight,
+            1,
+            cfg.recon_weight,
+            cfg.velocity_weight,
+        )
         for k, v in terms.items():
             totals[k] = totals.get(k, 0.0) + float(v) * len(batch)
         n += len(batch)
@@ -183,6 +209,37 @@ def _save(run_dir: Path, name: str, model, opt, meta: dict) -> None:
         tensors.update(t)
         meta = {**meta, "optimizer": groups}
     save_checkpoint(run_dir / f"{name}.npz", tensors, meta)
+
+
+def init_from_prior(model: PriorModel, path: Path) -> None:
+    """Start from a trained prior (fine-tuning): its weights *and* its normaliser."""
+    from mdvae_cli.model.prior_model import load_prior
+
+    source, _ = load_prior(path)
+    try:
+        model.load_state_dict(widen_state(source.state_dict(), model.state_dict()))
+    except ValueError as exc:
+        raise InputError(f"--init-from {path}: {exc}") from None
+
+
+def widen_state(source: dict, target: dict) -> dict:
+    """``source`` tensors fitted into ``target``'s shapes: equal shapes are copied; a weight
+    matrix with extra input columns gets the source in its leading columns and zeros after
+    them, so the widened network computes exactly what the source did."""
+    out = {}
+    for key, t in target.items():
+        s = source.get(key)
+        if s is None:
+            raise ValueError(f"the checkpoint has no {key}")
+        if s.shape == t.shape:
+            out[key] = s.clone()
+        elif s.ndim == 2 and t.ndim == 2 and s.shape[0] == t.shape[0] and s.shape[1] < t.shape[1]:
+            w = torch.zeros_like(t)
+            w[:, : s.shape[1]] = s
+            out[key] = w
+        else:
+            raise ValueError(f"{key} has shape {tuple(s.shape)}, this network {tuple(t.shape)}")
+    return out
 
 
 def train_prior(
@@ -223,6 +280,8 @@ def train_prior(
         model = PriorModel(cfg.model)
         model.normalizer.fit(torch.cat([train.x0[:, None], train.x], dim=1))
         model.normalizer.scale_std(VELOCITY_DIMS, cfg.velocity_std_scale)
+        if cfg.init_from and not resume:
+            init_from_prior(model, Path(cfg.init_from))
         model.to(device)
         opt = torch.optim.Adam(model.dvae.parameters(), lr=cfg.lr)
         steps_per_epoch = max(1, len(train) // (cfg.batch_size * dist.world_size))
@@ -266,6 +325,8 @@ def train_prior(
                     kl_w,
                     cfg.body_weight,
                     cfg.body_frame_stride,
+                    cfg.recon_weight,
+                    cfg.velocity_weight,
                 )
                 opt.zero_grad(set_to_none=True)
                 terms["loss"].backward()

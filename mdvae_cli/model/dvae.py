@@ -4,10 +4,11 @@ All tensors here live in the *normalised canonical* state space (see ``Normalize
 x0: (B, D) initial state, x: (B, T, D) states x_1..x_T, z: (B, T, L) latents.
 
 * prior    p(z_t | z_{1:t-1}, x0) = N(mu, sigma): forward GRU over past latents, h_0 = f(x0).
-* decoder  p(x_t | z_{1:t}, x0) = N(mu_x, I): forward GRU over latents, h_0 = g(x0); it never
-  sees past x (cheap sampling, no posterior collapse).
+* decoder  p(x_t | z_{1:t}, x0) = N(mu_x, sigma_x^2 I): forward GRU over latents, h_0 = g(x0),
+  head on [h_t, z_t]; it never sees past x (cheap sampling, no posterior collapse).
 * encoder  q(z_t | z_{1:t-1}, x_{t:T}, x0): backward GRU over x_{t:T} combined with a forward
-  GRU over the sampled z_{1:t-1}, h_0 = e(x0).
+  GRU over the sampled z_{1:t-1}, h_0 = e(x0), and (``encoder_reads_decoder``) the decoder's own
+  state after z_{1:t-1}, so it sees what the decoder still needs to be told.
 """
 
 from __future__ import annotations
@@ -69,17 +70,25 @@ class Decoder(nn.Module):
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
+        self.z_skip = cfg.decoder_z_skip
         self.init = nn.Sequential(nn.Linear(cfg.state_dim, cfg.hidden_dim), nn.Tanh())
         self.rnn = nn.GRU(cfg.latent_dim, cfg.hidden_dim, batch_first=True)
-        self.head = mlp(cfg.hidden_dim, cfg.mlp_dim, cfg.state_dim)
+        head_in = cfg.hidden_dim + (cfg.latent_dim if self.z_skip else 0)
+        self.head = mlp(head_in, cfg.mlp_dim, cfg.state_dim)
 
     def forward(self, z: torch.Tensor, x0: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """z: (B, T, L), x0: (B, D) -> mean states (B, T, D) and hidden states (B, T, H).
 
-        The mean is a residual on x0, so an untrained decoder already stays near the start.
+        The mean is a residual on x0, so an untrained decoder already stays near the start;
+        with ``decoder_z_skip`` the head reads [h_t, z_t] (the usual DVAE generation head).
         """
         h, _ = self.rnn(z, self.init(x0)[None])
-        return x0[:, None] + self.head(h), h
+        return self.output(h, z, x0), h
+
+    def output(self, h: torch.Tensor, z: torch.Tensor, x0: torch.Tensor) -> torch.Tensor:
+        """The mean from recurrent states.  h: (B, T, H), z: (B, T, L), x0: (B, D) -> (B, T, D)"""
+        head_in = torch.cat([h, z], dim=-1) if self.z_skip else h
+        return x0[:, None] + self.head(head_in)
 
 
 class Encoder(nn.Module):
@@ -88,11 +97,15 @@ class Encoder(nn.Module):
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         H = cfg.hidden_dim
+        self.reads_decoder = cfg.encoder_reads_decoder
+        self.x_skip = cfg.encoder_x_skip
         self.backward_rnn = nn.GRU(cfg.state_dim, H, batch_first=True)
         self.backward_init = nn.Sequential(nn.Linear(cfg.state_dim, H), nn.Tanh())
         self.init = nn.Sequential(nn.Linear(cfg.state_dim, H), nn.Tanh())
         self.cell = nn.GRUCell(cfg.latent_dim, H)
-        self.head = mlp(2 * H, cfg.mlp_dim, 2 * cfg.latent_dim)
+        # head input [g_t, h_t, (decoder state), (x_t)]: older layouts are a prefix of this one
+        width = (3 if self.reads_decoder else 2) * H + (cfg.state_dim if self.x_skip else 0)
+        self.head = mlp(width, cfg.mlp_dim, 2 * cfg.latent_dim)
 
     def forward(
         self,
@@ -100,19 +113,38 @@ class Encoder(nn.Module):
         x0: torch.Tensor,
         sample: bool = True,
         generator: torch.Generator | None = None,
-    ) -> tuple[torch.Tensor, Gaussian]:
+        decoder: Decoder | None = None,
+        decoder_states: bool = False,
+    ):
         """Sample (or take the mean of) z_1..z_T sequentially.
 
-        x: (B, T, D), x0: (B, D) -> z (B, T, L) and the posteriors (B, T, L).
+        x: (B, T, D), x0: (B, D) -> z (B, T, L) and the posteriors (B, T, L), plus, with
+        ``decoder_states``, the decoder's recurrent states h_1..h_T (B, T, H) it stepped along.
+        ``decoder`` is required when the encoder reads the decoder's state: it is stepped along
+        (its weights are used, not changed).
         """
+        if self.reads_decoder and decoder is None:
+            raise ValueError("this encoder reads the decoder's state: pass decoder=")
         g, _ = self.backward_rnn(x.flip(1), self.backward_init(x0)[None])
         g = g.flip(1)  # g_t summarises x_{t:T}
+        # the head's first layer on [g_t, h_t, hd_t, x_t]: the g_t and x_t parts for all t at once
+        first, rest = self.head[0], self.head[1:]
+        H = g.shape[-1]
+        S = (2 if self.reads_decoder else 1) * H
+        g_part = nn.functional.linear(g, first.weight[:, :H], first.bias)
+        if self.x_skip:
+            g_part = g_part + nn.functional.linear(x, first.weight[:, H + S :])
+        w_state = first.weight[:, H : H + S]
         h = self.init(x0)
+        hd = decoder.init(x0) if self.reads_decoder else None  # decoder state after z_{1:t-1}
+        rnn = decoder.rnn if self.reads_decoder else None
         z_prev = x.new_zeros(x.shape[0], self.cell.input_size)
-        zs, means, logvars = [], [], []
+        zs, means, logvars, hds = [], [], [], []
         for t in range(x.shape[1]):
             h = self.cell(z_prev, h)
-            mean, logvar = self.head(torch.cat([g[:, t], h], dim=-1)).chunk(2, dim=-1)
+            state = h if hd is None else torch.cat([h, hd], dim=-1)
+            pre = g_part[:, t] + nn.functional.linear(state, w_state)
+            mean, logvar = rest(pre).chunk(2, dim=-1)
             logvar = logvar.clamp(-12.0, 6.0)
             if sample:
                 eps = torch.randn(
@@ -121,10 +153,17 @@ class Encoder(nn.Module):
                 z_prev = mean + torch.exp(0.5 * logvar) * eps
             else:
                 z_prev = mean
+            if hd is not None:  # one step of the decoder's GRU (same weights, same equations)
+                hd = torch.gru_cell(
+                    z_prev, hd, rnn.weight_ih_l0, rnn.weight_hh_l0, rnn.bias_ih_l0, rnn.bias_hh_l0
+                )
+                hds.append(hd)
             zs.append(z_prev)
             means.append(mean)
             logvars.append(logvar)
         stack = lambda v: torch.stack(v, dim=1)  # noqa: E731
+        if decoder_states:
+            return stack(zs), Gaussian(stack(means), stack(logvars)), stack(hds)
         return stack(zs), Gaussian(stack(means), stack(logvars))
 
 
@@ -147,10 +186,32 @@ class MotionDVAE(nn.Module):
     ):
         """Encode then decode.  x: (B, T, D), x0: (B, D) ->
         (x_mean (B, T, D), z (B, T, L), posterior, prior)."""
-        z, posterior = self.encoder(x, x0, sample=sample, generator=generator)
-        prior = self.prior(z, x0)
-        x_mean, _ = self.decoder(z, x0)
-        return x_mean, z, posterior, prior
+        x_mean, z, posterior, _ = self.encode_decode(x, x0, sample, generator)
+        return x_mean, z, posterior, self.prior(z, x0)
+
+    def encode_decode(
+        self,
+        x: torch.Tensor,
+        x0: torch.Tensor,
+        sample: bool = True,
+        generator: torch.Generator | None = None,
+        encoder: Encoder | None = None,
+    ):
+        """z ~ q(z | x, x0) (or its mean) and the decoder's means.  x: (B, T, D), x0: (B, D) ->
+        (x_mean (B, T, D), z (B, T, L), posterior, decoder states h (B, T, H)).
+
+        ``encoder`` replaces the model's own (the denoiser's fine-tuned copy). An encoder that
+        steps the decoder along hands over its states, so the decoder's GRU is not run twice.
+        """
+        encoder = self.encoder if encoder is None else encoder
+        if encoder.reads_decoder:
+            z, posterior, h = encoder(
+                x, x0, sample, generator, decoder=self.decoder, decoder_states=True
+            )
+            return self.decoder.output(h, z, x0), z, posterior, h
+        z, posterior = encoder(x, x0, sample=sample, generator=generator)
+        x_mean, h = self.decoder(z, x0)
+        return x_mean, z, posterior, h
 
     @torch.no_grad()
     def sample(
