@@ -43,9 +43,8 @@ def reconstruction(prior, body, windows: WindowSet, batch: int = 256) -> dict[st
     for i in range(0, len(windows), batch):
         w = windows.subset(torch.arange(i, min(i + batch, len(windows))))
         xn, x0n = norm.normalize(w.x), norm.normalize(w.x0)
-        z, post = prior.dvae.encoder(xn, x0n, sample=False, decoder=prior.dvae.decoder)
+        x_mean, z, post, _ = prior.dvae.encode_decode(xn, x0n, sample=False)
         p = prior.dvae.prior(z, x0n)
-        x_mean, _ = prior.dvae.decoder(z, x0n)
         kls += float(gaussian_kl(post.mean, post.logvar, p.mean, p.logvar).sum())
         B, T = w.x.shape[:2]
         betas = w.betas.repeat_interleave(T, 0)

@@ -31,7 +31,7 @@ from mdvae_cli.fit.distributed import (
 )
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, kl_weight
-from mdvae_cli.model.prior_model import PriorModel, model_tensors
+from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors
 from mdvae_cli.motion.state import POSE_VEL, ROOT_VEL, TRANS_VEL, state_to_params
 
 #: the velocity columns of the state (r dot, phi dot, Theta dot)
@@ -213,8 +213,6 @@ def _save(run_dir: Path, name: str, model, opt, meta: dict) -> None:
 
 def init_from_prior(model: PriorModel, path: Path) -> None:
     """Start from a trained prior (fine-tuning): its weights *and* its normaliser."""
-    from mdvae_cli.model.prior_model import load_prior
-
     source, _ = load_prior(path)
     try:
         model.load_state_dict(widen_state(source.state_dict(), model.state_dict()))
