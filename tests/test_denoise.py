@@ -14,6 +14,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
+from mdvae_cli.errors import InputError
 from mdvae_cli.fit.denoise import blend_windows, denoise_motions
 from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_denoiser
 from mdvae_cli.fit.train_prior import train_prior
@@ -348,3 +349,36 @@ def test_x0_predictor_reads_the_whole_window_and_old_configs_keep_their_layout()
         a, b = pred(y), pred(y2)
         assert a.mean.shape == (2, 138)
         assert (a.mean - b.mean).abs().max() > 1e-5
+
+
+def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(tiny_prior):
+    from benchmarks.common import slice_motion
+    from mdvae_cli.fit.denoise import make_windows, smooth_inputs
+    from mdvae_cli.motion.state import POSE
+
+    assert DenoiserConfig().input_window == 11
+    assert DenoiserConfig.from_dict({"lam": 10.0}).input_window == 0  # older files: raw input
+    for bad in ({"input_window": 4}, {"input_window": -1}, {"input_window": 3, "input_order": 3}):
+        with pytest.raises(InputError):
+            DenoiserConfig(**bad)
+    clean = load_motion(EXAMPLES / "walk.npz")
+    noisy = add_pose_noise(clean, 0.15, np.random.default_rng(3))
+    prior, _ = load_prior(tiny_prior / "run")
+    body = BodyModel(builtin_body_model())
+    raw = Denoiser(prior, DenoiserConfig(input_window=0))
+    filt = Denoiser(prior, DenoiserConfig(input_window=11))
+    (g_raw,) = make_windows([noisy], raw, body, window=40, stride=40)
+    (g_filt,) = make_windows([noisy], filt, body, window=40, stride=40)
+    # the networks' input is smoother: frame-to-frame changes of the pose columns shrink
+    jump = lambda yn: (yn[:, 1:, POSE] - yn[:, :-1, POSE]).abs().mean()  # noqa: E731
+    assert jump(g_filt.yn) < 0.5 * jump(g_raw.yn)
+    # the observations stay the raw noisy points: same shape up to each window's rigid move
+    dist = lambda y: (y[:, :, :, None] - y[:, :, None]).norm(dim=-1)  # noqa: E731
+    assert torch.allclose(dist(g_raw.y3d), dist(g_filt.y3d), atol=1e-5)
+    # short motions: the window shrinks to fit; 2 frames or fewer pass through unchanged
+    short = smooth_inputs(noisy, DenoiserConfig())
+    assert short.num_frames == noisy.num_frames
+    two = slice_motion(noisy, 0, 2)
+    assert smooth_inputs(two, DenoiserConfig()) is two
+    five = smooth_inputs(slice_motion(noisy, 0, 5), DenoiserConfig())
+    assert five.num_frames == 5 and not np.allclose(five.pose_body, noisy.pose_body[:5])

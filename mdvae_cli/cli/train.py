@@ -231,6 +231,12 @@ def train_prior(
     "Gaussian noise (noisy mocap), small = heavy-tailed (outliers, video) [1000].",
 )
 @click.option("--obs-unit", type=float, help="Metres per observation unit (noise scale) [0.05].")
+@click.option(
+    "--input-window",
+    type=int,
+    help="Savitzky-Golay window (frames, odd; 0 = off) through which the inference networks "
+    "read the noisy motion; the likelihood always scores the raw observations [11].",
+)
 @click.option("--window", type=int, help="Frames per window at 30 Hz [60].")
 @click.option("--stride", type=int, help="Frames between window starts [10].")
 @click.option("--batch-size", type=int, help="Windows per step [64].")
@@ -272,7 +278,10 @@ def fit_dataset(
         if body_model is not None:
             cfg.body_model = str(body_model)
     apply_overrides(
-        cfg, overrides, nested={"lam": "denoiser", "obs_unit": "denoiser"}, resume=resume
+        cfg,
+        overrides,
+        nested={"lam": "denoiser", "obs_unit": "denoiser", "input_window": "denoiser"},
+        resume=resume,
     )
     with progress_bar() as progress:
         task = progress.add_task("fitting", total=None, info="")

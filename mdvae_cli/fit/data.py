@@ -47,12 +47,13 @@ def chunk_states(
     body: BodyModel,
     fps: float = MODEL_FPS,
     velocity_window: int = 1,
+    frame: CanonicalFrame | None = None,
 ) -> tuple[torch.Tensor, CanonicalFrame]:
-    """Canonicalise chunks and build their states.
+    """Canonicalise chunks (with their own frame, or ``frame``) and build their states.
 
     params: (B, T+1, ...) chunks whose frame 0 is x0; betas: (B, S) -> states (B, T+1, 138)
     """
-    canon, frame = canonicalize(params, body.pelvis_rest(betas))
+    canon, frame = canonicalize(params, body.pelvis_rest(betas), frame)
     return params_to_state(canon, fps, velocity_window), frame
 
 

@@ -16,9 +16,10 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.filters import savgol_filter_motion
 from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.geometry.rotations import rotvec_slerp
-from mdvae_cli.model.denoiser import Denoiser, observe
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import interp_linear, interp_rotvec, resample_motion
 from mdvae_cli.motion.state import BodyParams, state_to_params
@@ -76,14 +77,16 @@ def make_windows(
     by_len: dict[int, list] = {}
     for mi, motion in enumerate(motions):
         p = motion_to_params(motion)
+        p_in = motion_to_params(smooth_inputs(motion, denoiser.cfg))
         betas = body.fit_betas(torch.as_tensor(motion.betas, dtype=torch.float32)[None])[0]
         T = motion.num_frames
         length = min(L, T)
         for s in window_starts(T, length, stride):
             sl = slice(s, s + length)
             mask = None if motion.joint_mask is None else torch.as_tensor(motion.joint_mask[sl])
+            raw = (p.root_orient[sl], p.pose_body[sl], p.trans[sl])
             by_len.setdefault(length, []).append(
-                (mi, s, p.root_orient[sl], p.pose_body[sl], p.trans[sl], betas, mask)
+                (mi, s, p_in.root_orient[sl], p_in.pose_body[sl], p_in.trans[sl], betas, mask, raw)
             )
     groups = []
     norm = denoiser.prior.normalizer
@@ -95,7 +98,13 @@ def make_windows(
             states, frame = chunk_states(
                 params, betas, body, velocity_window=denoiser.cfg.velocity_window
             )
-            y3d = observe(body, states, betas) if observations else states.new_zeros(0)
+            y3d = states.new_zeros(0)
+            if observations:
+                raw_states = states
+                if denoiser.cfg.input_window > 1:  # the raw motion, in the same frames
+                    raw = BodyParams(*(torch.stack([it[7][k] for it in items]) for k in range(3)))
+                    raw_states = chunk_states(raw, betas, body, frame=frame)[0]
+                y3d = observe(body, raw_states, betas)
         weight = None
         if any(it[6] is not None for it in items):
             masks = [
@@ -116,6 +125,15 @@ def make_windows(
             )
         )
     return groups
+
+
+def smooth_inputs(motion: Motion, cfg: DenoiserConfig) -> Motion:
+    """What the inference networks read: the motion through the config's input filter (the
+    window is shortened to fit a short motion; 0 or 1 frame = the motion itself)."""
+    window = min(cfg.input_window, motion.num_frames - (1 - motion.num_frames % 2))
+    if window <= 1 or window <= cfg.input_order:
+        return motion
+    return savgol_filter_motion(motion, window, cfg.input_order)
 
 
 @contextmanager

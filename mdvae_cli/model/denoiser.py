@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.errors import InputError
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel
@@ -39,6 +40,11 @@ class DenoiserConfig:
     x0_bidirectional: the x0 predictor's GRU runs both ways (checkpoints from before this
         option); read at frame 0, the forward direction has seen one frame only, so new
         denoisers run the backward direction alone, at half the cost.
+    input_window, input_order: the inference networks (encoder, x0 predictor) read the noisy
+        motion after a Savitzky-Golay filter of this many frames and this degree (0 = raw);
+        the likelihood always scores the raw observations. Per-frame noise read raw passes
+        straight into z_t and the output jitters; read through the filter, the encoder sees
+        the motion's trend and the ELBO still fits the unfiltered data.
     """
 
     lam: float = 1000.0
@@ -47,6 +53,18 @@ class DenoiserConfig:
     velocity_window: int = 1
     x0_window: int = 1
     x0_bidirectional: bool = False
+    input_window: int = 11
+    input_order: int = 1
+
+    def __post_init__(self):
+        if self.input_window < 0 or (self.input_window > 1 and self.input_window % 2 == 0):
+            raise InputError(
+                f"input window must be 0 or an odd number of frames, got {self.input_window}"
+            )
+        if self.input_window > 1 and not 0 <= self.input_order < self.input_window:
+            raise InputError(
+                f"input filter degree must be below its window, got {self.input_order}"
+            )
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -54,7 +72,8 @@ class DenoiserConfig:
     @classmethod
     def from_dict(cls, d: dict) -> DenoiserConfig:
         names = {f.name for f in fields(cls)}
-        d = {"x0_bidirectional": True, **d}  # configs written before the option existed
+        # configs written before these options existed
+        d = {"x0_bidirectional": True, "input_window": 0, **d}
         return cls(**{k: v for k, v in d.items() if k in names})
 
 

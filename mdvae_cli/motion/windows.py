@@ -37,18 +37,23 @@ class CanonicalFrame:
 
 
 def canonicalize(
-    params: BodyParams, pelvis_rest: torch.Tensor
+    params: BodyParams, pelvis_rest: torch.Tensor, frame: CanonicalFrame | None = None
 ) -> tuple[BodyParams, CanonicalFrame]:
     """Move windows so frame 0's pelvis is at x = y = 0, facing +x; unwrap axis-angles in time.
 
     params: root_orient (B, T, 3), pose_body (B, T, 21, 3), trans (B, T, 3);
     pelvis_rest: (B, 3) the rest-pose pelvis joint for each window's shape (the root rotates
-    about it, so a rigid move changes ``trans`` by ``Rz (trans + pelvis) - pelvis``).
+    about it, so a rigid move changes ``trans`` by ``Rz (trans + pelvis) - pelvis``);
+    frame: apply this move instead of the windows' own (e.g. another version of the same
+    windows, so both land in one coordinate frame).
     """
-    yaw = heading(params.root_orient[:, 0])
     pelvis = params.trans + pelvis_rest[:, None]
-    origin = pelvis[:, 0].clone()
-    origin[:, 2] = 0.0
+    if frame is None:
+        yaw = heading(params.root_orient[:, 0])
+        origin = pelvis[:, 0].clone()
+        origin[:, 2] = 0.0
+    else:
+        yaw, origin = frame.yaw, frame.origin
     Rz = rotation_about_z(-yaw)[:, None]
     R = Rz @ rotvec_to_rotmat(params.root_orient)
     new_pelvis = (Rz @ (pelvis - origin[:, None])[..., None])[..., 0]
