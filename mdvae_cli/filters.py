@@ -28,6 +28,7 @@ Parameters are in frames, whatever the motion's frame rate.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -62,6 +63,15 @@ def local_poly_coefficients(
     A = np.vander(u / scale, min(order, n - 1) + 1, increasing=True)  # (n, p + 1)
     sw = np.sqrt(w)
     return np.linalg.pinv(A * sw[:, None])[0] * sw
+
+
+@functools.lru_cache(maxsize=512)
+def _edge_coefficients(n: int, order: int, at: int, weight_bytes: bytes) -> np.ndarray:
+    """:func:`local_poly_coefficients` at frames 0..n-1 (a fit is shift-invariant, so an end
+    frame's row depends only on these), cached: every clip of a batch shares its rows."""
+    c = local_poly_coefficients(np.arange(n), order, at, np.frombuffer(weight_bytes))
+    c.flags.writeable = False
+    return c
 
 
 def savgol_coefficients(window: int, order: int) -> np.ndarray:
@@ -112,7 +122,8 @@ def _smooth_local_poly(
         else:
             lo, hi = max(t - half, 0), min(t + half + 1, T)
         idx = np.arange(lo, hi)
-        c = local_poly_coefficients(idx, order, t, weight(idx - t))
+        w = np.asarray(weight(idx - t), dtype=np.float64)
+        c = _edge_coefficients(hi - lo, order, t - lo, w.tobytes())
         out[t] = np.tensordot(c, x[lo:hi], axes=1)
     return out
 

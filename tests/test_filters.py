@@ -189,3 +189,16 @@ def test_bad_parameters_raise_input_error(call):
 def test_zero_sigma_is_the_identity():
     motion = make_motion(T=20, trans=np.random.default_rng(0).normal(size=(20, 3)))
     np.testing.assert_array_equal(gaussian_filter_motion(motion, 0.0).trans, motion.trans)
+
+
+def test_end_frames_match_a_direct_local_fit_for_any_length():
+    from mdvae_cli.filters import local_poly_coefficients
+
+    x = np.random.default_rng(0).normal(size=(40, 5))
+    for T, window, order in ((40, 11, 2), (7, 11, 1), (12, 5, 3)):
+        half, out = window // 2, savgol_smooth(x[:T], window, order)
+        for t in range(T):  # the window slides inward at the ends
+            lo = min(max(t - half, 0), max(T - window, 0))
+            idx = np.arange(lo, min(lo + window, T))
+            expected = local_poly_coefficients(idx, order, t) @ x[idx]
+            np.testing.assert_allclose(out[t], expected, atol=1e-12)
