@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -224,6 +224,34 @@ def filter_motion(motion: Motion, smooth: Callable[[np.ndarray], np.ndarray]) ->
     return motion.with_body(
         root_orient=smoothed[:, 0].copy(), pose_body=smoothed[:, 1:].copy(), trans=trans
     )
+
+
+def filter_motions(
+    motions: Sequence[Motion], smooth: Callable[[np.ndarray], np.ndarray]
+) -> list[Motion]:
+    """:func:`filter_motion` on many motions, in one call per distinct length (the filter works
+    along time, so equal-length motions are smoothed side by side): same results, far fewer
+    small array operations for a batch of short clips."""
+    out: list[Motion | None] = [None] * len(motions)
+    by_len: dict[int, list[int]] = {}
+    for i, m in enumerate(motions):
+        by_len.setdefault(m.num_frames, []).append(i)
+    for T, idx in by_len.items():
+        rot = np.stack(
+            [
+                np.concatenate([motions[i].root_orient[:, None], motions[i].pose_body], 1)
+                for i in idx
+            ],
+            axis=1,
+        )  # (T, N, 22, 3)
+        trans = np.stack([np.asarray(motions[i].trans, dtype=np.float64) for i in idx], axis=1)
+        rot = smooth_rotvecs(rot, smooth)
+        trans = smooth(trans.reshape(T, -1)).reshape(trans.shape)
+        for k, i in enumerate(idx):
+            out[i] = motions[i].with_body(
+                root_orient=rot[:, k, 0].copy(), pose_body=rot[:, k, 1:].copy(), trans=trans[:, k]
+            )
+    return out  # type: ignore[return-value]
 
 
 def gaussian_filter_motion(motion: Motion, sigma_frames: float) -> Motion:

@@ -15,6 +15,7 @@ from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
+from mdvae_cli.filters import savgol_filter_motion
 from mdvae_cli.fit.denoise import blend_windows, denoise_motions
 from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_denoiser
 from mdvae_cli.fit.train_prior import train_prior
@@ -376,9 +377,15 @@ def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(ti
     dist = lambda y: (y[:, :, :, None] - y[:, :, None]).norm(dim=-1)  # noqa: E731
     assert torch.allclose(dist(g_raw.y3d), dist(g_filt.y3d), atol=1e-5)
     # short motions: the window shrinks to fit; 2 frames or fewer pass through unchanged
-    short = smooth_inputs(noisy, DenoiserConfig())
-    assert short.num_frames == noisy.num_frames
-    two = slice_motion(noisy, 0, 2)
-    assert smooth_inputs(two, DenoiserConfig()) is two
-    five = smooth_inputs(slice_motion(noisy, 0, 5), DenoiserConfig())
-    assert five.num_frames == 5 and not np.allclose(five.pose_body, noisy.pose_body[:5])
+    two, five = slice_motion(noisy, 0, 2), slice_motion(noisy, 0, 5)
+    other = add_pose_noise(clean, 0.15, np.random.default_rng(4))
+    batch = smooth_inputs([noisy, two, five, other], DenoiserConfig())
+    assert batch[1] is two
+    assert batch[2].num_frames == 5 and not np.allclose(batch[2].pose_body, five.pose_body)
+    # filtered side by side = filtered one by one
+    for got, m in zip(batch, [noisy, two, five, other], strict=True):
+        (alone,) = smooth_inputs([m], DenoiserConfig())
+        np.testing.assert_allclose(got.pose_body, alone.pose_body, atol=1e-9)
+        np.testing.assert_allclose(got.trans, alone.trans, atol=1e-9)
+    expected = savgol_filter_motion(other, 11, 1)
+    np.testing.assert_allclose(batch[3].pose_body, expected.pose_body, atol=1e-9)

@@ -21,19 +21,27 @@ mdvae train-prior data/cmu_amass -o runs/prior_ed10 --config runs/prior_v1/confi
     --no-encoder-x-skip --recon-weight 10 --body-weight 0.3 --kl-warmup 0 --lr 1e-3 \
     --epochs 14 --max-steps 930 --threads 1
 # 2c. + the encoder reads x_t; velocity columns at 1/10 of the reconstruction weight; body
-#     weight 1: 14 epochs. This is the shipped prior (runs/prior_full/best.npz).
+#     weight 1: 14 epochs.
 mdvae train-prior data/cmu_amass -o runs/prior_full --config runs/prior_v1/config.json \
     --init-from runs/prior_ed10/best.npz --decoder-z-skip --encoder-reads-decoder \
     --encoder-x-skip --recon-weight 10 --velocity-weight 0.1 --body-weight 1 --kl-warmup 0 \
     --lr 1e-3 --epochs 14 --threads 1
+# 2d. sharper still: recon weight 30, body weight 2. A 56-epoch cosine schedule stopped after 29
+#     epochs (5,394 steps), then annealed over 7 more by resuming with --epochs 36. This is the
+#     shipped prior (runs/prior_rw30/best.npz, epoch 31).
+mdvae train-prior data/cmu_amass -o runs/prior_rw30 --config runs/prior_full/config.json \
+    --init-from runs/prior_full/best.npz --kl-warmup 0 --lr 5e-4 --epochs 56 --max-steps 5394 \
+    --recon-weight 30 --body-weight 2 --threads 1
+mdvae train-prior data/cmu_amass -o runs/prior_rw30 --resume --epochs 36 --threads 1
 
 # 3. noisy copies of the train split, sigma ~ U(0.10, 0.20) per file (seed 0)
 python weights_recipe/make_noisy_train.py data/cmu_amass data/cmu_noisy_train --seed 0
 
-# 4. unsupervised denoising learning on the noisy train clips only (no clean data); the shipped
-#    denoiser is fitted on the first-stage prior (runs/prior_v1): see TRAINING.md for why
-mdvae fit-dataset data/cmu_noisy_train --prior runs/prior_v1 -o runs/denoiser_v1 \
-    --config weights_recipe/denoiser_config.json --threads 2
+# 4. unsupervised denoising learning on the noisy train clips only (no clean data), on the
+#    shipped prior; the inference networks read the noisy motion through an 11-frame
+#    Savitzky-Golay filter (input_window), the likelihood scores the raw observations
+mdvae fit-dataset data/cmu_noisy_train --prior runs/prior_rw30 -o runs/denoiser_rw30 \
+    --config weights_recipe/denoiser_config_filtered.json --threads 2
 
 # 5. copy into the package
-python weights_recipe/export_weights.py runs/prior_full runs/denoiser_v1
+python weights_recipe/export_weights.py runs/prior_rw30 runs/denoiser_rw30

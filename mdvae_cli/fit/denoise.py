@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.filters import savgol_filter_motion
+from mdvae_cli.filters import filter_motions, savgol_smooth
 from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
@@ -75,9 +75,10 @@ def make_windows(
     the group then holds an empty y3d)."""
     L = window + 1
     by_len: dict[int, list] = {}
+    inputs = smooth_inputs(motions, denoiser.cfg)
     for mi, motion in enumerate(motions):
         p = motion_to_params(motion)
-        p_in = motion_to_params(smooth_inputs(motion, denoiser.cfg))
+        p_in = motion_to_params(inputs[mi])
         betas = body.fit_betas(torch.as_tensor(motion.betas, dtype=torch.float32)[None])[0]
         T = motion.num_frames
         length = min(L, T)
@@ -127,13 +128,21 @@ def make_windows(
     return groups
 
 
-def smooth_inputs(motion: Motion, cfg: DenoiserConfig) -> Motion:
-    """What the inference networks read: the motion through the config's input filter (the
-    window is shortened to fit a short motion; 0 or 1 frame = the motion itself)."""
-    window = min(cfg.input_window, motion.num_frames - (1 - motion.num_frames % 2))
-    if window <= 1 or window <= cfg.input_order:
-        return motion
-    return savgol_filter_motion(motion, window, cfg.input_order)
+def smooth_inputs(motions: list[Motion], cfg: DenoiserConfig) -> list[Motion]:
+    """What the inference networks read: the motions through the config's input filter (the
+    window is shortened to fit a short motion; 0 or 1 frame = the motion itself). Motions of
+    one length are filtered together."""
+    out = list(motions)
+    by_window: dict[int, list[int]] = {}
+    for i, m in enumerate(motions):
+        window = min(cfg.input_window, m.num_frames - (1 - m.num_frames % 2))
+        if window > 1 and window > cfg.input_order:
+            by_window.setdefault(window, []).append(i)
+    for window, idx in by_window.items():
+        smooth = lambda x, w=window: savgol_smooth(x, w, cfg.input_order)  # noqa: E731
+        for i, m in zip(idx, filter_motions([motions[i] for i in idx], smooth), strict=True):
+            out[i] = m
+    return out
 
 
 @contextmanager
