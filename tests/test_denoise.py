@@ -232,9 +232,9 @@ def test_shipped_denoiser_lowers_the_error_of_a_noisy_clip():
     out = denoise_motions([noisy], den, body)[0]
     before = evaluate_pair(clean, noisy, body)
     after = evaluate_pair(clean, out, body)
-    # measured with the shipped weights: 11.0 -> 7.0 cm V2V, 215 -> 20 m/s^2 (GT 6.2)
-    assert after.v2v_cm < 0.75 * before.v2v_cm, (before.v2v_cm, after.v2v_cm)
-    assert after.accel_pred < 0.2 * before.accel_pred, (before.accel_pred, after.accel_pred)
+    # measured with the shipped weights: 11.0 -> 5.0 cm V2V, 215 -> 5.3 m/s^2 (GT 6.2)
+    assert after.v2v_cm < 0.55 * before.v2v_cm, (before.v2v_cm, after.v2v_cm)
+    assert abs(after.accel_pred - after.accel_gt) < 0.3 * after.accel_gt, after.accel_pred
 
 
 def test_ten_minute_file_denoises_in_bounded_memory(tmp_path):
