@@ -164,7 +164,8 @@ def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 10
 
     -> BodyParams with (N, L, ...) tensors
     """
-    denoiser.eval()
+    if denoiser.training:
+        denoiser.eval()
     outs = []
     with threads_for(len(group)):
         for i in range(0, len(group), batch_size):
