@@ -228,9 +228,9 @@ def train_prior(
     "--lam",
     type=float,
     help="lambda of the IG(lam/2, lam/2) noise prior: large = "
-    "Gaussian noise (noisy mocap), small = heavy-tailed (outliers, video) [1000].",
+    "Gaussian noise, small = heavy-tailed (outliers, video) [10].",
 )
-@click.option("--obs-unit", type=float, help="Metres per observation unit (noise scale) [0.05].")
+@click.option("--obs-unit", type=float, help="Metres per observation unit (noise scale) [0.08].")
 @click.option(
     "--input-window",
     type=int,
@@ -240,7 +240,7 @@ def train_prior(
 @click.option("--window", type=int, help="Frames per window at 30 Hz [60].")
 @click.option("--stride", type=int, help="Frames between window starts [10].")
 @click.option("--batch-size", type=int, help="Windows per step [64].")
-@click.option("--epochs", type=int, help="Passes over the windows [10].")
+@click.option("--epochs", type=int, help="Passes over the windows [8].")
 @click.option("--lr", type=float, help="Adam learning rate, cosine-decayed to --lr-final [3e-3].")
 @click.option("--lr-final", type=float, help="Final learning rate [3e-4].")
 @click.option("--seed", type=int, help="Random seed [0].")

@@ -40,7 +40,7 @@ class FitConfig:
     window: int = 60
     stride: int = 10
     batch_size: int = 64
-    epochs: int = 10
+    epochs: int = 8
     lr: float = 3e-3
     lr_final: float = 3e-4
     seed: int = 0

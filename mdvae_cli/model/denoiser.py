@@ -47,11 +47,11 @@ class DenoiserConfig:
         the motion's trend and the ELBO still fits the unfiltered data.
     """
 
-    lam: float = 1000.0
-    obs_unit: float = 0.05
+    lam: float = 10.0
+    obs_unit: float = 0.08
     hidden_dim: int = 128
-    velocity_window: int = 1
-    x0_window: int = 1
+    velocity_window: int = 9
+    x0_window: int = 9
     x0_bidirectional: bool = False
     input_window: int = 11
     input_order: int = 1
