@@ -217,21 +217,15 @@ def smooth_rotvecs(rotvec: np.ndarray, smooth: Callable[[np.ndarray], np.ndarray
 def filter_motion(motion: Motion, smooth: Callable[[np.ndarray], np.ndarray]) -> Motion:
     """Apply a temporal filter ((T, D) -> (T, D)) to the body pose, root orientation (as
     quaternions) and translation of ``motion``; a new Motion, everything else unchanged."""
-    T = motion.num_frames
-    rotvecs = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)  # (T,22,3)
-    smoothed = smooth_rotvecs(rotvecs, smooth)
-    trans = smooth(np.asarray(motion.trans, dtype=np.float64).reshape(T, 3))
-    return motion.with_body(
-        root_orient=smoothed[:, 0].copy(), pose_body=smoothed[:, 1:].copy(), trans=trans
-    )
+    return filter_motions([motion], smooth)[0]
 
 
 def filter_motions(
     motions: Sequence[Motion], smooth: Callable[[np.ndarray], np.ndarray]
 ) -> list[Motion]:
     """:func:`filter_motion` on many motions, in one call per distinct length (the filter works
-    along time, so equal-length motions are smoothed side by side): same results, far fewer
-    small array operations for a batch of short clips."""
+    along time, so equal-length motions are smoothed side by side): same results as one by one,
+    far fewer small array operations for a batch of short clips."""
     out: list[Motion | None] = [None] * len(motions)
     by_len: dict[int, list[int]] = {}
     for i, m in enumerate(motions):
@@ -249,7 +243,9 @@ def filter_motions(
         trans = smooth(trans.reshape(T, -1)).reshape(trans.shape)
         for k, i in enumerate(idx):
             out[i] = motions[i].with_body(
-                root_orient=rot[:, k, 0].copy(), pose_body=rot[:, k, 1:].copy(), trans=trans[:, k]
+                root_orient=rot[:, k, 0].copy(),
+                pose_body=rot[:, k, 1:].copy(),
+                trans=trans[:, k].copy(),
             )
     return out  # type: ignore[return-value]
 

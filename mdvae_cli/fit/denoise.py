@@ -78,7 +78,7 @@ def make_windows(
     inputs = smooth_inputs(motions, denoiser.cfg)
     for mi, motion in enumerate(motions):
         p = motion_to_params(motion)
-        p_in = motion_to_params(inputs[mi])
+        p_in = p if inputs[mi] is motion else motion_to_params(inputs[mi])
         betas = body.fit_betas(torch.as_tensor(motion.betas, dtype=torch.float32)[None])[0]
         T = motion.num_frames
         length = min(L, T)
