@@ -67,7 +67,7 @@ def local_poly_coefficients(
 
 @functools.lru_cache(maxsize=512)
 def _edge_coefficients(n: int, order: int, at: int, weight_bytes: bytes) -> np.ndarray:
-    """:func:`local_poly_coefficients` at frames 0..n-1 (a fit is shift-invariant, so an end
+    """:func:`local_poly_coefficients` at frames 0..n-1 (a fit is shift-invariant, so a
     frame's row depends only on these), cached: every clip of a batch shares its rows."""
     c = local_poly_coefficients(np.arange(n), order, at, np.frombuffer(weight_bytes))
     c.flags.writeable = False
@@ -109,7 +109,8 @@ def _smooth_local_poly(
     out = np.empty_like(x)
     if T >= W:
         offsets = np.arange(-half, half + 1)
-        c = local_poly_coefficients(offsets, order, 0.0, weight(offsets))
+        w = np.asarray(weight(offsets), dtype=np.float64)
+        c = _edge_coefficients(W, order, half, w.tobytes())  # the centre row, cached too
         inner = out[half : T - half]
         inner[...] = c[0] * x[: T - W + 1]
         for k in range(1, W):

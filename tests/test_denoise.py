@@ -389,3 +389,43 @@ def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(ti
         np.testing.assert_allclose(got.trans, alone.trans, atol=1e-9)
     expected = savgol_filter_motion(other, 11, 1)
     np.testing.assert_allclose(batch[3].pose_body, expected.pose_body, atol=1e-9)
+
+
+def test_small_batch_numpy_path_matches_the_torch_networks(tiny_prior):
+    from mdvae_cli.fit.denoise import make_windows, predict_windows
+    from mdvae_cli.model.small_batch import SmallBatchRegressor
+
+    prior, _ = load_prior(tiny_prior / "run")
+    den = Denoiser(prior, DenoiserConfig())
+    torch.manual_seed(0)
+    for p in den.trainable_parameters():  # away from the zero-initialised heads
+        p.data += 0.05 * torch.randn_like(p)
+    den.eval()
+    assert SmallBatchRegressor.supports(den)
+    for B, T1 in ((1, 61), (3, 17), (2, 2)):
+        yn = torch.randn(B, T1, 138)
+        with torch.no_grad():
+            want = den.infer(yn, with_prior=False)["x_hat"].numpy()
+        got = SmallBatchRegressor(den)(yn.numpy())
+        assert got.shape == want.shape and got.dtype == np.float32
+        np.testing.assert_allclose(got, want, atol=2e-4 * (1 + np.abs(want).max()))
+    # predict_windows takes the numpy path for a handful of windows: same result as torch
+    import mdvae_cli.fit.denoise as denoise_module
+
+    body = BodyModel(builtin_body_model())
+    noisy = add_pose_noise(load_motion(EXAMPLES / "walk.npz"), 0.15, np.random.default_rng(1))
+    (group,) = make_windows([noisy], den, body, window=40, stride=30, observations=False)
+    assert len(group) <= denoise_module.SMALL_BATCH
+    fast = predict_windows(den, group)
+    small, denoise_module.SMALL_BATCH = denoise_module.SMALL_BATCH, 0
+    try:
+        slow = predict_windows(den, group)
+    finally:
+        denoise_module.SMALL_BATCH = small
+    for k in ("root_orient", "pose_body", "trans"):
+        torch.testing.assert_close(getattr(fast, k), getattr(slow, k), atol=1e-4, rtol=0)
+    # layouts it does not cover are refused (callers fall back to torch)
+    old = Denoiser(prior, DenoiserConfig(x0_bidirectional=True))
+    assert not SmallBatchRegressor.supports(old)
+    with pytest.raises(ValueError):
+        SmallBatchRegressor(old)

@@ -136,3 +136,19 @@ def test_unwrap_removes_2pi_jumps():
     # batched along dim 1
     un_b = R.rotvec_unwrap(wrapped[None].expand(2, -1, -1), dim=1)
     torch.testing.assert_close(un_b[1], truth, atol=1e-8, rtol=0)
+
+
+def test_wrap_brings_angles_into_0_pi_and_keeps_the_rotation():
+    torch.manual_seed(0)
+    r = torch.randn(2000, 3, dtype=torch.float64) * 4.0  # angles up to ~4 pi
+    w = R.rotvec_wrap(r)
+    assert float(w.norm(dim=-1).max()) <= math.pi + 1e-12
+    torch.testing.assert_close(R.rotvec_to_rotmat(w), R.rotvec_to_rotmat(r), atol=1e-12, rtol=0)
+    small = r[r.norm(dim=-1) < 3.0]
+    assert torch.equal(R.rotvec_wrap(small), small)  # already in range: untouched
+    # an angle of 3 pi / 2 about +z is pi / 2 about -z
+    got = R.rotvec_wrap(torch.tensor([0.0, 0.0, 1.5 * math.pi], dtype=torch.float64))
+    torch.testing.assert_close(got, torch.tensor([0.0, 0.0, -0.5 * math.pi], dtype=torch.float64))
+    # undoes unwrap
+    seq = R.rotvec_unwrap(R.rotmat_to_rotvec(R.rotvec_to_rotmat(r[:50])))
+    torch.testing.assert_close(R.rotvec_to_rotmat(R.rotvec_wrap(seq)), R.rotvec_to_rotmat(r[:50]))

@@ -20,6 +20,7 @@ from mdvae_cli.filters import filter_motions, savgol_smooth
 from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
+from mdvae_cli.model.small_batch import SmallBatchRegressor
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import interp_linear, interp_rotvec, resample_motion
 from mdvae_cli.motion.state import BodyParams, state_to_params
@@ -145,8 +146,11 @@ def smooth_inputs(motions: list[Motion], cfg: DenoiserConfig) -> list[Motion]:
     return out
 
 
+SMALL_BATCH = 8  # windows; below this, per-operation overhead dominates the networks' cost
+
+
 @contextmanager
-def threads_for(num_windows: int, small: int = 8):
+def threads_for(num_windows: int, small: int = SMALL_BATCH):
     """Run a handful of windows on one CPU thread: for tiny batches, thread synchronisation
     costs more than it saves (a 2-second clip: 21 ms on one thread, 28 ms on two)."""
     before = torch.get_num_threads()
@@ -160,18 +164,25 @@ def threads_for(num_windows: int, small: int = 8):
 
 @torch.no_grad()
 def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 1024) -> BodyParams:
-    """Regression mode on a group: posterior means, back in world coordinates.
+    """Regression mode on a group: posterior means, back in world coordinates. A handful of
+    windows go through the numpy path (same numbers, a third of the time).
 
     -> BodyParams with (N, L, ...) tensors
     """
     if denoiser.training:
         denoiser.eval()
+    small = len(group) <= SMALL_BATCH and SmallBatchRegressor.supports(denoiser)
+    regress = (
+        (lambda yn: torch.from_numpy(SmallBatchRegressor(denoiser)(yn.numpy())))
+        if small
+        else (lambda yn: denoiser.infer(yn, with_prior=False)["x_hat"])
+    )
     outs = []
     with threads_for(len(group)):
         for i in range(0, len(group), batch_size):
             idx = torch.arange(i, min(i + batch_size, len(group)))
             g = group.batch(idx, with_y3d=False)
-            x_hat = denoiser.infer(g.yn, with_prior=False)["x_hat"]
+            x_hat = regress(g.yn)
             outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
@@ -260,10 +271,14 @@ def denoise_motions(
     modifies ``denoiser``; pass a copy to keep the original), then predict.
     """
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
-    groups = make_windows(motions30, denoiser, body, window, stride, optimize_steps > 0)
-    if optimize_steps > 0:
-        from mdvae_cli.fit.fit_dataset import fit_denoiser
+    num_windows = sum(
+        len(window_starts(m.num_frames, min(window + 1, m.num_frames), stride)) for m in motions30
+    )
+    with threads_for(num_windows if optimize_steps == 0 else SMALL_BATCH + 1):
+        groups = make_windows(motions30, denoiser, body, window, stride, optimize_steps > 0)
+        if optimize_steps > 0:
+            from mdvae_cli.fit.fit_dataset import fit_denoiser
 
-        fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, progress)
-    preds = [predict_windows(denoiser, g) for g in groups]
-    return assemble(motions, motions30, groups, preds)
+            fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, progress)
+        preds = [predict_windows(denoiser, g) for g in groups]
+        return assemble(motions, motions30, groups, preds)

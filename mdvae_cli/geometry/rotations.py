@@ -15,6 +15,8 @@ hot-path math functions); validation happens where data enters the program.
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 _SMALL = 1e-6
@@ -186,6 +188,17 @@ def quat_slerp(q0: torch.Tensor, q1: torch.Tensor, t: torch.Tensor | float) -> t
 def rotvec_slerp(r0: torch.Tensor, r1: torch.Tensor, t: torch.Tensor | float) -> torch.Tensor:
     """Slerp between axis-angle rotations.  r0, r1: (..., 3); t: scalar or (...) -> (..., 3)"""
     return quat_to_rotvec(quat_slerp(rotvec_to_quat(r0), rotvec_to_quat(r1), t))
+
+
+def rotvec_wrap(rotvec: torch.Tensor) -> torch.Tensor:
+    """The same rotations with angles in [0, pi] (undoes :func:`rotvec_unwrap`).
+
+    An angle theta > pi about axis a is the angle theta - 2 pi k in (-pi, pi] about a.
+    rotvec: (..., 3) -> (..., 3)
+    """
+    theta = rotvec.norm(dim=-1, keepdim=True)
+    wrapped = theta - 2.0 * math.pi * torch.round(theta / (2.0 * math.pi))  # in [-pi, pi]
+    return torch.where(theta > math.pi, rotvec * (wrapped / theta.clamp_min(1.0)), rotvec)
 
 
 def rotvec_unwrap(rotvec: torch.Tensor, dim: int = 0) -> torch.Tensor:

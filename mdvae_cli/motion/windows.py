@@ -11,7 +11,12 @@ from dataclasses import dataclass
 
 import torch
 
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
+from mdvae_cli.geometry.rotations import (
+    rotmat_to_rotvec,
+    rotvec_to_rotmat,
+    rotvec_unwrap,
+    rotvec_wrap,
+)
 from mdvae_cli.motion.state import BodyParams
 
 
@@ -75,7 +80,7 @@ def uncanonicalize(
     world = (Rz @ pelvis[..., None])[..., 0] + frame.origin[:, None]
     return BodyParams(
         root_orient=rotmat_to_rotvec(R),
-        pose_body=rotmat_to_rotvec(rotvec_to_rotmat(params.pose_body)),
+        pose_body=rotvec_wrap(params.pose_body),
         trans=world - pelvis_rest[:, None],
     )
 
