@@ -15,6 +15,7 @@ from click.testing import CliRunner
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
+from mdvae_cli.errors import InputError
 from mdvae_cli.fit.data import WindowSet
 from mdvae_cli.fit.train_prior import (
     VELOCITY_DIMS,
@@ -162,6 +163,32 @@ def test_init_from_widens_an_older_architecture_exactly(tmp_path):
     bad["dvae.decoder.head.0.weight"] = torch.zeros(3, 3)
     with pytest.raises(ValueError, match="shape"):
         widen_state(bad, new.state_dict())
+
+
+def test_encoder_only_training_keeps_the_generative_model_and_lowers_its_loss(tmp_path):
+    data = write_corpus(tmp_path / "data", n=2, T=60)
+    train_prior(tiny_config(data, epochs=1), tmp_path / "base", max_steps=4)
+    base, _ = load_prior(tmp_path / "base")
+    cfg = tiny_config(
+        data, epochs=15, lr=1e-2, kl_warmup_steps=0, init_from=str(tmp_path / "base" / "best.npz")
+    )
+    cfg.train_only, cfg.recon_weight = "encoder", 30.0
+    log = []
+    train_prior(cfg, tmp_path / "enc", progress=log.append)
+    tuned, meta = load_prior(tmp_path / "enc")
+    assert meta["train_config"]["train_only"] == "encoder"
+    before, after = base.state_dict(), tuned.state_dict()
+    for k in before:
+        if ".encoder." in k:
+            continue
+        assert torch.equal(before[k], after[k]), k  # prior, decoder, normaliser: untouched
+    assert any(not torch.equal(before[k], after[k]) for k in before if ".encoder." in k)
+    losses = [d["loss"] for d in log if "loss" in d]
+    # the frozen, barely trained decoder bounds what the encoder can gain: a few percent
+    assert np.mean(losses[-3:]) < 0.98 * np.mean(losses[:3])
+    cfg.train_only = "decoder"
+    with pytest.raises(InputError, match="train_only"):
+        train_prior(cfg, tmp_path / "bad")
 
 
 def test_reconstruction_weights_scale_the_right_columns(tiny_body):

@@ -121,6 +121,12 @@ def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) 
     help="Widen the velocities' normalisation scale by this factor, giving them less "
     "weight in the reconstruction [1].",
 )
+@click.option(
+    "--train-only",
+    type=click.Choice(["all", "encoder"]),
+    help="'encoder' keeps the prior and decoder (and so sampling) fixed and trains only the "
+    "encoder, e.g. with --init-from and a larger --recon-weight [all].",
+)
 @click.option("--latent-dim", type=int, help="z_t width [32].")
 @click.option("--hidden-dim", type=int, help="Recurrent state width [128].")
 @click.option(
