@@ -77,7 +77,7 @@ def main() -> None:
     print("| latents | V2V root-relative (cm) | V2V absolute (cm) |")
     print("|---|---|---|")
     print(f"| encoder's posterior means | {cm(enc_rel, gt_rel):.2f} | {cm(enc_abs, gt_abs):.2f} |")
-    print(f"| optimised per window | {100 * float(rel):.2f} | {100 * float(absolute):.2f} |")
+    print(f"| optimised per window | {100 * rel.item():.2f} | {100 * absolute.item():.2f} |")
 
 
 if __name__ == "__main__":
