@@ -7,8 +7,9 @@ tiny operations a step), and on a CPU one torch operation on a (1, 128) tensor c
 numpy one. A 2-second clip spends ~20 ms in that loop through torch and ~5 ms here.
 
 Only the denoiser layout that ships is handled (encoder reads the decoder's state and x_t,
-decoder head reads z_t, x0 predictor runs backward); ``SmallBatchRegressor.supports`` says
-whether a denoiser qualifies, and callers fall back to torch otherwise. Tests pin the two paths
+decoder head reads z_t, x0 predictor runs backward), on the CPU;
+``SmallBatchRegressor.supports`` says whether a denoiser qualifies, and callers fall back to
+torch otherwise. Tests pin the two paths
 to each other.
 
 Weights are copied when the regressor is built: build a new one after the denoiser changes
@@ -87,6 +88,7 @@ class SmallBatchRegressor:
             and enc.x_skip
             and dec.z_skip
             and not denoiser.x0_predictor.bidirectional
+            and next(denoiser.parameters()).device.type == "cpu"
         )
 
     def __init__(self, denoiser: Denoiser):
