@@ -44,6 +44,21 @@ class Clip:
     motion: Motion
 
 
+def prior_and_windows(prior_path, corpus: Path, split: str, max_files: int):
+    """A prior (default: the shipped one), its body model, and the 60-frame windows (every 60
+    frames) of the first ``max_files`` files of a corpus split.
+    -> (prior, body, files, WindowSet)"""
+    from mdvae_cli.body.formats import load_body_model
+    from mdvae_cli.fit.data import load_windows, select_files
+    from mdvae_cli.model.prior_model import load_prior
+    from mdvae_cli.weights import default_weights
+
+    prior, meta = load_prior(prior_path or default_weights("prior"))
+    body = BodyModel(load_body_model(meta["train_config"].get("body_model")))
+    files = select_files([corpus], corpus / "split.json", split)[:max_files]
+    return prior, body, files, load_windows(files, body, 60, 60)
+
+
 def slice_motion(motion: Motion, start: int, stop: int) -> Motion:
     """Frames [start, stop) of a motion as a new Motion; per-frame extra arrays (first dim T,
     numeric) are sliced too, the others kept."""

@@ -17,12 +17,13 @@ from pathlib import Path
 
 import torch
 
-from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.data import load_windows, select_files
-from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.state import state_to_params
-from mdvae_cli.weights import default_weights
+
+try:
+    from benchmarks import common
+except ModuleNotFoundError:  # run as a file: python benchmarks/<name>.py
+    import common  # type: ignore[no-redef]
 
 
 def mesh(body: BodyModel, x: torch.Tensor, betas: torch.Tensor, ids: torch.Tensor):
@@ -46,11 +47,9 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     start = time.time()
-    prior, meta = load_prior(args.prior or default_weights("prior"))
-    body = BodyModel(load_body_model(meta["train_config"].get("body_model")))
-    corpus = Path(args.corpus)
-    files = select_files([corpus], corpus / "split.json", args.split)[: args.max_files]
-    w = load_windows(files, body, 60, 60)
+    prior, body, _, w = common.prior_and_windows(
+        args.prior, Path(args.corpus), args.split, args.max_files
+    )
     w = w.subset(torch.arange(0, len(w), args.every))
     norm = prior.normalizer
     xn, x0n = norm.normalize(w.x), norm.normalize(w.x0)

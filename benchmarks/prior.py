@@ -21,16 +21,17 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.data import MODEL_FPS, WindowSet, load_windows, select_files
+from mdvae_cli.fit.data import MODEL_FPS, WindowSet
 from mdvae_cli.fit.sample import sample_motion
 from mdvae_cli.model.losses import gaussian_kl
-from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.motion.state import state_to_params
-from mdvae_cli.weights import default_weights
+
+try:
+    from benchmarks import common
+except ModuleNotFoundError:  # run as a file: python benchmarks/<name>.py
+    import common  # type: ignore[no-redef]
 
 FEET = (7, 8, 10, 11)  # ankles and feet
 
@@ -108,11 +109,9 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     start = time.time()
-    prior, meta = load_prior(args.prior or default_weights("prior"))
-    body = BodyModel(load_body_model(meta["train_config"].get("body_model")))
-    corpus = Path(args.corpus)
-    files = select_files([corpus], corpus / "split.json", args.split)[: args.max_files]
-    windows = load_windows(files, body, 60, 60)
+    prior, body, files, windows = common.prior_and_windows(
+        args.prior, Path(args.corpus), args.split, args.max_files
+    )
     rec = reconstruction(prior, body, windows)
     long_files = [f for f in files if load_motion(f).duration >= args.seconds]
     temps = [float(t) for t in args.temperatures.split(",")]

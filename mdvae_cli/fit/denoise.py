@@ -9,7 +9,7 @@ keys and the file layout are carried through untouched.
 
 from __future__ import annotations
 
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,9 +81,8 @@ def make_windows(
         p = motion_to_params(motion)
         p_in = p if inputs[mi] is motion else motion_to_params(inputs[mi])
         betas = body.fit_betas(torch.as_tensor(motion.betas, dtype=torch.float32)[None])[0]
-        T = motion.num_frames
-        length = min(L, T)
-        for s in window_starts(T, length, stride):
+        length = min(L, motion.num_frames)
+        for s in motion_window_starts(motion, window, stride):
             sl = slice(s, s + length)
             mask = None if motion.joint_mask is None else torch.as_tensor(motion.joint_mask[sl])
             raw = (p.root_orient[sl], p.pose_body[sl], p.trans[sl])
@@ -127,6 +126,13 @@ def make_windows(
             )
         )
     return groups
+
+
+def motion_window_starts(motion: Motion, window: int, stride: int) -> list[int]:
+    """Where a 30 Hz motion's windows of ``window + 1`` frames start (one window of its own
+    length when it is shorter)."""
+    T = motion.num_frames
+    return window_starts(T, min(window + 1, T), stride)
 
 
 def smooth_inputs(motions: list[Motion], cfg: DenoiserConfig) -> list[Motion]:
@@ -271,10 +277,8 @@ def denoise_motions(
     modifies ``denoiser``; pass a copy to keep the original), then predict.
     """
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
-    num_windows = sum(
-        len(window_starts(m.num_frames, min(window + 1, m.num_frames), stride)) for m in motions30
-    )
-    with threads_for(num_windows if optimize_steps == 0 else SMALL_BATCH + 1):
+    num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
+    with threads_for(num_windows) if optimize_steps == 0 else nullcontext():
         groups = make_windows(motions30, denoiser, body, window, stride, optimize_steps > 0)
         if optimize_steps > 0:
             from mdvae_cli.fit.fit_dataset import fit_denoiser

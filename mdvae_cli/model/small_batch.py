@@ -128,7 +128,6 @@ class SmallBatchRegressor:
         )
         self.b_z = np.concatenate([_np(rnn.bias_ih_l0), _np(cell.bias_ih)])
         self.b_hh_enc, self.b_hh_dec = _np(cell.bias_hh), _np(rnn.bias_hh_l0)
-        self.w_hh_enc = _np(cell.weight_hh).T
         # decoder: initial state and head on [hd_t, z_t]
         self.dec_init = _Linear(dec.init[0])
         self.dec_head = (_Linear(dec.head[0]), _Linear(dec.head[2]))
@@ -156,7 +155,7 @@ class SmallBatchRegressor:
         zs = np.empty((B, T, self.L), dtype=np.float32)
         hds = np.empty((B, T, self.H), dtype=np.float32)
         gi_enc = np.broadcast_to(self.b_z[3 * H :], (B, 3 * H))  # z_0 = 0
-        gh_enc = h @ self.w_hh_enc + self.b_hh_enc
+        gh_enc = h @ self.w_h[:, M:] + self.b_hh_enc
         for t in range(T):
             h = gru_update(gi_enc, gh_enc, h)
             h_part = h @ self.w_h  # head term of h_t, and W_hh_enc h_t for step t + 1
