@@ -22,11 +22,10 @@ from mdvae_cli.fit.train_prior import (
     TrainConfig,
     prior_losses,
     train_prior,
-    widen_state,
 )
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
-from mdvae_cli.model.prior_model import PriorModel, load_prior
+from mdvae_cli.model.prior_model import PriorModel, load_prior, widen_state
 from tests.conftest import motion_arrays
 
 TINY = ModelConfig(latent_dim=8, hidden_dim=32, mlp_dim=32)

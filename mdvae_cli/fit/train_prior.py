@@ -31,7 +31,7 @@ from mdvae_cli.fit.distributed import (
 )
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, kl_weight
-from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors
+from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
 from mdvae_cli.motion.state import POSE_VEL, ROOT_VEL, TRANS_VEL, state_to_params
 
 #: the velocity columns of the state (r dot, phi dot, Theta dot)
@@ -236,26 +236,6 @@ def init_from_prior(model: PriorModel, path: Path) -> None:
         model.load_state_dict(widen_state(source.state_dict(), model.state_dict()))
     except ValueError as exc:
         raise InputError(f"--init-from {path}: {exc}") from None
-
-
-def widen_state(source: dict, target: dict) -> dict:
-    """``source`` tensors fitted into ``target``'s shapes: equal shapes are copied; a weight
-    matrix with extra input columns gets the source in its leading columns and zeros after
-    them, so the widened network computes exactly what the source did."""
-    out = {}
-    for key, t in target.items():
-        s = source.get(key)
-        if s is None:
-            raise ValueError(f"the checkpoint has no {key}")
-        if s.shape == t.shape:
-            out[key] = s.clone()
-        elif s.ndim == 2 and t.ndim == 2 and s.shape[0] == t.shape[0] and s.shape[1] < t.shape[1]:
-            w = torch.zeros_like(t)
-            w[:, : s.shape[1]] = s
-            out[key] = w
-        else:
-            raise ValueError(f"{key} has shape {tuple(s.shape)}, this network {tuple(t.shape)}")
-    return out
 
 
 def train_prior(

@@ -53,3 +53,23 @@ def load_prior(path: Path | str) -> tuple[PriorModel, dict]:
     except RuntimeError as exc:
         raise InputError(f"{path}: weights do not match its config ({exc})") from None
     return model.eval(), meta
+
+
+def widen_state(source: dict, target: dict) -> dict:
+    """``source`` tensors fitted into ``target``'s shapes: equal shapes are copied; a weight
+    matrix with extra input columns gets the source in its leading columns and zeros after
+    them, so the widened network computes exactly what the source did."""
+    out = {}
+    for key, t in target.items():
+        s = source.get(key)
+        if s is None:
+            raise ValueError(f"the checkpoint has no {key}")
+        if s.shape == t.shape:
+            out[key] = s.clone()
+        elif s.ndim == 2 and t.ndim == 2 and s.shape[0] == t.shape[0] and s.shape[1] < t.shape[1]:
+            w = torch.zeros_like(t)
+            w[:, : s.shape[1]] = s
+            out[key] = w
+        else:
+            raise ValueError(f"{key} has shape {tuple(s.shape)}, this network {tuple(t.shape)}")
+    return out
