@@ -105,6 +105,7 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
         window=20,
         stride=15,
         batch_size=4,
+        refine_steps=2,
         single_clip_repeats=1,
     )
     before = {k: v.clone() for k, v in tiny_denoiser.state_dict().items()}
@@ -132,14 +133,23 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
     assert cell("Ground truth", header[5]) == "-"
     for row in ("Gaussian filter", "Savitzky-Golay filter", "Regression mode"):
         assert float(cell(row, "s/frame ↓")) > 0 and float(cell(row, "1 clip, warm (ms)")) > 0
-    assert float(cell("Optimization mode", "frames/s ↑").replace(",", "")) > 0
+    for row in ("Optimization mode", "Latent refinement"):
+        assert float(cell(row, "frames/s ↑").replace(",", "")) > 0
     assert cell("Observations", "V2V / V2V(obs) σ=0.15") == "1.000"
     best = [cell(r, header[-1]) for r in ("Gaussian filter", "Savitzky-Golay filter")]
     assert "best filter" in best
+    # the gain over the best filter is given at every sigma, and matches the V2V columns
+    gains = [float(g.strip(" %")) for g in cell("Latent refinement", header[-1]).split(" / ")]
+    best_row = "Gaussian filter" if best[0] == "best filter" else "Savitzky-Golay filter"
+    for g, c in zip(gains, header[5:8], strict=True):
+        ours, theirs = float(cell("Latent refinement", c)), float(cell(best_row, c))
+        rounding = 0.05 + 0.5 / theirs * (1 + ours / theirs)  # cells hold 2 decimals
+        assert abs(g - 100 * (1 - ours / theirs)) < rounding, (g, ours, theirs)
     # the tuned parameters are reported and come from the grid
     assert result.tuning.gaussian_sigma in (1.0, 2.0)
     assert cell("Gaussian filter", "Parameters") == f"σ = {result.tuning.gaussian_sigma:g} frames"
-    assert [p.steps for p in result.curve] == [0, 1, 2, None, None]
+    assert [p.steps for p in result.curve] == [0, 1, 2, None, None, None]
+    assert result.curve[-1].label == "Latent refinement"
     assert all(p.s_per_frame > 0 and math.isfinite(p.v2v_cm) for p in result.curve)
 
     md = report_markdown(result, machine_description(), {"corpus": "synthetic"}, "plot.png")

@@ -53,6 +53,23 @@ from mdvae_cli.errors import InputError
 )
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of optimisation mode.")
 @click.option(
+    "--refine",
+    "refine_steps",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Then refine every window's latents for N gradient steps on its own ELBO, scoring "
+    "the file's noisy joint rotations with a noise level estimated per joint (150 is a good "
+    "value: markedly cleaner, about 100x slower than a forward pass); 0 = off.",
+)
+@click.option(
+    "--refine-lr",
+    type=click.FloatRange(min=0, min_open=True),
+    default=0.05,
+    show_default=True,
+    help="Step size of --refine.",
+)
+@click.option(
     "--mesh-dir",
     type=click.Path(path_type=Path),
     help="Also write the cleaned mesh sequence here (a subfolder per file).",
@@ -90,6 +107,8 @@ def denoise(
     per_file,
     lr,
     seed,
+    refine_steps,
+    refine_lr,
     mesh_dir,
     mesh_format,
     window,
@@ -109,6 +128,7 @@ def denoise(
     Examples:
       mdvae denoise noisy.npz -o clean.npz
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
+      mdvae denoise noisy.npz -o clean.npz --refine 150
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
     """
     from mdvae_cli.body.formats import load_body_model
@@ -116,6 +136,7 @@ def denoise(
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.fit.denoise import denoise_motions
     from mdvae_cli.fit.fit_dataset import load_denoiser
+    from mdvae_cli.fit.refine import RefineConfig
     from mdvae_cli.motion.npz_io import load_motion, save_motion
 
     if overlap >= window:
@@ -135,6 +156,7 @@ def denoise(
         denoiser, _ = load_denoiser(denoiser_path)
         body = BodyModel(load_body_model(body_model))
     stride = window - overlap
+    refine = RefineConfig(steps=refine_steps, lr=refine_lr)
     results: dict[Path, object] = {}
     timings: dict[Path, float] = {}
 
@@ -142,13 +164,18 @@ def denoise(
         model = copy.deepcopy(denoiser) if optimize_steps else denoiser
         start = time.perf_counter()
         with progress_bar(transient=True) as progress:
-            task = progress.add_task(
-                "optimising", total=optimize_steps or 1, visible=False, info=""
-            )
+            tasks = {
+                stage: progress.add_task(label, total=1, visible=False, info="")
+                for stage, label in (("optimize", "optimising"), ("refine", "refining"))
+            }
 
             def tick(info: dict) -> None:
                 progress.update(
-                    task, visible=True, completed=info["step"], info=f"loss {info['loss']:.2f}"
+                    tasks[info["stage"]],
+                    visible=True,
+                    completed=info["step"],
+                    total=info["steps"],
+                    info=f"loss {info['loss']:.2f}",
                 )
 
             cleaned = denoise_motions(
@@ -161,6 +188,7 @@ def denoise(
                 lr=lr,
                 seed=seed,
                 progress=tick,
+                refine=refine,
             )
         seconds = time.perf_counter() - start
         frames = sum(loaded[j.source].num_frames for j in group)
@@ -190,6 +218,7 @@ def denoise(
                 **write_report.to_dict(),
                 "mode": "optimization" if optimize_steps else "regression",
                 "optimize_steps": optimize_steps,
+                "refine_steps": refine_steps,
             }
         )
     elif write_report.succeeded:

@@ -9,6 +9,7 @@ keys and the file layout are carried through untouched.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 
@@ -18,6 +19,7 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import filter_motions, savgol_smooth
 from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
+from mdvae_cli.fit.refine import RefineConfig, refine_latents
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.model.small_batch import SmallBatchRegressor
@@ -33,7 +35,8 @@ class WindowGroup:
 
     yn: (N, L, 138) normalised noisy states; y3d: (N, L, 65, 3); betas: (N, S);
     frame: the canonical frames; pelvis: (N, 3); owners: (motion index, start) per window;
-    weight: (N, L, 65) observation weights (joint mask), or None.
+    weight: (N, L, 65) observation weights (joint mask), or None; obs: (N, L, 138) the raw
+    noisy states (state units, canonical frame; what refinement scores), or None.
     """
 
     yn: torch.Tensor
@@ -43,12 +46,14 @@ class WindowGroup:
     pelvis: torch.Tensor
     owners: list[tuple[int, int]] = field(default_factory=list)
     weight: torch.Tensor | None = None
+    obs: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return int(self.yn.shape[0])
 
     def batch(self, idx: torch.Tensor, with_y3d: bool = True) -> WindowGroup:
         w = None if self.weight is None else self.weight[idx]
+        obs = None if self.obs is None else self.obs[idx]
         frame = CanonicalFrame(self.frame.yaw[idx], self.frame.origin[idx])
         return WindowGroup(
             self.yn[idx],
@@ -58,6 +63,7 @@ class WindowGroup:
             self.pelvis[idx],
             [self.owners[i] for i in idx.tolist()],
             w,
+            obs,
         )
 
 
@@ -72,8 +78,8 @@ def make_windows(
     """Cut motions already at 30 Hz into windows of ``window + 1`` frames (shorter motions
     give one window of their own length), grouped by length.
 
-    ``observations=False`` skips the 3D observations y3d (regression mode does not need them;
-    the group then holds an empty y3d)."""
+    ``observations=False`` skips the observations (regression mode does not need them: the
+    group then holds an empty y3d and no raw states)."""
     L = window + 1
     by_len: dict[int, list] = {}
     inputs = smooth_inputs(motions, denoiser.cfg)
@@ -99,7 +105,7 @@ def make_windows(
             states, frame = chunk_states(
                 params, betas, body, velocity_window=denoiser.cfg.velocity_window
             )
-            y3d = states.new_zeros(0)
+            y3d, raw_states = states.new_zeros(0), None
             if observations:
                 raw_states = states
                 if denoiser.cfg.input_window > 1:  # the raw motion, in the same frames
@@ -123,6 +129,7 @@ def make_windows(
                 body.pelvis_rest(betas),
                 [(it[0], it[1]) for it in items],
                 weight,
+                raw_states,
             )
         )
     return groups
@@ -190,6 +197,36 @@ def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 10
             g = group.batch(idx, with_y3d=False)
             x_hat = regress(g.yn)
             outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
+    return BodyParams(
+        *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
+    )
+
+
+def refine_windows(
+    denoiser: Denoiser,
+    group: WindowGroup,
+    cfg: RefineConfig,
+    progress: Callable[[dict], None] | None = None,
+) -> BodyParams:
+    """Latent refinement on a group (see ``fit.refine``), back in world coordinates.
+
+    The group must hold its raw states (``make_windows(..., observations=True)``).
+    ``progress`` counts steps over all of the group's batches.
+    -> BodyParams with (N, L, ...) tensors
+    """
+    if group.obs is None:
+        raise ValueError("refinement needs the raw states: make_windows(observations=True)")
+    if denoiser.training:
+        denoiser.eval()
+    outs = []
+    starts = range(0, len(group), cfg.batch_windows)
+    for b, i in enumerate(starts):
+        idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
+        g = group.batch(idx, with_y3d=False)
+        joints = None if g.weight is None else g.weight[..., :22]
+        tell = _staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
+        x_hat = refine_latents(denoiser, g.yn, g.obs, joints, cfg, tell)
+        outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
     )
@@ -268,21 +305,46 @@ def denoise_motions(
     lr: float = 3e-4,
     batch_size: int = 64,
     seed: int = 0,
-    progress=None,
+    progress: Callable[[dict], None] | None = None,
+    refine: RefineConfig | None = None,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
     Regression mode (``optimize_steps=0``): one forward pass. Optimisation mode: first adapt
     the inference networks to these very motions for ``optimize_steps`` ELBO steps (this
-    modifies ``denoiser``; pass a copy to keep the original), then predict.
+    modifies ``denoiser``; pass a copy to keep the original), then predict. With ``refine``
+    (``steps`` > 0), each window's latents are then refined on its own ELBO (``fit.refine``).
+    ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
+    refining = refine is not None and refine.steps > 0
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
+    plain = optimize_steps == 0 and not refining
     with threads_for(num_windows) if optimize_steps == 0 else nullcontext():
-        groups = make_windows(motions30, denoiser, body, window, stride, optimize_steps > 0)
+        groups = make_windows(motions30, denoiser, body, window, stride, not plain)
         if optimize_steps > 0:
             from mdvae_cli.fit.fit_dataset import fit_denoiser
 
-            fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, progress)
-        preds = [predict_windows(denoiser, g) for g in groups]
+            tell = _staged(progress, "optimize", 0, optimize_steps)
+            fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, tell)
+        if not refining:
+            preds = [predict_windows(denoiser, g) for g in groups]
+            return assemble(motions, motions30, groups, preds)
+        batches = [-(-len(g) // refine.batch_windows) for g in groups]
+        total, done, preds = refine.steps * sum(batches), 0, []
+        for g, n in zip(groups, batches, strict=True):
+            tell = _staged(progress, "refine", done, total)
+            preds.append(refine_windows(denoiser, g, refine, tell))
+            done += n * refine.steps
         return assemble(motions, motions30, groups, preds)
+
+
+def _staged(progress, stage: str, offset: int, total: int):
+    """A progress callback that labels its stage and counts steps over several runs."""
+    if progress is None:
+        return None
+
+    def tell(info: dict) -> None:
+        progress({**info, "stage": stage, "step": offset + info["step"], "steps": total})
+
+    return tell
