@@ -64,23 +64,34 @@ def reconstruction(prior, body, windows: WindowSet, batch: int = 256) -> dict[st
 
 @torch.no_grad()
 def samples(
-    prior, body, files: list[Path], seconds: float, seed: int, temperature: float = 1.0
+    prior,
+    body,
+    files: list[Path],
+    seconds: float,
+    seed: int,
+    temperature: float = 1.0,
+    per_file: int = 1,
 ) -> dict[str, float]:
-    """Prior samples from each file's first frame vs the real motion of the same length."""
+    """``per_file`` prior samples from each file's first frame vs the real motion of the same
+    length (seeds seed, seed + 1, ... over all samples)."""
     frames = int(seconds * MODEL_FPS)
     acc_s, acc_r, min_feet, floor_real, max_speed = [], [], [], [], []
     for k, f in enumerate(files):
         real = resample_motion(load_motion(f), MODEL_FPS)
-        gen = sample_motion(prior, body, real, frames, seed=seed + k, temperature=temperature)
-        for motion, acc in ((gen, acc_s), (real, acc_r)):
-            j = joints(body, motion)
-            a = (j[:-2] - 2 * j[1:-1] + j[2:]) * MODEL_FPS**2
-            acc.append(float(np.linalg.norm(a, axis=-1).mean()))
-        jg, jr = joints(body, gen), joints(body, real)
+        jr = joints(body, real)
+        a = (jr[:-2] - 2 * jr[1:-1] + jr[2:]) * MODEL_FPS**2
+        acc_r.append(float(np.linalg.norm(a, axis=-1).mean()))
         floor = float(jr[:, FEET, 2].min())
-        floor_real.append(floor)
-        min_feet.append(float(jg[:, FEET, 2].min()) - floor)
-        max_speed.append(float(np.linalg.norm(np.diff(jg, axis=0), axis=-1).max() * MODEL_FPS))
+        for s in range(per_file):
+            gen = sample_motion(
+                prior, body, real, frames, seed=seed + k * per_file + s, temperature=temperature
+            )
+            jg = joints(body, gen)
+            a = (jg[:-2] - 2 * jg[1:-1] + jg[2:]) * MODEL_FPS**2
+            acc_s.append(float(np.linalg.norm(a, axis=-1).mean()))
+            floor_real.append(floor)
+            min_feet.append(float(jg[:, FEET, 2].min()) - floor)
+            max_speed.append(float(np.linalg.norm(np.diff(jg, axis=0), axis=-1).max() * MODEL_FPS))
     return {
         "accel_samples": float(np.mean(acc_s)),
         "accel_real": float(np.mean(acc_r)),
@@ -105,6 +116,7 @@ def main() -> None:
     ap.add_argument("--max-files", type=int, default=40)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--temperatures", default="1.0,0.5", help="prior sampling temperatures")
+    ap.add_argument("--samples-per-file", type=int, default=1, help="prior samples per file")
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -115,10 +127,14 @@ def main() -> None:
     rec = reconstruction(prior, body, windows)
     long_files = [f for f in files if load_motion(f).duration >= args.seconds]
     temps = [float(t) for t in args.temperatures.split(",")]
-    smps = {t: samples(prior, body, long_files, args.seconds, seed=0, temperature=t) for t in temps}
+    smps = {
+        t: samples(prior, body, long_files, args.seconds, 0, t, args.samples_per_file)
+        for t in temps
+    }
     print(
         f"Prior benchmark on the {args.split} split: {len(files)} files, {len(windows)} "
-        f"windows of 60 frames, {len(long_files)} samples of {args.seconds:g} s "
+        f"windows of 60 frames, {len(long_files) * args.samples_per_file} samples of "
+        f"{args.seconds:g} s from {len(long_files)} files "
         f"({platform.processor() or platform.machine()}, torch {torch.__version__}, "
         f"{time.time() - start:.0f} s)\n"
     )

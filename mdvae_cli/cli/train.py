@@ -123,9 +123,10 @@ def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) 
 )
 @click.option(
     "--train-only",
-    type=click.Choice(["all", "encoder"]),
-    help="'encoder' keeps the prior and decoder (and so sampling) fixed and trains only the "
-    "encoder, e.g. with --init-from and a larger --recon-weight [all].",
+    type=click.Choice(["all", "encoder", "prior"]),
+    help="Train one network with --init-from, the other two frozen: 'encoder' keeps "
+    "sampling unchanged (e.g. with a larger --recon-weight); 'prior' keeps the decoder and "
+    "the encoder, fitting the prior network alone to the encoder's posteriors [all].",
 )
 @click.option("--latent-dim", type=int, help="z_t width [32].")
 @click.option("--hidden-dim", type=int, help="Recurrent state width [128].")

@@ -215,18 +215,21 @@ def _save(run_dir: Path, name: str, model, opt, meta: dict) -> None:
     save_checkpoint(run_dir / f"{name}.npz", tensors, meta)
 
 
-TRAINABLE = ("all", "encoder")
+TRAINABLE = ("all", "encoder", "prior")
 
 
 def trainable_parameters(model: PriorModel, which: str) -> list[torch.nn.Parameter]:
-    """The parameters a run trains; with "encoder" the prior and decoder are frozen."""
+    """The parameters a run trains: all networks, or one of them with the other two frozen
+    ("encoder": sampling unchanged; "prior": the decoder and the posterior unchanged, the
+    prior network alone fitted to the encoder's posteriors by the KL term)."""
     if which not in TRAINABLE:
         raise InputError(f"train_only must be one of {', '.join(TRAINABLE)}, got {which!r}")
     if which == "all":
         return list(model.dvae.parameters())
-    for module in (model.dvae.prior, model.dvae.decoder):
-        module.requires_grad_(False)
-    return list(model.dvae.encoder.parameters())
+    trained = getattr(model.dvae, which)
+    for module in (model.dvae.prior, model.dvae.decoder, model.dvae.encoder):
+        module.requires_grad_(module is trained)
+    return list(trained.parameters())
 
 
 def init_from_prior(model: PriorModel, path: Path) -> None:
