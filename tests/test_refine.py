@@ -128,6 +128,7 @@ def test_cli_denoise_refine(tiny_prior, make_motion_file, tmp_path):  # noqa: F8
     assert res.exit_code == 0, res.output
     report = json.loads(res.output)
     assert report["refine_steps"] == 3 and report["succeeded"] == 1
+    assert report["refine"]["steps"] == 3 and report["refine"]["lr"] == 0.05
     with np.load(out) as z:
         assert z["poses"].shape == (50, 156) and np.isfinite(z["poses"]).all()
     out.unlink()

@@ -219,6 +219,7 @@ def denoise(
                 "mode": "optimization" if optimize_steps else "regression",
                 "optimize_steps": optimize_steps,
                 "refine_steps": refine_steps,
+                "refine": refine.to_dict() if refine_steps else None,
             }
         )
     elif write_report.succeeded:

@@ -91,14 +91,15 @@ def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> dict[str, t
     }
 
 
-def group_weights(joint_weight: torch.Tensor | None, N: int, T: int) -> dict[str, torch.Tensor]:
+def group_weights(joint_weight: torch.Tensor | None, like: torch.Tensor) -> dict[str, torch.Tensor]:
     """Observation weights per residual group from the per-joint mask.
 
-    joint_weight: (N, T, 22) (pelvis first; None = all observed) -> {"pose": (N, T, 21),
-    "root": (N, T, 1), "trans": (N, T, 1)}; the root and translation follow the pelvis.
+    joint_weight: (N, T, 22) (pelvis first; None = all observed), like: any (N, T, ...) tensor
+    of the window batch -> {"pose": (N, T, 21), "root": (N, T, 1), "trans": (N, T, 1)}; the root
+    and translation follow the pelvis.
     """
     if joint_weight is None:
-        joint_weight = torch.ones(N, T, 22)
+        joint_weight = like.new_ones(*like.shape[:2], 22)
     return {
         "pose": joint_weight[..., 1:22],
         "root": joint_weight[..., :1],
@@ -127,7 +128,7 @@ def refine_latents(
     z = start["q_z"].mean.clone().requires_grad_(True)
     z_logvar = start["q_z"].logvar
     x0 = start["q_x0"].mean.clone().requires_grad_(True)
-    weights = group_weights(joint_weight, N, T1)
+    weights = group_weights(joint_weight, obs)
     units = {"pose": cfg.rot_unit, "root": cfg.rot_unit, "trans": cfg.trans_unit}
     a0 = cfg.lam / 2
     opt = torch.optim.Adam([z, x0], lr=cfg.lr)
