@@ -47,7 +47,7 @@ class Clip:
 def prior_and_windows(prior_path, corpus: Path, split: str, max_files: int):
     """A prior (default: the shipped one), its body model, and the 60-frame windows (every 60
     frames) of the first ``max_files`` files of a corpus split.
-    -> (prior, body, files, WindowSet)"""
+    -> (prior, its checkpoint metadata, body, files, WindowSet)"""
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.fit.data import load_windows, select_files
     from mdvae_cli.model.prior_model import load_prior
@@ -56,7 +56,7 @@ def prior_and_windows(prior_path, corpus: Path, split: str, max_files: int):
     prior, meta = load_prior(prior_path or default_weights("prior"))
     body = BodyModel(load_body_model(meta["train_config"].get("body_model")))
     files = select_files([corpus], corpus / "split.json", split)[:max_files]
-    return prior, body, files, load_windows(files, body, 60, 60)
+    return prior, meta, body, files, load_windows(files, body, 60, 60)
 
 
 def slice_motion(motion: Motion, start: int, stop: int) -> Motion:

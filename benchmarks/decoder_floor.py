@@ -47,7 +47,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     start = time.time()
-    prior, body, _, w = common.prior_and_windows(
+    prior, _, body, _, w = common.prior_and_windows(
         args.prior, Path(args.corpus), args.split, args.max_files
     )
     w = w.subset(torch.arange(0, len(w), args.every))
