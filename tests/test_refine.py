@@ -1,5 +1,6 @@
 """Latent refinement: closed-form noise precision, the per-window ELBO, denoise --refine."""
 
+import copy
 import json
 
 import numpy as np
@@ -7,6 +8,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
+from benchmarks.common import slice_motion
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
@@ -28,7 +30,7 @@ from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.state import POSE
+from mdvae_cli.motion.state import POSE, finite_difference
 from tests.test_denoise import EXAMPLES, tiny_prior, write_denoiser  # noqa: F401
 
 
@@ -177,3 +179,19 @@ def test_refined_reconstruction_lowers_the_training_loss_and_leaves_the_prior(ti
     assert all(p.grad is None for p in prior.parameters())
     with pytest.raises(ValueError, match="TrainConfig"):
         refine_reconstruction(prior, body, windows, None, steps=1)
+
+
+def test_one_frame_motions_pass_through_optimisation_and_refinement(tiny_prior):  # noqa: F811
+    """A one-frame motion is a window of x0 alone: nothing to fit or refine, but it must not
+    stop the batch (it once crashed the velocity and the recurrent networks)."""
+    den = _tiny_denoiser(tiny_prior)
+    body = BodyModel(builtin_body_model())
+    clip = load_motion(EXAMPLES / "noisy_walk.npz")
+    one = slice_motion(clip, 0, 1)
+    assert torch.equal(finite_difference(torch.ones(1, 3), 30.0), torch.zeros(1, 3))
+    for kw in ({"optimize_steps": 1}, {"refine": RefineConfig(steps=2)}):
+        out = denoise_motions([one, clip], copy.deepcopy(den), body, **kw)
+        assert [m.num_frames for m in out] == [1, clip.num_frames], kw
+        assert all(np.isfinite(m.pose_body).all() for m in out)
+        (alone,) = denoise_motions([one], copy.deepcopy(den), body, **kw)
+        assert alone.num_frames == 1

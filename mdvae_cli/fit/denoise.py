@@ -325,14 +325,20 @@ def denoise_motions(
         if optimize_steps > 0:
             from mdvae_cli.fit.fit_dataset import fit_denoiser
 
+            # a one-frame window is x0 alone: nothing to fit or refine
+            fitted = [g for g in groups if g.yn.shape[1] > 1]
             tell = _staged(progress, "optimize", 0, optimize_steps)
-            fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, tell)
+            if fitted:
+                fit_denoiser(denoiser, fitted, body, optimize_steps, lr, batch_size, seed, tell)
         if not refining:
             preds = [predict_windows(denoiser, g) for g in groups]
             return assemble(motions, motions30, groups, preds)
-        batches = [-(-len(g) // refine.batch_windows) for g in groups]
+        batches = [-(-len(g) // refine.batch_windows) if g.yn.shape[1] > 1 else 0 for g in groups]
         total, done, preds = refine.steps * sum(batches), 0, []
         for g, n in zip(groups, batches, strict=True):
+            if n == 0:
+                preds.append(predict_windows(denoiser, g))
+                continue
             tell = _staged(progress, "refine", done, total)
             preds.append(refine_windows(denoiser, g, refine, tell))
             done += n * refine.steps

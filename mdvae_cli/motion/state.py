@@ -23,7 +23,10 @@ POSE_VEL = slice(75, 138)  # Theta dot
 
 
 def finite_difference(p: torch.Tensor, fps: float, dim: int = -2) -> torch.Tensor:
-    """Velocity along the time ``dim``.  p: (..., T, D) with T >= 2 -> (..., T, D)"""
+    """Velocity along the time ``dim``.  p: (..., T, D) -> (..., T, D); a single frame has
+    velocity 0."""
+    if p.shape[dim] < 2:
+        return torch.zeros_like(p)
     d = torch.diff(p, dim=dim) * fps
     first = d.narrow(dim, 0, 1)
     return torch.cat([first, d], dim=dim)
