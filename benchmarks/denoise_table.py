@@ -14,7 +14,7 @@ timed part is loading, denoising and saving all of them in one run:
 * regression mode: one forward pass of the denoiser;
 * optimisation mode: for each sigma, a copy of the denoiser is fine-tuned for 50 steps on all
   the test clips of that sigma at once, which then predicts them (the paper's protocol);
-* refinement (``mdvae denoise --refine 150``): regression mode, then 150 gradient steps on each
+* refinement (``mdvae denoise --refine 100``): regression mode, then 100 gradient steps on each
   window's own latents (``mdvae_cli.fit.refine``).
 
 The metrics are root-relative V2V (cm) and the mean joint acceleration (m/s^2; the ground truth
@@ -106,8 +106,8 @@ class TableSettings:
     lr: float = 3e-4
     batch_size: int = 64
     seed: int = 0
-    refine_steps: int = 150
-    refine_lr: float = 0.05
+    refine_steps: int = 100
+    refine_lr: float = 0.1
     single_clip_repeats: int = 5
 
 
@@ -543,7 +543,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--clip-frames", type=int, default=60, help="frames per clip (2 s at 30 Hz)")
     p.add_argument("--optimize-steps", type=int, default=50)
     p.add_argument("--curve-steps", default=",".join(map(str, CURVE_STEPS)))
-    p.add_argument("--refine-steps", type=int, default=150, help="steps of the refinement row")
+    p.add_argument("--refine-steps", type=int, default=100, help="steps of the refinement row")
     p.add_argument("--threads", type=int, default=2, help="torch threads (the product's target)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workdir", type=Path, help="scratch folder (default: a temporary one)")

@@ -121,7 +121,7 @@ def test_shipped_denoiser_refined_beats_regression_and_the_tuned_filter():
     ref = evaluate_pair(clean, refined, body)
     sg = evaluate_pair(clean, savgol_filter_motion(noisy, 11, 1), body)
     # measured with the shipped weights: regression 5.02 cm, Savitzky-Golay 11/1 (the filter
-    # tuned on the val split) 4.29 cm, 100 refinement steps 2.84 cm
+    # tuned on the val split) 4.29 cm, 100 refinement steps 2.87 cm
     assert ref.v2v_cm < 0.7 * reg.v2v_cm, (reg.v2v_cm, ref.v2v_cm)
     assert ref.v2v_cm < 0.8 * sg.v2v_cm, (sg.v2v_cm, ref.v2v_cm)
     assert abs(ref.accel_pred - ref.accel_gt) < 0.3 * ref.accel_gt, ref.accel_pred
@@ -138,7 +138,7 @@ def test_cli_denoise_refine(tiny_prior, make_motion_file, tmp_path):  # noqa: F8
     assert res.exit_code == 0, res.output
     report = json.loads(res.output)
     assert report["refine_steps"] == 3 and report["succeeded"] == 1
-    assert report["refine"]["steps"] == 3 and report["refine"]["lr"] == 0.05
+    assert report["refine"]["steps"] == 3 and report["refine"]["lr"] == 0.1
     with np.load(out) as z:
         assert z["poses"].shape == (50, 156) and np.isfinite(z["poses"]).all()
     out.unlink()

@@ -59,13 +59,13 @@ from mdvae_cli.errors import InputError
     default=0,
     show_default=True,
     help="Then refine every window's latents for N gradient steps on its own ELBO, scoring "
-    "the file's noisy joint rotations with a noise level estimated per joint (150 is a good "
+    "the file's noisy joint rotations with a noise level estimated per joint (100 is a good "
     "value: markedly cleaner, about 100x slower than a forward pass); 0 = off.",
 )
 @click.option(
     "--refine-lr",
     type=click.FloatRange(min=0, min_open=True),
-    default=0.05,
+    default=0.1,
     show_default=True,
     help="Step size of --refine.",
 )
@@ -128,7 +128,7 @@ def denoise(
     Examples:
       mdvae denoise noisy.npz -o clean.npz
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
-      mdvae denoise noisy.npz -o clean.npz --refine 150
+      mdvae denoise noisy.npz -o clean.npz --refine 100
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
     """
     from mdvae_cli.body.formats import load_body_model

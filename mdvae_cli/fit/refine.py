@@ -53,8 +53,8 @@ class RefineConfig:
     every window's steps depend on that window alone).
     """
 
-    steps: int = 150
-    lr: float = 0.05
+    steps: int = 100
+    lr: float = 0.1
     lam: float = 10.0
     rot_unit: float = 0.2
     trans_unit: float = 0.05
