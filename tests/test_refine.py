@@ -18,6 +18,7 @@ from mdvae_cli.fit.data import load_windows
 from mdvae_cli.fit.denoise import WindowGroup, denoise_motions, make_windows, refine_windows
 from mdvae_cli.fit.fit_dataset import load_denoiser
 from mdvae_cli.fit.refine import (
+    Adam,
     RefineConfig,
     noise_precision,
     refine_latents,
@@ -195,3 +196,18 @@ def test_one_frame_motions_pass_through_optimisation_and_refinement(tiny_prior):
         assert all(np.isfinite(m.pose_body).all() for m in out)
         (alone,) = denoise_motions([one], copy.deepcopy(den), body, **kw)
         assert alone.num_frames == 1
+
+
+def test_written_out_adam_matches_torch_adam():
+    g = torch.Generator().manual_seed(3)
+    target = torch.randn(4, 5, generator=g)
+    ours_p = torch.zeros(4, 5, requires_grad=True)
+    ref_p = torch.zeros(4, 5, requires_grad=True)
+    ours, ref = Adam([ours_p], lr=0.1), torch.optim.Adam([ref_p], lr=0.1)
+    for _ in range(25):
+        for p, opt in ((ours_p, ours), (ref_p, ref)):
+            opt.zero_grad()
+            ((p - target) ** 4).sum().backward()
+            opt.step()
+    assert torch.allclose(ours_p, ref_p, atol=1e-6), (ours_p - ref_p).abs().max()
+    assert not torch.allclose(ours_p, torch.zeros(4, 5))

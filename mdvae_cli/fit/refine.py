@@ -73,6 +73,31 @@ class RefineConfig:
         return asdict(self)
 
 
+class Adam:
+    """Adam (no weight decay) on a few tensors, written out: ``torch.optim``'s first optimiser
+    imports ``torch._dynamo``, ~2 s on a 2-core CPU, longer than refining a whole clip.
+    Same update as ``torch.optim.Adam`` with its defaults.  params: leaf tensors with grads."""
+
+    def __init__(self, params: list[torch.Tensor], lr: float, betas=(0.9, 0.999), eps=1e-8):
+        self.params, self.lr, self.betas, self.eps, self.t = params, lr, betas, eps, 0
+        self.m = [torch.zeros_like(p) for p in params]
+        self.v = [torch.zeros_like(p) for p in params]
+
+    def zero_grad(self) -> None:
+        for p in self.params:
+            p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        self.t += 1
+        b1, b2 = self.betas
+        c1, c2 = 1 - b1**self.t, 1 - b2**self.t
+        for p, m, v in zip(self.params, self.m, self.v, strict=True):
+            m.mul_(b1).add_(p.grad, alpha=1 - b1)
+            v.mul_(b2).addcmul_(p.grad, p.grad, value=1 - b2)
+            p.addcdiv_(m, (v / c2).sqrt_().add_(self.eps), value=-self.lr / c1)
+
+
 def noise_precision(sq: torch.Tensor, weight: torch.Tensor, a0: float, b0: float) -> torch.Tensor:
     """E[1/v] under q(v) = IG(a0 + n/2, b0 + S/2) for each group of squared residuals.
 
@@ -140,7 +165,7 @@ def refine_latents(
     weights = group_weights(joint_weight, obs)
     units = {"pose": cfg.rot_unit, "root": cfg.rot_unit, "trans": cfg.trans_unit}
     a0 = cfg.lam / 2
-    opt = torch.optim.Adam([z, x0], lr=cfg.lr)
+    opt = Adam([z, x0], lr=cfg.lr)
 
     def decode() -> torch.Tensor:
         x_mean, _ = dvae.decoder(z, x0)
@@ -156,7 +181,7 @@ def refine_latents(
         p_z = dvae.prior(z, x0)
         kl = gaussian_kl(z, z_logvar, p_z.mean, p_z.logvar).sum()
         loss = (rec + kl) / (N * T1)
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         loss.backward()
         opt.step()
         if progress is not None:
@@ -212,14 +237,14 @@ def refine_reconstruction(
     def forward(_xn: torch.Tensor, x0: torch.Tensor):
         return dvae.decoder(z, x0)[0], z, Gaussian(z, post.logvar), dvae.prior(z, x0)
 
-    opt = torch.optim.Adam([z], lr=lr)
+    opt = Adam([z], lr=lr)
     with frozen(dvae):
         for _ in range(steps):
             terms = prior_losses(
                 prior, forward, batch, body, vertex_ids, 1.0, train.body_weight, 1,
                 train.recon_weight, train.velocity_weight,
             )  # fmt: skip
-            opt.zero_grad(set_to_none=True)
+            opt.zero_grad()
             (terms["loss"] * len(batch)).backward()
             opt.step()
         with torch.no_grad():
