@@ -9,6 +9,7 @@ keys and the file layout are carried through untouched.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
@@ -211,15 +212,17 @@ def refine_windows(
     """Latent refinement on a group (see ``fit.refine``), back in world coordinates.
 
     The group must hold its raw states (``make_windows(..., observations=True)``).
-    ``progress`` counts steps over all of the group's batches.
+    ``progress`` counts steps over all of the group's batches. One-frame windows are predicted.
     -> BodyParams with (N, L, ...) tensors
     """
     if group.obs is None:
         raise ValueError("refinement needs the raw states: make_windows(observations=True)")
+    starts = refine_batches(group, cfg)
+    if not starts:  # one-frame windows: x0 alone, nothing to refine
+        return predict_windows(denoiser, group)
     if denoiser.training:
         denoiser.eval()
     outs = []
-    starts = range(0, len(group), cfg.batch_windows)
     for b, i in enumerate(starts):
         idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
         g = group.batch(idx, with_y3d=False)
@@ -230,6 +233,11 @@ def refine_windows(
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
     )
+
+
+def refine_batches(group: WindowGroup, cfg: RefineConfig) -> range:
+    """Where the group's refinement batches start (none for one-frame windows)."""
+    return range(0, len(group) if group.yn.shape[1] > 1 else 0, cfg.batch_windows)
 
 
 def blend_windows(num_frames: int, starts: list[int], windows: list[BodyParams]) -> BodyParams:
@@ -319,29 +327,22 @@ def denoise_motions(
     refining = refine is not None and refine.steps > 0
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
-    plain = optimize_steps == 0 and not refining
+    observed = optimize_steps > 0 or refining
     with threads_for(num_windows) if optimize_steps == 0 else nullcontext():
-        groups = make_windows(motions30, denoiser, body, window, stride, not plain)
+        groups = make_windows(motions30, denoiser, body, window, stride, observed)
         if optimize_steps > 0:
             from mdvae_cli.fit.fit_dataset import fit_denoiser
 
-            # a one-frame window is x0 alone: nothing to fit or refine
-            fitted = [g for g in groups if g.yn.shape[1] > 1]
             tell = _staged(progress, "optimize", 0, optimize_steps)
-            if fitted:
-                fit_denoiser(denoiser, fitted, body, optimize_steps, lr, batch_size, seed, tell)
+            fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, tell)
         if not refining:
             preds = [predict_windows(denoiser, g) for g in groups]
             return assemble(motions, motions30, groups, preds)
-        batches = [-(-len(g) // refine.batch_windows) if g.yn.shape[1] > 1 else 0 for g in groups]
-        total, done, preds = refine.steps * sum(batches), 0, []
-        for g, n in zip(groups, batches, strict=True):
-            if n == 0:
-                preds.append(predict_windows(denoiser, g))
-                continue
-            tell = _staged(progress, "refine", done, total)
-            preds.append(refine_windows(denoiser, g, refine, tell))
-            done += n * refine.steps
+        steps = [len(refine_batches(g, refine)) * refine.steps for g in groups]
+        preds = [
+            refine_windows(denoiser, g, refine, _staged(progress, "refine", done, sum(steps)))
+            for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
+        ]
         return assemble(motions, motions30, groups, preds)
 
 

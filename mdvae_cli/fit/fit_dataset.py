@@ -84,10 +84,13 @@ def fit_denoiser(
 
     Batches cycle through a seeded permutation of all windows (each group separately, larger
     groups visited in proportion). With ``lr_final`` the learning rate decays from ``lr`` to it
-    on a cosine; ``checkpoint(step)`` is called every ``checkpoint_every`` steps. Returns the
-    loss of every step.
+    on a cosine; ``checkpoint(step)`` is called every ``checkpoint_every`` steps. One-frame
+    windows (x0 alone) have nothing to fit and are left out. Returns the loss of every step.
     """
     device = device or torch.device("cpu")
+    groups = [g for g in groups if g.yn.shape[1] > 1]  # a one-frame window is x0 alone
+    if not groups:
+        return []
     opt = torch.optim.Adam(denoiser.trainable_parameters(), lr=lr)
     gen = torch.Generator().manual_seed(seed)
     sizes = torch.tensor([len(g) for g in groups], dtype=torch.float)
