@@ -15,7 +15,7 @@ timed part is loading, denoising and saving all of them in one run:
 * optimisation mode: for each sigma, a copy of the denoiser is fine-tuned for 50 steps on all
   the test clips of that sigma at once, which then predicts them (the paper's protocol);
 * refinement (``mdvae denoise --refine 100``): regression mode, then 100 gradient steps on each
-  window's own latents (``mdvae_cli.fit.refine``).
+  window's own latents, with a slow rotation offset (``mdvae_cli.fit.refine``).
 
 The metrics are root-relative V2V (cm) and the mean joint acceleration (m/s^2; the ground truth
 row gives the target value), frame-weighted over all clips. Speed is s/frame and frames/s of the
@@ -91,7 +91,7 @@ class TableSettings:
     speeds, ratios and the plot; optimize_steps: optimisation-mode steps in the table;
     curve_steps: steps plotted (0 = regression mode); window/stride: denoiser windows (30 Hz
     frames); lr, batch_size, seed: optimisation mode (seed also fixes the noise);
-    refine_steps, refine_lr: the latent refinement row;
+    refine_steps, refine_lr, refine_offset: the latent refinement row;
     single_clip_repeats: timed repeats of the one-clip measurement.
     """
 
@@ -108,6 +108,7 @@ class TableSettings:
     seed: int = 0
     refine_steps: int = 100
     refine_lr: float = 0.1
+    refine_offset: float = 0.02
     single_clip_repeats: int = 5
 
 
@@ -247,7 +248,7 @@ def _denoise(
         model = copy.deepcopy(denoiser) if steps else denoiser
         return denoise_motions(
             motions, model, body, s.window, s.stride, steps, s.lr, s.batch_size, s.seed,
-            refine=RefineConfig(steps=refine, lr=s.refine_lr),
+            refine=RefineConfig(steps=refine, lr=s.refine_lr, offset_std=s.refine_offset),
         )  # fmt: skip
 
     return process
@@ -290,7 +291,8 @@ def build_table(
             _denoise(denoiser, body, s, s.optimize_steps),
         ),
         ROW_REFINE: (
-            f"regression + {s.refine_steps} steps per window, lr {s.refine_lr:g}",
+            f"regression + {s.refine_steps} steps per window, lr {s.refine_lr:g}, "
+            f"slow offset {s.refine_offset:g} rad",
             _denoise(denoiser, body, s, 0, s.refine_steps),
         ),
     }
@@ -544,6 +546,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--optimize-steps", type=int, default=50)
     p.add_argument("--curve-steps", default=",".join(map(str, CURVE_STEPS)))
     p.add_argument("--refine-steps", type=int, default=100, help="steps of the refinement row")
+    p.add_argument(
+        "--refine-offset", type=float, default=0.02, help="slow-offset scale of the refinement row"
+    )
     p.add_argument("--threads", type=int, default=2, help="torch threads (the product's target)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workdir", type=Path, help="scratch folder (default: a temporary one)")
@@ -559,6 +564,7 @@ def settings_from_args(args: argparse.Namespace, window: int) -> TableSettings:
         stride=max(1, window * 3 // 4),
         seed=args.seed,
         refine_steps=args.refine_steps,
+        refine_offset=args.refine_offset,
     )
     if args.quick:
         s.refine_steps = min(s.refine_steps, 10)

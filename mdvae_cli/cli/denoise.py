@@ -70,6 +70,15 @@ from mdvae_cli.errors import InputError
     help="Step size of --refine.",
 )
 @click.option(
+    "--refine-offset",
+    type=click.FloatRange(min=0),
+    default=0.02,
+    show_default=True,
+    help="With --refine: the scale (rad) a slow rotation offset per joint and window starts "
+    "from (then estimated from the file); it lets the output follow slow motion the learned "
+    "prior cannot express. 0 = no offset.",
+)
+@click.option(
     "--mesh-dir",
     type=click.Path(path_type=Path),
     help="Also write the cleaned mesh sequence here (a subfolder per file).",
@@ -109,6 +118,7 @@ def denoise(
     seed,
     refine_steps,
     refine_lr,
+    refine_offset,
     mesh_dir,
     mesh_format,
     window,
@@ -156,7 +166,7 @@ def denoise(
         denoiser, _ = load_denoiser(denoiser_path)
         body = BodyModel(load_body_model(body_model))
     stride = window - overlap
-    refine = RefineConfig(steps=refine_steps, lr=refine_lr)
+    refine = RefineConfig(steps=refine_steps, lr=refine_lr, offset_std=refine_offset)
     results: dict[Path, object] = {}
     timings: dict[Path, float] = {}
 
