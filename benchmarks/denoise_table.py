@@ -108,7 +108,7 @@ class TableSettings:
     seed: int = 0
     refine_steps: int = 100
     refine_lr: float = 0.1
-    refine_offset: float = 0.02
+    refine_offset: float = RefineConfig.offset_std
     single_clip_repeats: int = 5
 
 
@@ -547,7 +547,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--curve-steps", default=",".join(map(str, CURVE_STEPS)))
     p.add_argument("--refine-steps", type=int, default=100, help="steps of the refinement row")
     p.add_argument(
-        "--refine-offset", type=float, default=0.02, help="slow-offset scale of the refinement row"
+        "--refine-offset",
+        type=float,
+        default=RefineConfig.offset_std,
+        help="slow-offset scale of the refinement row",
     )
     p.add_argument("--threads", type=int, default=2, help="torch threads (the product's target)")
     p.add_argument("--seed", type=int, default=0)

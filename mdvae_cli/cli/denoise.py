@@ -72,7 +72,7 @@ from mdvae_cli.errors import InputError
 @click.option(
     "--refine-offset",
     type=click.FloatRange(min=0),
-    default=0.02,
+    default=0.03,
     show_default=True,
     help="With --refine: the scale (rad) a slow rotation offset per joint and window starts "
     "from (then estimated from the file); it lets the output follow slow motion the learned "

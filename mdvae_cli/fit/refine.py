@@ -62,7 +62,8 @@ class RefineConfig:
     deviation each joint's slow rotation offset centres on (0 = no offset); offset_lam:
     strength of the IG(offset_lam/2, offset_lam/2 * offset_std^2) prior on each joint's
     offset variance, in pseudo-coefficients; offset_terms: how many cosines (1 = a constant
-    offset per window).
+    offset per window); offset_decay: cosine k's prior scale is offset_decay^k times the
+    joint's (faster terms are smaller: a smoothness prior).
     """
 
     steps: int = 100
@@ -71,9 +72,10 @@ class RefineConfig:
     rot_unit: float = 0.2
     trans_unit: float = 0.05
     batch_windows: int = 256
-    offset_std: float = 0.02
-    offset_terms: int = 6
+    offset_std: float = 0.03
+    offset_terms: int = 10
     offset_lam: float = 3.0
+    offset_decay: float = 0.85
 
     def __post_init__(self):
         if self.steps < 0:
@@ -87,6 +89,8 @@ class RefineConfig:
             raise InputError(f"refinement offset_std must be >= 0, got {self.offset_std}")
         if not self.offset_lam > 0:
             raise InputError(f"refinement offset_lam must be > 0, got {self.offset_lam}")
+        if not 0 < self.offset_decay <= 1:
+            raise InputError(f"refinement offset_decay must be in (0, 1], got {self.offset_decay}")
         if self.offset_terms < 1:
             raise InputError(f"refinement offset_terms must be >= 1, got {self.offset_terms}")
 
@@ -163,24 +167,26 @@ def offset_coefficients(
 
     residual: (N, T, G, 3) x_hat - obs; precision: (N, G) noise precision per group;
     weight: (N, T, G) 1 = observed; basis: (T, K); prior_precision: 1/s^2 of c ~ N(0, s^2),
-    a number or (N, G) -> mean (N, G, 3, K) and variance (N, G, K) of c. Each coefficient is
+    a number or (N, G, K) -> mean (N, G, 3, K) and variance (N, G, K) of c. Each coefficient is
     solved on its own (the cosines are orthogonal over a fully observed window; with missing
     frames this is the diagonal approximation).
     """
     wb = weight[..., None] * basis[None, :, None, :]  # (N, T, G, K)
     num = -torch.einsum("ntgk,ntgc->ngck", wb, residual) * precision[..., None, None]
-    if torch.is_tensor(prior_precision):
-        prior_precision = prior_precision[..., None]
     den = torch.einsum("ntgk,tk->ngk", wb, basis) * precision[..., None] + prior_precision
     return num / den[:, :, None, :], 1.0 / den
 
 
-def offset_precision(mean: torch.Tensor, var: torch.Tensor, a0: float, b0: float) -> torch.Tensor:
-    """E[1/s^2] of each group's offset scale under q(s^2) = IG(a0 + n/2, b0 + E[|c|^2]/2).
+def offset_precision(
+    mean: torch.Tensor, var: torch.Tensor, relative: torch.Tensor, a0: float, b0: float
+) -> torch.Tensor:
+    """E[1/s^2] of each group's offset scale under q(s^2) = IG(a0 + n/2, b0 + S/2), where
+    c_k ~ N(0, s^2 / relative_k) and S = sum_k relative_k E[|c_k|^2].
 
-    mean: (N, G, 3, K), var: (N, G, K) the coefficients' posterior -> (N, G); n = 3K.
+    mean: (N, G, 3, K), var: (N, G, K) the coefficients' posterior; relative: (K,) each
+    coefficient's prior precision relative to the group's -> (N, G); n = 3K.
     """
-    second_moment = mean**2 + var[:, :, None, :]  # E[c^2], (N, G, 3, K)
+    second_moment = (mean**2 + var[:, :, None, :]) * relative  # (N, G, 3, K)
     sq = second_moment.permute(0, 3, 1, 2)  # as (N, "T" = K, G, 3) for noise_precision
     return noise_precision(sq, sq.new_ones(sq.shape[:3]), a0, b0)
 
@@ -244,8 +250,12 @@ def refine_latents(
     offset = torch.zeros_like(obs)
     precision: dict[str, torch.Tensor] = {}
     s0 = cfg.offset_lam / 2  # IG prior of each joint's offset variance
-    offset_prec: dict[str, torch.Tensor | float] = {
-        k: 1.0 / cfg.offset_std**2 for k in ROTATION_GROUPS if cfg.offset_std > 0
+    relative = cfg.offset_decay ** (-2.0 * torch.arange(cfg.offset_terms, dtype=obs.dtype))
+    relative = relative.to(obs.device)
+    offset_prec: dict[str, torch.Tensor] = {  # E[1/s_g^2] per window and joint: (N, G)
+        k: obs.new_full((N, 1), 1.0 / cfg.offset_std**2)
+        for k in ROTATION_GROUPS
+        if cfg.offset_std > 0
     }
 
     def update_closed_form(x_hat: torch.Tensor) -> None:
@@ -259,10 +269,11 @@ def refine_latents(
             res = observation_residuals(x_hat, obs)
             coef = {}
             for k in offset_prec:
-                coef[k], var = offset_coefficients(
-                    res[k], precision[k], weights[k], basis, offset_prec[k]
+                prior = offset_prec[k][..., None] * relative  # (N, G, K)
+                coef[k], var = offset_coefficients(res[k], precision[k], weights[k], basis, prior)
+                offset_prec[k] = offset_precision(
+                    coef[k], var, relative, s0, s0 * cfg.offset_std**2
                 )
-                offset_prec[k] = offset_precision(coef[k], var, s0, s0 * cfg.offset_std**2)
             offset = offset_states(coef, basis, obs)
 
     for step in range(cfg.steps):
