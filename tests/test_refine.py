@@ -97,8 +97,12 @@ def test_offset_coefficients_recover_a_slow_offset_with_known_shrinkage():
     c, _ = offset_coefficients(residual, prec, weight, basis, prior_precision=pp)
     assert torch.allclose(c[:, 0], torch.zeros_like(c[:, 0]), atol=1e-8)
     assert torch.allclose(c[:, 1:], true[:, 1:], atol=1e-4)
-    # missing frames do not count: garbage there changes nothing
+    # missing frames do not count: garbage there changes nothing, and the offset is still
+    # recovered exactly (the cosines are not orthogonal over the frames that remain)
     weight[:, 10:14, 2] = 0.0
+    weight[:, :7, 3] = 0.0
+    c, _ = offset_coefficients(residual, prec, weight, basis, prior_precision=0.01)
+    assert torch.allclose(c, true, atol=1e-4)
     noisy = residual.clone()
     noisy[:, 10:14, 2] += 5.0
     a, _ = offset_coefficients(residual, prec, weight, basis, 400.0)
@@ -213,6 +217,13 @@ def test_shipped_denoiser_refined_beats_regression_and_the_tuned_filter():
     assert abs(ref.accel_pred - ref.accel_gt) < 0.3 * ref.accel_gt, ref.accel_pred
     # the input is not modified
     assert np.array_equal(noisy.trans, add_pose_noise(clean, 0.15, np.random.default_rng(7)).trans)
+    # 20 % of the joints missing: still well below the filter and regression mode (measured:
+    # refined 3.27 cm, regression 5.02, filter 4.29; the offset solved one cosine at a time,
+    # as first written, diverged here)
+    holes = add_pose_noise(clean, 0.15, np.random.default_rng(7), drop_frac=0.2)
+    refined = denoise_motions([holes], den, body, refine=RefineConfig(steps=100))[0]
+    ref = evaluate_pair(clean, refined, body)
+    assert ref.v2v_cm < 0.7 * reg.v2v_cm and ref.v2v_cm < 0.85 * sg.v2v_cm, ref.v2v_cm
 
 
 def test_cli_denoise_refine(tiny_prior, make_motion_file, tmp_path):  # noqa: F811

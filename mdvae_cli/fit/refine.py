@@ -167,14 +167,22 @@ def offset_coefficients(
 
     residual: (N, T, G, 3) x_hat - obs; precision: (N, G) noise precision per group;
     weight: (N, T, G) 1 = observed; basis: (T, K); prior_precision: 1/s^2 of c ~ N(0, s^2),
-    a number or (N, G, K) -> mean (N, G, 3, K) and variance (N, G, K) of c. Each coefficient is
-    solved on its own (the cosines are orthogonal over a fully observed window; with missing
-    frames this is the diagonal approximation).
+    a number or (N, G, K) -> mean (N, G, 3, K) and marginal variance (N, G, K) of c. The K
+    coefficients of a group are solved together (a K x K system per group): with missing frames
+    the cosines are no longer orthogonal, and solving them one by one double-counts.
     """
-    wb = weight[..., None] * basis[None, :, None, :]  # (N, T, G, K)
-    num = -torch.einsum("ntgk,ntgc->ngck", wb, residual) * precision[..., None, None]
-    den = torch.einsum("ntgk,tk->ngk", wb, basis) * precision[..., None] + prior_precision
-    return num / den[:, :, None, :], 1.0 / den
+    K = basis.shape[1]
+    gram = torch.einsum("ntg,tk,tl->ngkl", weight, basis, basis) * precision[..., None, None]
+    eye = torch.eye(K, dtype=basis.dtype, device=basis.device)
+    if torch.is_tensor(prior_precision):
+        gram = gram + torch.diag_embed(prior_precision)
+    else:
+        gram = gram + prior_precision * eye
+    rhs = -torch.einsum("ntg,tk,ntgc->ngkc", weight, basis, residual) * precision[..., None, None]
+    chol = torch.linalg.cholesky(gram)  # (N, G, K, K)
+    mean = torch.cholesky_solve(rhs, chol).transpose(-1, -2)  # (N, G, 3, K)
+    var = torch.cholesky_inverse(chol).diagonal(dim1=-2, dim2=-1)
+    return mean, var
 
 
 def offset_precision(
