@@ -73,8 +73,12 @@ ROW_GAUSSIAN = "Gaussian filter"
 ROW_SAVGOL = "Savitzky-Golay filter"
 ROW_REGRESSION = "Regression mode"
 ROW_OPTIMIZATION = "Optimization mode"
+ROW_OFFSET = "Regression + offset"
 ROW_REFINE = "Latent refinement"
-ROWS = (ROW_GT, ROW_OBS, ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_OPTIMIZATION, ROW_REFINE)
+ROWS = (
+    ROW_GT, ROW_OBS, ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_OFFSET, ROW_OPTIMIZATION,
+    ROW_REFINE,
+)  # fmt: skip
 FILTER_ROWS = (ROW_GAUSSIAN, ROW_SAVGOL)
 
 SECTION_BEGIN = "<!-- denoise_table:begin (written by benchmarks/denoise_table.py) -->"
@@ -241,14 +245,20 @@ def _per_clip(fn: Callable[[Motion], Motion]) -> Process:
 
 
 def _denoise(
-    denoiser: Denoiser, body: BodyModel, s: TableSettings, steps: int, refine: int = 0
+    denoiser: Denoiser, body: BodyModel, s: TableSettings, steps: int, refine: int | None = None
 ) -> Process:
+    """Regression (steps 0) or optimisation mode; ``refine``: None = no refinement, 0 = the
+    closed-form offset alone, N = N refinement steps (with the offset)."""
+    cfg = None
+    if refine is not None:
+        cfg = RefineConfig(steps=refine, lr=s.refine_lr, offset_std=s.refine_offset)
+
     def process(motions: list[Motion]) -> list[Motion]:
         # optimisation mode fine-tunes the networks it is given: always a fresh copy
         model = copy.deepcopy(denoiser) if steps else denoiser
         return denoise_motions(
             motions, model, body, s.window, s.stride, steps, s.lr, s.batch_size, s.seed,
-            refine=RefineConfig(steps=refine, lr=s.refine_lr, offset_std=s.refine_offset),
+            refine=cfg,
         )  # fmt: skip
 
     return process
@@ -286,6 +296,10 @@ def build_table(
             _per_clip(lambda m: savgol_filter_motion(m, sg_w, sg_p)),
         ),
         ROW_REGRESSION: ("one forward pass", _denoise(denoiser, body, s, 0)),
+        ROW_OFFSET: (
+            f"one forward pass + closed-form slow offset {s.refine_offset:g} rad",
+            _denoise(denoiser, body, s, 0, 0),
+        ),
         ROW_OPTIMIZATION: (
             f"{s.optimize_steps} steps on each sigma's set, lr {s.lr:g}, batch {s.batch_size}",
             _denoise(denoiser, body, s, s.optimize_steps),
@@ -317,7 +331,7 @@ def build_table(
             predictions[key] = [common.compact(o, g) for o, g in zip(outs, gt, strict=True)]
             shutil.rmtree(folder / "out")
         if sigma == s.reference_sigma:
-            for name in (ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION):
+            for name in (ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_OFFSET):
                 out = folder / "one"
                 rows[name].one_clip_s = common.warm_median_seconds(
                     lambda p=methods[name][1], out=out, one=files[:1]: common.file_to_file(
@@ -349,7 +363,7 @@ def build_table(
             row = rows[ROW_REGRESSION if n == 0 else ROW_OPTIMIZATION]
             result, timing = row.results[ref], row.speed
         curve.append(CurvePoint(f"{n} steps", n, timing.s_per_frame, result.v2v_cm))
-    for name in (*FILTER_ROWS, ROW_REFINE):
+    for name in (*FILTER_ROWS, ROW_OFFSET, ROW_REFINE):
         r = rows[name]
         curve.append(CurvePoint(name, None, r.speed.s_per_frame, r.v2v(ref)))
     return TableResult(

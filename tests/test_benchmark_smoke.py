@@ -131,7 +131,12 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
     for c in header[8:11]:  # ground truth shows its acceleration only
         assert math.isfinite(float(cell("Ground truth", c)))
     assert cell("Ground truth", header[5]) == "-"
-    for row in ("Gaussian filter", "Savitzky-Golay filter", "Regression mode"):
+    for row in (
+        "Gaussian filter",
+        "Savitzky-Golay filter",
+        "Regression mode",
+        "Regression + offset",
+    ):
         assert float(cell(row, "s/frame ↓")) > 0 and float(cell(row, "1 clip, warm (ms)")) > 0
     for row in ("Optimization mode", "Latent refinement"):
         assert float(cell(row, "frames/s ↑").replace(",", "")) > 0
@@ -148,7 +153,7 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
     # the tuned parameters are reported and come from the grid
     assert result.tuning.gaussian_sigma in (1.0, 2.0)
     assert cell("Gaussian filter", "Parameters") == f"σ = {result.tuning.gaussian_sigma:g} frames"
-    assert [p.steps for p in result.curve] == [0, 1, 2, None, None, None]
+    assert [p.steps for p in result.curve] == [0, 1, 2, None, None, None, None]
     assert result.curve[-1].label == "Latent refinement"
     assert all(p.s_per_frame > 0 and math.isfinite(p.v2v_cm) for p in result.curve)
 

@@ -60,7 +60,7 @@ def test_refine_config_rejects_bad_values():
     bad = (
         {"steps": -1}, {"lr": 0.0}, {"lam": -1.0}, {"rot_unit": 0.0}, {"batch_windows": 0},
         {"offset_std": -0.1}, {"offset_terms": 0}, {"offset_lam": 0.0}, {"offset_decay": 0.0},
-        {"offset_decay": 1.5},
+        {"offset_decay": 1.5}, {"offset_iterations": 0},
     )  # fmt: skip
     for kw in bad:
         with pytest.raises(InputError):
@@ -164,7 +164,14 @@ def test_refinement_lowers_its_elbo_and_zero_steps_is_regression(tiny_prior):  #
         assert losses[-1]["loss"] < factor * losses[0]["loss"], (losses[0], losses[-1])
     with torch.no_grad():
         regression = den.infer(yn, with_prior=False)["x_hat"]
-    assert torch.allclose(refine_latents(den, yn, obs, None, RefineConfig(steps=0)), regression)
+    no_offset = RefineConfig(steps=0, offset_std=0.0)
+    assert torch.allclose(refine_latents(den, yn, obs, None, no_offset), regression)
+    # 0 steps with the offset: the encoder's latents, plus an offset towards the observations
+    only = refine_latents(den, yn, obs, None, RefineConfig(steps=0))
+    assert not torch.allclose(only, regression)
+    assert float((only - obs)[..., POSE].abs().mean()) < float(
+        (regression - obs)[..., POSE].abs().mean()
+    )
     # the networks are not touched
     assert all(p.grad is None for p in den.parameters())
 
@@ -217,6 +224,11 @@ def test_shipped_denoiser_refined_beats_regression_and_the_tuned_filter():
     assert abs(ref.accel_pred - ref.accel_gt) < 0.3 * ref.accel_gt, ref.accel_pred
     # the input is not modified
     assert np.array_equal(noisy.trans, add_pose_noise(clean, 0.15, np.random.default_rng(7)).trans)
+    # the offset alone on regression mode's output, no gradient steps (measured: 3.74 cm)
+    offset = denoise_motions([noisy], den, body, refine=RefineConfig(steps=0))[0]
+    off = evaluate_pair(clean, offset, body)
+    assert off.v2v_cm < 0.8 * reg.v2v_cm and off.v2v_cm < 0.95 * sg.v2v_cm, off.v2v_cm
+    assert ref.v2v_cm < off.v2v_cm
     # 20 % of the joints missing: still well below the filter and regression mode (measured:
     # refined 3.27 cm, regression 5.02, filter 4.29; the offset solved one cosine at a time,
     # as first written, diverged here)
@@ -242,6 +254,14 @@ def test_cli_denoise_refine(tiny_prior, make_motion_file, tmp_path):  # noqa: F8
     out.unlink()
     res = CliRunner().invoke(cli, [*args, "--refine", "3", "--refine-offset", "0", "--json"])
     assert res.exit_code == 0 and json.loads(res.output)["refine"]["offset_std"] == 0.0
+    out.unlink()
+    res = CliRunner().invoke(cli, [*args, "--offset", "--json"])
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.output)
+    assert report["refine"] == RefineConfig(steps=0).to_dict() and report["refine_steps"] == 0
+    out.unlink()
+    res = CliRunner().invoke(cli, [*args, "--json"])
+    assert json.loads(res.output)["refine"] is None
     out.unlink()
     for bad in (["--refine-lr", "0"], ["--refine-offset", "-1"]):
         res = CliRunner().invoke(cli, [*args, "--refine", "3", *bad])

@@ -74,9 +74,17 @@ from mdvae_cli.errors import InputError
     type=click.FloatRange(min=0),
     default=0.03,
     show_default=True,
-    help="With --refine: the scale (rad) a slow rotation offset per joint and window starts "
-    "from (then estimated from the file); it lets the output follow slow motion the learned "
-    "prior cannot express. 0 = no offset.",
+    help="With --refine or --offset: the scale (rad) a slow rotation offset per joint and "
+    "window starts from (then estimated from the file); it lets the output follow slow motion "
+    "the learned prior cannot express. 0 = no offset.",
+)
+@click.option(
+    "--offset",
+    "offset_only",
+    is_flag=True,
+    help="After the forward pass, fit the slow per-joint offset to the file in closed form (no "
+    "gradient steps): regression mode goes from less accurate than a tuned filter to more "
+    "accurate, at 1.4-2x its time. Part of --refine already.",
 )
 @click.option(
     "--mesh-dir",
@@ -119,6 +127,7 @@ def denoise(
     refine_steps,
     refine_lr,
     refine_offset,
+    offset_only,
     mesh_dir,
     mesh_format,
     window,
@@ -138,6 +147,7 @@ def denoise(
     Examples:
       mdvae denoise noisy.npz -o clean.npz
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
+      mdvae denoise noisy.npz -o clean.npz --offset
       mdvae denoise noisy.npz -o clean.npz --refine 100
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
     """
@@ -166,7 +176,9 @@ def denoise(
         denoiser, _ = load_denoiser(denoiser_path)
         body = BodyModel(load_body_model(body_model))
     stride = window - overlap
-    refine = RefineConfig(steps=refine_steps, lr=refine_lr, offset_std=refine_offset)
+    refine = None
+    if refine_steps or offset_only:
+        refine = RefineConfig(steps=refine_steps, lr=refine_lr, offset_std=refine_offset)
     results: dict[Path, object] = {}
     timings: dict[Path, float] = {}
 
@@ -229,7 +241,7 @@ def denoise(
                 "mode": "optimization" if optimize_steps else "regression",
                 "optimize_steps": optimize_steps,
                 "refine_steps": refine_steps,
-                "refine": refine.to_dict() if refine_steps else None,
+                "refine": refine.to_dict() if refine else None,
             }
         )
     elif write_report.succeeded:

@@ -75,12 +75,14 @@ def make_windows(
     window: int = 60,
     stride: int = 45,
     observations: bool = True,
+    points: bool = True,
 ) -> list[WindowGroup]:
     """Cut motions already at 30 Hz into windows of ``window + 1`` frames (shorter motions
     give one window of their own length), grouped by length.
 
     ``observations=False`` skips the observations (regression mode does not need them: the
-    group then holds an empty y3d and no raw states)."""
+    group then holds an empty y3d and no raw states); ``points=False`` keeps the raw states
+    but skips the 3D points (refinement scores the states only)."""
     L = window + 1
     by_len: dict[int, list] = {}
     inputs = smooth_inputs(motions, denoiser.cfg)
@@ -112,7 +114,8 @@ def make_windows(
                 if denoiser.cfg.input_window > 1:  # the raw motion, in the same frames
                     raw = BodyParams(*(torch.stack([it[7][k] for it in items]) for k in range(3)))
                     raw_states = chunk_states(raw, betas, body, frame=frame)[0]
-                y3d = observe(body, raw_states, betas)
+                if points:
+                    y3d = observe(body, raw_states, betas)
         weight = None
         if any(it[6] is not None for it in items):
             masks = [
@@ -321,15 +324,19 @@ def denoise_motions(
     Regression mode (``optimize_steps=0``): one forward pass. Optimisation mode: first adapt
     the inference networks to these very motions for ``optimize_steps`` ELBO steps (this
     modifies ``denoiser``; pass a copy to keep the original), then predict. With ``refine``
-    (``steps`` > 0), each window's latents are then refined on its own ELBO (``fit.refine``).
+    (``steps`` > 0), each window's latents are then refined on its own ELBO (``fit.refine``);
+    with ``steps`` = 0 and ``offset_std`` > 0, the latents stay the encoder's and only the slow
+    offset is fitted (closed form, no gradients).
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
-    refining = refine is not None and refine.steps > 0
+    refining = refine is not None and (refine.steps > 0 or refine.offset_std > 0)
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
     observed = optimize_steps > 0 or refining
     with threads_for(num_windows) if optimize_steps == 0 else nullcontext():
-        groups = make_windows(motions30, denoiser, body, window, stride, observed)
+        groups = make_windows(
+            motions30, denoiser, body, window, stride, observed, points=optimize_steps > 0
+        )
         if optimize_steps > 0:
             from mdvae_cli.fit.fit_dataset import fit_denoiser
 

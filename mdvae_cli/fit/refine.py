@@ -63,7 +63,8 @@ class RefineConfig:
     strength of the IG(offset_lam/2, offset_lam/2 * offset_std^2) prior on each joint's
     offset variance, in pseudo-coefficients; offset_terms: how many cosines (1 = a constant
     offset per window); offset_decay: cosine k's prior scale is offset_decay^k times the
-    joint's (faster terms are smaller: a smoothness prior).
+    joint's (faster terms are smaller: a smoothness prior); offset_iterations: rounds of the
+    closed-form updates when ``steps`` = 0 (the offset on regression mode's output).
     """
 
     steps: int = 100
@@ -76,6 +77,7 @@ class RefineConfig:
     offset_terms: int = 10
     offset_lam: float = 3.0
     offset_decay: float = 0.85
+    offset_iterations: int = 5
 
     def __post_init__(self):
         if self.steps < 0:
@@ -91,6 +93,10 @@ class RefineConfig:
             raise InputError(f"refinement offset_lam must be > 0, got {self.offset_lam}")
         if not 0 < self.offset_decay <= 1:
             raise InputError(f"refinement offset_decay must be in (0, 1], got {self.offset_decay}")
+        if self.offset_iterations < 1:
+            raise InputError(
+                f"refinement offset_iterations must be >= 1, got {self.offset_iterations}"
+            )
         if self.offset_terms < 1:
             raise InputError(f"refinement offset_terms must be >= 1, got {self.offset_terms}")
 
@@ -221,6 +227,62 @@ def group_weights(joint_weight: torch.Tensor | None, like: torch.Tensor) -> dict
     }
 
 
+class ClosedFormFactors:
+    """The factors of a batch's refinement ELBO that are closed form for fixed latents: each
+    group's noise precision E[1/v], the slow offset's coefficients and each joint's offset
+    precision E[1/s_g^2]. ``update(x_hat)`` is one round of coordinate ascent on them.
+
+    obs: (N, T, 138) the noisy states; joint_weight: (N, T, 22) or None.
+    """
+
+    def __init__(self, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig):
+        N, T = obs.shape[:2]
+        self.obs, self.cfg = obs, cfg
+        self.weights = group_weights(joint_weight, obs)
+        self.units = {"pose": cfg.rot_unit, "root": cfg.rot_unit, "trans": cfg.trans_unit}
+        self.basis = cosine_basis(T, cfg.offset_terms, obs)
+        k = torch.arange(cfg.offset_terms, dtype=obs.dtype, device=obs.device)
+        self.relative = cfg.offset_decay ** (-2.0 * k)  # prior precision of cosine k, relative
+        self.offset = torch.zeros_like(obs)
+        self.precision: dict[str, torch.Tensor] = {}
+        self.offset_precision: dict[str, torch.Tensor] = {  # E[1/s_g^2]: (N, G)
+            g: obs.new_full((N, 1), 1.0 / cfg.offset_std**2)
+            for g in ROTATION_GROUPS
+            if cfg.offset_std > 0
+        }
+
+    def update(self, x_hat: torch.Tensor) -> None:
+        """Noise precisions, then the offset's coefficients, then each joint's offset scale,
+        for the decoded states x_hat (N, T, 138) (no gradients kept)."""
+        cfg, a0 = self.cfg, self.cfg.lam / 2
+        x_hat = x_hat.detach()
+        for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
+            b0 = a0 * self.units[key] ** 2
+            self.precision[key] = noise_precision(r**2, self.weights[key], a0, b0)
+        if not self.offset_precision:
+            return
+        res = observation_residuals(x_hat, self.obs)
+        s0 = cfg.offset_lam / 2
+        coef = {}
+        for g, prec in self.offset_precision.items():
+            prior = prec[..., None] * self.relative  # (N, G, K)
+            coef[g], var = offset_coefficients(
+                res[g], self.precision[g], self.weights[g], self.basis, prior
+            )
+            self.offset_precision[g] = offset_precision(
+                coef[g], var, self.relative, s0, s0 * cfg.offset_std**2
+            )
+        self.offset = offset_states(coef, self.basis, self.obs)
+
+    def reconstruction(self, x_hat: torch.Tensor) -> torch.Tensor:
+        """The ELBO's expected negative log-likelihood (up to constants), summed: a scalar."""
+        rec = x_hat.new_zeros(())
+        for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
+            w = self.weights[key] * self.precision[key][:, None]
+            rec = rec + 0.5 * (r**2 * w[..., None]).sum()
+        return rec
+
+
 def refine_latents(
     denoiser: Denoiser,
     yn: torch.Tensor,
@@ -229,11 +291,13 @@ def refine_latents(
     cfg: RefineConfig,
     progress: Callable[[dict], None] | None = None,
 ) -> torch.Tensor:
-    """Refine one batch of windows; return the decoded states.
+    """Refine one batch of windows; return the decoded states plus the slow offset.
 
     yn: (N, T+1, 138) what the encoder reads (normalised); obs: (N, T+1, 138) the noisy states
     the likelihood scores (state units, canonical frame); joint_weight: (N, T+1, 22) or None
-    -> x_hat (N, T+1, 138) in state units.
+    -> (N, T+1, 138) in state units. With ``cfg.steps`` = 0 the latents stay the encoder's and
+    only the closed-form factors are fitted (``cfg.offset_iterations`` rounds): regression
+    mode plus the offset, or regression mode itself when ``cfg.offset_std`` = 0.
     """
     dvae, norm = denoiser.prior.dvae, denoiser.prior.normalizer
     N, T1 = yn.shape[:2]
@@ -242,65 +306,30 @@ def refine_latents(
     z = start["q_z"].mean.clone().requires_grad_(True)
     z_logvar = start["q_z"].logvar
     x0 = start["q_x0"].mean.clone().requires_grad_(True)
-    weights = group_weights(joint_weight, obs)
-    units = {"pose": cfg.rot_unit, "root": cfg.rot_unit, "trans": cfg.trans_unit}
-    a0 = cfg.lam / 2
+    factors = ClosedFormFactors(obs, joint_weight, cfg)
     opt = Adam([z, x0], lr=cfg.lr)
 
     def decode() -> torch.Tensor:
         x_mean, _ = dvae.decoder(z, x0)
         return norm.denormalize(torch.cat([x0[:, None], x_mean], dim=1))
 
-    basis = cosine_basis(T1, cfg.offset_terms, obs)
-    offset = torch.zeros_like(obs)
-    precision: dict[str, torch.Tensor] = {}
-    s0 = cfg.offset_lam / 2  # IG prior of each joint's offset variance
-    relative = cfg.offset_decay ** (-2.0 * torch.arange(cfg.offset_terms, dtype=obs.dtype))
-    relative = relative.to(obs.device)
-    offset_prec: dict[str, torch.Tensor] = {  # E[1/s_g^2] per window and joint: (N, G)
-        k: obs.new_full((N, 1), 1.0 / cfg.offset_std**2)
-        for k in ROTATION_GROUPS
-        if cfg.offset_std > 0
-    }
-
-    def update_closed_form(x_hat: torch.Tensor) -> None:
-        """Coordinate ascent on the closed-form factors: the noise precisions, the offset's
-        coefficients, then each joint's offset scale."""
-        nonlocal offset
-        res = observation_residuals(x_hat + offset, obs)
-        for key, r in res.items():
-            precision[key] = noise_precision(r**2, weights[key], a0, a0 * units[key] ** 2)
-        if offset_prec:
-            res = observation_residuals(x_hat, obs)
-            coef = {}
-            for k in offset_prec:
-                prior = offset_prec[k][..., None] * relative  # (N, G, K)
-                coef[k], var = offset_coefficients(res[k], precision[k], weights[k], basis, prior)
-                offset_prec[k] = offset_precision(
-                    coef[k], var, relative, s0, s0 * cfg.offset_std**2
-                )
-            offset = offset_states(coef, basis, obs)
-
     for step in range(cfg.steps):
         x_hat = decode()
-        update_closed_form(x_hat.detach())
-        rec = x_hat.new_zeros(())
-        for key, r in observation_residuals(x_hat + offset, obs).items():
-            w = weights[key] * precision[key][:, None]
-            rec = rec + 0.5 * (r**2 * w[..., None]).sum()
+        factors.update(x_hat)
         p_z = dvae.prior(z, x0)
         kl = gaussian_kl(z, z_logvar, p_z.mean, p_z.logvar).sum()
-        loss = (rec + kl) / (N * T1)
+        loss = (factors.reconstruction(x_hat) + kl) / (N * T1)
         opt.zero_grad()
         loss.backward()
         opt.step()
         if progress is not None:
             progress({"step": step + 1, "steps": cfg.steps, "loss": loss.item()})
     with torch.no_grad():
-        x_hat = decode()
-        if cfg.steps > 0:
-            update_closed_form(x_hat)
-        return x_hat + offset
+        x_hat = decode() if cfg.steps > 0 else start["x_hat"]
+        rounds = 1 if cfg.steps > 0 else (cfg.offset_iterations if cfg.offset_std > 0 else 0)
+        for _ in range(rounds):
+            factors.update(x_hat)
+        return x_hat + factors.offset
 
 
 @contextmanager
