@@ -15,11 +15,13 @@ squared residuals of the group, n its size; IG(a0, b0) the prior).
 
 The decoded rotations are scored with a slow offset added, x_hat + B c: B holds the first few
 cosines over the window (B (T, K), DCT-II) and every joint-axis has its own coefficients c, with
-c ~ N(0, s_g^2) and each joint's scale s_g^2 ~ IG (centred on offset_std). The offset models what
-the learned prior cannot express (on clean held-out motion, refined latents alone stop at ~2.3 cm
-V2V; with the offset, 0.7 cm), slow enough that white noise barely moves it. For fixed latents the
-coefficients' Gaussian posterior and each joint's q(s_g^2) are closed form; they are updated with
-the noise precisions before every step. The output keeps the offset's posterior mean.
+c_k ~ N(0, decay^{2k} s_g^2) and each joint's scale s_g^2 ~ IG (centred on offset_std). The offset
+models what the learned prior cannot express (on clean held-out motion, refined latents alone
+stop at ~2.3 cm V2V; with the offset, 0.7 cm), slow enough that white noise barely moves it. For fixed latents the
+coefficients' Gaussian posterior and each joint's q(s_g^2) are closed form (``ClosedFormFactors``);
+they are updated with the noise precisions before every step. The output keeps the offset's
+posterior mean. With 0 steps the latents stay the encoder's and only these closed-form factors
+are fitted: regression mode plus the offset (``mdvae denoise --offset``).
 
 The likelihood scores the file's own noisy parameters (joint rotations, root orientation,
 translation) rather than 3D points: the noise of a mocap solve or of a pose estimator lives in the
@@ -54,7 +56,8 @@ from mdvae_cli.motion.state import POSE, ROOT, TRANS
 class RefineConfig:
     """Latent refinement settings.
 
-    steps: Adam steps per window (0 = no refinement); lr: Adam step size on the normalised
+    steps: Adam steps per window (0 = the encoder's latents, with the closed-form offset
+    alone when offset_std > 0); lr: Adam step size on the normalised
     latents and x0; lam: strength of the IG(lam/2, lam/2 * unit^2) prior on each noise variance,
     in pseudo-observations; rot_unit (rad) and trans_unit (m): the noise scales that prior
     centres on; batch_windows: windows refined together (memory bound, not a result change:
