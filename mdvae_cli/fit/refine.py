@@ -17,11 +17,12 @@ The decoded rotations are scored with a slow offset added, x_hat + B c: B holds 
 cosines over the window (B (T, K), DCT-II) and every joint-axis has its own coefficients c, with
 c_k ~ N(0, decay^{2k} s_g^2) and each joint's scale s_g^2 ~ IG (centred on offset_std). The offset
 models what the learned prior cannot express (on clean held-out motion, refined latents alone
-stop at ~2.3 cm V2V; with the offset, 0.7 cm), slow enough that white noise barely moves it. For fixed latents the
-coefficients' Gaussian posterior and each joint's q(s_g^2) are closed form (``ClosedFormFactors``);
-they are updated with the noise precisions before every step. The output keeps the offset's
-posterior mean. With 0 steps the latents stay the encoder's and only these closed-form factors
-are fitted: regression mode plus the offset (``mdvae denoise --offset``).
+stop at ~2.3 cm V2V; with the offset, 0.7 cm), slow enough that white noise barely moves it.
+For fixed latents the coefficients' Gaussian posterior and each joint's q(s_g^2) are closed form
+(``ClosedFormFactors``); they are updated with the noise precisions before every step. The
+output keeps the offset's posterior mean. With 0 steps the latents stay the encoder's and only
+these closed-form factors are fitted: regression mode plus the offset (``mdvae denoise
+--offset``).
 
 The likelihood scores the file's own noisy parameters (joint rotations, root orientation,
 translation) rather than 3D points: the noise of a mocap solve or of a pose estimator lives in the
