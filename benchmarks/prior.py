@@ -4,7 +4,7 @@ Prints a markdown table:
 * reconstruction V2V (cm, root-relative and absolute) of 60-frame windows through
   encoder -> decoder (posterior means), and the KL per step; the same after the encoder's
   latents are refined for ``--refine-steps`` Adam steps on each window's training loss
-  (semi-amortised inference, ``mdvae_cli.fit.refine.refine_reconstruction``);
+  (semi-amortised inference, ``mdvae_cli.fit.reconstruct.refine_reconstruction``);
 * 10-second prior samples started from real first frames: joint acceleration (m/s^2) vs real
   motion, the lowest foot height over the sample (drift through the floor) and the largest
   joint speed (exploding joints).
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.fit.data import MODEL_FPS, WindowSet
-from mdvae_cli.fit.refine import refine_reconstruction
+from mdvae_cli.fit.reconstruct import refine_reconstruction
 from mdvae_cli.fit.sample import sample_motion
 from mdvae_cli.fit.train_prior import TrainConfig
 from mdvae_cli.model.losses import gaussian_kl

@@ -17,6 +17,7 @@ from mdvae_cli.filters import savgol_filter_motion
 from mdvae_cli.fit.data import load_windows
 from mdvae_cli.fit.denoise import WindowGroup, denoise_motions, make_windows, refine_windows
 from mdvae_cli.fit.fit_dataset import load_denoiser
+from mdvae_cli.fit.reconstruct import refine_reconstruction
 from mdvae_cli.fit.refine import (
     Adam,
     RefineConfig,
@@ -26,7 +27,6 @@ from mdvae_cli.fit.refine import (
     offset_precision,
     offset_states,
     refine_latents,
-    refine_reconstruction,
 )
 from mdvae_cli.fit.train_prior import TrainConfig, prior_losses, spread_vertex_ids
 from mdvae_cli.metrics import evaluate_pair
