@@ -165,6 +165,7 @@ def test_refinement_lowers_its_elbo_and_zero_steps_is_regression(tiny_prior):  #
     with torch.no_grad():
         regression = den.infer(yn, with_prior=False)["x_hat"]
     no_offset = RefineConfig(steps=0, offset_std=0.0)
+    assert not no_offset.active and RefineConfig(steps=0).active
     assert torch.allclose(refine_latents(den, yn, obs, None, no_offset), regression)
     # 0 steps with the offset: the encoder's latents, plus an offset towards the observations
     only = refine_latents(den, yn, obs, None, RefineConfig(steps=0))

@@ -52,6 +52,11 @@ class WindowGroup:
     def __len__(self) -> int:
         return int(self.yn.shape[0])
 
+    @property
+    def moves(self) -> bool:
+        """False for one-frame windows (x0 alone): nothing to fit or refine."""
+        return self.yn.shape[1] > 1
+
     def batch(self, idx: torch.Tensor, with_y3d: bool = True) -> WindowGroup:
         w = None if self.weight is None else self.weight[idx]
         obs = None if self.obs is None else self.obs[idx]
@@ -240,7 +245,7 @@ def refine_windows(
 
 def refine_batches(group: WindowGroup, cfg: RefineConfig) -> range:
     """Where the group's refinement batches start (none for one-frame windows)."""
-    return range(0, len(group) if group.yn.shape[1] > 1 else 0, cfg.batch_windows)
+    return range(0, len(group) if group.moves else 0, cfg.batch_windows)
 
 
 def blend_windows(num_frames: int, starts: list[int], windows: list[BodyParams]) -> BodyParams:
@@ -329,7 +334,7 @@ def denoise_motions(
     offset is fitted (closed form, no gradients).
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
-    refining = refine is not None and (refine.steps > 0 or refine.offset_std > 0)
+    refining = refine is not None and refine.active
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
     observed = optimize_steps > 0 or refining

@@ -88,7 +88,7 @@ def fit_denoiser(
     windows (x0 alone) have nothing to fit and are left out. Returns the loss of every step.
     """
     device = device or torch.device("cpu")
-    groups = [g for g in groups if g.yn.shape[1] > 1]  # a one-frame window is x0 alone
+    groups = [g for g in groups if g.moves]
     if not groups:
         return []
     opt = torch.optim.Adam(denoiser.trainable_parameters(), lr=lr)

@@ -98,6 +98,11 @@ class RefineConfig:
         if self.offset_terms < 1:
             raise InputError(f"refinement offset_terms must be >= 1, got {self.offset_terms}")
 
+    @property
+    def active(self) -> bool:
+        """Whether these settings change regression mode's output at all (steps or offset)."""
+        return self.steps > 0 or self.offset_std > 0
+
     def to_dict(self) -> dict:
         return asdict(self)
 
