@@ -7,7 +7,8 @@ Prints a markdown table:
   (semi-amortised inference, ``mdvae_cli.fit.reconstruct.refine_reconstruction``);
 * 10-second prior samples started from real first frames: joint acceleration (m/s^2) vs real
   motion, the lowest foot height over the sample (drift through the floor) and the largest
-  joint speed (exploding joints).
+  joint speed (exploding joints); raw prior samples, and (``--floor-particles``) samples
+  conditioned on the real motion's floor as ``mdvae sample`` draws them by default.
 
     python benchmarks/prior.py [--prior PATH] [--corpus data/cmu_amass] [--split test]
 """
@@ -25,7 +26,7 @@ import torch
 
 from mdvae_cli.fit.data import MODEL_FPS, WindowSet
 from mdvae_cli.fit.reconstruct import refine_reconstruction
-from mdvae_cli.fit.sample import sample_motion
+from mdvae_cli.fit.sample import FOOT_JOINTS, sample_motion
 from mdvae_cli.fit.train_prior import TrainConfig
 from mdvae_cli.model.losses import gaussian_kl
 from mdvae_cli.motion.npz_io import load_motion
@@ -36,8 +37,6 @@ try:
     from benchmarks import common
 except ModuleNotFoundError:  # run as a file: python benchmarks/<name>.py
     import common  # type: ignore[no-redef]
-
-FEET = (7, 8, 10, 11)  # ankles and feet
 
 
 def reconstruction(
@@ -80,9 +79,11 @@ def samples(
     seed: int,
     temperature: float = 1.0,
     per_file: int = 1,
+    particles: int = 0,
 ) -> dict[str, float]:
     """``per_file`` prior samples from each file's first frame vs the real motion of the same
-    length (seeds seed, seed + 1, ... over all samples)."""
+    length (seeds seed, seed + 1, ... over all samples); ``particles`` > 0: conditioned on the
+    real motion's floor (``mdvae sample``'s default) with that many particles."""
     frames = int(seconds * MODEL_FPS)
     acc_s, acc_r, min_feet, floor_real, max_speed = [], [], [], [], []
     for k, f in enumerate(files):
@@ -90,16 +91,18 @@ def samples(
         jr = joints(body, real)
         a = (jr[:-2] - 2 * jr[1:-1] + jr[2:]) * MODEL_FPS**2
         acc_r.append(float(np.linalg.norm(a, axis=-1).mean()))
-        floor = float(jr[:, FEET, 2].min())
+        floor = float(jr[:, FOOT_JOINTS, 2].min())
+        cond = {"floor": floor, "particles": particles} if particles else {}
         for s in range(per_file):
             gen = sample_motion(
-                prior, body, real, frames, seed=seed + k * per_file + s, temperature=temperature
-            )
+                prior, body, real, frames, seed=seed + k * per_file + s,
+                temperature=temperature, **cond,
+            )  # fmt: skip
             jg = joints(body, gen)
             a = (jg[:-2] - 2 * jg[1:-1] + jg[2:]) * MODEL_FPS**2
             acc_s.append(float(np.linalg.norm(a, axis=-1).mean()))
             floor_real.append(floor)
-            min_feet.append(float(jg[:, FEET, 2].min()) - floor)
+            min_feet.append(float(jg[:, FOOT_JOINTS, 2].min()) - floor)
             max_speed.append(float(np.linalg.norm(np.diff(jg, axis=0), axis=-1).max() * MODEL_FPS))
     return {
         "accel_samples": float(np.mean(acc_s)),
@@ -108,6 +111,26 @@ def samples(
         "mean_lowest_foot_cm": 100 * float(np.mean(min_feet)),
         "max_joint_speed": float(np.max(max_speed)),
     }
+
+
+def sample_table(title: str, smps: dict[float, dict[str, float]], temps: list[float]) -> None:
+    """Print the sample figures of each temperature as a markdown table."""
+    print(f"| {title}, temperature | " + " | ".join(f"{t:g}" for t in temps) + " |")
+    print("|---|" + "---|" * len(temps))
+    real = next(iter(smps.values()))["accel_real"]
+    rows = [
+        (f"joint acceleration (m/s²), real motion: {real:.2f}", "accel_samples", "%.2f"),
+        ("lowest foot vs real floor, worst (cm)", "lowest_foot_cm", "%.1f"),
+        ("lowest foot vs real floor, mean (cm)", "mean_lowest_foot_cm", "%.1f"),
+        ("largest joint speed (m/s)", "max_joint_speed", "%.1f"),
+    ]
+    for label, key, fmt in rows:
+        print(f"| {label} | " + " | ".join(fmt % smps[t][key] for t in temps) + " |")
+    print(
+        "| acceleration ratio samples / real | "
+        + " | ".join(f"{smps[t]['accel_samples'] / real:.2f}" for t in temps)
+        + " |"
+    )
 
 
 def joints(body, motion) -> np.ndarray:
@@ -132,6 +155,12 @@ def main() -> None:
         default=50,
         help="semi-amortised row: steps of the training loss per window from the encoder",
     )
+    ap.add_argument(
+        "--floor-particles",
+        type=int,
+        default=64,
+        help="also sample conditioned on the real floor with this many particles (0 = not)",
+    )
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -147,6 +176,19 @@ def main() -> None:
     smps = {
         t: samples(prior, body, long_files, args.seconds, 0, t, args.samples_per_file)
         for t in temps
+    }
+    floored = {
+        t: samples(
+            prior,
+            body,
+            long_files,
+            args.seconds,
+            0,
+            t,
+            args.samples_per_file,
+            args.floor_particles,
+        )  # fmt: skip
+        for t in (temps if args.floor_particles else [])
     }
     print(
         f"Prior benchmark on the {args.split} split: {len(files)} files, {len(windows)} "
@@ -166,23 +208,14 @@ def main() -> None:
     ):
         print(f"| {label} | {rec[key]:.2f} | {refined[key]:.2f} |")
     print()
-    print("| prior samples, temperature | " + " | ".join(f"{t:g}" for t in temps) + " |")
-    print("|---|" + "---|" * len(temps))
-    real = next(iter(smps.values()))["accel_real"]
-    rows = [
-        (f"joint acceleration (m/s²), real motion: {real:.2f}", "accel_samples", "%.2f"),
-        ("lowest foot vs real floor, worst (cm)", "lowest_foot_cm", "%.1f"),
-        ("lowest foot vs real floor, mean (cm)", "mean_lowest_foot_cm", "%.1f"),
-        ("largest joint speed (m/s)", "max_joint_speed", "%.1f"),
-    ]
-    for label, key, fmt in rows:
-        print(f"| {label} | " + " | ".join(fmt % smps[t][key] for t in temps) + " |")
-    print(
-        "| acceleration ratio samples / real | "
-        + " | ".join(f"{smps[t]['accel_samples'] / real:.2f}" for t in temps)
-        + " |"
-    )
+    sample_table("prior samples", smps, temps)
+    if floored:
+        print()
+        sample_table(
+            f"samples kept on the floor ({args.floor_particles} particles)", floored, temps
+        )
     smp = {f"T{t:g}_{k}": v for t in temps for k, v in smps[t].items()}
+    smp.update({f"floor_T{t:g}_{k}": v for t in floored for k, v in floored[t].items()})
     if args.json:
         refined = {f"refined_{k}": v for k, v in refined.items()}
         Path(args.json).write_text(json.dumps({**rec, **refined, **smp}, indent=2) + "\n")

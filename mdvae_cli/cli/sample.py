@@ -35,18 +35,36 @@ from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console
 @click.option(
     "--temperature",
     type=click.FloatRange(min=0.0),
-    default=1.0,
+    default=0.5,
     show_default=True,
-    help="Scale of the prior's spread: 1 = exact samples, lower = smoother motion.",
+    help="Scale of the prior's spread: 1 = exact samples (jerky with the shipped prior), "
+    "lower = smoother, more typical motion.",
+)
+@click.option(
+    "--floor/--no-floor",
+    default=True,
+    show_default=True,
+    help="Keep the feet above the floor of --from (the lowest its foot joints go): the prior "
+    "is conditioned on it with a particle filter. --no-floor: plain prior samples.",
+)
+@click.option(
+    "--particles",
+    type=click.IntRange(min=1),
+    default=64,
+    show_default=True,
+    help="Prior samples the floor condition chooses among (more: closer to the floor, slower).",
 )
 @body_model_option
 @allow_pickle_option
 @handle_errors
-def sample(start, frames, out, prior_path, seed, temperature, body_model, allow_pickle) -> None:
+def sample(
+    start, frames, out, prior_path, seed, temperature, floor, particles, body_model, allow_pickle
+) -> None:
     """Generate motion from the Motion-DVAE prior alone.
 
     The first frame of --from is the initial state x0; latents are drawn from the prior and
-    decoded. A quick way to see what the prior has learned.
+    decoded. A quick way to see what the prior has learned. By default the sample is kept on
+    the start file's floor (--no-floor for the prior's raw samples, which can sink).
 
     \b
     Example:
@@ -54,7 +72,7 @@ def sample(start, frames, out, prior_path, seed, temperature, body_model, allow_
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
-    from mdvae_cli.fit.sample import sample_motion
+    from mdvae_cli.fit.sample import motion_floor, sample_motion
     from mdvae_cli.model.prior_model import load_prior
     from mdvae_cli.motion.npz_io import load_motion, save_motion
     from mdvae_cli.weights import default_weights
@@ -62,7 +80,10 @@ def sample(start, frames, out, prior_path, seed, temperature, body_model, allow_
     motion = load_motion(start, allow_pickle=allow_pickle)
     prior, _ = load_prior(prior_path if prior_path is not None else default_weights("prior"))
     body = BodyModel(load_body_model(body_model))
-    result = sample_motion(prior, body, motion, frames, seed=seed, temperature=temperature)
+    result = sample_motion(
+        prior, body, motion, frames, seed=seed, temperature=temperature,
+        floor=motion_floor(body, motion) if floor else None, particles=particles,
+    )  # fmt: skip
     save_motion(result, out, forbid=(start,))
     console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
 

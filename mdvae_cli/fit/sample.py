@@ -13,6 +13,35 @@ from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.motion.state import BodyParams, state_to_params
 from mdvae_cli.motion.windows import uncanonicalize
 
+FOOT_JOINTS = (7, 8, 10, 11)  # ankles and feet of the 22 body joints
+
+
+def motion_floor(body: BodyModel, motion: Motion) -> float:
+    """The lowest height (m, z up) any foot joint of ``motion`` reaches: where its floor is."""
+    t = lambda a: torch.as_tensor(a, dtype=torch.float32)  # noqa: E731
+    with torch.no_grad():
+        out = body(
+            t(motion.root_orient), t(motion.pose_body), t(motion.trans), t(motion.betas)[None]
+        )
+    return float(out.joints[:, FOOT_JOINTS, 2].min())
+
+
+def floor_log_weight(
+    body: BodyModel, x: torch.Tensor, betas: torch.Tensor, floor: float, tolerance: float
+) -> torch.Tensor:
+    """How well states keep the feet above a floor: -d^2 / (2 tolerance^2), d (m) how far the
+    lowest foot joint sinks below ``floor`` (0 when above).
+
+    x: (B, M, 138) canonical states (height is the world's: canonical frames only turn about
+    and move along the floor); betas: (B, S) -> (B, M)
+    """
+    B, M = x.shape[:2]
+    p = state_to_params(x.flatten(0, 1))
+    out = body(p.root_orient, p.pose_body, p.trans, betas.repeat_interleave(M, dim=0))
+    lowest = out.joints[:, FOOT_JOINTS, 2].amin(dim=1).unflatten(0, (B, M))
+    sink = torch.clamp(floor - lowest, min=0.0)
+    return -0.5 * (sink / tolerance) ** 2
+
 
 @torch.no_grad()
 def sample_motion(
@@ -23,12 +52,21 @@ def sample_motion(
     seed: int = 0,
     window: int = 60,
     temperature: float = 1.0,
+    floor: float | None = None,
+    particles: int = 64,
+    floor_tolerance: float = 0.01,
 ) -> Motion:
     """``num_frames`` frames at 30 Hz sampled from p(x | x0), x0 = the start's first frame.
 
     Longer samples chain windows: each window's last state becomes the next window's x0
     (re-canonicalised), so the networks always run at the length they were trained on.
     The result keeps the start's shape, gender and file layout (hands at rest).
+
+    floor: a height (m, the file's up axis z) the foot joints should stay above, e.g.
+    :func:`motion_floor` of the start (None = plain prior samples); the prior is then
+    conditioned on it by a particle filter over ``particles`` prior samples, each frame
+    weighted by :func:`floor_log_weight` (``floor_tolerance``: how far below the floor a foot
+    may dip before its weight falls by e^-0.5).
     """
     gen = torch.Generator().manual_seed(seed)
     m30 = resample_motion(start, MODEL_FPS)
@@ -42,7 +80,15 @@ def sample_motion(
     while made < num_frames:
         states, frame = chunk_states(first, betas, body)
         n = min(window, num_frames - made)
-        x = prior.sample(states[:, 0], n, generator=gen, temperature=temperature)
+        weigh = None
+        if floor is not None:
+            weigh = lambda x: floor_log_weight(  # noqa: E731
+                body, x, betas, floor, floor_tolerance
+            )
+        x = prior.sample(
+            states[:, 0], n, generator=gen, temperature=temperature,
+            particles=particles, log_weight=weigh,
+        )  # fmt: skip
         world = uncanonicalize(state_to_params(x), frame, pelvis)
         pieces.append(world)
         made += n

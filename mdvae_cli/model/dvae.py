@@ -13,6 +13,8 @@ x0: (B, D) initial state, x: (B, T, D) states x_1..x_T, z: (B, T, L) latents.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -220,19 +222,59 @@ class MotionDVAE(nn.Module):
         num_frames: int,
         generator: torch.Generator | None = None,
         temperature: float = 1.0,
+        particles: int = 1,
+        log_weight: Callable[[torch.Tensor], torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """Generate x_1..x_T from the prior alone.  x0: (B, D) -> (B, T, D) decoder means.
 
         ``temperature`` scales the prior's standard deviations (1 = exact prior samples;
         below 1 trades diversity for smoother, more typical motion).
+
+        With ``log_weight`` (a constraint on the motion, e.g. feet above the floor) the sample
+        approximates the prior conditioned on it, p(x | x0) prod_t exp(log_weight(x_t)): a
+        particle filter runs ``particles`` prior samples side by side, weights each frame by
+        log_weight ((B, M, D) decoded states -> (B, M)), resamples the particles when the
+        weights degenerate, and returns one particle drawn by its weight. A constraint that
+        never binds leaves exact prior samples.
         """
-        h = self.prior.init(x0)[None]
-        z_prev = x0.new_zeros(x0.shape[0], self.cfg.latent_dim)
-        zs = []
+        scale = max(temperature, 1e-6)
+        if log_weight is None or particles < 1:
+            particles = 1
+        B, M = x0.shape[0], particles
+        h_prior = self.prior.init(x0)[None]
+        z_prev = x0.new_zeros(B, self.cfg.latent_dim)
+        if log_weight is None:
+            zs = []
+            for _ in range(num_frames):
+                dist, h_prior = self.prior.step(z_prev, h_prior)
+                logvar = dist.logvar + 2.0 * math.log(scale)
+                z_prev = Gaussian(dist.mean, logvar).sample(generator)
+                zs.append(z_prev)
+            x_mean, _ = self.decoder(torch.stack(zs, dim=1), x0)
+            return x_mean
+        # a bootstrap particle filter: M particles per sample, each an exact prior draw,
+        # weighted by the constraint and resampled when the weights degenerate
+        rep = lambda t, dim=0: t.repeat_interleave(M, dim=dim)  # noqa: E731
+        x0_m, h_prior = rep(x0), rep(h_prior, dim=1)
+        h_dec, z_prev = rep(self.decoder.init(x0)[None], dim=1), rep(z_prev)
+        logw = x0.new_zeros(B, M)
+        base = (torch.arange(B, device=x0.device) * M)[:, None]
+        xs: list[torch.Tensor] = []
         for _ in range(num_frames):
-            dist, h = self.prior.step(z_prev, h)
-            logvar = dist.logvar + 2.0 * torch.log(torch.tensor(max(temperature, 1e-6)))
+            dist, h_prior = self.prior.step(z_prev, h_prior)
+            logvar = dist.logvar + 2.0 * math.log(scale)
             z_prev = Gaussian(dist.mean, logvar).sample(generator)
-            zs.append(z_prev)
-        x_mean, _ = self.decoder(torch.stack(zs, dim=1), x0)
-        return x_mean
+            out, h_dec = self.decoder.rnn(z_prev[:, None], h_dec)
+            x = self.decoder.output(out, z_prev[:, None], x0_m)[:, 0]  # (B*M, D)
+            xs.append(x)
+            logw = logw + log_weight(x.unflatten(0, (B, M)))
+            w = torch.softmax(logw, dim=1)
+            if (1.0 / (w**2).sum(dim=1)).min() < 0.5 * M:  # effective sample size
+                pick = base + torch.multinomial(w, M, replacement=True, generator=generator)
+                pick = pick.flatten()
+                xs = [t[pick] for t in xs]
+                h_prior, h_dec, z_prev = h_prior[:, pick], h_dec[:, pick], z_prev[pick]
+                logw = torch.zeros_like(logw)
+        w = torch.softmax(logw, dim=1)
+        pick = base[:, 0] + torch.multinomial(w, 1, generator=generator)[:, 0]
+        return torch.stack([t[pick] for t in xs], dim=1)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import torch
@@ -25,11 +26,25 @@ class PriorModel(nn.Module):
 
     @torch.no_grad()
     def sample(
-        self, x0: torch.Tensor, num_frames: int, generator=None, temperature: float = 1.0
+        self,
+        x0: torch.Tensor,
+        num_frames: int,
+        generator=None,
+        temperature: float = 1.0,
+        particles: int = 1,
+        log_weight: Callable[[torch.Tensor], torch.Tensor] | None = None,
     ) -> torch.Tensor:
-        """Prior samples in state units.  x0: (B, D) canonical state -> (B, T, D)"""
+        """Prior samples in state units.  x0: (B, D) canonical state -> (B, T, D).
+
+        log_weight: optional constraint on the decoded states, (B, M, D) in state units ->
+        (B, M) log-weights, with ``particles`` = M prior samples run side by side (see
+        ``MotionDVAE.sample``).
+        """
         x0n = self.normalizer.normalize(x0)
-        x = self.dvae.sample(x0n, num_frames, generator, temperature)
+        weigh = None
+        if log_weight is not None:
+            weigh = lambda xn: log_weight(self.normalizer.denormalize(xn))  # noqa: E731
+        x = self.dvae.sample(x0n, num_frames, generator, temperature, particles, weigh)
         return self.normalizer.denormalize(x)
 
 
