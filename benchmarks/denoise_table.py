@@ -75,9 +75,11 @@ ROW_REGRESSION = "Regression mode"
 ROW_OPTIMIZATION = "Optimization mode"
 ROW_OFFSET = "Regression + offset"
 ROW_REFINE = "Latent refinement"
+ROW_REGRESSION_MIRROR = "Regression + mirror"
+ROW_REFINE_MIRROR = "Latent refinement + mirror"
 ROWS = (
-    ROW_GT, ROW_OBS, ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_OFFSET, ROW_OPTIMIZATION,
-    ROW_REFINE,
+    ROW_GT, ROW_OBS, ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_REGRESSION_MIRROR, ROW_OFFSET,
+    ROW_OPTIMIZATION, ROW_REFINE, ROW_REFINE_MIRROR,
 )  # fmt: skip
 FILTER_ROWS = (ROW_GAUSSIAN, ROW_SAVGOL)
 
@@ -245,10 +247,16 @@ def _per_clip(fn: Callable[[Motion], Motion]) -> Process:
 
 
 def _denoise(
-    denoiser: Denoiser, body: BodyModel, s: TableSettings, steps: int, refine: int | None = None
+    denoiser: Denoiser,
+    body: BodyModel,
+    s: TableSettings,
+    steps: int,
+    refine: int | None = None,
+    mirror: bool = False,
 ) -> Process:
     """Regression (steps 0) or optimisation mode; ``refine``: None = no refinement, 0 = the
-    closed-form offset alone, N = N refinement steps (with the offset)."""
+    closed-form offset alone, N = N refinement steps (with the offset); ``mirror``: average
+    with the mirror image's result (``mdvae denoise --mirror``)."""
     cfg = None
     if refine is not None:
         cfg = RefineConfig(steps=refine, lr=s.refine_lr, offset_std=s.refine_offset)
@@ -258,7 +266,7 @@ def _denoise(
         model = copy.deepcopy(denoiser) if steps else denoiser
         return denoise_motions(
             motions, model, body, s.window, s.stride, steps, s.lr, s.batch_size, s.seed,
-            refine=cfg,
+            refine=cfg, mirror=mirror,
         )  # fmt: skip
 
     return process
@@ -296,6 +304,10 @@ def build_table(
             _per_clip(lambda m: savgol_filter_motion(m, sg_w, sg_p)),
         ),
         ROW_REGRESSION: ("one forward pass", _denoise(denoiser, body, s, 0)),
+        ROW_REGRESSION_MIRROR: (
+            "one forward pass on the clip and on its mirror image, averaged",
+            _denoise(denoiser, body, s, 0, mirror=True),
+        ),
         ROW_OFFSET: (
             f"one forward pass + closed-form slow offset {s.refine_offset:g} rad",
             _denoise(denoiser, body, s, 0, 0),
@@ -308,6 +320,10 @@ def build_table(
             f"regression + {s.refine_steps} steps per window, lr {s.refine_lr:g}, "
             f"slow offset {s.refine_offset:g} rad",
             _denoise(denoiser, body, s, 0, s.refine_steps),
+        ),
+        ROW_REFINE_MIRROR: (
+            "latent refinement on the clip and on its mirror image, averaged",
+            _denoise(denoiser, body, s, 0, s.refine_steps, mirror=True),
         ),
     }
     rows = {ROW_GT: RowResult(ROW_GT), ROW_OBS: RowResult(ROW_OBS)}
@@ -331,7 +347,13 @@ def build_table(
             predictions[key] = [common.compact(o, g) for o, g in zip(outs, gt, strict=True)]
             shutil.rmtree(folder / "out")
         if sigma == s.reference_sigma:
-            for name in (ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_OFFSET):
+            for name in (
+                ROW_GAUSSIAN,
+                ROW_SAVGOL,
+                ROW_REGRESSION,
+                ROW_REGRESSION_MIRROR,
+                ROW_OFFSET,
+            ):
                 out = folder / "one"
                 rows[name].one_clip_s = common.warm_median_seconds(
                     lambda p=methods[name][1], out=out, one=files[:1]: common.file_to_file(
@@ -363,7 +385,7 @@ def build_table(
             row = rows[ROW_REGRESSION if n == 0 else ROW_OPTIMIZATION]
             result, timing = row.results[ref], row.speed
         curve.append(CurvePoint(f"{n} steps", n, timing.s_per_frame, result.v2v_cm))
-    for name in (*FILTER_ROWS, ROW_OFFSET, ROW_REFINE):
+    for name in (*FILTER_ROWS, ROW_OFFSET, ROW_REFINE, ROW_REGRESSION_MIRROR, ROW_REFINE_MIRROR):
         r = rows[name]
         curve.append(CurvePoint(name, None, r.speed.s_per_frame, r.v2v(ref)))
     return TableResult(
@@ -515,7 +537,7 @@ def plot_speed_accuracy(result: TableResult, path: Path, fps: float = 30.0) -> b
     for p in ours:
         ax.annotate(str(p.steps), (p.s_per_frame, p.v2v_cm), textcoords="offset points",
                     xytext=(4, 4), fontsize=8)  # fmt: skip
-    for p, marker in zip([p for p in result.curve if p.steps is None], "sD^v", strict=False):
+    for p, marker in zip([p for p in result.curve if p.steps is None], "sD^v<>P", strict=False):
         ax.plot([p.s_per_frame], [p.v2v_cm], marker, label=p.label)
     ax.axhline(obs, color="grey", ls="--", lw=1, label=f"observations ({obs:.1f} cm)")
     ax.axhline(obs * (2 / 3), color="tab:red", ls=":", lw=1, label="-33 % error")

@@ -135,10 +135,11 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
         "Gaussian filter",
         "Savitzky-Golay filter",
         "Regression mode",
+        "Regression + mirror",
         "Regression + offset",
     ):
         assert float(cell(row, "s/frame ↓")) > 0 and float(cell(row, "1 clip, warm (ms)")) > 0
-    for row in ("Optimization mode", "Latent refinement"):
+    for row in ("Optimization mode", "Latent refinement", "Latent refinement + mirror"):
         assert float(cell(row, "frames/s ↑").replace(",", "")) > 0
     assert cell("Observations", "V2V / V2V(obs) σ=0.15") == "1.000"
     best = [cell(r, header[-1]) for r in ("Gaussian filter", "Savitzky-Golay filter")]
@@ -153,8 +154,8 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
     # the tuned parameters are reported and come from the grid
     assert result.tuning.gaussian_sigma in (1.0, 2.0)
     assert cell("Gaussian filter", "Parameters") == f"σ = {result.tuning.gaussian_sigma:g} frames"
-    assert [p.steps for p in result.curve] == [0, 1, 2, None, None, None, None]
-    assert result.curve[-1].label == "Latent refinement"
+    assert [p.steps for p in result.curve] == [0, 1, 2, *[None] * 6]
+    assert result.curve[-1].label == "Latent refinement + mirror"
     assert all(p.s_per_frame > 0 and math.isfinite(p.v2v_cm) for p in result.curve)
 
     md = report_markdown(result, machine_description(), {"corpus": "synthetic"}, "plot.png")

@@ -84,7 +84,14 @@ from mdvae_cli.errors import InputError
     is_flag=True,
     help="After the forward pass, fit the slow per-joint offset to the file in closed form (no "
     "gradient steps): regression mode goes from less accurate than a tuned filter to more "
-    "accurate, at 1.4-2x its time. Part of --refine already.",
+    "accurate, at 1.2-2x its time. Part of --refine already.",
+)
+@click.option(
+    "--mirror",
+    is_flag=True,
+    help="Also denoise each file's left-right mirror image and average the two results (the "
+    "learned prior is not exactly mirror-symmetric): about 10 % lower error in regression "
+    "mode, 3 % with --refine, 1 % with --offset, at twice the time.",
 )
 @click.option(
     "--mesh-dir",
@@ -128,6 +135,7 @@ def denoise(
     refine_lr,
     refine_offset,
     offset_only,
+    mirror,
     mesh_dir,
     mesh_format,
     window,
@@ -148,7 +156,7 @@ def denoise(
       mdvae denoise noisy.npz -o clean.npz
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
       mdvae denoise noisy.npz -o clean.npz --offset
-      mdvae denoise noisy.npz -o clean.npz --refine 100
+      mdvae denoise noisy.npz -o clean.npz --refine 100 --mirror
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
     """
     from mdvae_cli.body.formats import load_body_model
@@ -211,6 +219,7 @@ def denoise(
                 seed=seed,
                 progress=tick,
                 refine=refine,
+                mirror=mirror,
             )
         seconds = time.perf_counter() - start
         frames = sum(loaded[j.source].num_frames for j in group)
@@ -242,6 +251,7 @@ def denoise(
                 "optimize_steps": optimize_steps,
                 "refine_steps": refine_steps,
                 "refine": refine.to_dict() if refine else None,
+                "mirror": mirror,
             }
         )
     elif write_report.succeeded:

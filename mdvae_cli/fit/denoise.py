@@ -24,6 +24,7 @@ from mdvae_cli.fit.refine import RefineConfig, refine_latents
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.model.small_batch import SmallBatchRegressor
+from mdvae_cli.motion.mirror import average_bodies, mirror_body
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import interp_linear, interp_rotvec, resample_motion
 from mdvae_cli.motion.state import BodyParams, state_to_params
@@ -323,6 +324,7 @@ def denoise_motions(
     seed: int = 0,
     progress: Callable[[dict], None] | None = None,
     refine: RefineConfig | None = None,
+    mirror: bool = False,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -332,8 +334,24 @@ def denoise_motions(
     (``steps`` > 0), each window's latents are then refined on its own ELBO (``fit.refine``);
     with ``steps`` = 0 and ``offset_std`` > 0, the latents stay the encoder's and only the slow
     offset is fitted (closed form, no gradients).
+    With ``mirror``, each motion's left-right mirror image is denoised in the same batch (and,
+    in optimisation mode, adapted to as well) and the result is the midpoint of the two
+    estimates, mirrored back: the learned prior is not exactly mirror-symmetric, so the two
+    differ, and their average is a prior made symmetric. Twice the work.
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
+    if mirror:
+        pelvis = [_pelvis_rest(body, m) for m in motions]
+        flipped = [mirror_body(m, p) for m, p in zip(motions, pelvis, strict=True)]
+        both = denoise_motions(
+            [*motions, *flipped], denoiser, body, window, stride, optimize_steps, lr,
+            batch_size, seed, progress, refine,
+        )  # fmt: skip
+        n = len(motions)
+        return [
+            average_bodies(a, mirror_body(b, p))
+            for a, b, p in zip(both[:n], both[n:], pelvis, strict=True)
+        ]
     refining = refine is not None and refine.active
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
@@ -356,6 +374,12 @@ def denoise_motions(
             for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
         ]
         return assemble(motions, motions30, groups, preds)
+
+
+def _pelvis_rest(body: BodyModel, motion: Motion) -> np.ndarray:
+    """(3,) the rest pelvis joint of the motion's shape."""
+    betas = torch.as_tensor(motion.betas, dtype=torch.float32)[None]
+    return body.pelvis_rest(betas)[0].double().numpy()
 
 
 def _staged(progress, stage: str, offset: int, total: int):
