@@ -333,3 +333,21 @@ def test_written_out_adam_matches_torch_adam():
             opt.step()
     assert torch.allclose(ours_p, ref_p, atol=1e-6), (ours_p - ref_p).abs().max()
     assert not torch.allclose(ours_p, torch.zeros(4, 5))
+
+
+def test_offset_alone_takes_the_fast_forward_pass_with_the_same_result(monkeypatch):
+    """`--offset` on a few windows runs regression mode's numpy forward pass, then the closed
+    form; forcing the torch networks (no small-batch path) gives the same motion."""
+    import mdvae_cli.fit.denoise as denoise_module
+
+    clean = load_motion(EXAMPLES / "walk.npz")
+    noisy = add_pose_noise(clean, 0.15, np.random.default_rng(3))
+    den, _ = load_denoiser(None)
+    body = BodyModel(builtin_body_model())
+    cfg = RefineConfig(steps=0)
+    fast = denoise_motions([noisy], den, body, refine=cfg)[0]
+    monkeypatch.setattr(denoise_module, "SMALL_BATCH", 0)
+    slow = denoise_motions([noisy], den, body, refine=cfg)[0]
+    np.testing.assert_allclose(fast.pose_body, slow.pose_body, atol=1e-3)
+    np.testing.assert_allclose(fast.trans, slow.trans, atol=1e-4)
+    assert not np.allclose(fast.pose_body, denoise_motions([noisy], den, body)[0].pose_body)

@@ -20,7 +20,7 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import filter_motions, savgol_smooth
 from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
-from mdvae_cli.fit.refine import RefineConfig, refine_latents
+from mdvae_cli.fit.refine import RefineConfig, add_offset, refine_latents
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.model.small_batch import SmallBatchRegressor
@@ -192,14 +192,7 @@ def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 10
 
     -> BodyParams with (N, L, ...) tensors
     """
-    if denoiser.training:
-        denoiser.eval()
-    small = len(group) <= SMALL_BATCH and SmallBatchRegressor.supports(denoiser)
-    regress = (
-        (lambda yn: torch.from_numpy(SmallBatchRegressor(denoiser)(yn.numpy())))
-        if small
-        else (lambda yn: denoiser.infer(yn, with_prior=False)["x_hat"])
-    )
+    regress = regressor(denoiser, len(group))
     outs = []
     with threads_for(len(group)):
         for i in range(0, len(group), batch_size):
@@ -210,6 +203,17 @@ def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 10
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
     )
+
+
+def regressor(denoiser: Denoiser, num_windows: int) -> Callable[[torch.Tensor], torch.Tensor]:
+    """Regression mode's forward pass for a batch of ``num_windows``: normalised inputs
+    (N, T+1, 138) -> denormalised posterior-mean states (N, T+1, 138). A handful of windows go
+    through the numpy path (same numbers, a third of the time)."""
+    if denoiser.training:
+        denoiser.eval()
+    if num_windows <= SMALL_BATCH and SmallBatchRegressor.supports(denoiser):
+        return lambda yn: torch.from_numpy(SmallBatchRegressor(denoiser)(yn.numpy()))
+    return lambda yn: denoiser.infer(yn, with_prior=False)["x_hat"]
 
 
 def refine_windows(
@@ -236,8 +240,12 @@ def refine_windows(
         idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
         g = group.batch(idx, with_y3d=False)
         joints = None if g.weight is None else g.weight[..., :22]
-        tell = _staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
-        x_hat = refine_latents(denoiser, g.yn, g.obs, joints, cfg, tell)
+        if cfg.steps == 0:  # the offset alone on regression mode's states
+            with torch.no_grad():
+                x_hat = add_offset(regressor(denoiser, len(idx))(g.yn), g.obs, joints, cfg)
+        else:
+            tell = _staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
+            x_hat = refine_latents(denoiser, g.yn, g.obs, joints, cfg, tell)
         outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))

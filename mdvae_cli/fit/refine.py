@@ -328,8 +328,23 @@ def refine_latents(
         if progress is not None:
             progress({"step": step + 1, "steps": cfg.steps, "loss": loss.item()})
     with torch.no_grad():
-        x_hat = decode() if cfg.steps > 0 else start["x_hat"]
-        rounds = 1 if cfg.steps > 0 else (cfg.offset_iterations if cfg.offset_std > 0 else 0)
-        for _ in range(rounds):
-            factors.update(x_hat)
+        if cfg.steps == 0:
+            return add_offset(start["x_hat"], obs, joint_weight, cfg)
+        x_hat = decode()
+        factors.update(x_hat)
         return x_hat + factors.offset
+
+
+@torch.no_grad()
+def add_offset(
+    x_hat: torch.Tensor, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig
+) -> torch.Tensor:
+    """Decoded states plus the slow offset fitted to the observations in closed form with the
+    latents held (``cfg.offset_iterations`` rounds; none when ``cfg.offset_std`` = 0).
+
+    x_hat, obs: (N, T+1, 138) state units; joint_weight: (N, T+1, 22) or None -> (N, T+1, 138)
+    """
+    factors = ClosedFormFactors(obs, joint_weight, cfg)
+    for _ in range(cfg.offset_iterations if cfg.offset_std > 0 else 0):
+        factors.update(x_hat)
+    return x_hat + factors.offset
