@@ -372,7 +372,11 @@ def denoise_motions(
             from mdvae_cli.fit.fit_dataset import fit_denoiser
 
             tell = _staged(progress, "optimize", 0, optimize_steps)
-            fit_denoiser(denoiser, groups, body, optimize_steps, lr, batch_size, seed, tell)
+            draws = torch.Generator().manual_seed(seed)  # reproducible whatever ran before
+            fit_denoiser(
+                denoiser, groups, body, optimize_steps, lr, batch_size, seed, tell,
+                sample_generator=draws,
+            )  # fmt: skip
         if not refining:
             preds = [predict_windows(denoiser, g) for g in groups]
             return assemble(motions, motions30, groups, preds)

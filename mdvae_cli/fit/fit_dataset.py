@@ -79,6 +79,7 @@ def fit_denoiser(
     lr_final: float | None = None,
     checkpoint: Callable[[int], None] | None = None,
     checkpoint_every: int = 200,
+    sample_generator: torch.Generator | None = None,
 ) -> list[float]:
     """Maximise the ELBO over phi, gamma, omega for ``steps`` Adam steps on ``groups``.
 
@@ -86,6 +87,8 @@ def fit_denoiser(
     groups visited in proportion). With ``lr_final`` the learning rate decays from ``lr`` to it
     on a cosine; ``checkpoint(step)`` is called every ``checkpoint_every`` steps. One-frame
     windows (x0 alone) have nothing to fit and are left out. Returns the loss of every step.
+    The ELBO's Monte-Carlo draws come from ``sample_generator`` (None: torch's global
+    generator, which ``mdvae fit-dataset`` seeds).
     """
     device = device or torch.device("cpu")
     groups = [g for g in groups if g.moves]
@@ -112,7 +115,10 @@ def fit_denoiser(
             for group in opt.param_groups:
                 group["lr"] = lr_final + 0.5 * (lr - lr_final) * (1 + math.cos(math.pi * frac))
         w = None if b.weight is None else b.weight.to(device)
-        terms = denoiser.elbo(b.yn.to(device), b.y3d.to(device), b.betas.to(device), body, w)
+        terms = denoiser.elbo(
+            b.yn.to(device), b.y3d.to(device), b.betas.to(device), body, w,
+            generator=sample_generator,
+        )  # fmt: skip
         opt.zero_grad(set_to_none=True)
         terms["loss"].backward()
         torch.nn.utils.clip_grad_norm_(denoiser.trainable_parameters(), 5.0)
