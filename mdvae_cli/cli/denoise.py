@@ -84,7 +84,7 @@ from mdvae_cli.errors import InputError
     is_flag=True,
     help="After the forward pass, fit the slow per-joint offset to the file in closed form (no "
     "gradient steps): regression mode goes from less accurate than a tuned filter to more "
-    "accurate, at 1.2-2x its time. Part of --refine already.",
+    "accurate, at 1.1-1.5x its time. Part of --refine already.",
 )
 @click.option(
     "--mirror",
