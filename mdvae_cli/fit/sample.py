@@ -75,16 +75,14 @@ def sample_motion(
     pelvis = body.pelvis_rest(betas)
     # x0 is the first frame; its velocity comes from the first two frames
     first = BodyParams(p.root_orient[None, :2], p.pose_body[None, :2], p.trans[None, :2])
+    weigh = None  # the floor condition on decoded states: (B, M, 138) -> (B, M)
+    if floor is not None:
+        weigh = lambda x: floor_log_weight(body, x, betas, floor, floor_tolerance)  # noqa: E731
     pieces: list[BodyParams] = []
     made = 0
     while made < num_frames:
         states, frame = chunk_states(first, betas, body)
         n = min(window, num_frames - made)
-        weigh = None
-        if floor is not None:
-            weigh = lambda x: floor_log_weight(  # noqa: E731
-                body, x, betas, floor, floor_tolerance
-            )
         x = prior.sample(
             states[:, 0], n, generator=gen, temperature=temperature,
             particles=particles, log_weight=weigh,
