@@ -80,10 +80,12 @@ def samples(
     temperature: float = 1.0,
     per_file: int = 1,
     particles: int = 0,
+    speed_limit: float | None = None,
 ) -> dict[str, float]:
     """``per_file`` prior samples from each file's first frame vs the real motion of the same
     length (seeds seed, seed + 1, ... over all samples); ``particles`` > 0: conditioned on the
-    real motion's floor (``mdvae sample``'s default) with that many particles."""
+    real motion's floor and ``speed_limit`` (``mdvae sample``'s default) with that many
+    particles."""
     frames = int(seconds * MODEL_FPS)
     acc_s, acc_r, min_feet, floor_real, max_speed = [], [], [], [], []
     for k, f in enumerate(files):
@@ -92,7 +94,8 @@ def samples(
         a = (jr[:-2] - 2 * jr[1:-1] + jr[2:]) * MODEL_FPS**2
         acc_r.append(float(np.linalg.norm(a, axis=-1).mean()))
         floor = float(jr[:, FOOT_JOINTS, 2].min())
-        cond = {"floor": floor, "particles": particles} if particles else {}
+        cond = {"floor": floor, "particles": particles, "speed_limit": speed_limit}
+        cond = cond if particles else {}
         for s in range(per_file):
             gen = sample_motion(
                 prior, body, real, frames, seed=seed + k * per_file + s,
@@ -161,6 +164,12 @@ def main() -> None:
         default=64,
         help="also sample conditioned on the real floor with this many particles (0 = not)",
     )
+    ap.add_argument(
+        "--speed-limit",
+        type=float,
+        default=10.0,
+        help="joint speed limit (m/s) of the conditioned samples (0 = none)",
+    )
     ap.add_argument("--json", default=None, help="also write the figures here")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -187,6 +196,7 @@ def main() -> None:
             t,
             args.samples_per_file,
             args.floor_particles,
+            args.speed_limit or None,
         )  # fmt: skip
         for t in (temps if args.floor_particles else [])
     }
@@ -212,7 +222,10 @@ def main() -> None:
     if floored:
         print()
         sample_table(
-            f"samples kept on the floor ({args.floor_particles} particles)", floored, temps
+            f"samples kept on the floor and under {args.speed_limit:g} m/s "
+            f"({args.floor_particles} particles)",
+            floored,
+            temps,
         )
     smp = {f"T{t:g}_{k}": v for t in temps for k, v in smps[t].items()}
     smp.update({f"floor_T{t:g}_{k}": v for t in floored for k, v in floored[t].items()})

@@ -48,23 +48,42 @@ from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console
     "is conditioned on it with a particle filter. --no-floor: plain prior samples.",
 )
 @click.option(
+    "--speed-limit",
+    type=click.FloatRange(min=0.0),
+    default=10.0,
+    show_default=True,
+    help="Keep every joint slower than this (m/s; in 99.9 % of CMU frames all are): the prior is "
+    "conditioned on it like --floor, so no joint flies off. 0 = no limit.",
+)
+@click.option(
     "--particles",
     type=click.IntRange(min=1),
     default=64,
     show_default=True,
-    help="Prior samples the floor condition chooses among (more: closer to the floor, slower).",
+    help="Prior samples the conditions choose among (more: closer to them, slower).",
 )
 @body_model_option
 @allow_pickle_option
 @handle_errors
 def sample(
-    start, frames, out, prior_path, seed, temperature, floor, particles, body_model, allow_pickle
+    start,
+    frames,
+    out,
+    prior_path,
+    seed,
+    temperature,
+    floor,
+    speed_limit,
+    particles,
+    body_model,
+    allow_pickle,
 ) -> None:
     """Generate motion from the Motion-DVAE prior alone.
 
     The first frame of --from is the initial state x0; latents are drawn from the prior and
     decoded. A quick way to see what the prior has learned. By default the sample is kept on
-    the start file's floor (--no-floor for the prior's raw samples, which can sink).
+    the start file's floor and under a joint speed limit (--no-floor --speed-limit 0 for the
+    prior's raw samples, which can sink).
 
     \b
     Example:
@@ -83,6 +102,7 @@ def sample(
     result = sample_motion(
         prior, body, motion, frames, seed=seed, temperature=temperature,
         floor=motion_floor(body, motion) if floor else None, particles=particles,
+        speed_limit=speed_limit or None,
     )  # fmt: skip
     save_motion(result, out, forbid=(start,))
     console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")

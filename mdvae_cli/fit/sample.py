@@ -26,21 +26,42 @@ def motion_floor(body: BodyModel, motion: Motion) -> float:
     return float(out.joints[:, FOOT_JOINTS, 2].min())
 
 
-def floor_log_weight(
-    body: BodyModel, x: torch.Tensor, betas: torch.Tensor, floor: float, tolerance: float
+def plausibility_log_weight(
+    body: BodyModel,
+    x: torch.Tensor,
+    prev: torch.Tensor,
+    betas: torch.Tensor,
+    floor: float | None,
+    tolerance: float = 0.01,
+    speed_limit: float | None = None,
+    speed_tolerance: float = 2.0,
+    fps: float = MODEL_FPS,
 ) -> torch.Tensor:
-    """How well states keep the feet above a floor: -d^2 / (2 tolerance^2), d (m) how far the
-    lowest foot joint sinks below ``floor`` (0 when above).
+    """How physically plausible a frame is, as a log-weight: -d^2 / (2 tolerance^2), d (m) how
+    far the lowest foot joint sinks below ``floor``, plus -e^2 / (2 speed_tolerance^2), e (m/s)
+    how far the fastest joint exceeds ``speed_limit`` since the frame before (each 0 when
+    within bounds; None = not checked).
 
-    x: (B, M, 138) canonical states (height is the world's: canonical frames only turn about
-    and move along the floor); betas: (B, S) -> (B, M)
+    x, prev: (B, M, 138) canonical states of this frame and the one before (height is the
+    world's: canonical frames only turn about and move along the floor); betas: (B, S)
+    -> (B, M)
     """
     B, M = x.shape[:2]
-    p = state_to_params(x.flatten(0, 1))
-    out = body(p.root_orient, p.pose_body, p.trans, betas.repeat_interleave(M, dim=0))
-    lowest = out.joints[:, FOOT_JOINTS, 2].amin(dim=1).unflatten(0, (B, M))
-    sink = torch.clamp(floor - lowest, min=0.0)
-    return -0.5 * (sink / tolerance) ** 2
+    rows = betas.repeat_interleave(M, dim=0)
+
+    def pose(states: torch.Tensor) -> torch.Tensor:  # (B, M, 138) -> (B*M, 22, 3) joints
+        p = state_to_params(states.flatten(0, 1))
+        return body(p.root_orient, p.pose_body, p.trans, rows).joints
+
+    joints = pose(x)
+    out = x.new_zeros(B, M)
+    if floor is not None:
+        lowest = joints[:, FOOT_JOINTS, 2].amin(dim=1).unflatten(0, (B, M))
+        out = out - 0.5 * (torch.clamp(floor - lowest, min=0.0) / tolerance) ** 2
+    if speed_limit is not None:
+        speed = (joints - pose(prev)).norm(dim=-1).amax(dim=1).unflatten(0, (B, M)) * fps
+        out = out - 0.5 * (torch.clamp(speed - speed_limit, min=0.0) / speed_tolerance) ** 2
+    return out
 
 
 @torch.no_grad()
@@ -55,6 +76,7 @@ def sample_motion(
     floor: float | None = None,
     particles: int = 64,
     floor_tolerance: float = 0.01,
+    speed_limit: float | None = None,
 ) -> Motion:
     """``num_frames`` frames at 30 Hz sampled from p(x | x0), x0 = the start's first frame.
 
@@ -63,10 +85,11 @@ def sample_motion(
     The result keeps the start's shape, gender and file layout (hands at rest).
 
     floor: a height (m, the file's up axis z) the foot joints should stay above, e.g.
-    :func:`motion_floor` of the start (None = plain prior samples); the prior is then
-    conditioned on it by a particle filter over ``particles`` prior samples, each frame
-    weighted by :func:`floor_log_weight` (``floor_tolerance``: how far below the floor a foot
-    may dip before its weight falls by e^-0.5).
+    :func:`motion_floor` of the start; speed_limit (m/s): the fastest a joint should move.
+    With either, the prior is conditioned on them by a particle filter over ``particles``
+    prior samples, each frame weighted by :func:`plausibility_log_weight` (``floor_tolerance``:
+    how far below the floor a foot may dip before its weight falls by e^-0.5); with neither
+    (None), plain prior samples.
     """
     gen = torch.Generator().manual_seed(seed)
     m30 = resample_motion(start, MODEL_FPS)
@@ -75,9 +98,11 @@ def sample_motion(
     pelvis = body.pelvis_rest(betas)
     # x0 is the first frame; its velocity comes from the first two frames
     first = BodyParams(p.root_orient[None, :2], p.pose_body[None, :2], p.trans[None, :2])
-    weigh = None  # the floor condition on decoded states: (B, M, 138) -> (B, M)
-    if floor is not None:
-        weigh = lambda x: floor_log_weight(body, x, betas, floor, floor_tolerance)  # noqa: E731
+    weigh = None  # the plausibility condition on decoded states: 2 x (B, M, 138) -> (B, M)
+    if floor is not None or speed_limit is not None:
+        weigh = lambda x, prev: plausibility_log_weight(  # noqa: E731
+            body, x, prev, betas, floor, floor_tolerance, speed_limit
+        )
     pieces: list[BodyParams] = []
     made = 0
     while made < num_frames:

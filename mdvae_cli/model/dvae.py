@@ -223,7 +223,7 @@ class MotionDVAE(nn.Module):
         generator: torch.Generator | None = None,
         temperature: float = 1.0,
         particles: int = 1,
-        log_weight: Callable[[torch.Tensor], torch.Tensor] | None = None,
+        log_weight: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """Generate x_1..x_T from the prior alone.  x0: (B, D) -> (B, T, D) decoder means.
 
@@ -231,11 +231,11 @@ class MotionDVAE(nn.Module):
         below 1 trades diversity for smoother, more typical motion).
 
         With ``log_weight`` (a constraint on the motion, e.g. feet above the floor) the sample
-        approximates the prior conditioned on it, p(x | x0) prod_t exp(log_weight(x_t)): a
-        particle filter runs ``particles`` prior samples side by side, weights each frame by
-        log_weight ((B, M, D) decoded states -> (B, M)), resamples the particles when the
-        weights degenerate, and returns one particle drawn by its weight. A constraint that
-        never binds leaves exact prior samples.
+        approximates the prior conditioned on it, p(x | x0) prod_t exp(log_weight(x_t, x_{t-1})):
+        a particle filter runs ``particles`` prior samples side by side, weights each frame by
+        log_weight (decoded states and the frame before, each (B, M, D), x_0 = x0 -> (B, M)),
+        resamples the particles when the weights degenerate, and returns one particle drawn by
+        its weight. A constraint that never binds leaves exact prior samples.
         """
         scale = max(temperature, 1e-6)
         if log_weight is None or particles < 1:
@@ -266,8 +266,9 @@ class MotionDVAE(nn.Module):
             z_prev = Gaussian(dist.mean, logvar).sample(generator)
             out, h_dec = self.decoder.rnn(z_prev[:, None], h_dec)
             x = self.decoder.output(out, z_prev[:, None], x0_m)[:, 0]  # (B*M, D)
+            prev = xs[-1] if xs else x0_m
             xs.append(x)
-            logw = logw + log_weight(x.unflatten(0, (B, M)))
+            logw = logw + log_weight(x.unflatten(0, (B, M)), prev.unflatten(0, (B, M)))
             w = torch.softmax(logw, dim=1)
             if (1.0 / (w**2).sum(dim=1)).min() < 0.5 * M:  # effective sample size
                 pick = base + torch.multinomial(w, M, replacement=True, generator=generator)

@@ -32,18 +32,19 @@ class PriorModel(nn.Module):
         generator=None,
         temperature: float = 1.0,
         particles: int = 1,
-        log_weight: Callable[[torch.Tensor], torch.Tensor] | None = None,
+        log_weight: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """Prior samples in state units.  x0: (B, D) canonical state -> (B, T, D).
 
-        log_weight: optional constraint on the decoded states, (B, M, D) in state units ->
-        (B, M) log-weights, with ``particles`` = M prior samples run side by side (see
-        ``MotionDVAE.sample``).
+        log_weight: optional constraint on the decoded states, (x_t, x_{t-1}) each (B, M, D)
+        in state units -> (B, M) log-weights, with ``particles`` = M prior samples run side by
+        side (see ``MotionDVAE.sample``).
         """
         x0n = self.normalizer.normalize(x0)
         weigh = None
         if log_weight is not None:
-            weigh = lambda xn: log_weight(self.normalizer.denormalize(xn))  # noqa: E731
+            denorm = self.normalizer.denormalize
+            weigh = lambda xn, prev: log_weight(denorm(xn), denorm(prev))  # noqa: E731
         x = self.dvae.sample(x0n, num_frames, generator, temperature, particles, weigh)
         return self.normalizer.denormalize(x)
 
