@@ -47,19 +47,16 @@ def plausibility_log_weight(
     -> (B, M)
     """
     B, M = x.shape[:2]
-    rows = betas.repeat_interleave(M, dim=0)
-
-    def pose(states: torch.Tensor) -> torch.Tensor:  # (B, M, 138) -> (B*M, 22, 3) joints
-        p = state_to_params(states.flatten(0, 1))
-        return body(p.root_orient, p.pose_body, p.trans, rows).joints
-
-    joints = pose(x)
+    frames = [x] if speed_limit is None else [x, prev]  # posed together: one skinning call
+    p = state_to_params(torch.cat(frames).flatten(0, 1))
+    rows = betas.repeat_interleave(M, dim=0).repeat(len(frames), 1)
+    joints = body(p.root_orient, p.pose_body, p.trans, rows).joints.unflatten(0, (-1, B * M))
     out = x.new_zeros(B, M)
     if floor is not None:
-        lowest = joints[:, FOOT_JOINTS, 2].amin(dim=1).unflatten(0, (B, M))
+        lowest = joints[0, :, FOOT_JOINTS, 2].amin(dim=1).unflatten(0, (B, M))
         out = out - 0.5 * (torch.clamp(floor - lowest, min=0.0) / tolerance) ** 2
     if speed_limit is not None:
-        speed = (joints - pose(prev)).norm(dim=-1).amax(dim=1).unflatten(0, (B, M)) * fps
+        speed = (joints[0] - joints[1]).norm(dim=-1).amax(dim=1).unflatten(0, (B, M)) * fps
         out = out - 0.5 * (torch.clamp(speed - speed_limit, min=0.0) / speed_tolerance) ** 2
     return out
 
