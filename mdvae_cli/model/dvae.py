@@ -259,23 +259,31 @@ class MotionDVAE(nn.Module):
         h_dec, z_prev = rep(self.decoder.init(x0)[None], dim=1), rep(z_prev)
         logw = x0.new_zeros(B, M)
         base = (torch.arange(B, device=x0.device) * M)[:, None]
+        # frame t as drawn, and which particle each survivor of frame t's resampling came from
         xs: list[torch.Tensor] = []
+        parents: list[torch.Tensor | None] = []
+        prev = x0_m
         for _ in range(num_frames):
             dist, h_prior = self.prior.step(z_prev, h_prior)
             logvar = dist.logvar + 2.0 * math.log(scale)
             z_prev = Gaussian(dist.mean, logvar).sample(generator)
             out, h_dec = self.decoder.rnn(z_prev[:, None], h_dec)
             x = self.decoder.output(out, z_prev[:, None], x0_m)[:, 0]  # (B*M, D)
-            prev = xs[-1] if xs else x0_m
             xs.append(x)
             logw = logw + log_weight(x.unflatten(0, (B, M)), prev.unflatten(0, (B, M)))
             w = torch.softmax(logw, dim=1)
+            pick = None
             if (1.0 / (w**2).sum(dim=1)).min() < 0.5 * M:  # effective sample size
                 pick = base + torch.multinomial(w, M, replacement=True, generator=generator)
                 pick = pick.flatten()
-                xs = [t[pick] for t in xs]
-                h_prior, h_dec, z_prev = h_prior[:, pick], h_dec[:, pick], z_prev[pick]
+                h_prior, h_dec, z_prev, x = h_prior[:, pick], h_dec[:, pick], z_prev[pick], x[pick]
                 logw = torch.zeros_like(logw)
+            parents.append(pick)
+            prev = x
         w = torch.softmax(logw, dim=1)
-        pick = base[:, 0] + torch.multinomial(w, 1, generator=generator)[:, 0]
-        return torch.stack([t[pick] for t in xs], dim=1)
+        idx = base[:, 0] + torch.multinomial(w, 1, generator=generator)[:, 0]
+        path = []
+        for x, pick in zip(reversed(xs), reversed(parents), strict=True):  # trace back
+            idx = idx if pick is None else pick[idx]
+            path.append(x[idx])
+        return torch.stack(path[::-1], dim=1)
