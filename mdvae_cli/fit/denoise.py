@@ -349,7 +349,8 @@ def denoise_motions(
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
     if mirror:
-        pelvis = [_pelvis_rest(body, m) for m in motions]
+        as_betas = lambda m: torch.as_tensor(m.betas, dtype=torch.float32)[None]  # noqa: E731
+        pelvis = [body.pelvis_rest(as_betas(m))[0].double().numpy() for m in motions]
         flipped = [mirror_body(m, p) for m, p in zip(motions, pelvis, strict=True)]
         both = denoise_motions(
             [*motions, *flipped], denoiser, body, window, stride, optimize_steps, lr,
@@ -386,12 +387,6 @@ def denoise_motions(
             for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
         ]
         return assemble(motions, motions30, groups, preds)
-
-
-def _pelvis_rest(body: BodyModel, motion: Motion) -> np.ndarray:
-    """(3,) the rest pelvis joint of the motion's shape."""
-    betas = torch.as_tensor(motion.betas, dtype=torch.float32)[None]
-    return body.pelvis_rest(betas)[0].double().numpy()
 
 
 def _staged(progress, stage: str, offset: int, total: int):

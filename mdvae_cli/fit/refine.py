@@ -306,6 +306,8 @@ def refine_latents(
     N, T1 = yn.shape[:2]
     with torch.no_grad():
         start = denoiser.infer(yn, with_prior=False)
+    if cfg.steps == 0:
+        return add_offset(start["x_hat"], obs, joint_weight, cfg)
     z = start["q_z"].mean.clone().requires_grad_(True)
     z_logvar = start["q_z"].logvar
     x0 = start["q_x0"].mean.clone().requires_grad_(True)
@@ -328,8 +330,6 @@ def refine_latents(
         if progress is not None:
             progress({"step": step + 1, "steps": cfg.steps, "loss": loss.item()})
     with torch.no_grad():
-        if cfg.steps == 0:
-            return add_offset(start["x_hat"], obs, joint_weight, cfg)
         x_hat = decode()
         factors.update(x_hat)
         return x_hat + factors.offset
