@@ -26,7 +26,7 @@ import torch
 
 from mdvae_cli.fit.data import MODEL_FPS, WindowSet
 from mdvae_cli.fit.reconstruct import refine_reconstruction
-from mdvae_cli.fit.sample import FOOT_JOINTS, sample_motion
+from mdvae_cli.fit.sample import FOOT_JOINTS, PARTICLES, SPEED_LIMIT, sample_motion
 from mdvae_cli.fit.train_prior import TrainConfig
 from mdvae_cli.model.losses import gaussian_kl
 from mdvae_cli.motion.npz_io import load_motion
@@ -161,13 +161,14 @@ def main() -> None:
     ap.add_argument(
         "--floor-particles",
         type=int,
-        default=64,
-        help="also sample conditioned on the real floor with this many particles (0 = not)",
+        default=PARTICLES,
+        help="also sample conditioned on the real floor and the speed limit with this many "
+        "particles, as mdvae sample does (0 = not)",
     )
     ap.add_argument(
         "--speed-limit",
         type=float,
-        default=10.0,
+        default=SPEED_LIMIT,
         help="joint speed limit (m/s) of the conditioned samples (0 = none)",
     )
     ap.add_argument("--json", default=None, help="also write the figures here")

@@ -13,6 +13,8 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.fit.sample import (
     FOOT_JOINTS,
+    PARTICLES,
+    SPEED_LIMIT,
     motion_floor,
     plausibility_log_weight,
     sample_motion,
@@ -159,3 +161,6 @@ def test_cli_sample_keeps_the_floor_by_default(tmp_path, body):
     assert not (tmp_path / "bad.npz").exists()
     res = runner.invoke(cli, ["sample", "--help"])
     assert "--no-floor" in res.output and "0.5" in res.output
+    # the CLI keeps literal defaults (a fast --help); they are the library's
+    params = {p.name: p.default for p in cli.commands["sample"].params}
+    assert params["speed_limit"] == SPEED_LIMIT and params["particles"] == PARTICLES

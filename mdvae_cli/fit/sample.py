@@ -14,6 +14,10 @@ from mdvae_cli.motion.state import BodyParams, state_to_params
 from mdvae_cli.motion.windows import uncanonicalize
 
 FOOT_JOINTS = (7, 8, 10, 11)  # ankles and feet of the 22 body joints
+#: default joint speed limit (m/s): every joint is slower in 99.9 % of the CMU train frames
+SPEED_LIMIT = 10.0
+#: default number of particles of the conditioned sampler
+PARTICLES = 64
 
 
 def motion_floor(body: BodyModel, motion: Motion) -> float:
@@ -71,7 +75,7 @@ def sample_motion(
     window: int = 60,
     temperature: float = 1.0,
     floor: float | None = None,
-    particles: int = 64,
+    particles: int = PARTICLES,
     floor_tolerance: float = 0.01,
     speed_limit: float | None = None,
 ) -> Motion:
