@@ -51,6 +51,25 @@ def test_help_lists_subcommands():
         assert name in out
 
 
+def test_loading_the_cli_and_adding_noise_do_not_import_torch(make_motion_file, tmp_path):
+    """`mdvae --help` and `mdvae add-noise` (numpy only) must not pay torch's import (seconds
+    on a small machine, per call of a shell loop); the commands that need it load it."""
+    import subprocess
+    import sys
+
+    src, dst = str(make_motion_file("in.npz")), str(tmp_path / "o.npz")
+    code = (
+        "import sys\n"
+        "from mdvae_cli.cli.main import cli\n"
+        f"try:\n    cli(['add-noise', '--sigma', '0.1', {src!r}, '-o', {dst!r}])\n"
+        "except SystemExit as e:\n    assert e.code in (0, None), e.code\n"
+        "print('torch' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "False"
+    assert (tmp_path / "o.npz").exists()
+
+
 @pytest.mark.parametrize("name", ["add-noise", "eval", "export-mesh"])
 def test_subcommand_help(name):
     code, out, _ = run(name, "--help")

@@ -105,6 +105,11 @@ def strip_gz(relpath: Path) -> Path:
     return relpath.with_suffix("") if relpath.suffix == ".gz" else relpath
 
 
+def is_kind(path: Path, suffix: str) -> bool:
+    """Whether ``path``'s name ends in ``suffix`` (any case), compressed (``.gz``) or not."""
+    return path.name.lower().removesuffix(".gz").endswith(suffix)
+
+
 def plan_jobs(
     inputs: Sequence[Path],
     out: Path | None,

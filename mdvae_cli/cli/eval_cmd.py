@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.markup import escape
@@ -17,10 +18,11 @@ from mdvae_cli.cli.common import (
     handle_errors,
 )
 from mdvae_cli.errors import InputError
-from mdvae_cli.export import as_body_model
 from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.metrics import EvalResult, evaluate_pair, mean_result
 from mdvae_cli.motion.npz_io import load_motion
+
+if TYPE_CHECKING:  # the metrics pose meshes with torch: imported when the command runs
+    from mdvae_cli.metrics import EvalResult
 
 #: units of the EvalResult fields, also written into the JSON output
 UNITS = {
@@ -122,6 +124,9 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
     Example:
       mdvae eval --gt clean/ --pred denoised/ --json > scores.json
     """
+    from mdvae_cli.export import as_body_model
+    from mdvae_cli.metrics import evaluate_pair, mean_result
+
     jobs, unmatched = pair_files(gt, pred)
     body = as_body_model(load_body_model(body_model))
     for path in unmatched:

@@ -9,7 +9,6 @@ import click
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
 from mdvae_cli.cli.common import allow_pickle_option, body_model_option, handle_errors
-from mdvae_cli.export import MESH_FORMATS, as_body_model, export_mesh_sequence
 from mdvae_cli.motion.npz_io import load_motion
 
 
@@ -20,7 +19,7 @@ from mdvae_cli.motion.npz_io import load_motion
     help="Output folder: frame_000000.<format>, ... (one sub-folder per file for several inputs).",
 )  # fmt: skip
 @click.option(
-    "--format", "fmt", type=click.Choice(MESH_FORMATS), default="ply", show_default=True,
+    "--format", "fmt", type=click.Choice(["ply", "obj"]), default="ply", show_default=True,
     help="Mesh file format.",
 )  # fmt: skip
 @click.option(
@@ -41,6 +40,8 @@ def export_mesh(inputs, out, fmt, every, body_model, allow_pickle, as_json) -> N
     Example:
       mdvae export-mesh walk.npz --out walk_meshes --format obj --every 2
     """
+    from mdvae_cli.export import as_body_model, export_mesh_sequence
+
     jobs = plan_jobs(inputs, out, out_suffix=None)
     body = as_body_model(load_body_model(body_model))
     sources = tuple(job.source for job in jobs)

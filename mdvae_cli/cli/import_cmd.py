@@ -9,28 +9,22 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import click
-import numpy as np
-import torch
 from rich.markup import escape
 from rich.table import Table
 
-from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, run_batch, strip_gz
+from mdvae_cli.cli.batch import (
+    FileJob,
+    emit_json,
+    is_kind,
+    json_option,
+    plan_jobs,
+    run_batch,
+    strip_gz,
+)
 from mdvae_cli.cli.common import body_model_option, console, handle_errors
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.motion import cmu
-from mdvae_cli.motion.asfamc import AsfSkeleton, load_asf
-from mdvae_cli.motion.npz_io import save_motion
-from mdvae_cli.motion.retarget import (
-    BodyJoints,
-    RetargetSettings,
-    fit_betas,
-    import_motion,
-    load_source,
-    skeleton_key,
-    walking_speed,
-)
 
 SUFFIXES = (".bvh", ".amc")
 
@@ -39,83 +33,14 @@ def _output_name(relpath: Path) -> Path:
     return strip_gz(relpath).with_suffix(".npz")
 
 
-def _is(path: Path, suffix: str) -> bool:
-    return path.name.lower().removesuffix(".gz").endswith(suffix)
-
-
-def _find_asf(path: Path) -> Path | None:
-    """The skeleton next to an AMC file: ``<subject>.asf``, else the folder's only .asf."""
-    ids = cmu.trial_of(path)
-    if ids is not None:
-        for name in (f"{ids[0]}.asf", f"{ids[0]}.asf.gz"):
-            if (path.parent / name).is_file():
-                return path.parent / name
-    found = [p for p in sorted(path.parent.iterdir()) if _is(p, ".asf")]
-    return found[0] if len(found) == 1 else None
-
-
-class _Importer:
-    """Imports one file; keeps the body, parsed skeletons and betas fitted once per skeleton.
-    Built once per process (each ``--jobs`` worker builds its own)."""
-
-    def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf):
-        torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
-        self.body = BodyJoints(load_body_model(body_model))
-        self.out, self.fps, self.settings = out, fps, settings
-        self.source_fps, self.scale, self.asf = source_fps, scale, asf
-        self.skeletons: dict[Path, AsfSkeleton] = {}
-        self.betas: dict[str, np.ndarray] = {}
-
-    def __call__(self, job: FileJob) -> dict:
-        item: cmu.CorpusItem | None = job.data
-        skeleton, fps = (item.skeleton, item.fps) if item else (None, self.source_fps)
-        if item is None and _is(job.source, ".amc"):
-            skeleton = self.asf or _find_asf(job.source)
-            if skeleton is None:
-                raise InputError(f"{job.source}: no skeleton found next to it; pass --asf FILE")
-        if skeleton is not None:
-            if skeleton not in self.skeletons:
-                self.skeletons[skeleton] = load_asf(skeleton)
-            skeleton = self.skeletons[skeleton]
-        src = load_source(job.source, skeleton, fps=fps, scale=self.scale)
-        key = skeleton_key(src)
-        if key not in self.betas:
-            self.betas[key] = fit_betas(src, self.body)
-        meta: dict = {"file": job.relpath.as_posix(), "skeleton_key": key}
-        if item is not None:
-            donor = f"{cmu.DONOR_SUBJECT}.asf" if item.donor else None
-            meta.update(subject=item.subject, trial=item.trial, split=item.split,
-                        description=item.description, donor_skeleton=donor)  # fmt: skip
-        result = import_motion(src, self.body, self.fps, self.betas[key], self.settings, meta)
-        motion = result.motion
-        save_motion(motion, job.output, forbid=(job.source,))
-        out = job.output
-        out = out.relative_to(self.out) if out.is_relative_to(self.out) else out
-        row = {
-            "output": out.as_posix(),
-            "format": item.kind if item else src.info["format"],
-            "frames": motion.num_frames,
-            "fps": motion.fps,
-            "source_fps": src.fps,
-            "retarget_error_mm": round(1000 * result.mean_error, 2),
-            "retarget_error_direct_mm": round(1000 * result.direct_error, 2),
-            "sole_height_mean_cm": round(100 * float(result.sole_height.mean()), 2),
-            "floor_tilt_deg": round(result.floor_tilt_deg, 2),
-            "speed_mps": round(walking_speed(motion.trans, motion.fps), 3),
-            "skeleton_key": key,
-        }
-        if item is not None:
-            row.update({k: meta[k] for k in ("subject", "trial", "split", "description")},
-                       donor_skeleton=item.donor)  # fmt: skip
-        return row
-
-
-_WORKER: _Importer | None = None
+_WORKER = None  # each --jobs process's FileImporter
 
 
 def _start_worker(*args) -> None:
+    from mdvae_cli.cli.import_worker import FileImporter
+
     global _WORKER
-    _WORKER = _Importer(*args)
+    _WORKER = FileImporter(*args)
 
 
 def _work(job: FileJob) -> dict:
@@ -219,8 +144,8 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
         if value is not None and not value > 0:
             raise InputError(f"{name} must be > 0, got {value:g}")
     out, out_fps = Path(out), (fps if fps > 0 else None)
-    asf_inputs = [p for p in inputs if _is(p, ".asf")]
-    inputs = [p for p in inputs if not _is(p, ".asf")]
+    asf_inputs = [p for p in inputs if is_kind(p, ".asf")]
+    inputs = [p for p in inputs if not is_kind(p, ".asf")]
     if asf_inputs:
         if asf is not None or len(asf_inputs) > 1:
             raise InputError("give one skeleton: an .asf input or --asf, not several")
@@ -254,6 +179,9 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
         dup = next(o for o in outputs if outputs.count(o) > 1)
         raise InputError(f"two inputs would both be written to {dup}; import them separately")
 
+    from mdvae_cli.cli.import_worker import FileImporter
+    from mdvae_cli.motion.retarget import RetargetSettings
+
     settings = RetargetSettings(floor=floor).validate()
     args = (body_model, out, out_fps, settings, source_fps, scale, asf)
     pool = None
@@ -265,7 +193,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
         def process(job: FileJob) -> dict:
             return futures[id(job)].result()
     else:
-        process = _Importer(*args)
+        process = FileImporter(*args)
 
     def show(outcome) -> None:
         r = outcome.result

@@ -1,0 +1,91 @@
+"""The per-file worker of ``mdvae import`` (kept apart from the command so that loading the
+CLI does not load torch: the retargeting solves need it, the rest of the CLI does not)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.formats import load_body_model
+from mdvae_cli.cli.batch import FileJob, is_kind
+from mdvae_cli.errors import InputError
+from mdvae_cli.motion import cmu
+from mdvae_cli.motion.asfamc import AsfSkeleton, load_asf
+from mdvae_cli.motion.npz_io import save_motion
+from mdvae_cli.motion.retarget import (
+    BodyJoints,
+    fit_betas,
+    import_motion,
+    load_source,
+    skeleton_key,
+    walking_speed,
+)
+
+
+def find_asf(path: Path) -> Path | None:
+    """The skeleton next to an AMC file: ``<subject>.asf``, else the folder's only .asf."""
+    ids = cmu.trial_of(path)
+    if ids is not None:
+        for name in (f"{ids[0]}.asf", f"{ids[0]}.asf.gz"):
+            if (path.parent / name).is_file():
+                return path.parent / name
+    found = [p for p in sorted(path.parent.iterdir()) if is_kind(p, ".asf")]
+    return found[0] if len(found) == 1 else None
+
+
+class FileImporter:
+    """Imports one file; keeps the body, parsed skeletons and betas fitted once per skeleton.
+    Built once per process (each ``--jobs`` worker builds its own)."""
+
+    def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf):
+        torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
+        self.body = BodyJoints(load_body_model(body_model))
+        self.out, self.fps, self.settings = out, fps, settings
+        self.source_fps, self.scale, self.asf = source_fps, scale, asf
+        self.skeletons: dict[Path, AsfSkeleton] = {}
+        self.betas: dict[str, np.ndarray] = {}
+
+    def __call__(self, job: FileJob) -> dict:
+        item: cmu.CorpusItem | None = job.data
+        skeleton, fps = (item.skeleton, item.fps) if item else (None, self.source_fps)
+        if item is None and is_kind(job.source, ".amc"):
+            skeleton = self.asf or find_asf(job.source)
+            if skeleton is None:
+                raise InputError(f"{job.source}: no skeleton found next to it; pass --asf FILE")
+        if skeleton is not None:
+            if skeleton not in self.skeletons:
+                self.skeletons[skeleton] = load_asf(skeleton)
+            skeleton = self.skeletons[skeleton]
+        src = load_source(job.source, skeleton, fps=fps, scale=self.scale)
+        key = skeleton_key(src)
+        if key not in self.betas:
+            self.betas[key] = fit_betas(src, self.body)
+        meta: dict = {"file": job.relpath.as_posix(), "skeleton_key": key}
+        if item is not None:
+            donor = f"{cmu.DONOR_SUBJECT}.asf" if item.donor else None
+            meta.update(subject=item.subject, trial=item.trial, split=item.split,
+                        description=item.description, donor_skeleton=donor)  # fmt: skip
+        result = import_motion(src, self.body, self.fps, self.betas[key], self.settings, meta)
+        motion = result.motion
+        save_motion(motion, job.output, forbid=(job.source,))
+        out = job.output
+        out = out.relative_to(self.out) if out.is_relative_to(self.out) else out
+        row = {
+            "output": out.as_posix(),
+            "format": item.kind if item else src.info["format"],
+            "frames": motion.num_frames,
+            "fps": motion.fps,
+            "source_fps": src.fps,
+            "retarget_error_mm": round(1000 * result.mean_error, 2),
+            "retarget_error_direct_mm": round(1000 * result.direct_error, 2),
+            "sole_height_mean_cm": round(100 * float(result.sole_height.mean()), 2),
+            "floor_tilt_deg": round(result.floor_tilt_deg, 2),
+            "speed_mps": round(walking_speed(motion.trans, motion.fps), 3),
+            "skeleton_key": key,
+        }
+        if item is not None:
+            row.update({k: meta[k] for k in ("subject", "trial", "split", "description")},
+                       donor_skeleton=item.donor)  # fmt: skip
+        return row
