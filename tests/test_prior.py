@@ -318,3 +318,31 @@ def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
     digests = summary["rank_digests"]
     assert len(digests) == 2 and digests[0] == digests[1]
     assert summary["steps"] == 4 and not math.isnan(summary["best_val_loss"])
+
+
+def test_mirror_augment_adds_each_motions_mirror_image(tmp_path, tiny_body):
+    """``load_windows(mirror=True)``: the original windows, then the same count cut from the
+    mirrored motions; a mirrored window's joint rotations are the original's with left and
+    right swapped and (a, b, c) -> (a, -b, -c); the config option reaches the training set."""
+    from mdvae_cli.fit.data import load_windows, select_files
+    from mdvae_cli.motion.mirror import MIRROR_JOINTS
+    from mdvae_cli.motion.state import POSE
+
+    data = write_corpus(tmp_path / "data", n=2)
+    files = sorted(data.glob("*.npz"))
+    body = BodyModel(tiny_body)
+    plain = load_windows(files, body, 20, 5)
+    both = load_windows(files, body, 20, 5, mirror=True)
+    n = len(plain)
+    assert len(both) == 2 * n
+    torch.testing.assert_close(both.x[:n], plain.x)
+    pose = plain.x[..., POSE].unflatten(-1, (21, 3))
+    mirrored = both.x[n:, :, POSE].unflatten(-1, (21, 3))
+    partners = [j - 1 for j in MIRROR_JOINTS[1:]]
+    expected = pose[:, :, partners] * torch.tensor([1.0, -1.0, -1.0])
+    torch.testing.assert_close(mirrored, expected, atol=1e-5, rtol=0)
+    assert not torch.allclose(mirrored, pose, atol=1e-2)
+
+    train_files = select_files([data], None, "train")
+    summary = train_prior(tiny_config(data, mirror_augment=True), tmp_path / "run", max_steps=1)
+    assert summary.train_windows == 2 * len(load_windows(train_files, body, 20, 5))

@@ -145,6 +145,12 @@ def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) 
     default=None,
     help="Encoder also reads the decoder's state after z_{1:t-1} [on for new runs].",
 )
+@click.option(
+    "--mirror-augment/--no-mirror-augment",
+    default=None,
+    help="Also train on the left-right mirror image of every training motion: twice the "
+    "windows, a body prior closer to symmetric (validation stays unmirrored) [off].",
+)
 @click.option("--seed", type=int, help="Random seed [0].")
 @click.option("--device", help="cpu, cuda, cuda:N or auto [auto].")
 @click.option("--resume", is_flag=True, help="Continue the run in RUN_DIR from last.npz.")

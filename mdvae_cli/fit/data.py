@@ -13,6 +13,7 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
+from mdvae_cli.motion.mirror import mirror_body
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
@@ -119,16 +120,24 @@ def load_windows(
     length: int,
     stride: int,
     on_file: Callable[[Path], None] | None = None,
+    mirror: bool = False,
 ) -> WindowSet:
-    """Load files, resample to the model rate and cut windows; files too short are skipped."""
-    sets = []
+    """Load files, resample to the model rate and cut windows; files too short are skipped.
+
+    ``mirror``: also cut windows from each motion's left-right mirror image (twice the
+    windows; data augmentation for a small corpus). The mirrored windows follow all the
+    original ones."""
+    sets, mirrored = [], []
     for f in files:
         motion = resample_motion(load_motion(f), MODEL_FPS)
         ws = motion_windows(motion, body, length, stride)
         if ws is not None:
             sets.append(ws)
+            if mirror:
+                pelvis = body.pelvis_rest(ws.betas[:1])[0].double().numpy()
+                mirrored.append(motion_windows(mirror_body(motion, pelvis), body, length, stride))
         if on_file is not None:
             on_file(f)
     if not sets:
         raise InputError(f"no motion of at least {length + 1} frames at {MODEL_FPS:g} Hz found")
-    return WindowSet.concat(sets)
+    return WindowSet.concat(sets + mirrored)

@@ -72,6 +72,8 @@ class TrainConfig:
     #: decoder, hence sampling) fixed and trains only the inference network, e.g. under a
     #: sharper reconstruction weight (closing the amortisation gap of a trained prior)
     train_only: str = "all"
+    #: also train on every training motion's left-right mirror image (twice the windows)
+    mirror_augment: bool = False
     model: ModelConfig = field(default_factory=ModelConfig)
 
     def to_dict(self) -> dict:
@@ -270,7 +272,9 @@ def train_prior(
         if not train_files:
             raise InputError("no training files found (check the data paths and split file)")
         cpu_body = BodyModel(body.data)
-        train = load_windows(train_files, cpu_body, cfg.window, cfg.stride)
+        train = load_windows(
+            train_files, cpu_body, cfg.window, cfg.stride, mirror=cfg.mirror_augment
+        )
         val = load_windows(val_files, cpu_body, cfg.window, cfg.window) if val_files else None
         if val is not None and len(val) > cfg.max_val_windows:
             pick = torch.linspace(0, len(val) - 1, cfg.max_val_windows).long()
