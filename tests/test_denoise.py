@@ -445,6 +445,26 @@ def test_small_batch_numpy_path_matches_the_torch_networks(tiny_prior):
         denoise_module.SMALL_BATCH = small
     for k in ("root_orient", "pose_body", "trans"):
         torch.testing.assert_close(getattr(fast, k), getattr(slow, k), atol=1e-4, rtol=0)
+    # the regressor kept on the denoiser follows its weights: an optimiser step, a copy
+    from mdvae_cli.model.small_batch import small_batch_regressor
+
+    yn = torch.randn(1, 21, 138)
+    kept = small_batch_regressor(den)
+    assert small_batch_regressor(den) is kept
+    opt = torch.optim.Adam(den.trainable_parameters(), lr=1e-2)
+    den.train()
+    den.infer(yn)["x_hat"].square().mean().backward()
+    opt.step()
+    den.eval()
+    updated = small_batch_regressor(den)
+    assert updated is not kept
+    with torch.no_grad():
+        want = den.infer(yn, with_prior=False)["x_hat"].numpy()
+    np.testing.assert_allclose(updated(yn.numpy()), want, atol=2e-4 * (1 + np.abs(want).max()))
+    assert np.abs(kept(yn.numpy()) - want).max() > 1e-3  # the old weights give other states
+    twin = copy.deepcopy(den)
+    assert small_batch_regressor(twin) is not updated
+    assert small_batch_regressor(den) is updated
     # layouts it does not cover are refused (callers fall back to torch)
     old = Denoiser(prior, DenoiserConfig(x0_bidirectional=True))
     assert not SmallBatchRegressor.supports(old)

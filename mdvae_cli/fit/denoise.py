@@ -23,7 +23,7 @@ from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.fit.refine import RefineConfig, add_offset, refine_latents
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
-from mdvae_cli.model.small_batch import SmallBatchRegressor
+from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor
 from mdvae_cli.motion.mirror import average_bodies, mirror_body
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import interp_linear, interp_rotvec, resample_motion
@@ -212,7 +212,7 @@ def regressor(denoiser: Denoiser, num_windows: int) -> Callable[[torch.Tensor], 
     if denoiser.training:
         denoiser.eval()
     if num_windows <= SMALL_BATCH and SmallBatchRegressor.supports(denoiser):
-        return lambda yn: torch.from_numpy(SmallBatchRegressor(denoiser)(yn.numpy()))
+        return lambda yn: torch.from_numpy(small_batch_regressor(denoiser)(yn.numpy()))
     return lambda yn: denoiser.infer(yn, with_prior=False)["x_hat"]
 
 

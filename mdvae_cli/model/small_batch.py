@@ -12,11 +12,13 @@ decoder head reads z_t, x0 predictor runs backward), on the CPU;
 torch otherwise. Tests pin the two paths
 to each other.
 
-Weights are copied when the regressor is built: build a new one after the denoiser changes
-(optimisation mode fine-tunes it).
+Weights are copied when the regressor is built; ``small_batch_regressor`` keeps one per
+denoiser and rebuilds it when the weights change (optimisation mode fine-tunes them).
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 import torch
@@ -28,43 +30,55 @@ def _np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().cpu().numpy(), dtype=np.float32)
 
 
-def _sigmoid(a: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-a))
-
-
 def _silu(a: np.ndarray) -> np.ndarray:
     return a / (1.0 + np.exp(-a))
 
 
-def gru_update(gi: np.ndarray, gh: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """One GRU step from its gate pre-activations (torch's gate order r, z, n).
+def gate_weights(w_ih, w_hh, b_ih, b_hh) -> tuple[np.ndarray, ...]:
+    """A GRU's weights laid out for :func:`gru_update` (torch's gate order r, z, n).
 
-    gi = x W_ih^T + b_ih, gh = h W_hh^T + b_hh: (B, 3H); h: (B, H) -> (B, H)
+    -> (W_i (I, 3H), b_i (3H,), W_h (H, 3H), b_hn (H,)): the reset and update columns negated,
+    with both biases of those gates folded into b_i; b_hn is the hidden bias of the new gate
+    (it sits inside the reset product, so it cannot be folded)."""
+    H = w_hh.shape[1]
+    sign = np.ones(3 * H, dtype=np.float32)
+    sign[: 2 * H] = -1.0
+    b_i = _np(b_ih).copy()
+    b_i[: 2 * H] += _np(b_hh)[: 2 * H]
+    c = np.ascontiguousarray  # row-major (in, out): the faster layout for x @ W on a vector
+    return c(_np(w_ih).T * sign), b_i * sign, c(_np(w_hh).T * sign), _np(b_hh)[2 * H :].copy()
+
+
+def gru_update(gi: np.ndarray, gh: np.ndarray, h: np.ndarray, b_hn: np.ndarray) -> np.ndarray:
+    """One GRU step from the gate pre-activations of :func:`gate_weights`.
+
+    gi = x W_i + b_i, gh = h W_h: (..., 3H) with the reset and update gates negated, so that
+    sigmoid(a) = 1 / (1 + exp(gi + gh)) costs no negation; h: (..., H) -> (..., H)
     """
     H = h.shape[-1]
-    ru = _sigmoid(gi[:, : 2 * H] + gh[:, : 2 * H])  # reset and update gates together
-    n = np.tanh(gi[:, 2 * H :] + ru[:, :H] * gh[:, 2 * H :])
-    return n + ru[:, H:] * (h - n)
+    ru = 1.0 / (1.0 + np.exp(gi[..., : 2 * H] + gh[..., : 2 * H]))  # reset, update gates
+    n = np.tanh(gi[..., 2 * H :] + ru[..., :H] * (gh[..., 2 * H :] + b_hn))
+    return n + ru[..., H:] * (h - n)
 
 
 class _GRU:
-    """A one-layer GRU's weights, transposed for ``x @ W``."""
+    """A one-layer GRU's weights in the layout of :func:`gate_weights`."""
 
     def __init__(self, w_ih, w_hh, b_ih, b_hh):
-        self.w_ih, self.w_hh = _np(w_ih).T, _np(w_hh).T
-        self.b_ih, self.b_hh = _np(b_ih), _np(b_hh)
+        self.w_i, self.b_i, self.w_h, self.b_hn = gate_weights(w_ih, w_hh, b_ih, b_hh)
 
     @classmethod
     def of(cls, rnn: torch.nn.GRU) -> _GRU:
         return cls(rnn.weight_ih_l0, rnn.weight_hh_l0, rnn.bias_ih_l0, rnn.bias_hh_l0)
 
     def run(self, x: np.ndarray, h: np.ndarray) -> np.ndarray:
-        """Forward over time.  x: (B, T, I), h: (B, H) initial state -> states (B, T, H)"""
-        gi = x @ self.w_ih + self.b_ih  # all input projections at once
-        out = np.empty((*x.shape[:2], h.shape[-1]), dtype=np.float32)
-        for t in range(x.shape[1]):
-            h = gru_update(gi[:, t], h @ self.w_hh + self.b_hh, h)
-            out[:, t] = h
+        """Forward over time.  x: (..., T, I), h: (..., H) initial state -> states (..., T, H)
+        (a single sequence may drop the batch axis: numpy's per-call cost is lower on vectors)."""
+        gi = x @ self.w_i + self.b_i  # all input projections at once
+        out = np.empty((*x.shape[:-1], h.shape[-1]), dtype=np.float32)
+        for t in range(x.shape[-2]):
+            h = gru_update(gi[..., t, :], h @ self.w_h, h, self.b_hn)
+            out[..., t, :] = h
         return out
 
 
@@ -108,72 +122,98 @@ class SmallBatchRegressor:
         self.enc_backward = _GRU.of(enc.backward_rnn)
         self.enc_backward_init = _Linear(enc.backward_init[0])
         self.enc_init = _Linear(enc.init[0])
-        first = enc.head[0]
-        w = _np(first.weight)  # (M, H + 2H + D): columns [g_t | h_t, hd_t | x_t]
-        self.head_g, self.head_x, self.head_b = w[:, :H].T, w[:, 3 * H :].T, _np(first.bias)
+        # the head's first layer, negated (see encode_decode): columns [g_t | h_t, hd_t | x_t]
+        w = -_np(enc.head[0].weight)
+        self.head_g, self.head_x, self.head_b = w[:, :H].T, w[:, 3 * H :].T, -_np(enc.head[0].bias)
         # the head's output layer, latent means only (the log-variances are not needed)
-        self.head_out_w = _np(enc.head[2].weight)[: self.L].T
+        self.head_out_w = np.ascontiguousarray(-_np(enc.head[2].weight)[: self.L].T)
         self.head_out_b = _np(enc.head[2].bias)[: self.L]
-        # each step's products fused by the state they read (see encode_decode):
-        # h_t @ [head | W_hh_enc], hd_{t-1} @ [head | W_hh_dec], z_t @ [W_ih_dec | W_ih_enc]
         cell, rnn = enc.cell, dec.rnn
-        self.w_h = np.ascontiguousarray(
-            np.concatenate([w[:, H : 2 * H].T, _np(cell.weight_hh).T], axis=1)
+        enc_i, self.enc_bi, enc_h, self.enc_bhn = gate_weights(
+            cell.weight_ih, cell.weight_hh, cell.bias_ih, cell.bias_hh
         )
-        self.w_hd = np.ascontiguousarray(
-            np.concatenate([w[:, 2 * H : 3 * H].T, _np(rnn.weight_hh_l0).T], axis=1)
+        dec_i, dec_bi, dec_h, self.dec_bhn = gate_weights(
+            rnn.weight_ih_l0, rnn.weight_hh_l0, rnn.bias_ih_l0, rnn.bias_hh_l0
         )
-        self.w_z = np.ascontiguousarray(
-            np.concatenate([_np(rnn.weight_ih_l0).T, _np(cell.weight_ih).T], axis=1)
-        )
-        self.b_z = np.concatenate([_np(rnn.bias_ih_l0), _np(cell.bias_ih)])
-        self.b_hh_enc, self.b_hh_dec = _np(cell.bias_hh), _np(rnn.bias_hh_l0)
+        # each step's products fused by the state they read (see encode_decode):
+        # h_t @ [head | W_h enc], hd_{t-1} @ [head | W_h dec], z_t @ [W_i dec | W_i enc]
+        cat = lambda *ws: np.ascontiguousarray(np.concatenate(ws, axis=-1))  # noqa: E731
+        self.w_h = cat(w[:, H : 2 * H].T, enc_h)
+        self.w_hd = cat(w[:, 2 * H : 3 * H].T, dec_h)
+        self.w_z, self.b_z = cat(dec_i, enc_i), cat(dec_bi, self.enc_bi)
         # decoder: initial state and head on [hd_t, z_t]
         self.dec_init = _Linear(dec.init[0])
         self.dec_head = (_Linear(dec.head[0]), _Linear(dec.head[2]))
 
     def x0_mean(self, yn: np.ndarray) -> np.ndarray:
-        """Posterior mean of normalised x0.  yn: (B, T+1, D) -> (B, D)"""
-        B = yn.shape[0]
-        h0 = np.zeros((B, self.x0_rnn.w_hh.shape[0]), dtype=np.float32)
-        summary = self.x0_rnn.run(yn[:, ::-1], h0)[:, -1]
-        n = min(self.x0_base_window, yn.shape[1])
+        """Posterior mean of normalised x0.  yn: (..., T+1, D) -> (..., D)"""
+        h0 = np.zeros((*yn.shape[:-2], self.x0_rnn.w_h.shape[0]), dtype=np.float32)
+        summary = self.x0_rnn.run(yn[..., ::-1, :], h0)[..., -1, :]
+        n = min(self.x0_base_window, yn.shape[-2])
         w = line_start_weights(n).numpy()
-        base = np.einsum("k,bkd->bd", w, yn[:, :n]).astype(np.float32)
+        base = np.einsum("k,...kd->...d", w, yn[..., :n, :]).astype(np.float32)
         first, last = self.x0_head
         out = last(_silu(first(np.concatenate([summary, base], axis=-1))))
-        return base + out[:, : base.shape[-1]]
+        return base + out[..., : base.shape[-1]]
 
     def encode_decode(self, x: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """Posterior-mean latents decoded.  x: (B, T, D), x0: (B, D) -> means (B, T, D)"""
-        B, T, _ = x.shape
-        g = self.enc_backward.run(x[:, ::-1], np.tanh(self.enc_backward_init(x0)))[:, ::-1]
-        g_part = g @ self.head_g + x @ self.head_x + self.head_b  # (B, T, M)
+        """Posterior-mean latents decoded.  x: (..., T, D), x0: (..., D) -> means (..., T, D)
+
+        The encoder head's pre-activation is computed negated (its weights are stored so), for
+        silu(a) = -(-a / (1 + exp(-a))) without a negation per step; the output layer's
+        weights carry the sign back."""
+        T = x.shape[-2]
+        back = self.enc_backward.run(x[..., ::-1, :], np.tanh(self.enc_backward_init(x0)))
+        g_part = back[..., ::-1, :] @ self.head_g + x @ self.head_x + self.head_b  # (..., T, M)
         h = np.tanh(self.enc_init(x0))
         hd = np.tanh(self.dec_init(x0))
         H, M = self.H, self.head_g.shape[1]
-        zs = np.empty((B, T, self.L), dtype=np.float32)
-        hds = np.empty((B, T, self.H), dtype=np.float32)
-        gi_enc = np.broadcast_to(self.b_z[3 * H :], (B, 3 * H))  # z_0 = 0
-        gh_enc = h @ self.w_h[:, M:] + self.b_hh_enc
+        zs = np.empty((*x.shape[:-1], self.L), dtype=np.float32)
+        hds = np.empty((*x.shape[:-1], H), dtype=np.float32)
+        gi_enc = np.broadcast_to(self.enc_bi, (*x.shape[:-2], 3 * H))  # z_0 = 0
+        gh_enc = h @ self.w_h[:, M:]
         for t in range(T):
-            h = gru_update(gi_enc, gh_enc, h)
-            h_part = h @ self.w_h  # head term of h_t, and W_hh_enc h_t for step t + 1
-            hd_part = hd @ self.w_hd  # head term of hd_{t-1}, and W_hh_dec hd_{t-1}
-            pre = g_part[:, t] + h_part[:, :M] + hd_part[:, :M]
-            z = _silu(pre) @ self.head_out_w + self.head_out_b
-            z_part = z @ self.w_z + self.b_z  # W_ih_dec z_t now, W_ih_enc z_t for step t + 1
-            hd = gru_update(z_part[:, : 3 * H], hd_part[:, M:] + self.b_hh_dec, hd)
-            gi_enc, gh_enc = z_part[:, 3 * H :], h_part[:, M:] + self.b_hh_enc
-            zs[:, t] = z
-            hds[:, t] = hd
+            h = gru_update(gi_enc, gh_enc, h, self.enc_bhn)
+            h_part = h @ self.w_h  # head term of h_t, and W_h enc h_t for step t + 1
+            hd_part = hd @ self.w_hd  # head term of hd_{t-1}, and W_h dec hd_{t-1}
+            neg = g_part[..., t, :] + h_part[..., :M] + hd_part[..., :M]  # -(pre-activation)
+            z = (neg / (1.0 + np.exp(neg))) @ self.head_out_w + self.head_out_b
+            z_part = z @ self.w_z + self.b_z  # W_i dec z_t now, W_i enc z_t for step t + 1
+            hd = gru_update(z_part[..., : 3 * H], hd_part[..., M:], hd, self.dec_bhn)
+            gi_enc, gh_enc = z_part[..., 3 * H :], h_part[..., M:]
+            zs[..., t, :] = z
+            hds[..., t, :] = hd
         first, last = self.dec_head
-        return x0[:, None] + last(_silu(first(np.concatenate([hds, zs], axis=-1))))
+        return x0[..., None, :] + last(_silu(first(np.concatenate([hds, zs], axis=-1))))
+
+    def states(self, yn: np.ndarray) -> np.ndarray:
+        """Denormalised posterior-mean states.  yn: (..., T+1, D) normalised -> (..., T+1, D)"""
+        x0 = self.x0_mean(yn)
+        x_mean = self.encode_decode(yn[..., 1:, :], x0)
+        x_hat_n = np.concatenate([x0[..., None, :], x_mean], axis=-2)
+        return x_hat_n * self.std + self.mean
 
     def __call__(self, yn: np.ndarray) -> np.ndarray:
         """Denormalised posterior-mean states.  yn: (B, T+1, D) normalised -> (B, T+1, D)"""
         yn = np.asarray(yn, dtype=np.float32)
-        x0 = self.x0_mean(yn)
-        x_mean = self.encode_decode(yn[:, 1:], x0)
-        x_hat_n = np.concatenate([x0[:, None], x_mean], axis=1)
-        return x_hat_n * self.std + self.mean
+        if yn.shape[0] == 1:  # one window: vectors, not (1, n) rows, cost less per operation
+            return self.states(yn[0])[None]
+        return self.states(yn)
+
+
+def small_batch_regressor(denoiser: Denoiser) -> SmallBatchRegressor:
+    """The denoiser's numpy regressor, built on first use and kept on the denoiser until its
+    weights change (a lone clip would otherwise spend ~1 ms copying weights).
+
+    A change is seen through each parameter's and buffer's storage and torch version counter,
+    which every in-place update moves (optimiser steps, ``load_state_dict``, ``copy_``), and a
+    copy of the denoiser has storage of its own. Writes through ``tensor.data`` bypass the
+    counter: build a ``SmallBatchRegressor`` directly after those.
+    """
+    tensors = itertools.chain(denoiser.parameters(), denoiser.buffers())
+    key = tuple((t.data_ptr(), t._version) for t in tensors)
+    cached = getattr(denoiser, "_small_batch_regressor", None)
+    if cached is None or cached[0] != key:
+        cached = (key, SmallBatchRegressor(denoiser))
+        denoiser._small_batch_regressor = cached
+    return cached[1]
