@@ -70,6 +70,17 @@ def test_loading_the_cli_and_adding_noise_do_not_import_torch(make_motion_file, 
     assert (tmp_path / "o.npz").exists()
 
 
+def test_cli_mesh_format_choices_are_the_exporters():
+    """The CLI spells the mesh formats out (importing the exporter would load torch)."""
+    from mdvae_cli.cli.denoise import denoise as denoise_command
+    from mdvae_cli.cli.export_mesh import export_mesh
+    from mdvae_cli.export import MESH_FORMATS
+
+    for command, name in ((export_mesh, "fmt"), (denoise_command, "mesh_format")):
+        (param,) = [p for p in command.params if p.name == name]
+        assert set(param.type.choices) == set(MESH_FORMATS)
+
+
 @pytest.mark.parametrize("name", ["add-noise", "eval", "export-mesh"])
 def test_subcommand_help(name):
     code, out, _ = run(name, "--help")
