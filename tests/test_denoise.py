@@ -233,12 +233,15 @@ def test_cli_denoise_optimize_folder_meshes_and_failures(tiny_prior, noisy_dir, 
     [
         (["missing.npz"], "no such file"),
         (["{bad}"], "not an .npz"),
+        (["{bvh}"], "convert it first with `mdvae import"),  # a studio's BVH: say what to do
     ],
 )
 def test_cli_denoise_bad_inputs_write_nothing(tmp_path, args, message):
     bad = tmp_path / "bad.npz"
     bad.write_text("garbage")
-    args = [a.replace("{bad}", str(bad)) for a in args]
+    bvh = tmp_path / "take.bvh"
+    bvh.write_text("HIERARCHY\nROOT Hips\n{\n")
+    args = [a.replace("{bad}", str(bad)).replace("{bvh}", str(bvh)) for a in args]
     out = tmp_path / "o.npz"
     res = CliRunner().invoke(cli, ["denoise", *args, "-o", str(out)])
     assert res.exit_code != 0 and message in res.output and "Traceback" not in res.output

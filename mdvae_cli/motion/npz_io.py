@@ -44,6 +44,12 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     if path.is_dir():
         raise InputError(f"{path} is a folder, expected an .npz file")
     if not zipfile.is_zipfile(path):
+        kind = path.name.lower().removesuffix(".gz").rsplit(".", 1)[-1]
+        if kind in ("bvh", "amc", "asf"):  # mocap a studio exported: the importer reads it
+            raise InputError(
+                f"{path}: a .{kind} file, not an .npz; convert it first with "
+                f"`mdvae import {path} -o imported/`"
+            )
         raise InputError(f"{path}: not an .npz archive")
     try:
         with np.load(path, allow_pickle=allow_pickle) as npz:
