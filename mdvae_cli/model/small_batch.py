@@ -18,8 +18,6 @@ denoiser and rebuilds it when the weights change (optimisation mode fine-tunes t
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import torch
 
@@ -207,13 +205,18 @@ def small_batch_regressor(denoiser: Denoiser) -> SmallBatchRegressor:
 
     A change is seen through each parameter's and buffer's storage and torch version counter,
     which every in-place update moves (optimiser steps, ``load_state_dict``, ``copy_``), and a
-    copy of the denoiser has storage of its own. Writes through ``tensor.data`` bypass the
-    counter: build a ``SmallBatchRegressor`` directly after those.
+    copy of the denoiser has storage of its own. The tensors are listed once (walking the
+    module tree costs about as much as the copy it saves). Writes through ``tensor.data`` bypass
+    the counter, and replacing a sub-module or parameter is not seen: build a
+    ``SmallBatchRegressor`` directly after those.
     """
-    tensors = itertools.chain(denoiser.parameters(), denoiser.buffers())
-    key = tuple((t.data_ptr(), t._version) for t in tensors)
     cached = getattr(denoiser, "_small_batch_regressor", None)
-    if cached is None or cached[0] != key:
-        cached = (key, SmallBatchRegressor(denoiser))
+    if cached is None:
+        tensors = [*denoiser.parameters(), *denoiser.buffers()]
+    else:
+        tensors = cached[0]
+    key = [(t.data_ptr(), t._version) for t in tensors]
+    if cached is None or cached[1] != key:
+        cached = (tensors, key, SmallBatchRegressor(denoiser))
         denoiser._small_batch_regressor = cached
-    return cached[1]
+    return cached[2]
