@@ -133,12 +133,21 @@ class SmallBatchRegressor:
         dec_i, dec_bi, dec_h, self.dec_bhn = gate_weights(
             rnn.weight_ih_l0, rnn.weight_hh_l0, rnn.bias_ih_l0, rnn.bias_hh_l0
         )
-        # each step's products fused by the state they read (see encode_decode):
-        # h_t @ [head | W_h enc], hd_{t-1} @ [head | W_h dec], z_t @ [W_i dec | W_i enc]
-        cat = lambda *ws: np.ascontiguousarray(np.concatenate(ws, axis=-1))  # noqa: E731
-        self.w_h = cat(w[:, H : 2 * H].T, enc_h)
-        self.w_hd = cat(w[:, 2 * H : 3 * H].T, dec_h)
-        self.w_z, self.b_z = cat(dec_i, enc_i), cat(dec_bi, self.enc_bi)
+        # the loop carries the pair (hd_{t-1}, h_t) as one array and multiplies it by one stacked
+        # weight (see encode_decode): [head term | W_h] for the decoder state and the encoder's
+        self.w_pair = np.ascontiguousarray(
+            np.stack(
+                [
+                    np.concatenate([w[:, 2 * H : 3 * H].T, dec_h], axis=-1),
+                    np.concatenate([w[:, H : 2 * H].T, enc_h], axis=-1),
+                ]
+            )
+        )  # (2, H, M + 3H)
+        self.b_hn_pair = np.stack([self.dec_bhn, self.enc_bhn])  # (2, H)
+        self.enc_h = enc_h
+        # z_t @ [W_i dec | W_i enc]: the gate inputs of both halves of the pair at once
+        self.w_z = np.ascontiguousarray(np.concatenate([dec_i, enc_i], axis=-1))
+        self.b_z = np.concatenate([dec_bi, self.enc_bi])
         # decoder: initial state and head on [hd_t, z_t]
         self.dec_init = _Linear(dec.init[0])
         self.dec_head = (_Linear(dec.head[0]), _Linear(dec.head[2]))
@@ -157,30 +166,29 @@ class SmallBatchRegressor:
     def encode_decode(self, x: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """Posterior-mean latents decoded.  x: (..., T, D), x0: (..., D) -> means (..., T, D)
 
-        The encoder head's pre-activation is computed negated (its weights are stored so), for
-        silu(a) = -(-a / (1 + exp(-a))) without a negation per step; the output layer's
-        weights carry the sign back."""
+        Step t reads the encoder state h_t and the decoder state hd_{t-1} to give z_t; from z_t
+        both advance: hd_t (decoder) and h_{t+1} (encoder). The loop therefore carries the
+        pair (hd_{t-1}, h_t) as one (..., 2, H) array, and each step is one stacked product,
+        the head, and one GRU update of both halves. The encoder head's pre-activation is
+        computed negated (its weights are stored so), for silu(a) = -(-a / (1 + exp(-a)))
+        without a negation per step; the output layer's weights carry the sign back."""
         T = x.shape[-2]
         back = self.enc_backward.run(x[..., ::-1, :], np.tanh(self.enc_backward_init(x0)))
         g_part = back[..., ::-1, :] @ self.head_g + x @ self.head_x + self.head_b  # (..., T, M)
-        h = np.tanh(self.enc_init(x0))
-        hd = np.tanh(self.dec_init(x0))
         H, M = self.H, self.head_g.shape[1]
+        h0 = np.tanh(self.enc_init(x0))
+        h1 = gru_update(self.enc_bi, h0 @ self.enc_h, h0, self.enc_bhn)  # z_0 = 0
+        pair = np.stack([np.tanh(self.dec_init(x0)), h1], axis=-2)  # (hd_0, h_1)
         zs = np.empty((*x.shape[:-1], self.L), dtype=np.float32)
         hds = np.empty((*x.shape[:-1], H), dtype=np.float32)
-        gi_enc = np.broadcast_to(self.enc_bi, (*x.shape[:-2], 3 * H))  # z_0 = 0
-        gh_enc = h @ self.w_h[:, M:]
         for t in range(T):
-            h = gru_update(gi_enc, gh_enc, h, self.enc_bhn)
-            h_part = h @ self.w_h  # head term of h_t, and W_h enc h_t for step t + 1
-            hd_part = hd @ self.w_hd  # head term of hd_{t-1}, and W_h dec hd_{t-1}
-            neg = g_part[..., t, :] + h_part[..., :M] + hd_part[..., :M]  # -(pre-activation)
+            prod = (pair[..., None, :] @ self.w_pair)[..., 0, :]  # (..., 2, M + 3H)
+            neg = g_part[..., t, :] + prod[..., 0, :M] + prod[..., 1, :M]  # -(pre-activation)
             z = (neg / (1.0 + np.exp(neg))) @ self.head_out_w + self.head_out_b
-            z_part = z @ self.w_z + self.b_z  # W_i dec z_t now, W_i enc z_t for step t + 1
-            hd = gru_update(z_part[..., : 3 * H], hd_part[..., M:], hd, self.dec_bhn)
-            gi_enc, gh_enc = z_part[..., 3 * H :], h_part[..., M:]
+            gates_in = (z @ self.w_z + self.b_z).reshape(*z.shape[:-1], 2, 3 * H)
+            pair = gru_update(gates_in, prod[..., M:], pair, self.b_hn_pair)  # (hd_t, h_{t+1})
             zs[..., t, :] = z
-            hds[..., t, :] = hd
+            hds[..., t, :] = pair[..., 0, :]
         first, last = self.dec_head
         return x0[..., None, :] + last(_silu(first(np.concatenate([hds, zs], axis=-1))))
 
