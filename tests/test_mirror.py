@@ -14,7 +14,13 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.fit.denoise import denoise_motions
 from mdvae_cli.fit.fit_dataset import load_denoiser
 from mdvae_cli.metrics import evaluate_pair
-from mdvae_cli.motion.mirror import MIRROR_JOINTS, average_bodies, mirror_body, mirror_rotvecs
+from mdvae_cli.motion.mirror import (
+    MIRROR_JOINTS,
+    average_bodies,
+    mirror_body,
+    mirror_motion,
+    mirror_rotvecs,
+)
 from mdvae_cli.motion.npz_io import load_motion
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -63,6 +69,8 @@ def test_mirror_body_reflects_the_posed_joints_and_is_its_own_inverse(body):
     np.testing.assert_array_equal(back.root_orient, m.root_orient)
     np.testing.assert_allclose(back.trans, m.trans, atol=1e-12)
     np.testing.assert_array_equal(back.joint_mask, m.joint_mask)
+    # mirror_motion reads the shape's rest pelvis off the body itself
+    np.testing.assert_allclose(mirror_motion(m, body).trans, mm.trans, atol=1e-12)
     assert np.array_equal(mm.pose_extra, m.pose_extra) and mm.extras.keys() == m.extras.keys()
 
 

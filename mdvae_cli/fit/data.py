@@ -13,7 +13,7 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.motion.mirror import mirror_body
+from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
@@ -134,8 +134,7 @@ def load_windows(
         if ws is not None:
             sets.append(ws)
             if mirror:
-                pelvis = body.pelvis_rest(ws.betas[:1])[0].double().numpy()
-                mirrored.append(motion_windows(mirror_body(motion, pelvis), body, length, stride))
+                mirrored.append(motion_windows(mirror_motion(motion, body), body, length, stride))
         if on_file is not None:
             on_file(f)
     if not sets:

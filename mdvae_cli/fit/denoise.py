@@ -24,7 +24,7 @@ from mdvae_cli.fit.refine import RefineConfig, add_offset, refine_latents
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor
-from mdvae_cli.motion.mirror import average_bodies, mirror_body
+from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import interp_linear, interp_rotvec, resample_motion
 from mdvae_cli.motion.state import BodyParams, state_to_params
@@ -349,17 +349,15 @@ def denoise_motions(
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
     if mirror:
-        as_betas = lambda m: torch.as_tensor(m.betas, dtype=torch.float32)[None]  # noqa: E731
-        pelvis = [body.pelvis_rest(as_betas(m))[0].double().numpy() for m in motions]
-        flipped = [mirror_body(m, p) for m, p in zip(motions, pelvis, strict=True)]
+        flipped = [mirror_motion(m, body) for m in motions]
         both = denoise_motions(
             [*motions, *flipped], denoiser, body, window, stride, optimize_steps, lr,
             batch_size, seed, progress, refine,
         )  # fmt: skip
         n = len(motions)
         return [
-            average_bodies(a, mirror_body(b, p))
-            for a, b, p in zip(both[:n], both[n:], pelvis, strict=True)
+            average_bodies(a, mirror_motion(b, body))
+            for a, b in zip(both[:n], both[n:], strict=True)
         ]
     refining = refine is not None and refine.active
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]

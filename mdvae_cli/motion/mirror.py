@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.motion.motion import Motion
 
@@ -44,6 +45,12 @@ def mirror_body(motion: Motion, pelvis_rest: np.ndarray) -> Motion:
     )
     out.joint_mask = mask
     return out
+
+
+def mirror_motion(motion: Motion, body: BodyModel) -> Motion:
+    """:func:`mirror_body` with the rest pelvis of ``motion``'s shape under ``body``."""
+    betas = torch.as_tensor(motion.betas, dtype=torch.float32)[None]
+    return mirror_body(motion, body.pelvis_rest(betas)[0].double().numpy())
 
 
 def average_bodies(a: Motion, b: Motion) -> Motion:
