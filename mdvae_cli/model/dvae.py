@@ -237,23 +237,37 @@ class MotionDVAE(nn.Module):
         resamples the particles when the weights degenerate, and returns one particle drawn by
         its weight. A constraint that never binds leaves exact prior samples.
         """
-        scale = max(temperature, 1e-6)
-        if log_weight is None or particles < 1:
-            particles = 1
-        B, M = x0.shape[0], particles
+        log_scale = math.log(max(temperature, 1e-6))
+        if log_weight is not None:
+            return self._sample_conditioned(
+                x0, num_frames, generator, log_scale, max(particles, 1), log_weight
+            )
+        h_prior = self.prior.init(x0)[None]
+        z_prev = x0.new_zeros(x0.shape[0], self.cfg.latent_dim)
+        zs = []
+        for _ in range(num_frames):
+            dist, h_prior = self.prior.step(z_prev, h_prior)
+            z_prev = Gaussian(dist.mean, dist.logvar + 2.0 * log_scale).sample(generator)
+            zs.append(z_prev)
+        x_mean, _ = self.decoder(torch.stack(zs, dim=1), x0)
+        return x_mean
+
+    def _sample_conditioned(
+        self,
+        x0: torch.Tensor,
+        num_frames: int,
+        generator: torch.Generator | None,
+        log_scale: float,
+        M: int,
+        log_weight: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+    ) -> torch.Tensor:
+        """:meth:`sample` under a constraint: a bootstrap particle filter with M particles per
+        sample, each an exact prior draw (prior standard deviations times exp(log_scale)),
+        weighted by the constraint and resampled when the weights degenerate.
+        x0: (B, D) -> (B, T, D)"""
+        B = x0.shape[0]
         h_prior = self.prior.init(x0)[None]
         z_prev = x0.new_zeros(B, self.cfg.latent_dim)
-        if log_weight is None:
-            zs = []
-            for _ in range(num_frames):
-                dist, h_prior = self.prior.step(z_prev, h_prior)
-                logvar = dist.logvar + 2.0 * math.log(scale)
-                z_prev = Gaussian(dist.mean, logvar).sample(generator)
-                zs.append(z_prev)
-            x_mean, _ = self.decoder(torch.stack(zs, dim=1), x0)
-            return x_mean
-        # a bootstrap particle filter: M particles per sample, each an exact prior draw,
-        # weighted by the constraint and resampled when the weights degenerate
         rep = lambda t, dim=0: t.repeat_interleave(M, dim=dim)  # noqa: E731
         x0_m, h_prior = rep(x0), rep(h_prior, dim=1)
         h_dec, z_prev = rep(self.decoder.init(x0)[None], dim=1), rep(z_prev)
@@ -265,8 +279,7 @@ class MotionDVAE(nn.Module):
         prev = x0_m
         for _ in range(num_frames):
             dist, h_prior = self.prior.step(z_prev, h_prior)
-            logvar = dist.logvar + 2.0 * math.log(scale)
-            z_prev = Gaussian(dist.mean, logvar).sample(generator)
+            z_prev = Gaussian(dist.mean, dist.logvar + 2.0 * log_scale).sample(generator)
             out, h_dec = self.decoder.rnn(z_prev[:, None], h_dec)
             x = self.decoder.output(out, z_prev[:, None], x0_m)[:, 0]  # (B*M, D)
             xs.append(x)
