@@ -14,7 +14,7 @@ timed part is loading, denoising and saving all of them in one run:
 * regression mode: one forward pass of the denoiser;
 * optimisation mode: for each sigma, a copy of the denoiser is fine-tuned for 50 steps on all
   the test clips of that sigma at once, which then predicts them (the paper's protocol);
-* refinement (``mdvae denoise --refine 100``): regression mode, then 100 gradient steps on each
+* refinement (``mdvae denoise --refine 50``): regression mode, then 50 gradient steps on each
   window's own latents, with a slow rotation offset (``mdvae_cli.fit.refine``).
 
 The metrics are root-relative V2V (cm) and the mean joint acceleration (m/s^2; the ground truth
@@ -73,13 +73,14 @@ ROW_GAUSSIAN = "Gaussian filter"
 ROW_SAVGOL = "Savitzky-Golay filter"
 ROW_REGRESSION = "Regression mode"
 ROW_OPTIMIZATION = "Optimization mode"
-ROW_OFFSET = "Regression + offset"
+ROW_OFFSET = "Regression + offset (default)"
+ROW_OPTIMIZATION_OFFSET = "Optimization + offset"
 ROW_REFINE = "Latent refinement"
 ROW_REGRESSION_MIRROR = "Regression + mirror"
 ROW_REFINE_MIRROR = "Latent refinement + mirror"
 ROWS = (
     ROW_GT, ROW_OBS, ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_REGRESSION_MIRROR, ROW_OFFSET,
-    ROW_OPTIMIZATION, ROW_REFINE, ROW_REFINE_MIRROR,
+    ROW_OPTIMIZATION, ROW_OPTIMIZATION_OFFSET, ROW_REFINE, ROW_REFINE_MIRROR,
 )  # fmt: skip
 FILTER_ROWS = (ROW_GAUSSIAN, ROW_SAVGOL)
 
@@ -112,7 +113,7 @@ class TableSettings:
     lr: float = 3e-4
     batch_size: int = 64
     seed: int = 0
-    refine_steps: int = 100
+    refine_steps: int = RefineConfig.steps
     refine_lr: float = 0.1
     refine_offset: float = RefineConfig.offset_std
     single_clip_repeats: int = 5
@@ -303,18 +304,25 @@ def build_table(
             f"window {sg_w}, order {sg_p}",
             _per_clip(lambda m: savgol_filter_motion(m, sg_w, sg_p)),
         ),
-        ROW_REGRESSION: ("one forward pass", _denoise(denoiser, body, s, 0)),
+        ROW_REGRESSION: (
+            "one forward pass (the paper's; `--no-offset`)",
+            _denoise(denoiser, body, s, 0),
+        ),
         ROW_REGRESSION_MIRROR: (
             "one forward pass on the clip and on its mirror image, averaged",
             _denoise(denoiser, body, s, 0, mirror=True),
         ),
         ROW_OFFSET: (
-            f"one forward pass + closed-form slow offset {s.refine_offset:g} rad",
+            f"one forward pass + closed-form slow offset {s.refine_offset:g} rad (`mdvae denoise`)",
             _denoise(denoiser, body, s, 0, 0),
         ),
         ROW_OPTIMIZATION: (
             f"{s.optimize_steps} steps on each sigma's set, lr {s.lr:g}, batch {s.batch_size}",
             _denoise(denoiser, body, s, s.optimize_steps),
+        ),
+        ROW_OPTIMIZATION_OFFSET: (
+            f"optimization mode, then the slow offset (`--optimize {s.optimize_steps}`)",
+            _denoise(denoiser, body, s, s.optimize_steps, 0),
         ),
         ROW_REFINE: (
             f"regression + {s.refine_steps} steps per window, lr {s.refine_lr:g}, "
@@ -385,7 +393,14 @@ def build_table(
             row = rows[ROW_REGRESSION if n == 0 else ROW_OPTIMIZATION]
             result, timing = row.results[ref], row.speed
         curve.append(CurvePoint(f"{n} steps", n, timing.s_per_frame, result.v2v_cm))
-    for name in (*FILTER_ROWS, ROW_OFFSET, ROW_REFINE, ROW_REGRESSION_MIRROR, ROW_REFINE_MIRROR):
+    for name in (
+        *FILTER_ROWS,
+        ROW_OFFSET,
+        ROW_OPTIMIZATION_OFFSET,
+        ROW_REFINE,
+        ROW_REGRESSION_MIRROR,
+        ROW_REFINE_MIRROR,
+    ):
         r = rows[name]
         curve.append(CurvePoint(name, None, r.speed.s_per_frame, r.v2v(ref)))
     return TableResult(
@@ -581,7 +596,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--clip-frames", type=int, default=60, help="frames per clip (2 s at 30 Hz)")
     p.add_argument("--optimize-steps", type=int, default=50)
     p.add_argument("--curve-steps", default=",".join(map(str, CURVE_STEPS)))
-    p.add_argument("--refine-steps", type=int, default=100, help="steps of the refinement row")
+    p.add_argument(
+        "--refine-steps", type=int, default=RefineConfig.steps, help="steps of the refinement row"
+    )
     p.add_argument(
         "--refine-offset",
         type=float,

@@ -136,10 +136,15 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
         "Savitzky-Golay filter",
         "Regression mode",
         "Regression + mirror",
-        "Regression + offset",
+        "Regression + offset (default)",
     ):
         assert float(cell(row, "s/frame ↓")) > 0 and float(cell(row, "1 clip, warm (ms)")) > 0
-    for row in ("Optimization mode", "Latent refinement", "Latent refinement + mirror"):
+    for row in (
+        "Optimization mode",
+        "Optimization + offset",
+        "Latent refinement",
+        "Latent refinement + mirror",
+    ):
         assert float(cell(row, "frames/s ↑").replace(",", "")) > 0
     assert cell("Observations", "V2V / V2V(obs) σ=0.15") == "1.000"
     best = [cell(r, header[-1]) for r in ("Gaussian filter", "Savitzky-Golay filter")]
@@ -154,7 +159,7 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
     # the tuned parameters are reported and come from the grid
     assert result.tuning.gaussian_sigma in (1.0, 2.0)
     assert cell("Gaussian filter", "Parameters") == f"σ = {result.tuning.gaussian_sigma:g} frames"
-    assert [p.steps for p in result.curve] == [0, 1, 2, *[None] * 6]
+    assert [p.steps for p in result.curve] == [0, 1, 2, *[None] * 7]
     assert result.curve[-1].label == "Latent refinement + mirror"
     assert all(p.s_per_frame > 0 and math.isfinite(p.v2v_cm) for p in result.curve)
 

@@ -59,8 +59,8 @@ from mdvae_cli.errors import InputError
     default=0,
     show_default=True,
     help="Then refine every window's latents for N gradient steps on its own ELBO, scoring "
-    "the file's noisy joint rotations with a noise level estimated per joint (100 is a good "
-    "value: markedly cleaner, about 100x slower than a forward pass); 0 = off.",
+    "the file's noisy joint rotations with a noise level estimated per joint (50 is a good "
+    "value: markedly cleaner, about 40x slower than a forward pass); 0 = off.",
 )
 @click.option(
     "--refine-lr",
@@ -74,24 +74,25 @@ from mdvae_cli.errors import InputError
     type=click.FloatRange(min=0),
     default=0.03,
     show_default=True,
-    help="With --refine or --offset: the scale (rad) a slow rotation offset per joint and "
-    "window starts from (then estimated from the file); it lets the output follow slow motion "
-    "the learned prior cannot express. 0 = no offset.",
+    help="The scale (rad) each joint's slow rotation offset (--offset, --refine) starts from "
+    "in every window, then estimated from the file. 0 = no offset.",
 )
 @click.option(
-    "--offset",
-    "offset_only",
-    is_flag=True,
-    help="After the forward pass, fit the slow per-joint offset to the file in closed form (no "
-    "gradient steps): regression mode goes from less accurate than a tuned filter to more "
-    "accurate, at 1.1-1.5x its time. Part of --refine already.",
+    "--offset/--no-offset",
+    default=True,
+    show_default=True,
+    help="After the forward pass, fit a slow rotation offset per joint to the file in closed "
+    "form (no gradient steps): it follows slow motion the learned prior cannot express, so "
+    "clean parts of a take come back almost unchanged and the result is more accurate than a "
+    "tuned filter, at ~1.3x the time. --no-offset is the paper's plain regression mode. Part "
+    "of --refine already.",
 )
 @click.option(
     "--mirror",
     is_flag=True,
     help="Also denoise each file's left-right mirror image and average the two results (the "
     "learned prior is not exactly mirror-symmetric): about 10 % lower error in regression "
-    "mode, 3 % with --refine, 1 % with --offset, at twice the time.",
+    "mode without the offset, 1 % with it, 3 % with --refine, at twice the time.",
 )
 @click.option(
     "--mesh-dir",
@@ -134,7 +135,7 @@ def denoise(
     refine_steps,
     refine_lr,
     refine_offset,
-    offset_only,
+    offset,
     mirror,
     mesh_dir,
     mesh_format,
@@ -155,8 +156,8 @@ def denoise(
     Examples:
       mdvae denoise noisy.npz -o clean.npz
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
-      mdvae denoise noisy.npz -o clean.npz --offset
-      mdvae denoise noisy.npz -o clean.npz --refine 100 --mirror
+      mdvae denoise noisy.npz -o clean.npz --no-offset
+      mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
     """
     from mdvae_cli.body.formats import load_body_model
@@ -185,7 +186,7 @@ def denoise(
         body = BodyModel(load_body_model(body_model))
     stride = window - overlap
     refine = None
-    if refine_steps or offset_only:
+    if refine_steps or offset:
         refine = RefineConfig(steps=refine_steps, lr=refine_lr, offset_std=refine_offset)
     results: dict[Path, object] = {}
     timings: dict[Path, float] = {}

@@ -65,7 +65,7 @@ class RefineConfig:
     closed-form updates when ``steps`` = 0 (the offset on regression mode's output).
     """
 
-    steps: int = 100
+    steps: int = 50
     lr: float = 0.1
     lam: float = 10.0
     rot_unit: float = 0.2
@@ -132,26 +132,34 @@ class Adam:
             p.addcdiv_(m, (v / c2).sqrt_().add_(self.eps), value=-self.lr / c1)
 
 
-def noise_precision(sq: torch.Tensor, weight: torch.Tensor, a0: float, b0: float) -> torch.Tensor:
+def noise_precision(
+    sq: torch.Tensor, weight: torch.Tensor | None, a0: float, b0: float
+) -> torch.Tensor:
     """E[1/v] under q(v) = IG(a0 + n/2, b0 + S/2) for each group of squared residuals.
 
-    sq: (N, T, G, K) squared residuals; weight: (N, T, G) 1 = observed, 0 = missing
-    -> (N, G) the expected precision of every window's group (K coordinates over T frames).
+    sq: (N, T, G, K) squared residuals; weight: (N, T, G) 1 = observed, 0 = missing, or None
+    (all observed) -> (N, G) the expected precision of every window's group (K coordinates
+    over T frames).
     """
-    w = weight[..., None].expand_as(sq)
-    n = w.sum(dim=(1, 3))
-    s = (sq * w).sum(dim=(1, 3))
+    if weight is None:
+        n, s = sq.shape[1] * sq.shape[3], sq.sum(dim=(1, 3))
+    else:
+        w = weight[..., None].expand_as(sq)
+        n, s = w.sum(dim=(1, 3)), (sq * w).sum(dim=(1, 3))
     return (a0 + 0.5 * n) / (b0 + 0.5 * s)
 
 
-GROUPS = {"pose": POSE, "root": ROOT, "trans": TRANS}  # state columns per noise group
-ROTATION_GROUPS = ("pose", "root")
+# state columns per residual group: "rot" = the root orientation, then the 21 body joints (22
+# joints, pelvis first, as the joint masks); "trans" = the translation
+ROTATIONS = [*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop)]
+GROUPS = {"rot": ROTATIONS, "trans": TRANS}
+ROTATION_GROUPS = ("rot",)
 
 
 def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> dict[str, torch.Tensor]:
     """Residuals x_hat - obs of the parameters a file stores, grouped per noise variance.
 
-    x_hat, obs: (N, T, 138) states -> {"pose": (N, T, 21, 3), "root": (N, T, 1, 3),
+    x_hat, obs: (N, T, 138) states -> {"rot": (N, T, 22, 3) root then body joints,
     "trans": (N, T, 1, 3)}
     """
     d = x_hat - obs
@@ -175,11 +183,17 @@ def offset_coefficients(
     """Gaussian posterior of the slow offset's coefficients c in obs = x_hat + B c + noise.
 
     residual: (N, T, G, 3) x_hat - obs; precision: (N, G) noise precision per group;
-    weight: (N, T, G) 1 = observed; basis: (T, K); prior_precision: 1/s^2 of c ~ N(0, s^2),
-    a number or (N, G, K) -> mean (N, G, 3, K) and marginal variance (N, G, K) of c. The K
-    coefficients of a group are solved together (a K x K system per group): with missing frames
-    the cosines are no longer orthogonal, and solving them one by one double-counts.
+    weight: (N, T, G) 1 = observed, or None (every frame observed); basis: (T, K) orthogonal
+    cosines; prior_precision: 1/s^2 of c ~ N(0, s^2), a number or (N, G, K) -> mean
+    (N, G, 3, K) and marginal variance (N, G, K) of c. With missing frames the cosines are no
+    longer orthogonal over the frames that remain, and the K coefficients of a group are solved
+    together (a K x K system per group; solving them one by one double-counts); with every
+    frame observed the system is diagonal and solved as such.
     """
+    if weight is None:
+        diag = precision[..., None] * (basis**2).sum(0) + prior_precision  # (N, G, K)
+        rhs = -torch.einsum("tk,ntgc->ngck", basis, residual) * precision[..., None, None]
+        return rhs / diag[:, :, None], 1.0 / diag
     gram = torch.einsum("ntg,tk,tl->ngkl", weight, basis, basis) * precision[..., None, None]
     if not torch.is_tensor(prior_precision):
         prior_precision = gram.new_full(gram.shape[:-1], prior_precision)
@@ -214,18 +228,17 @@ def offset_states(coef: dict[str, torch.Tensor], basis: torch.Tensor, like: torc
     return out
 
 
-def group_weights(joint_weight: torch.Tensor | None, like: torch.Tensor) -> dict[str, torch.Tensor]:
+def group_weights(joint_weight: torch.Tensor | None) -> dict[str, torch.Tensor | None]:
     """Observation weights per residual group from the per-joint mask.
 
-    joint_weight: (N, T, 22) (pelvis first; None = all observed), like: any (N, T, ...) tensor
-    of the window batch -> {"pose": (N, T, 21), "root": (N, T, 1), "trans": (N, T, 1)}; the root
-    and translation follow the pelvis.
+    joint_weight: (N, T, 22) (pelvis first) -> {"rot": (N, T, 22), "trans": (N, T, 1)}; the
+    root orientation and the translation follow the pelvis. None (all observed) gives
+    None for every group (the solvers' all-observed case).
     """
     if joint_weight is None:
-        joint_weight = like.new_ones(*like.shape[:2], 22)
+        return dict.fromkeys(GROUPS)
     return {
-        "pose": joint_weight[..., 1:22],
-        "root": joint_weight[..., :1],
+        "rot": joint_weight[..., :22],
         "trans": joint_weight[..., :1],
     }
 
@@ -241,12 +254,13 @@ class ClosedFormFactors:
     def __init__(self, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig):
         N, T = obs.shape[:2]
         self.obs, self.cfg = obs, cfg
-        self.weights = group_weights(joint_weight, obs)
-        self.units = {"pose": cfg.rot_unit, "root": cfg.rot_unit, "trans": cfg.trans_unit}
+        self.weights = group_weights(joint_weight)
+        self.units = {"rot": cfg.rot_unit, "trans": cfg.trans_unit}
         self.basis = cosine_basis(T, cfg.offset_terms, obs)
         k = torch.arange(cfg.offset_terms, dtype=obs.dtype, device=obs.device)
         self.relative = cfg.offset_decay ** (-2.0 * k)  # prior precision of cosine k, relative
         self.offset = torch.zeros_like(obs)
+        self.started = False
         self.precision: dict[str, torch.Tensor] = {}
         self.offset_precision: dict[str, torch.Tensor] = {  # E[1/s_g^2]: (N, G)
             g: obs.new_full((N, 1), 1.0 / cfg.offset_std**2)
@@ -254,11 +268,40 @@ class ClosedFormFactors:
             if cfg.offset_std > 0
         }
 
+    def start(self, x_hat: torch.Tensor) -> None:
+        """Where coordinate ascent starts when every frame is observed: the slow cosines
+        fitted to the residual by least squares (next to no shrinkage), and the per-joint
+        offset scales that fit implies.
+
+        From a zero offset the first noise estimate holds the whole slow discrepancy, the
+        offset is shrunk hard, and it creeps up over 10 or more rounds; from here 3 rounds
+        land where 100 from zero do (docs/model.md). Where a free fit would follow the noise
+        — missing frames, or fewer than 4 frames per cosine (a short motion) — the offset
+        starts from zero. x_hat: (N, T, 138).
+        """
+        self.started = True
+        T, K = self.basis.shape
+        if not self.offset_precision or self.weights["rot"] is not None or T < 4 * K:
+            return
+        res = observation_residuals(x_hat.detach(), self.obs)
+        s0 = self.cfg.offset_lam / 2
+        coef = {}
+        for g in self.offset_precision:
+            unit = res[g].new_ones(res[g].shape[0], res[g].shape[2])
+            coef[g], var = offset_coefficients(res[g], unit, None, self.basis, 1e-3 * self.relative)
+            self.offset_precision[g] = offset_precision(
+                coef[g], torch.zeros_like(var), self.relative, s0, s0 * self.cfg.offset_std**2
+            )
+        self.offset = offset_states(coef, self.basis, self.obs)
+
     def update(self, x_hat: torch.Tensor) -> None:
         """Noise precisions, then the offset's coefficients, then each joint's offset scale,
-        for the decoded states x_hat (N, T, 138) (no gradients kept)."""
+        for the decoded states x_hat (N, T, 138) (no gradients kept). The first call begins
+        with :meth:`start`."""
         cfg, a0 = self.cfg, self.cfg.lam / 2
         x_hat = x_hat.detach()
+        if not self.started:
+            self.start(x_hat)
         for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
             b0 = a0 * self.units[key] ** 2
             self.precision[key] = noise_precision(r**2, self.weights[key], a0, b0)
@@ -281,7 +324,9 @@ class ClosedFormFactors:
         """The ELBO's expected negative log-likelihood (up to constants), summed: a scalar."""
         rec = x_hat.new_zeros(())
         for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
-            w = self.weights[key] * self.precision[key][:, None]
+            w = self.precision[key][:, None]
+            if self.weights[key] is not None:
+                w = self.weights[key] * w
             rec = rec + 0.5 * (r**2 * w[..., None]).sum()
         return rec
 
