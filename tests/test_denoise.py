@@ -228,6 +228,23 @@ def test_cli_denoise_optimize_folder_meshes_and_failures(tiny_prior, noisy_dir, 
     assert len(list((tmp_path / "mesh" / "clip0").glob("*.obj"))) == 90
 
 
+def test_cli_denoise_refuses_a_too_short_file_and_goes_on(tmp_path):
+    # a 0.1-s take among good ones: one error line naming it, no output for it, the rest written
+    src = tmp_path / "in"
+    src.mkdir()
+    with np.load(EXAMPLES / "noisy_walk.npz") as z:
+        data = dict(z)
+    np.savez(src / "short.npz", **{**data, "poses": data["poses"][:4], "trans": data["trans"][:4]})
+    (src / "walk.npz").write_bytes((EXAMPLES / "noisy_walk.npz").read_bytes())
+    out = tmp_path / "out"
+    res = CliRunner().invoke(cli, ["denoise", str(src), "-o", str(out)])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "short.npz: too short to denoise: 0.1 s (4 frame(s) at 30 Hz)" in " ".join(
+        res.output.split()
+    )
+    assert sorted(p.name for p in out.glob("*.npz")) == ["walk.npz"]
+
+
 @pytest.mark.parametrize(
     "args, message",
     [

@@ -365,20 +365,25 @@ def test_refined_reconstruction_lowers_the_training_loss_and_leaves_the_prior(ti
         refine_reconstruction(prior, body, windows, None, steps=1)
 
 
-def test_one_frame_motions_pass_through_optimisation_and_refinement(tiny_prior):  # noqa: F811
-    """A one-frame motion is a window of x0 alone: nothing to fit or refine, but it must not
-    stop the batch (it once crashed the velocity and the recurrent networks)."""
+def test_motions_too_short_to_denoise_are_refused_by_name(tiny_prior):  # noqa: F811
+    """Under 6 frames at 30 Hz the output is worse than the input (docs/model.md): refused,
+    naming the motion, in every mode (a one-frame motion once crashed the batch instead)."""
     den = _tiny_denoiser(tiny_prior)
     body = BodyModel(builtin_body_model())
-    clip = load_motion(EXAMPLES / "noisy_walk.npz")
-    one = slice_motion(clip, 0, 1)
+    clip = load_motion(EXAMPLES / "noisy_walk.npz")  # 30 Hz
     assert torch.equal(finite_difference(torch.ones(1, 3), 30.0), torch.zeros(1, 3))
-    for kw in ({"optimize_steps": 1}, {"refine": RefineConfig(steps=2)}):
-        out = denoise_motions([one, clip], copy.deepcopy(den), body, **kw)
-        assert [m.num_frames for m in out] == [1, clip.num_frames], kw
-        assert all(np.isfinite(m.pose_body).all() for m in out)
-        (alone,) = denoise_motions([one], copy.deepcopy(den), body, **kw)
-        assert alone.num_frames == 1
+    for kw in ({}, {"optimize_steps": 1}, {"refine": RefineConfig(steps=2)}, {"mirror": True}):
+        for n in (1, 5):
+            with pytest.raises(InputError, match=r"motion 1: too short to denoise: .* at least 6"):
+                denoise_motions([clip, slice_motion(clip, 0, n)], copy.deepcopy(den), body, **kw)
+    six = slice_motion(clip, 0, 6)
+    (out,) = denoise_motions([six], den, body, refine=RefineConfig(steps=2))
+    assert out.num_frames == 6 and np.isfinite(out.pose_body).all()
+    # the limit is on the duration: 6 frames at 120 Hz are 2 frames at 30 Hz
+    fast = slice_motion(clip, 0, 6)
+    fast.fps = 120.0
+    with pytest.raises(InputError, match=r"2 frame\(s\) at 30 Hz"):
+        denoise_motions([fast], den, body)
 
 
 def test_written_out_adam_matches_torch_adam():

@@ -163,7 +163,7 @@ def denoise(
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
-    from mdvae_cli.fit.denoise import denoise_motions
+    from mdvae_cli.fit.denoise import check_length, denoise_motions
     from mdvae_cli.fit.fit_dataset import load_denoiser
     from mdvae_cli.fit.refine import RefineConfig
     from mdvae_cli.motion.npz_io import load_motion, save_motion
@@ -176,6 +176,7 @@ def denoise(
 
     def read(job: FileJob) -> None:
         motion = load_motion(job.source, allow_pickle=allow_pickle)
+        check_length(motion)
         print_notes(job.relpath, motion.notes)
         loaded[job.source] = motion
 

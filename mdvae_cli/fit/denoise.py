@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.errors import InputError
 from mdvae_cli.filters import filter_motions, savgol_smooth
 from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.fit.refine import RefineConfig, add_offset, refine_latents
@@ -26,7 +27,12 @@ from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.resample import interp_linear, interp_rotvec, resample_motion
+from mdvae_cli.motion.resample import (
+    interp_linear,
+    interp_rotvec,
+    resample_motion,
+    resample_times,
+)
 from mdvae_cli.motion.state import BodyParams, state_to_params
 from mdvae_cli.motion.windows import CanonicalFrame, uncanonicalize, window_starts
 
@@ -167,6 +173,23 @@ def smooth_inputs(motions: list[Motion], cfg: DenoiserConfig) -> list[Motion]:
         for i, m in zip(idx, filter_motions([motions[i] for i in idx], smooth), strict=True):
             out[i] = m
     return out
+
+
+MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
+
+
+def check_length(motion: Motion) -> None:
+    """Raise InputError when a motion is too short to denoise: under ``MIN_FRAMES`` frames at
+    30 Hz the networks have too little context, and on 24 val clips the output was further
+    from the clean motion than the noisy input at every noise level (docs/model.md)."""
+    n = len(resample_times(motion.num_frames, motion.fps, MODEL_FPS))
+    if n < MIN_FRAMES:
+        seconds = (motion.num_frames - 1) / motion.fps
+        raise InputError(
+            f"too short to denoise: {seconds:.3g} s ({n} frame(s) at {MODEL_FPS:g} Hz); "
+            f"the denoiser needs at least {MIN_FRAMES} frames at {MODEL_FPS:g} Hz "
+            f"({(MIN_FRAMES - 1) / MODEL_FPS:.2g} s)"
+        )
 
 
 SMALL_BATCH = 8  # windows; below this, per-operation overhead dominates the networks' cost
@@ -348,6 +371,11 @@ def denoise_motions(
     differ, and their average is a prior made symmetric. Twice the work.
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
+    for i, m in enumerate(motions):
+        try:
+            check_length(m)
+        except InputError as exc:
+            raise InputError(f"motion {i}: {exc}") from None
     if mirror:
         flipped = [mirror_motion(m, body) for m in motions]
         both = denoise_motions(
