@@ -60,7 +60,7 @@ from mdvae_cli.errors import InputError
     show_default=True,
     help="Then refine every window's latents for N gradient steps on its own ELBO, scoring "
     "the file's noisy joint rotations with a noise level estimated per joint (50 is a good "
-    "value: markedly cleaner, about 40x slower than a forward pass); 0 = off.",
+    "value: markedly cleaner, about 15x slower than the default); 0 = off.",
 )
 @click.option(
     "--refine-lr",
@@ -92,7 +92,7 @@ from mdvae_cli.errors import InputError
     is_flag=True,
     help="Also denoise each file's left-right mirror image and average the two results (the "
     "learned prior is not exactly mirror-symmetric): about 10 % lower error in regression "
-    "mode without the offset, 1 % with it, 3 % with --refine, at twice the time.",
+    "mode without the offset, 1 % with it, 3 % with --refine, at about twice the time.",
 )
 @click.option(
     "--mesh-dir",
