@@ -155,7 +155,7 @@ def noise_precision(
 
 # state columns per residual group: "rot" = the root orientation, then the 21 body joints (22
 # joints, pelvis first, as the joint masks); "trans" = the translation
-ROTATIONS = [*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop)]
+ROTATIONS = torch.tensor([*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop)])
 GROUPS = {"rot": ROTATIONS, "trans": TRANS}
 ROTATION_GROUPS = ("rot",)
 
