@@ -28,6 +28,7 @@ from mdvae_cli.fit.refine import (
     offset_precision,
     offset_states,
     refine_latents,
+    student_t_weights,
 )
 from mdvae_cli.fit.train_prior import TrainConfig, prior_losses, spread_vertex_ids
 from mdvae_cli.metrics import evaluate_pair
@@ -61,7 +62,7 @@ def test_refine_config_rejects_bad_values():
     bad = (
         {"steps": -1}, {"lr": 0.0}, {"lam": -1.0}, {"rot_unit": 0.0}, {"batch_windows": 0},
         {"offset_std": -0.1}, {"offset_terms": 0}, {"offset_lam": 0.0}, {"offset_decay": 0.0},
-        {"offset_decay": 1.5}, {"offset_iterations": 0},
+        {"offset_decay": 1.5}, {"offset_iterations": 0}, {"outlier_dof": -1.0},
     )  # fmt: skip
     for kw in bad:
         with pytest.raises(InputError):
@@ -135,6 +136,41 @@ def test_the_offset_starts_from_a_free_fit_and_reaches_the_same_fixed_point_soon
     mask = torch.ones(4, T, 22)
     mask[:, :20, 5] = 0.0
     assert torch.equal(offset_after(3, warm=True, weight=mask), offset_after(3, False, mask))
+
+
+def test_student_t_weights_down_weight_spikes_and_keep_the_noise_level():
+    # the EM weight (dof + 3) / (dof + r^2 / v): 1 at the expected residual, small for a spike
+    prec = torch.tensor([[100.0]])  # v = 0.01, sigma 0.1 per axis
+    sq = torch.tensor([[[0.03], [3.0]]])  # (1, T=2, G=1): a typical frame (3 sigma^2), a spike
+    w = student_t_weights(sq, prec, 10.0)
+    assert torch.allclose(w, torch.tensor([[[1.0], [13.0 / 310.0]]]))
+    # in the closed-form factors: one 1-rad spike in one joint's frame among sigma = 0.05 noise
+    T = 61
+    g = torch.Generator().manual_seed(11)
+    x_hat = torch.zeros(2, T, 138)
+    obs = x_hat.clone()
+    obs[..., POSE] = 0.05 * torch.randn(2, T, 63, generator=g)
+    obs[0, 30, POSE.start + 3 * 4 : POSE.start + 3 * 5] += 1.0  # body joint 4 -> group 5
+    clean = obs.clone()
+    clean[0, 30, POSE.start + 3 * 4 : POSE.start + 3 * 5] -= 1.0
+    robust, gauss = RefineConfig(outlier_dof=10.0), RefineConfig()
+    factors = {}
+    for name, cfg, y in (("robust", robust, obs), ("gauss", gauss, obs), ("clean", gauss, clean)):
+        factors[name] = ClosedFormFactors(y, None, cfg)
+        for _ in range(5):
+            factors[name].update(x_hat)
+    w = factors["robust"].weights["rot"]
+    assert float(w[0, 30, 5]) < 0.05 and float(w[..., 1:].median()) > 0.9
+    sigma = {k: float(f.precision["rot"][0, 5].rsqrt()) for k, f in factors.items()}
+    # the joint's noise level as without the spike (the IG prior's pull included), not inflated
+    # (measured: 0.067 against 0.064 without the spike; 0.132 for the Gaussian model)
+    assert abs(sigma["robust"] / sigma["clean"] - 1) < 0.1 and sigma["gauss"] > 1.3 * sigma["clean"]
+    # the spike barely moves the robust offset; it drags the Gaussian one (0.022 / 0.054 rad)
+    off = {
+        k: float(f.offset[0, :, POSE.start + 12 : POSE.start + 15].abs().max())
+        for k, f in factors.items()
+    }
+    assert off["robust"] < 0.5 * off["gauss"], off
 
 
 def test_offset_coefficients_recover_a_slow_offset_with_known_shrinkage():
@@ -334,6 +370,11 @@ def test_cli_denoise_refine(tiny_prior, make_motion_file, tmp_path):  # noqa: F8
     res = CliRunner().invoke(cli, [*args, "--no-offset", "--json"])
     assert json.loads(res.output)["refine"] is None
     out.unlink()
+    res = CliRunner().invoke(cli, [*args, "--refine", "2", "--outliers", "--json"])
+    assert res.exit_code == 0 and json.loads(res.output)["refine"]["outlier_dof"] == 10.0
+    out.unlink()
+    res = CliRunner().invoke(cli, [*args, "--outliers"])  # it needs refinement
+    assert res.exit_code != 0 and "use it with --refine N" in res.output and not out.exists()
     for bad in (["--refine-lr", "0"], ["--refine-offset", "-1"]):
         res = CliRunner().invoke(cli, [*args, "--refine", "3", *bad])
         assert res.exit_code == 2 and not out.exists()

@@ -64,7 +64,10 @@ class RefineConfig:
     joint's (faster terms are smaller: a smoothness prior; by default 0.85 with refinement
     steps and 0.7 without, each the best on the val split for its mode, docs/model.md);
     offset_iterations: rounds of the
-    closed-form updates when ``steps`` = 0 (the offset on regression mode's output).
+    closed-form updates when ``steps`` = 0 (the offset on regression mode's output);
+    outlier_dof: 0 = Gaussian noise with one variance per joint and window; > 0 = Student-t
+    noise per frame and joint with this many degrees of freedom (a spike is down-weighted on its
+    own frame instead of inflating its joint's variance; ``mdvae denoise --outliers``).
     """
 
     steps: int = 50
@@ -78,6 +81,7 @@ class RefineConfig:
     offset_lam: float = 3.0
     offset_decay: float | None = None
     offset_iterations: int = 5
+    outlier_dof: float = 0.0
 
     def __post_init__(self):
         if self.offset_decay is None:
@@ -99,6 +103,8 @@ class RefineConfig:
             raise InputError(
                 f"refinement offset_iterations must be >= 1, got {self.offset_iterations}"
             )
+        if not self.outlier_dof >= 0:
+            raise InputError(f"refinement outlier_dof must be >= 0, got {self.outlier_dof}")
         if self.offset_terms < 1:
             raise InputError(f"refinement offset_terms must be >= 1, got {self.offset_terms}")
 
@@ -151,6 +157,16 @@ def noise_precision(
         w = weight[..., None].expand_as(sq)
         n, s = w.sum(dim=(1, 3)), (sq * w).sum(dim=(1, 3))
     return (a0 + 0.5 * n) / (b0 + 0.5 * s)
+
+
+def student_t_weights(sq: torch.Tensor, precision: torch.Tensor, dof: float) -> torch.Tensor:
+    """EM weights of Student-t noise per frame and group: E[1/u] of each frame's scale u under
+    its posterior, with y ~ N(x, v u I_3), u ~ IG(dof/2, dof/2).
+
+    sq: (N, T, G) squared 3-D residual norms; precision: (N, G) E[1/v] -> (N, T, G) weights in
+    (0, (dof + 3) / dof]: ~1 for frames the group's noise level explains, small for spikes.
+    """
+    return (dof + 3.0) / (dof + sq * precision[:, None])
 
 
 # state columns per residual group: "rot" = the root orientation, then the 21 body joints (22
@@ -258,7 +274,8 @@ class ClosedFormFactors:
     def __init__(self, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig):
         N, T = obs.shape[:2]
         self.obs, self.cfg = obs, cfg
-        self.weights = group_weights(joint_weight)
+        self.masks = group_weights(joint_weight)  # 1 = observed, None = all
+        self.weights = dict(self.masks)  # what the solvers read: masks, x Student-t weights
         self.units = {"rot": cfg.rot_unit, "trans": cfg.trans_unit}
         self.basis = cosine_basis(T, cfg.offset_terms, obs)
         k = torch.arange(cfg.offset_terms, dtype=obs.dtype, device=obs.device)
@@ -280,12 +297,13 @@ class ClosedFormFactors:
         From a zero offset the first noise estimate holds the whole slow discrepancy, the
         offset is shrunk hard, and it creeps up over 10 or more rounds; from here 3 rounds
         land where 100 from zero do (docs/model.md). Where a free fit would follow the noise
-        — missing frames, or fewer than 4 frames per cosine (a short motion) — the offset
-        starts from zero. x_hat: (N, T, 138).
+        — missing frames, fewer than 4 frames per cosine (a short motion), or outliers
+        (``cfg.outlier_dof`` > 0) — the offset starts from zero. x_hat: (N, T, 138).
         """
         self.started = True
         T, K = self.basis.shape
-        if not self.offset_precision or self.weights["rot"] is not None or T < 4 * K:
+        free = self.masks["rot"] is None and T >= 4 * K and self.cfg.outlier_dof == 0
+        if not self.offset_precision or not free:
             return
         res = observation_residuals(x_hat.detach(), self.obs)
         s0 = self.cfg.offset_lam / 2
@@ -308,7 +326,10 @@ class ClosedFormFactors:
             self.start(x_hat)
         for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
             b0 = a0 * self.units[key] ** 2
-            self.precision[key] = noise_precision(r**2, self.weights[key], a0, b0)
+            if cfg.outlier_dof > 0:
+                self._reweight(key, r, a0, b0)
+            else:
+                self.precision[key] = noise_precision(r**2, self.masks[key], a0, b0)
         if not self.offset_precision:
             return
         res = observation_residuals(x_hat, self.obs)
@@ -323,6 +344,19 @@ class ClosedFormFactors:
                 coef[g], var, self.relative, s0, s0 * cfg.offset_std**2
             )
         self.offset = offset_states(coef, self.basis, self.obs)
+
+    def _reweight(self, key: str, r: torch.Tensor, a0: float, b0: float) -> None:
+        """Student-t noise (``cfg.outlier_dof`` > 0): each frame's weight from the group's last
+        noise precision, then the precision from the weighted residuals; ``self.weights``
+        becomes mask x weight, which every solver and the ELBO read. r: (N, T, G, 3)."""
+        sq = (r**2).sum(-1)  # (N, T, G)
+        mask = self.masks[key] if self.masks[key] is not None else torch.ones_like(sq)
+        weight = torch.ones_like(sq)
+        if key in self.precision:
+            weight = student_t_weights(sq, self.precision[key], self.cfg.outlier_dof)
+        n, s = 3.0 * mask.sum(1), (mask * weight * sq).sum(1)
+        self.precision[key] = (a0 + 0.5 * n) / (b0 + 0.5 * s)
+        self.weights[key] = mask * weight
 
     def reconstruction(self, x_hat: torch.Tensor) -> torch.Tensor:
         """The ELBO's expected negative log-likelihood (up to constants), summed: a scalar."""
