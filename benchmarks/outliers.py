@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from mdvae_cli.body.formats import load_body_model
@@ -31,7 +30,7 @@ from mdvae_cli.fit.fit_dataset import load_denoiser
 from mdvae_cli.fit.refine import RefineConfig
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.noise import file_rng
+from mdvae_cli.motion.noise import add_pose_noise, file_rng
 
 try:
     from benchmarks import common
@@ -68,21 +67,18 @@ SCENARIOS = (
 )
 
 
-def add_spikes(motion: Motion, frac: float, rad: float, rng: np.random.Generator) -> Motion:
-    """A copy of ``motion`` with N(0, rad^2) added to each axis of ``frac`` of the body joints'
-    rotations, entries drawn independently.  pose_body (T, 21, 3)."""
-    pose = motion.pose_body.copy()
-    hit = rng.random(pose.shape[:-1]) < frac
-    pose[hit] += rng.normal(0.0, rad, size=(int(hit.sum()), 3))
-    return motion.with_body(pose_body=pose)
-
-
 def noisy_clips(clips: Sequence[common.Clip], scenario: Scenario, seed: int) -> list[Motion]:
-    """The scenario's noisy copies of the clips (seeded per clip name)."""
-    noisy = common.add_noise(clips, scenario.sigma, seed)
+    """The scenario's noisy copies of the clips (seeded per clip name, as ``mdvae add-noise
+    --sigma S --spike-frac F --spike-rad R`` seeds per file)."""
     return [
-        add_spikes(m, scenario.spike_frac, scenario.spike_rad, file_rng(seed, f"{c.name}@spikes"))
-        for m, c in zip(noisy, clips, strict=True)
+        add_pose_noise(
+            c.motion,
+            scenario.sigma,
+            file_rng(seed, f"{c.name}@spikes"),
+            spike_frac=scenario.spike_frac,
+            spike_rad=scenario.spike_rad,
+        )
+        for c in clips
     ]
 
 

@@ -212,6 +212,14 @@ def test_add_noise_options_reach_the_file(make_motion_file, tmp_path):
     assert np.array_equal(a.pose_body, b.pose_body)
     assert 0.005 < (b.trans - a.trans).std() < 0.015
     assert b.joint_mask.shape == (50, 22) and int((~b.joint_mask).sum()) == 110
+    # spikes: only some body-joint entries move, by about --spike-rad
+    code, _, err = run("add-noise", src, "-o", tmp_path / "s.npz", "--sigma", 0,
+                       "--spike-frac", 0.2, "--spike-rad", 0.5)  # fmt: skip
+    assert code == 0, err
+    s = load_motion(tmp_path / "s.npz")
+    moved = np.any(s.pose_body != a.pose_body, axis=-1)
+    assert 0.1 < moved.mean() < 0.3 and 0.3 < (s.pose_body - a.pose_body)[moved].std() < 0.7
+    assert np.array_equal(s.root_orient, a.root_orient) and np.array_equal(s.trans, a.trans)
 
 
 def test_add_noise_refuses_to_overwrite_input(make_motion_file, tmp_path, hash_tree):
@@ -247,7 +255,11 @@ def test_add_noise_batch_goes_on_after_a_failure(make_motion_file, tmp_path):
     assert [f["ok"] for f in data["files"]] == [True, False, True]
 
 
-@pytest.mark.parametrize("option", [("--sigma", -1), ("--drop-frac", 2), ("--joint-noise", -0.1)])
+@pytest.mark.parametrize(
+    "option",
+    [("--sigma", -1), ("--drop-frac", 2), ("--joint-noise", -0.1), ("--spike-frac", 2),
+     ("--spike-rad", -1)],
+)  # fmt: skip
 def test_add_noise_bad_option_values(make_motion_file, tmp_path, option):
     src = make_motion_file("c.npz", T=5)
     assert_one_error_line(*run("add-noise", src, "-o", tmp_path / "n.npz", *option))

@@ -79,6 +79,25 @@ def test_pose_noise_independent_of_extras():
     assert np.array_equal(plain.pose_body, full.pose_body)
 
 
+def test_spikes_hit_the_asked_fraction_of_body_joint_entries_on_top_of_the_same_noise():
+    motion = clip(T=400)
+    plain = add_pose_noise(motion, 0.05, np.random.default_rng(3))
+    spiky = add_pose_noise(motion, 0.05, np.random.default_rng(3), spike_frac=0.05, spike_rad=1.0)
+    changed = np.any(spiky.pose_body != plain.pose_body, axis=-1)  # (T, 21)
+    assert abs(changed.mean() - 0.05) < 0.01  # 8,400 entries: 3.5 standard errors
+    jump = (spiky.pose_body - plain.pose_body)[changed]
+    assert abs(jump.std() - 1.0) < 0.1  # N(0, 1 rad^2) per component
+    # everything else as without spikes: the other entries, root, translation, hands
+    np.testing.assert_array_equal(spiky.pose_body[~changed], plain.pose_body[~changed])
+    for k in ("root_orient", "trans", "pose_extra"):
+        np.testing.assert_array_equal(getattr(spiky, k), getattr(plain, k))
+    # and drops / jitter do not change the spikes' stream
+    both = add_pose_noise(
+        motion, 0.05, np.random.default_rng(3), drop_frac=0.2, spike_frac=0.05, spike_rad=1.0
+    )
+    np.testing.assert_array_equal(both.pose_body, spiky.pose_body)
+
+
 def test_translation_jitter_statistics():
     motion = clip(T=2000)  # 6,000 samples
     noisy = add_pose_noise(motion, 0.0, np.random.default_rng(0), trans_sigma=0.02)
@@ -126,6 +145,8 @@ def test_joint_mask_round_trips(tmp_path: Path):
         {"sigma": 0.1, "trans_sigma": -1.0},
         {"sigma": 0.1, "drop_frac": 1.5},
         {"sigma": 0.1, "drop_frac": -0.1},
+        {"sigma": 0.1, "spike_frac": 1.5},
+        {"sigma": 0.1, "spike_frac": 0.1, "spike_rad": -1.0},
     ],
 )
 def test_bad_settings_raise_input_error(kwargs):

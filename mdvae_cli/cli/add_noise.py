@@ -44,10 +44,21 @@ from mdvae_cli.motion.npz_io import load_motion, save_motion
     help="Fraction of (frame, joint) entries to mark missing in a 'joint_mask' array "
     "(poses are not changed).",
 )  # fmt: skip
+@click.option(
+    "--spike-frac", type=float, default=0.0, show_default=True,
+    help="Probability that a (frame, body joint) entry gets a spike (an outlier such as a "
+    "swapped marker or a solver flip), on top of --sigma.",
+)  # fmt: skip
+@click.option(
+    "--spike-rad", type=float, default=1.0, show_default=True, metavar="RADIANS",
+    help="Std of a spike per axis-angle component (with --spike-frac).",
+)  # fmt: skip
 @allow_pickle_option
 @json_option
 @handle_errors
-def add_noise(inputs, out, sigma, seed, joint_noise, drop_frac, allow_pickle, as_json) -> None:
+def add_noise(
+    inputs, out, sigma, seed, joint_noise, drop_frac, spike_frac, spike_rad, allow_pickle, as_json
+) -> None:
     """Add Pose-NDF-style noise to motion files.
 
     Adds zero-mean Gaussian noise of std --sigma (radians) to the axis-angle of the 21 body
@@ -58,8 +69,9 @@ def add_noise(inputs, out, sigma, seed, joint_noise, drop_frac, allow_pickle, as
     Examples:
       mdvae add-noise --sigma 0.1 clean.npz -o noisy.npz
       mdvae add-noise --sigma 0.2 --seed 3 amass_test/ -o noisy_test/
+      mdvae add-noise --sigma 0.05 --spike-frac 0.02 --spike-rad 1 clean.npz -o spiky.npz
     """
-    settings = NoiseSettings(sigma, joint_noise, drop_frac).validate()
+    settings = NoiseSettings(sigma, joint_noise, drop_frac, spike_frac, spike_rad).validate()
     jobs = plan_jobs(inputs, out)
     sources = tuple(job.source for job in jobs)
 
@@ -72,6 +84,8 @@ def add_noise(inputs, out, sigma, seed, joint_noise, drop_frac, allow_pickle, as
             file_rng(seed, job.relpath),
             trans_sigma=settings.trans_sigma,
             drop_frac=settings.drop_frac,
+            spike_frac=settings.spike_frac,
+            spike_rad=settings.spike_rad,
         )
         save_motion(noisy, job.output, forbid=sources)
 

@@ -94,7 +94,7 @@ OUTLIER_DOF = 10.0  # --outliers: Student-t degrees of freedom (3 and 10 measure
     is_flag=True,
     help="With --refine: model the noise as heavy-tailed (Student-t, 10 degrees of freedom) per "
     "frame and joint, so spikes (a swapped marker, a solver flip) are down-weighted where they "
-    "happen instead of raising the whole joint's noise level: 40-45 % lower error on takes "
+    "happen instead of raising the whole joint's noise level: about 40 % lower error on takes "
     "with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py).",
 )
 @click.option(

@@ -4,7 +4,7 @@ The Pose-NDF protocol (used for Motion-DVAE's noisy-AMASS experiments) adds zero
 noise of standard deviation ``sigma`` (radians) to every axis-angle component of the 21 body
 joints; the root orientation, the translation and the hand/face joints are left as they are.
 
-Two optional extras, off by default:
+Three optional extras, off by default:
 
 * **translation jitter** (``trans_sigma``, metres): zero-mean Gaussian noise added to ``trans``,
   independently per frame and per axis. The file holds body parameters, not joint positions,
@@ -13,6 +13,10 @@ Two optional extras, off by default:
 * **missing joints** (``drop_frac``): exactly ``round(drop_frac * T * 22)`` (frame, joint)
   entries, drawn uniformly without replacement, are marked unobserved in ``joint_mask``
   (``(T, 22)`` bool, True = observed). The poses themselves are not changed.
+* **spikes** (``spike_frac``, ``spike_rad``): outliers such as a swapped marker or a solver
+  flip. Each (frame, body joint) entry is hit independently with probability ``spike_frac``,
+  and a hit adds zero-mean Gaussian noise of std ``spike_rad`` to each of its three axis-angle
+  components, on top of the protocol's noise.
 
 Randomness comes only from the ``numpy.random.Generator`` passed in. It is split into one
 independent stream per kind of noise, so turning on jitter or drops does not change the pose
@@ -40,19 +44,26 @@ class NoiseSettings:
     sigma: std of the axis-angle noise on the 21 body joints, radians, >= 0.
     trans_sigma: std of the per-frame, per-axis translation jitter, metres, >= 0.
     drop_frac: fraction of (frame, joint) entries to mark missing, in [0, 1].
+    spike_frac: probability that a (frame, body joint) entry gets a spike, in [0, 1].
+    spike_rad: std of a spike per axis-angle component, radians, >= 0.
     """
 
     sigma: float
     trans_sigma: float = 0.0
     drop_frac: float = 0.0
+    spike_frac: float = 0.0
+    spike_rad: float = 0.0
 
     def validate(self) -> NoiseSettings:
         """Raise InputError naming the first out-of-range value."""
-        for name, value in (("sigma", self.sigma), ("trans_sigma", self.trans_sigma)):
+        for name in ("sigma", "trans_sigma", "spike_rad"):
+            value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InputError(f"{name} must be a finite number >= 0, got {value:g}")
-        if not (math.isfinite(self.drop_frac) and 0.0 <= self.drop_frac <= 1.0):
-            raise InputError(f"drop_frac must be between 0 and 1, got {self.drop_frac:g}")
+        for name in ("drop_frac", "spike_frac"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.0 <= value <= 1.0):
+                raise InputError(f"{name} must be between 0 and 1, got {value:g}")
         return self
 
 
@@ -62,19 +73,26 @@ def add_pose_noise(
     rng: np.random.Generator,
     trans_sigma: float = 0.0,
     drop_frac: float = 0.0,
+    spike_frac: float = 0.0,
+    spike_rad: float = 0.0,
 ) -> Motion:
     """A noisy copy of ``motion`` (the input is not modified).
 
     pose_body (T, 21, 3) += N(0, sigma^2) per component; trans (T, 3) += N(0, trans_sigma^2)
     per component when ``trans_sigma`` > 0; joint_mask (T, 22) gets ``drop_frac`` of its entries
-    set False when ``drop_frac`` > 0 (combined with any existing mask). root_orient, pose_extra,
-    betas and fps are copied unchanged. See the module docstring for the exact protocol.
+    set False when ``drop_frac`` > 0 (combined with any existing mask); pose_body entries get
+    spikes when ``spike_frac`` > 0. root_orient, pose_extra, betas and fps are copied unchanged.
+    See the module docstring for the exact protocol.
     """
-    NoiseSettings(float(sigma), float(trans_sigma), float(drop_frac)).validate()
+    NoiseSettings(*map(float, (sigma, trans_sigma, drop_frac, spike_frac, spike_rad))).validate()
     pose_rng, trans_rng, drop_rng = rng.spawn(3)
     T = motion.num_frames
 
     pose_body = motion.pose_body + pose_rng.normal(0.0, sigma, size=motion.pose_body.shape)
+    if spike_frac > 0:  # a stream of its own, spawned after the others: they stay the same
+        spike_rng = rng.spawn(1)[0]
+        hit = spike_rng.random(pose_body.shape[:-1]) < spike_frac
+        pose_body[hit] += spike_rng.normal(0.0, spike_rad, size=(int(hit.sum()), 3))
     trans = motion.trans.copy()
     if trans_sigma > 0:
         trans = trans + trans_rng.normal(0.0, trans_sigma, size=trans.shape)
