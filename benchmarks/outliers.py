@@ -27,7 +27,7 @@ from mdvae_cli.filters import savgol_filter_motion
 from mdvae_cli.fit.data import read_split
 from mdvae_cli.fit.denoise import denoise_motions
 from mdvae_cli.fit.fit_dataset import load_denoiser
-from mdvae_cli.fit.refine import RefineConfig
+from mdvae_cli.fit.refine import OUTLIER_DOF, RefineConfig
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
@@ -40,7 +40,6 @@ except ModuleNotFoundError:  # run as a file: python benchmarks/<name>.py
 REPO = Path(__file__).resolve().parents[1]
 SECTION_BEGIN = "<!-- outliers:begin (written by benchmarks/outliers.py) -->"
 SECTION_END = "<!-- outliers:end -->"
-OUTLIER_DOF = 10.0  # as `mdvae denoise --outliers`
 
 
 @dataclass(frozen=True)

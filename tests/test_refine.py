@@ -14,21 +14,23 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import savgol_filter_motion
+from mdvae_cli.fit.closed_form import (
+    ClosedFormFactors,
+    cosine_basis,
+    noise_precision,
+    offset_coefficients,
+    offset_precision,
+    offset_states,
+    student_t_weights,
+)
 from mdvae_cli.fit.data import load_windows
 from mdvae_cli.fit.denoise import WindowGroup, denoise_motions, make_windows, refine_windows
 from mdvae_cli.fit.fit_dataset import load_denoiser
 from mdvae_cli.fit.reconstruct import refine_reconstruction
 from mdvae_cli.fit.refine import (
     Adam,
-    ClosedFormFactors,
     RefineConfig,
-    cosine_basis,
-    noise_precision,
-    offset_coefficients,
-    offset_precision,
-    offset_states,
     refine_latents,
-    student_t_weights,
 )
 from mdvae_cli.fit.train_prior import TrainConfig, prior_losses, spread_vertex_ids
 from mdvae_cli.metrics import evaluate_pair

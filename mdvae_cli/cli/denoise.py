@@ -18,8 +18,6 @@ from mdvae_cli.cli.common import (
 )
 from mdvae_cli.errors import InputError
 
-OUTLIER_DOF = 10.0  # --outliers: Student-t degrees of freedom (3 and 10 measured alike on spikes)
-
 
 @click.command("denoise")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
@@ -177,7 +175,7 @@ def denoise(
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.fit.denoise import check_length, denoise_motions
     from mdvae_cli.fit.fit_dataset import load_denoiser
-    from mdvae_cli.fit.refine import RefineConfig
+    from mdvae_cli.fit.refine import OUTLIER_DOF, RefineConfig
     from mdvae_cli.motion.npz_io import load_motion, save_motion
 
     if overlap >= window:

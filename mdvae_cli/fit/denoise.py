@@ -20,8 +20,9 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import filter_motions, savgol_smooth
+from mdvae_cli.fit.closed_form import add_offset
 from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
-from mdvae_cli.fit.refine import RefineConfig, add_offset, refine_latents
+from mdvae_cli.fit.refine import RefineConfig, refine_latents
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor

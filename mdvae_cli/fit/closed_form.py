@@ -1,0 +1,270 @@
+"""The closed-form factors of latent refinement's ELBO (``fit.refine``): for fixed decoded
+states, each group's noise precision (Gaussian per joint and window, or Student-t per frame),
+and the slow per-joint rotation offset with its per-joint scale.
+
+The decoded rotations are scored with a slow offset added, x_hat + B c: B holds the first few
+cosines over the window (B (T, K), DCT-II) and every joint-axis has its own coefficients c, with
+c_k ~ N(0, decay^{2k} s_g^2) and each joint's scale s_g^2 ~ IG (centred on offset_std). The offset
+models what the learned prior cannot express (on clean held-out motion, refined latents alone
+stop at ~2.3 cm V2V; with the offset, 0.7 cm), slow enough that white noise barely moves it.
+For fixed latents the coefficients' Gaussian posterior and each joint's q(s_g^2) are closed form
+(``ClosedFormFactors``); they are updated with the noise precisions before every step. The
+output keeps the offset's posterior mean. With 0 steps the latents stay the encoder's and only
+these closed-form factors are fitted: regression mode plus the offset (``mdvae denoise``'s default).
+
+Pure tensor math; ``ClosedFormFactors`` holds one batch's factors between rounds of
+coordinate ascent.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from mdvae_cli.motion.state import POSE, ROOT, TRANS
+
+if TYPE_CHECKING:
+    from mdvae_cli.fit.refine import RefineConfig
+
+
+def noise_precision(
+    sq: torch.Tensor, weight: torch.Tensor | None, a0: float, b0: float
+) -> torch.Tensor:
+    """E[1/v] under q(v) = IG(a0 + n/2, b0 + S/2) for each group of squared residuals.
+
+    sq: (N, T, G, K) squared residuals; weight: (N, T, G) 1 = observed, 0 = missing, or None
+    (all observed) -> (N, G) the expected precision of every window's group (K coordinates
+    over T frames).
+    """
+    if weight is None:
+        n, s = sq.shape[1] * sq.shape[3], sq.sum(dim=(1, 3))
+    else:
+        w = weight[..., None].expand_as(sq)
+        n, s = w.sum(dim=(1, 3)), (sq * w).sum(dim=(1, 3))
+    return (a0 + 0.5 * n) / (b0 + 0.5 * s)
+
+
+def student_t_weights(sq: torch.Tensor, precision: torch.Tensor, dof: float) -> torch.Tensor:
+    """EM weights of Student-t noise per frame and group: E[1/u] of each frame's scale u under
+    its posterior, with y ~ N(x, v u I_3), u ~ IG(dof/2, dof/2).
+
+    sq: (N, T, G) squared 3-D residual norms; precision: (N, G) E[1/v] -> (N, T, G) weights in
+    (0, (dof + 3) / dof]: ~1 for frames the group's noise level explains, small for spikes.
+    """
+    return (dof + 3.0) / (dof + sq * precision[:, None])
+
+
+# state columns per residual group: "rot" = the root orientation, then the 21 body joints (22
+# joints, pelvis first, as the joint masks); "trans" = the translation
+ROTATIONS = torch.tensor([*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop)])
+GROUPS = {"rot": ROTATIONS, "trans": TRANS}
+ROTATION_GROUPS = ("rot",)
+
+
+def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Residuals x_hat - obs of the parameters a file stores, grouped per noise variance.
+
+    x_hat, obs: (N, T, 138) states -> {"rot": (N, T, 22, 3) root then body joints,
+    "trans": (N, T, 1, 3)}
+    """
+    d = x_hat - obs
+    return {k: d[..., cols].unflatten(-1, (-1, 3)) for k, cols in GROUPS.items()}
+
+
+def cosine_basis(num_frames: int, terms: int, like: torch.Tensor) -> torch.Tensor:
+    """The first ``terms`` DCT-II cosines over a window -> (num_frames, terms); column 0 is 1."""
+    t = (torch.arange(num_frames, dtype=like.dtype, device=like.device) + 0.5) / num_frames
+    k = torch.arange(terms, dtype=like.dtype, device=like.device)
+    return torch.cos(torch.pi * t[:, None] * k[None])
+
+
+def offset_coefficients(
+    residual: torch.Tensor,
+    precision: torch.Tensor,
+    weight: torch.Tensor,
+    basis: torch.Tensor,
+    prior_precision: torch.Tensor | float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Gaussian posterior of the slow offset's coefficients c in obs = x_hat + B c + noise.
+
+    residual: (N, T, G, 3) x_hat - obs; precision: (N, G) noise precision per group;
+    weight: (N, T, G) 1 = observed, or None (every frame observed); basis: (T, K) orthogonal
+    cosines; prior_precision: 1/s^2 of c ~ N(0, s^2), a number or (N, G, K) -> mean
+    (N, G, 3, K) and marginal variance (N, G, K) of c. With missing frames the cosines are no
+    longer orthogonal over the frames that remain, and the K coefficients of a group are solved
+    together (a K x K system per group; solving them one by one double-counts); with every
+    frame observed the system is diagonal and solved as such.
+    """
+    if weight is None:
+        diag = precision[..., None] * (basis**2).sum(0) + prior_precision  # (N, G, K)
+        rhs = -torch.einsum("tk,ntgc->ngck", basis, residual) * precision[..., None, None]
+        return rhs / diag[:, :, None], 1.0 / diag
+    gram = torch.einsum("ntg,tk,tl->ngkl", weight, basis, basis) * precision[..., None, None]
+    if not torch.is_tensor(prior_precision):
+        prior_precision = gram.new_full(gram.shape[:-1], prior_precision)
+    gram = gram + torch.diag_embed(prior_precision)
+    rhs = -torch.einsum("ntg,tk,ntgc->ngkc", weight, basis, residual) * precision[..., None, None]
+    chol = torch.linalg.cholesky(gram)  # (N, G, K, K)
+    mean = torch.cholesky_solve(rhs, chol).transpose(-1, -2)  # (N, G, 3, K)
+    var = torch.cholesky_inverse(chol).diagonal(dim1=-2, dim2=-1)
+    return mean, var
+
+
+def offset_precision(
+    mean: torch.Tensor, var: torch.Tensor, relative: torch.Tensor, a0: float, b0: float
+) -> torch.Tensor:
+    """E[1/s^2] of each group's offset scale under q(s^2) = IG(a0 + n/2, b0 + S/2), where
+    c_k ~ N(0, s^2 / relative_k) and S = sum_k relative_k E[|c_k|^2].
+
+    mean: (N, G, 3, K), var: (N, G, K) the coefficients' posterior; relative: (K,) each
+    coefficient's prior precision relative to the group's -> (N, G); n = 3K.
+    """
+    second_moment = (mean**2 + var[:, :, None, :]) * relative  # (N, G, 3, K)
+    sq = second_moment.permute(0, 3, 1, 2)  # as (N, "T" = K, G, 3) for noise_precision
+    return noise_precision(sq, sq.new_ones(sq.shape[:3]), a0, b0)
+
+
+def offset_states(coef: dict[str, torch.Tensor], basis: torch.Tensor, like: torch.Tensor):
+    """The offset B c as state columns.  coef: {group: (N, G, 3, K)}, basis: (T, K), like:
+    (N, T, 138) -> (N, T, 138), zero outside the offset groups."""
+    out = torch.zeros_like(like)
+    for key, c in coef.items():
+        out[..., GROUPS[key]] = torch.einsum("tk,ngck->ntgc", basis, c).flatten(-2)
+    return out
+
+
+def group_weights(joint_weight: torch.Tensor | None) -> dict[str, torch.Tensor | None]:
+    """Observation weights per residual group from the per-joint mask.
+
+    joint_weight: (N, T, 22) (pelvis first) -> {"rot": (N, T, 22), "trans": (N, T, 1)}; the
+    root orientation and the translation follow the pelvis. None (all observed) gives
+    None for every group (the solvers' all-observed case).
+    """
+    if joint_weight is None:
+        return dict.fromkeys(GROUPS)
+    return {
+        "rot": joint_weight[..., :22],
+        "trans": joint_weight[..., :1],
+    }
+
+
+class ClosedFormFactors:
+    """The factors of a batch's refinement ELBO that are closed form for fixed latents: each
+    group's noise precision E[1/v], the slow offset's coefficients and each joint's offset
+    precision E[1/s_g^2]. ``update(x_hat)`` is one round of coordinate ascent on them.
+
+    obs: (N, T, 138) the noisy states; joint_weight: (N, T, 22) or None.
+    """
+
+    def __init__(self, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig):
+        N, T = obs.shape[:2]
+        self.obs, self.cfg = obs, cfg
+        self.masks = group_weights(joint_weight)  # 1 = observed, None = all
+        self.weights = dict(self.masks)  # what the solvers read: masks, x Student-t weights
+        self.units = {"rot": cfg.rot_unit, "trans": cfg.trans_unit}
+        self.basis = cosine_basis(T, cfg.offset_terms, obs)
+        k = torch.arange(cfg.offset_terms, dtype=obs.dtype, device=obs.device)
+        self.relative = cfg.offset_decay ** (-2.0 * k)  # prior precision of cosine k, relative
+        self.offset = torch.zeros_like(obs)
+        self.started = False
+        self.precision: dict[str, torch.Tensor] = {}
+        self.offset_precision: dict[str, torch.Tensor] = {  # E[1/s_g^2]: (N, G)
+            g: obs.new_full((N, 1), 1.0 / cfg.offset_std**2)
+            for g in ROTATION_GROUPS
+            if cfg.offset_std > 0
+        }
+
+    def start(self, x_hat: torch.Tensor) -> None:
+        """Where coordinate ascent starts when every frame is observed: the slow cosines
+        fitted to the residual by least squares (next to no shrinkage), and the per-joint
+        offset scales that fit implies.
+
+        From a zero offset the first noise estimate holds the whole slow discrepancy, the
+        offset is shrunk hard, and it creeps up over 10 or more rounds; from here 3 rounds
+        land where 100 from zero do (docs/model.md). Where a free fit would follow the noise
+        — missing frames, fewer than 4 frames per cosine (a short motion), or outliers
+        (``cfg.outlier_dof`` > 0) — the offset starts from zero. x_hat: (N, T, 138).
+        """
+        self.started = True
+        T, K = self.basis.shape
+        free = self.masks["rot"] is None and T >= 4 * K and self.cfg.outlier_dof == 0
+        if not self.offset_precision or not free:
+            return
+        res = observation_residuals(x_hat.detach(), self.obs)
+        s0 = self.cfg.offset_lam / 2
+        coef = {}
+        for g in self.offset_precision:
+            unit = res[g].new_ones(res[g].shape[0], res[g].shape[2])
+            coef[g], var = offset_coefficients(res[g], unit, None, self.basis, 1e-3 * self.relative)
+            self.offset_precision[g] = offset_precision(
+                coef[g], torch.zeros_like(var), self.relative, s0, s0 * self.cfg.offset_std**2
+            )
+        self.offset = offset_states(coef, self.basis, self.obs)
+
+    def update(self, x_hat: torch.Tensor) -> None:
+        """Noise precisions, then the offset's coefficients, then each joint's offset scale,
+        for the decoded states x_hat (N, T, 138) (no gradients kept). The first call begins
+        with :meth:`start`."""
+        cfg, a0 = self.cfg, self.cfg.lam / 2
+        x_hat = x_hat.detach()
+        if not self.started:
+            self.start(x_hat)
+        for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
+            b0 = a0 * self.units[key] ** 2
+            if cfg.outlier_dof > 0:
+                self._reweight(key, r, a0, b0)
+            else:
+                self.precision[key] = noise_precision(r**2, self.masks[key], a0, b0)
+        if not self.offset_precision:
+            return
+        res = observation_residuals(x_hat, self.obs)
+        s0 = cfg.offset_lam / 2
+        coef = {}
+        for g, prec in self.offset_precision.items():
+            prior = prec[..., None] * self.relative  # (N, G, K)
+            coef[g], var = offset_coefficients(
+                res[g], self.precision[g], self.weights[g], self.basis, prior
+            )
+            self.offset_precision[g] = offset_precision(
+                coef[g], var, self.relative, s0, s0 * cfg.offset_std**2
+            )
+        self.offset = offset_states(coef, self.basis, self.obs)
+
+    def _reweight(self, key: str, r: torch.Tensor, a0: float, b0: float) -> None:
+        """Student-t noise (``cfg.outlier_dof`` > 0): each frame's weight from the group's last
+        noise precision, then the precision from the weighted residuals; ``self.weights``
+        becomes mask x weight, which every solver and the ELBO read. r: (N, T, G, 3)."""
+        sq = (r**2).sum(-1)  # (N, T, G)
+        mask = self.masks[key] if self.masks[key] is not None else torch.ones_like(sq)
+        weight = torch.ones_like(sq)
+        if key in self.precision:
+            weight = student_t_weights(sq, self.precision[key], self.cfg.outlier_dof)
+        n, s = 3.0 * mask.sum(1), (mask * weight * sq).sum(1)
+        self.precision[key] = (a0 + 0.5 * n) / (b0 + 0.5 * s)
+        self.weights[key] = mask * weight
+
+    def reconstruction(self, x_hat: torch.Tensor) -> torch.Tensor:
+        """The ELBO's expected negative log-likelihood (up to constants), summed: a scalar."""
+        rec = x_hat.new_zeros(())
+        for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
+            w = self.precision[key][:, None]
+            if self.weights[key] is not None:
+                w = self.weights[key] * w
+            rec = rec + 0.5 * (r**2 * w[..., None]).sum()
+        return rec
+
+
+@torch.no_grad()
+def add_offset(
+    x_hat: torch.Tensor, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig
+) -> torch.Tensor:
+    """Decoded states plus the slow offset fitted to the observations in closed form with the
+    latents held (``cfg.offset_iterations`` rounds; none when ``cfg.offset_std`` = 0).
+
+    x_hat, obs: (N, T+1, 138) state units; joint_weight: (N, T+1, 22) or None -> (N, T+1, 138)
+    """
+    factors = ClosedFormFactors(obs, joint_weight, cfg)
+    for _ in range(cfg.offset_iterations if cfg.offset_std > 0 else 0):
+        factors.update(x_hat)
+    return x_hat + factors.offset
