@@ -395,7 +395,7 @@ def test_x0_predictor_reads_the_whole_window_and_old_configs_keep_their_layout()
 
 def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(tiny_prior):
     from benchmarks.common import slice_motion
-    from mdvae_cli.fit.denoise import make_windows, smooth_inputs
+    from mdvae_cli.fit.window_groups import make_windows, smooth_inputs
     from mdvae_cli.motion.state import POSE
 
     assert DenoiserConfig().input_window == 11
@@ -433,7 +433,8 @@ def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(ti
 
 
 def test_small_batch_numpy_path_matches_the_torch_networks(tiny_prior):
-    from mdvae_cli.fit.denoise import make_windows, predict_windows
+    from mdvae_cli.fit.denoise import predict_windows
+    from mdvae_cli.fit.window_groups import make_windows
     from mdvae_cli.model.small_batch import SmallBatchRegressor
 
     prior, _ = load_prior(tiny_prior / "run")

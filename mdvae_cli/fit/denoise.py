@@ -12,19 +12,18 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from contextlib import contextmanager, nullcontext
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.filters import filter_motions, savgol_smooth
 from mdvae_cli.fit.closed_form import add_offset
-from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
+from mdvae_cli.fit.data import MODEL_FPS
 from mdvae_cli.fit.refine import RefineConfig, refine_latents
+from mdvae_cli.fit.window_groups import WindowGroup, make_windows, motion_window_starts
 from mdvae_cli.geometry.rotations import rotvec_slerp
-from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
+from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
@@ -35,146 +34,7 @@ from mdvae_cli.motion.resample import (
     resample_times,
 )
 from mdvae_cli.motion.state import BodyParams, state_to_params
-from mdvae_cli.motion.windows import CanonicalFrame, uncanonicalize, window_starts
-
-
-@dataclass
-class WindowGroup:
-    """Windows of one length, ready for the networks.
-
-    yn: (N, L, 138) normalised noisy states; y3d: (N, L, 65, 3); betas: (N, S);
-    frame: the canonical frames; pelvis: (N, 3); owners: (motion index, start) per window;
-    weight: (N, L, 65) observation weights (joint mask), or None; obs: (N, L, 138) the raw
-    noisy states (state units, canonical frame; what refinement scores), or None.
-    """
-
-    yn: torch.Tensor
-    y3d: torch.Tensor
-    betas: torch.Tensor
-    frame: CanonicalFrame
-    pelvis: torch.Tensor
-    owners: list[tuple[int, int]] = field(default_factory=list)
-    weight: torch.Tensor | None = None
-    obs: torch.Tensor | None = None
-
-    def __len__(self) -> int:
-        return int(self.yn.shape[0])
-
-    @property
-    def moves(self) -> bool:
-        """False for one-frame windows (x0 alone): nothing to fit or refine."""
-        return self.yn.shape[1] > 1
-
-    def batch(self, idx: torch.Tensor, with_y3d: bool = True) -> WindowGroup:
-        w = None if self.weight is None else self.weight[idx]
-        obs = None if self.obs is None else self.obs[idx]
-        frame = CanonicalFrame(self.frame.yaw[idx], self.frame.origin[idx])
-        return WindowGroup(
-            self.yn[idx],
-            self.y3d[idx] if with_y3d else self.y3d,
-            self.betas[idx],
-            frame,
-            self.pelvis[idx],
-            [self.owners[i] for i in idx.tolist()],
-            w,
-            obs,
-        )
-
-
-def make_windows(
-    motions: list[Motion],
-    denoiser: Denoiser,
-    body: BodyModel,
-    window: int = 60,
-    stride: int = 45,
-    observations: bool = True,
-    points: bool = True,
-) -> list[WindowGroup]:
-    """Cut motions already at 30 Hz into windows of ``window + 1`` frames (shorter motions
-    give one window of their own length), grouped by length.
-
-    ``observations=False`` skips the observations (regression mode does not need them: the
-    group then holds an empty y3d and no raw states); ``points=False`` keeps the raw states
-    but skips the 3D points (refinement scores the states only)."""
-    L = window + 1
-    by_len: dict[int, list] = {}
-    inputs = smooth_inputs(motions, denoiser.cfg)
-    for mi, motion in enumerate(motions):
-        p = motion_to_params(motion)
-        p_in = p if inputs[mi] is motion else motion_to_params(inputs[mi])
-        betas = body.fit_betas(torch.as_tensor(motion.betas, dtype=torch.float32)[None])[0]
-        length = min(L, motion.num_frames)
-        for s in motion_window_starts(motion, window, stride):
-            sl = slice(s, s + length)
-            mask = None if motion.joint_mask is None else torch.as_tensor(motion.joint_mask[sl])
-            raw = (p.root_orient[sl], p.pose_body[sl], p.trans[sl])
-            by_len.setdefault(length, []).append(
-                (mi, s, p_in.root_orient[sl], p_in.pose_body[sl], p_in.trans[sl], betas, mask, raw)
-            )
-    groups = []
-    norm = denoiser.prior.normalizer
-    for _, items in sorted(by_len.items()):
-        stack = lambda k, items=items: torch.stack([it[k] for it in items])  # noqa: E731
-        params = BodyParams(stack(2), stack(3), stack(4))
-        betas = stack(5)
-        with torch.no_grad():
-            states, frame = chunk_states(
-                params, betas, body, velocity_window=denoiser.cfg.velocity_window
-            )
-            y3d, raw_states = states.new_zeros(0), None
-            if observations:
-                raw_states = states
-                if denoiser.cfg.input_window > 1:  # the raw motion, in the same frames
-                    raw = BodyParams(*(torch.stack([it[7][k] for it in items]) for k in range(3)))
-                    raw_states = chunk_states(raw, betas, body, frame=frame)[0]
-                if points:
-                    y3d = observe(body, raw_states, betas)
-        weight = None
-        if any(it[6] is not None for it in items):
-            masks = [
-                it[6] if it[6] is not None else torch.ones(len(it[2]), 22, dtype=torch.bool)
-                for it in items
-            ]
-            joints = torch.stack(masks).float()
-            weight = torch.cat([joints, torch.ones(*joints.shape[:2], 43)], dim=-1)
-        groups.append(
-            WindowGroup(
-                norm.normalize(states),
-                y3d,
-                betas,
-                frame,
-                body.pelvis_rest(betas),
-                [(it[0], it[1]) for it in items],
-                weight,
-                raw_states,
-            )
-        )
-    return groups
-
-
-def motion_window_starts(motion: Motion, window: int, stride: int) -> list[int]:
-    """Where a 30 Hz motion's windows of ``window + 1`` frames start (one window of its own
-    length when it is shorter)."""
-    T = motion.num_frames
-    return window_starts(T, min(window + 1, T), stride)
-
-
-def smooth_inputs(motions: list[Motion], cfg: DenoiserConfig) -> list[Motion]:
-    """What the inference networks read: the motions through the config's input filter (the
-    window is shortened to fit a short motion; 0 or 1 frame = the motion itself). Motions of
-    one length are filtered together."""
-    out = list(motions)
-    by_window: dict[int, list[int]] = {}
-    for i, m in enumerate(motions):
-        window = min(cfg.input_window, m.num_frames - (1 - m.num_frames % 2))
-        if window > 1 and window > cfg.input_order:
-            by_window.setdefault(window, []).append(i)
-    for window, idx in by_window.items():
-        smooth = lambda x, w=window: savgol_smooth(x, w, cfg.input_order)  # noqa: E731
-        for i, m in zip(idx, filter_motions([motions[i] for i in idx], smooth), strict=True):
-            out[i] = m
-    return out
-
+from mdvae_cli.motion.windows import uncanonicalize
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
 

@@ -21,8 +21,8 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.fit.data import MODEL_FPS
-from mdvae_cli.fit.denoise import WindowGroup, make_windows
 from mdvae_cli.fit.train_prior import pick_device
+from mdvae_cli.fit.window_groups import WindowGroup, make_windows
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors
