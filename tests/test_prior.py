@@ -18,7 +18,6 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.fit.data import WindowSet
 from mdvae_cli.fit.train_prior import (
-    VELOCITY_DIMS,
     TrainConfig,
     prior_losses,
     train_prior,
@@ -26,6 +25,7 @@ from mdvae_cli.fit.train_prior import (
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel, load_prior, widen_state
+from mdvae_cli.motion.state import VELOCITY_DIMS
 from tests.conftest import motion_arrays
 
 TINY = ModelConfig(latent_dim=8, hidden_dim=32, mlp_dim=32)

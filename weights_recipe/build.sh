@@ -43,5 +43,11 @@ python weights_recipe/make_noisy_train.py data/cmu_amass data/cmu_noisy_train --
 mdvae fit-dataset data/cmu_noisy_train --prior runs/prior_rw30 -o runs/denoiser_rw30 \
     --config weights_recipe/denoiser_config_filtered.json --threads 2
 
-# 5. copy into the package
-python weights_recipe/export_weights.py runs/prior_rw30 runs/denoiser_rw30
+# 5. amortised refinement: every noisy train window (and its mirror image) refined for 50 steps
+#    on its own noisy data, then the encoder and x0 predictor trained for 6 epochs to output
+#    the refined posterior means in one pass (still no clean data)
+mdvae fit-dataset data/cmu_noisy_train --init-from runs/denoiser_rw30 -o runs/denoiser_distilled \
+    --epochs 0 --distill-epochs 6 --mirror-augment --device cpu --threads 2
+
+# 6. copy into the package
+python weights_recipe/export_weights.py runs/prior_rw30 runs/denoiser_distilled

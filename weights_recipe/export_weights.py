@@ -1,6 +1,6 @@
 """Copy a trained prior run and a fitted denoiser into the package's shipped weights.
 
-python weights_recipe/export_weights.py runs/prior_rw30 runs/denoiser_rw30
+python weights_recipe/export_weights.py runs/prior_rw30 runs/denoiser_distilled
 """
 
 from __future__ import annotations

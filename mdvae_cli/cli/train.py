@@ -54,18 +54,23 @@ def start_config(cls, run_dir: Path, resume: bool, config_file: Path | None):
         raise InputError(f"config {path} is unreadable ({exc})") from None
 
 
-def apply_overrides(cfg, overrides: dict, nested: dict[str, str], resume: bool) -> None:
-    """Set the options given on the command line; ``nested`` names sub-config fields.
+def apply_overrides(
+    cfg, overrides: dict, nested: dict[str, str | tuple[str, str]], resume: bool
+) -> None:
+    """Set the options given on the command line; ``nested`` maps an option to the sub-config
+    holding it (same field name) or to (sub-config, field).
 
     On resume, options that would change the network's shape are refused.
     """
     for key, value in overrides.items():
         if value is None:
             continue
-        target = getattr(cfg, nested[key]) if key in nested else cfg
-        if resume and key in nested and nested[key] == "model" and getattr(target, key) != value:
+        where = nested.get(key)
+        sub, name = (where, key) if where is None or isinstance(where, str) else where
+        target = cfg if sub is None else getattr(cfg, sub)
+        if resume and sub == "model" and getattr(target, name) != value:
             raise InputError(f"--{key.replace('_', '-')} cannot change when resuming a run")
-        setattr(target, key, value)
+        setattr(target, name, value)
 
 
 @click.command("train-prior")
@@ -258,13 +263,47 @@ def train_prior(
 @click.option("--lr-final", type=float, help="Final learning rate [3e-4].")
 @click.option("--seed", type=int, help="Random seed [0].")
 @click.option("--device", help="cpu, cuda, cuda:N or auto [auto].")
+@click.option(
+    "--init-from",
+    type=click.Path(path_type=Path, exists=True),
+    help="Start from this denoiser (checkpoint or fit-dataset folder; its prior and settings "
+    "come with it) instead of new networks on --prior.",
+)
+@click.option(
+    "--distill-epochs",
+    type=click.IntRange(min=0),
+    help="After the ELBO epochs, passes of amortised refinement: every window is refined "
+    "(--refine-style gradient steps on its own noisy data) and the networks learn to output "
+    "the result in one pass; 0 = off [0].",
+)
+@click.option("--distill-lr", type=float, help="Learning rate of --distill-epochs [1e-3].")
+@click.option(
+    "--distill-refine-steps",
+    type=click.IntRange(min=1),
+    help="Refinement steps per window for --distill-epochs' targets [50].",
+)
+@click.option(
+    "--mirror-augment/--no-mirror-augment",
+    default=None,
+    help="Also fit to the left-right mirror image of every noisy file: twice the windows "
+    "(still no clean data) [off].",
+)
 @click.option("--resume", is_flag=True, help="Continue from OUT/denoiser.npz.")
-@click.option("--max-steps", type=int, default=None, help="Stop after this many steps.")
+@click.option("--max-steps", type=int, default=None, help="Stop after this many ELBO steps.")
 @click.option("--threads", type=int, default=None, help="CPU threads for torch.")
 @body_model_option
 @handle_errors
 def fit_dataset(
-    noisy, out_dir, prior_path, config_file, resume, max_steps, threads, body_model, **overrides
+    noisy,
+    out_dir,
+    prior_path,
+    config_file,
+    init_from,
+    resume,
+    max_steps,
+    threads,
+    body_model,
+    **overrides,
 ) -> None:
     """Fit the denoiser to noisy motion files, unsupervised (no clean data needed).
 
@@ -272,9 +311,15 @@ def fit_dataset(
     the noisy observations (22 joints + 43 markers) under the frozen prior (paper Sec. 4.2).
     The result denoises new files in one pass: `mdvae denoise --denoiser OUT ...`.
 
+    With --distill-epochs, it then teaches the networks what latent refinement (`mdvae
+    denoise --refine`) finds on each of these windows, so that the one pass lands closer to
+    it (amortised refinement; still no clean data).
+
     \b
-    Example:
+    Examples:
       mdvae fit-dataset noisy_takes/ -o runs/denoiser --epochs 20
+      mdvae fit-dataset noisy_takes/ -o runs/denoiser_a --init-from runs/denoiser \\
+          --epochs 0 --distill-epochs 6 --mirror-augment
     """
     import torch
 
@@ -288,31 +333,59 @@ def fit_dataset(
         cfg.data = [str(p) for p in noisy]
         if prior_path is not None:
             cfg.prior = str(prior_path)
+        if init_from is not None:
+            cfg.init_from = str(init_from)
         if body_model is not None:
             cfg.body_model = str(body_model)
     apply_overrides(
         cfg,
         overrides,
-        nested={"lam": "denoiser", "obs_unit": "denoiser", "input_window": "denoiser"},
+        nested={
+            "lam": "denoiser",
+            "obs_unit": "denoiser",
+            "input_window": "denoiser",
+            "distill_epochs": ("distill", "epochs"),
+            "distill_lr": ("distill", "lr"),
+            "distill_refine_steps": ("distill", "refine_steps"),
+        },
         resume=resume,
     )
+    if cfg.init_from is not None and prior_path is not None:
+        raise InputError("--init-from brings its own prior: drop --prior")
     with progress_bar() as progress:
-        task = progress.add_task("fitting", total=None, info="")
+        tasks: dict[str, object] = {}
+        labels = {"fit": "fitting", "targets": "refining targets", "distill": "distilling"}
+        logged: dict[str, int] = {}
 
         def tick(info: dict) -> None:
-            progress.update(
-                task,
-                total=info["steps"],
-                completed=info["step"],
-                info=f"loss {info['loss']:.2f} rec {info['rec']:.2f} "
-                f"kl_z {info['kl_z']:.2f} err {info['err_cm']:.1f} cm",
-            )
+            stage = info["stage"]
+            if stage not in tasks:
+                tasks[stage] = progress.add_task(labels[stage], total=info["steps"], info="")
+            if stage == "fit":
+                text = (
+                    f"loss {info['loss']:.2f} rec {info['rec']:.2f} "
+                    f"kl_z {info['kl_z']:.2f} err {info['err_cm']:.1f} cm"
+                )
+            elif stage == "distill":
+                text = f"loss {info['loss']:.3f} state {info['state']:.3f}"
+            else:
+                text = "windows"
+            progress.update(tasks[stage], total=info["steps"], completed=info["step"], info=text)
+            part = 20 * info["step"] // max(1, info["steps"])
+            if not console.is_terminal and part > logged.get(stage, 0):  # batch jobs' logs
+                logged[stage] = part  # a line every 5 % of a stage
+                console.print(f"{labels[stage]} {info['step']}/{info['steps']} {text}")
 
         summary = run(cfg, out_dir, resume=resume, progress=tick, max_steps=max_steps)
     console.print(
         f"fitted {summary.steps} steps on {summary.windows} windows in {summary.seconds:.0f} s; "
         f"loss {summary.first_loss:.3f} -> {summary.last_loss:.3f}; denoiser in {out_dir}"
     )
+    if summary.distill_steps:
+        console.print(
+            f"amortised refinement: {summary.distill_steps} steps, loss "
+            f"{summary.distill_first_loss:.3f} -> {summary.distill_last_loss:.3f}"
+        )
 
 
 COMMANDS = [train_prior, fit_dataset]

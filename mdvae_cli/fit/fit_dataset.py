@@ -21,11 +21,14 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.fit.data import MODEL_FPS
+from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_targets
+from mdvae_cli.fit.distributed import parameter_digest
 from mdvae_cli.fit.train_prior import pick_device
 from mdvae_cli.fit.window_groups import WindowGroup, make_windows
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors
+from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.weights import default_weights
@@ -33,7 +36,14 @@ from mdvae_cli.weights import default_weights
 
 @dataclass
 class FitConfig:
-    """Settings of an unsupervised denoising-learning run (saved as ``config.json``)."""
+    """Settings of an unsupervised denoising-learning run (saved as ``config.json``).
+
+    ``epochs`` of ELBO fitting (paper Sec. 4.2), then ``distill.epochs`` of amortised
+    refinement (``fit.distill``; 0 = off). ``init_from``: start from this denoiser's networks
+    (checkpoint or fit-dataset folder; its prior and denoiser settings come with it) instead
+    of new ones on ``prior``. ``mirror_augment``: also fit to every file's left-right mirror
+    image (twice the windows).
+    """
 
     data: list[str] = field(default_factory=list)
     prior: str | None = None
@@ -46,17 +56,22 @@ class FitConfig:
     seed: int = 0
     body_model: str | None = None
     device: str = "auto"
+    init_from: str | None = None
+    mirror_augment: bool = False
     denoiser: DenoiserConfig = field(default_factory=DenoiserConfig)
+    distill: DistillConfig = field(default_factory=DistillConfig)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["denoiser"] = self.denoiser.to_dict()
+        d["distill"] = self.distill.to_dict()
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> FitConfig:
         d = dict(d)
         d["denoiser"] = DenoiserConfig.from_dict(d.get("denoiser", {}))
+        d["distill"] = DistillConfig(**d.get("distill", {}))
         return cls(**d)
 
 
@@ -173,9 +188,18 @@ def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
 
 
 def load_noisy_windows(
-    files: list[Path], denoiser: Denoiser, body: BodyModel, window: int, stride: int
+    files: list[Path],
+    denoiser: Denoiser,
+    body: BodyModel,
+    window: int,
+    stride: int,
+    mirror: bool = False,
 ) -> list[WindowGroup]:
+    """The full-length windows of noisy files at 30 Hz (with ``mirror``, also those of every
+    file's left-right mirror image: still only noisy data), as one group."""
     motions = [resample_motion(load_motion(f), MODEL_FPS) for f in files]
+    if mirror:
+        motions += [mirror_motion(m, body) for m in motions]
     groups = make_windows(motions, denoiser, body, window, stride)
     full = concat_groups(groups, window + 1)
     if full is None:
@@ -191,6 +215,12 @@ class FitSummary:
     last_loss: float
     seconds: float
     windows: int
+    distill_steps: int = 0
+    distill_first_loss: float = math.nan
+    distill_last_loss: float = math.nan
+
+
+TARGETS_FILE = "distill_targets.npz"
 
 
 def fit_dataset(
@@ -202,36 +232,45 @@ def fit_dataset(
 ) -> FitSummary:
     """Fit the inference networks to noisy files (no clean data) and save ``denoiser.npz``.
 
-    Starts from a prior (``cfg.prior``, default the shipped one) or, with ``resume``, from the
-    denoiser already in ``out_dir``.
+    Starts from a prior (``cfg.prior``, default the shipped one), from another denoiser
+    (``cfg.init_from``) or, with ``resume``, from the denoiser already in ``out_dir``. Then
+    ``cfg.epochs`` of ELBO steps and ``cfg.distill.epochs`` of amortised refinement, whose
+    targets are kept in ``out_dir`` (``distill_targets.npz``) for a resumed run. ``progress``
+    gets every step's dict with "stage": "fit", "targets" or "distill". ``max_steps`` caps
+    the ELBO steps (tests).
     """
     start = time.time()
     out_dir = Path(out_dir)
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
-    if resume:
-        denoiser, meta = load_denoiser(out_dir / "denoiser.npz")
-        done = int(meta.get("steps", 0))
-    else:
-        prior, _ = load_prior(cfg.prior if cfg.prior else default_weights("prior"))
-        denoiser, done = Denoiser(prior, cfg.denoiser), 0
+    denoiser, done, distilled, history = _starting_point(cfg, out_dir, resume)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     body = BodyModel(load_body_model(cfg.body_model))
     files = [f for f, _ in expand_inputs([Path(p) for p in cfg.data])]
     if not files:
         raise InputError("no noisy .npz files found in the given paths")
-    groups = load_noisy_windows(files, denoiser, body, cfg.window, cfg.stride)
+    groups = load_noisy_windows(files, denoiser, body, cfg.window, cfg.stride, cfg.mirror_augment)
     total = math.ceil(len(groups[0]) / cfg.batch_size) * cfg.epochs
     steps = max(0, total - done)
     if max_steps is not None:
         steps = min(steps, max_steps)
+    if steps > 0:  # new ELBO steps: any distillation so far was of other networks
+        distilled = 0
     denoiser.to(device)
     body.to(device)
 
-    def save(step: int) -> None:
-        meta = {"fit_config": cfg.to_dict(), "steps": done + step}
+    def save(elbo_steps: int, distill_steps: int, **extra) -> None:
+        meta = {
+            "fit_config": cfg.to_dict(),
+            "steps": elbo_steps,
+            "distill_steps": distill_steps,
+            **({"started_from": history} if history else {}),
+            **extra,
+        }
+        denoiser.cpu()
         save_denoiser(out_dir / "denoiser.npz", denoiser, meta)
+        denoiser.to(device)
 
     losses = fit_denoiser(
         denoiser,
@@ -241,34 +280,100 @@ def fit_dataset(
         cfg.lr,
         cfg.batch_size,
         seed=cfg.seed + done,
-        progress=progress,
+        progress=_staged(progress, "fit"),
         device=device,
         lr_final=cfg.lr_final,
-        checkpoint=save,
+        checkpoint=lambda step: save(done + step, 0),
     )
-    denoiser.cpu()
-    meta = {
-        "fit_config": cfg.to_dict(),
-        "steps": done + steps,
-        "final_loss": losses[-1] if losses else None,
-    }
-    save_denoiser(out_dir / "denoiser.npz", denoiser, meta)
-    with open(out_dir / "log.jsonl", "a") as fh:
-        fh.write(
-            json.dumps(
-                {
-                    "steps": done + steps,
-                    "losses": losses[:: max(1, len(losses) // 200)],
-                    "seconds": time.time() - start,
-                }
-            )
-            + "\n"
+    done += steps
+    last = {"final_loss": losses[-1]} if losses else {}
+    save(done, distilled, **last)
+    d_losses = []
+    if cfg.distill.epochs > 0:
+        targets = _distill_targets(
+            denoiser, groups[0], cfg, out_dir, steps > 0, distilled > 0, progress
         )
+        d_losses = distill(
+            denoiser, groups[0], targets, cfg.distill, cfg.seed, distilled,
+            _staged(progress, "distill"), lambda step: save(done, step),
+        )  # fmt: skip
+        distilled += len(d_losses)
+        if d_losses:
+            save(done, distilled, **last, final_distill_loss=d_losses[-1])
+    denoiser.cpu()
+    with open(out_dir / "log.jsonl", "a") as fh:
+        record = {
+            "steps": done,
+            "losses": losses[:: max(1, len(losses) // 200)],
+            "distill_steps": distilled,
+            "distill_losses": d_losses[:: max(1, len(d_losses) // 200)],
+            "seconds": time.time() - start,
+        }
+        fh.write(json.dumps(record) + "\n")
     return FitSummary(
         str(out_dir),
-        done + steps,
+        done,
         losses[0] if losses else math.nan,
         losses[-1] if losses else math.nan,
         time.time() - start,
         len(groups[0]),
+        distilled,
+        d_losses[0] if d_losses else math.nan,
+        d_losses[-1] if d_losses else math.nan,
     )
+
+
+def _starting_point(cfg: FitConfig, out_dir: Path, resume: bool) -> tuple[Denoiser, int, int, dict]:
+    """The denoiser a run starts from, the ELBO and distillation steps it has taken, and what
+    the networks had been through before the run (``init_from``: its path and record)."""
+    if resume:
+        denoiser, meta = load_denoiser(out_dir / "denoiser.npz")
+        steps, distilled = int(meta.get("steps", 0)), int(meta.get("distill_steps", 0))
+        return denoiser, steps, distilled, meta.get("started_from", {})
+    if cfg.init_from:
+        denoiser, meta = load_denoiser(cfg.init_from)
+        cfg.denoiser = denoiser.cfg
+        keep = ("fit_config", "steps", "distill_steps", "started_from")
+        return denoiser, 0, 0, {"path": cfg.init_from, **{k: meta[k] for k in keep if k in meta}}
+    prior, _ = load_prior(cfg.prior if cfg.prior else default_weights("prior"))
+    return Denoiser(prior, cfg.denoiser), 0, 0, {}
+
+
+def _distill_targets(
+    denoiser: Denoiser,
+    group: WindowGroup,
+    cfg: FitConfig,
+    out_dir: Path,
+    fresh: bool,
+    distilling: bool,
+    progress: Callable[[dict], None] | None,
+) -> Targets:
+    """The refined targets of a run: read back from ``out_dir`` when they were made for these
+    windows and settings from these very networks (or, ``distilling`` — a resumed run part
+    way through distillation — from the networks this run started from; ``fresh``: ELBO steps
+    were just taken, never reuse), else computed and saved there."""
+    path = out_dir / TARGETS_FILE
+    key = {"windows": len(group), "refine_steps": cfg.distill.refine_steps}
+    names = ("z", "x0", "z_logvar")
+    digest = parameter_digest(denoiser)
+    if path.exists() and not fresh:
+        tensors, meta = load_checkpoint(path)
+        same = all(meta.get(k) == v for k, v in key.items()) and all(n in tensors for n in names)
+        if same and (distilling or meta.get("networks") == digest):
+            return Targets(*(tensors[n] for n in names))
+    device = next(denoiser.parameters()).device
+    denoiser.cpu()  # refinement runs batch by batch on the CPU copy of the windows
+    targets = refine_targets(
+        denoiser, group, cfg.distill.refine_steps, _staged(progress, "targets")
+    )
+    denoiser.to(device)
+    tensors = {n: getattr(targets, n) for n in names}
+    save_checkpoint(path, tensors, {"kind": "mdvae-distill-targets", "networks": digest, **key})
+    return targets
+
+
+def _staged(progress: Callable[[dict], None] | None, stage: str) -> Callable[[dict], None] | None:
+    """A progress callback that labels the stage."""
+    if progress is None:
+        return None
+    return lambda info: progress({**info, "stage": stage})

@@ -154,12 +154,45 @@ def refine_latents(
     only the closed-form factors are fitted (``cfg.offset_iterations`` rounds): regression
     mode plus the offset, or regression mode itself when ``cfg.offset_std`` = 0.
     """
+    if cfg.steps == 0:
+        with torch.no_grad():
+            start = denoiser.infer(yn, with_prior=False)
+        return add_offset(start["x_hat"], obs, joint_weight, cfg)
+    refined = refine_posterior(denoiser, yn, obs, joint_weight, cfg, progress)
+    return refined.x_hat + refined.factors.offset
+
+
+@dataclass
+class RefinedPosterior:
+    """What refinement ends with for a batch of windows.
+
+    z: (N, T, L) and x0: (N, 138) the refined posterior means (normalised); z_logvar: (N, T, L)
+    the posterior log-variances (the encoder's, held during refinement); x_hat: (N, T+1, 138)
+    the decoded states (state units, without the offset); factors: the closed-form factors
+    fitted to x_hat (``factors.offset`` is the slow offset).
+    """
+
+    z: torch.Tensor
+    x0: torch.Tensor
+    z_logvar: torch.Tensor
+    x_hat: torch.Tensor
+    factors: ClosedFormFactors
+
+
+def refine_posterior(
+    denoiser: Denoiser,
+    yn: torch.Tensor,
+    obs: torch.Tensor,
+    joint_weight: torch.Tensor | None,
+    cfg: RefineConfig,
+    progress: Callable[[dict], None] | None = None,
+) -> RefinedPosterior:
+    """``cfg.steps`` Adam steps on each window's ELBO from the encoder's answer (shapes as in
+    :func:`refine_latents`); the posterior means they reach, and what they decode to."""
     dvae, norm = denoiser.prior.dvae, denoiser.prior.normalizer
     N, T1 = yn.shape[:2]
     with torch.no_grad():
         start = denoiser.infer(yn, with_prior=False)
-    if cfg.steps == 0:
-        return add_offset(start["x_hat"], obs, joint_weight, cfg)
     z = start["q_z"].mean.clone().requires_grad_(True)
     z_logvar = start["q_z"].logvar
     x0 = start["q_x0"].mean.clone().requires_grad_(True)
@@ -175,13 +208,15 @@ def refine_latents(
         factors.update(x_hat)
         p_z = dvae.prior(z, x0)
         kl = gaussian_kl(z, z_logvar, p_z.mean, p_z.logvar).sum()
-        loss = (factors.reconstruction(x_hat) + kl) / (N * T1)
+        # a sum over windows (per frame): each window's gradient, and so its Adam steps, do
+        # not depend on how many windows share the batch (Adam's epsilon is not scale-free)
+        loss = (factors.reconstruction(x_hat) + kl) / T1
         opt.zero_grad()
         loss.backward()
         opt.step()
         if progress is not None:
-            progress({"step": step + 1, "steps": cfg.steps, "loss": loss.item()})
+            progress({"step": step + 1, "steps": cfg.steps, "loss": loss.item() / N})
     with torch.no_grad():
         x_hat = decode()
         factors.update(x_hat)
-        return x_hat + factors.offset
+    return RefinedPosterior(z.detach(), x0.detach(), z_logvar, x_hat, factors)

@@ -32,14 +32,7 @@ from mdvae_cli.fit.distributed import (
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, kl_weight
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
-from mdvae_cli.motion.state import POSE_VEL, ROOT_VEL, TRANS_VEL, state_to_params
-
-#: the velocity columns of the state (r dot, phi dot, Theta dot)
-VELOCITY_DIMS = [
-    *range(TRANS_VEL.start, TRANS_VEL.stop),
-    *range(ROOT_VEL.start, ROOT_VEL.stop),
-    *range(POSE_VEL.start, POSE_VEL.stop),
-]
+from mdvae_cli.motion.state import VELOCITY_DIMS, state_to_params
 
 
 @dataclass

@@ -20,6 +20,12 @@ ROOT = slice(6, 9)  # phi
 ROOT_VEL = slice(9, 12)  # phi dot
 POSE = slice(12, 75)  # Theta
 POSE_VEL = slice(75, 138)  # Theta dot
+#: the velocity columns of the state (r dot, phi dot, Theta dot)
+VELOCITY_DIMS = [
+    *range(TRANS_VEL.start, TRANS_VEL.stop),
+    *range(ROOT_VEL.start, ROOT_VEL.stop),
+    *range(POSE_VEL.start, POSE_VEL.stop),
+]
 
 
 def finite_difference(p: torch.Tensor, fps: float, dim: int = -2) -> torch.Tensor:

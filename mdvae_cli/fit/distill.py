@@ -1,0 +1,181 @@
+"""Amortised refinement: teach the inference networks what latent refinement finds.
+
+Regression mode reads each window's latents off the encoder in one pass; latent refinement
+(``fit.refine``) then takes gradient steps on that window's own ELBO and lands markedly closer
+to the clean motion (the encoder's amortisation gap, docs/model.md). Here, after the ELBO fit,
+every noisy training window is refined (its own noisy observations only: still no clean data)
+and the encoder and the initial-state predictor are trained to output those refined posterior
+means directly: squared error between the states they decode to and the refined decoded
+states (normalised units, velocities down-weighted), plus a small term on the latents
+themselves and one that keeps the posterior log-variances at the encoder's (refinement holds
+them there, and its steps read them through the KL: left free, they drift and refinement from
+the new networks ends worse). Regression mode then gets much of refinement's accuracy at
+regression mode's cost. The prior, the decoder and the noise predictor are not touched.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import torch
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.fit.refine import RefineConfig, refine_posterior
+from mdvae_cli.fit.window_groups import WindowGroup
+from mdvae_cli.model.denoiser import Denoiser
+from mdvae_cli.motion.state import VELOCITY_DIMS
+
+
+@dataclass
+class DistillConfig:
+    """Settings of amortised refinement (``mdvae fit-dataset --distill-epochs``).
+
+    epochs: passes over the windows (0 = off); lr, lr_final: Adam's learning rate, cosine-
+    decayed; batch_size: windows per step; latent_weight: weight of the squared errors on the
+    latent means and log-variances beside the one on the decoded states; velocity_weight:
+    weight of the velocity columns in the latter (they are redundant with the positions);
+    refine_steps: refinement steps that make each window's target (``RefineConfig`` defaults
+    otherwise).
+    """
+
+    epochs: int = 0
+    lr: float = 1e-3
+    lr_final: float = 1e-4
+    batch_size: int = 64
+    latent_weight: float = 0.1
+    velocity_weight: float = 0.1
+    refine_steps: int = 50
+
+    def __post_init__(self):
+        if self.epochs < 0 or self.refine_steps < 1 or self.batch_size < 1:
+            raise InputError(
+                "distillation needs epochs >= 0, refine_steps >= 1 and batch_size >= 1"
+            )
+        if not (self.lr > 0 and self.lr_final > 0):
+            raise InputError("distillation learning rates must be > 0")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Targets:
+    """Refined posterior of a group's windows.  z: (N, T, L) and x0: (N, 138) the means,
+    normalised; z_logvar: (N, T, L) the log-variances (the encoder's before distillation)."""
+
+    z: torch.Tensor
+    x0: torch.Tensor
+    z_logvar: torch.Tensor
+
+    def __len__(self) -> int:
+        return int(self.z.shape[0])
+
+
+def refine_targets(
+    denoiser: Denoiser,
+    group: WindowGroup,
+    steps: int,
+    progress: Callable[[dict], None] | None = None,
+) -> Targets:
+    """Refine every window of ``group`` (its raw noisy states: ``make_windows(observations=
+    True)``) for ``steps`` steps; ``progress`` gets {"step", "steps"} counted in windows."""
+    if group.obs is None:
+        raise ValueError("refinement targets need the raw states: make_windows(observations=True)")
+    cfg = RefineConfig(steps=steps)
+    denoiser.eval()
+    parts = []
+    for i in range(0, len(group), cfg.batch_windows):
+        idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
+        g = group.batch(idx, with_y3d=False)
+        joints = None if g.weight is None else g.weight[..., :22]
+        refined = refine_posterior(denoiser, g.yn, g.obs, joints, cfg)
+        parts.append((refined.z, refined.x0, refined.z_logvar))
+        if progress is not None:
+            progress({"step": int(idx[-1]) + 1, "steps": len(group)})
+    return Targets(*(torch.cat(t) for t in zip(*parts, strict=True)))
+
+
+def column_weights(velocity_weight: float, dim: int = 138) -> torch.Tensor:
+    """(dim,) weights of the state columns in the distillation loss."""
+    w = torch.ones(dim)
+    w[torch.as_tensor(VELOCITY_DIMS)] = velocity_weight
+    return w
+
+
+def distill_loss(
+    denoiser: Denoiser,
+    yn: torch.Tensor,
+    targets: Targets,
+    col_weight: torch.Tensor,
+    latent_weight: float,
+) -> dict[str, torch.Tensor]:
+    """Squared errors of the networks' posterior against the refined one, per window.
+
+    yn: (B, T+1, 138) what the networks read; targets: B windows' refined posteriors;
+    col_weight: (138,) -> {"loss", "state", "latent"} (means over windows and frames, sums over
+    columns; "latent" = means and log-variances)
+    """
+    out = denoiser.infer(yn, with_prior=False)
+    with torch.no_grad():
+        x_mean, _ = denoiser.prior.dvae.decoder(targets.z, targets.x0)
+        ref = torch.cat([targets.x0[:, None], x_mean], dim=1)
+    state = (((out["x_hat_n"] - ref) ** 2) * col_weight).sum(-1).mean()
+    q_z = out["q_z"]
+    latent = ((q_z.mean - targets.z) ** 2 + (q_z.logvar - targets.z_logvar) ** 2).sum(-1).mean()
+    return {"loss": state + latent_weight * latent, "state": state, "latent": latent}
+
+
+def distill(
+    denoiser: Denoiser,
+    group: WindowGroup,
+    targets: Targets,
+    cfg: DistillConfig,
+    seed: int = 0,
+    done: int = 0,
+    progress: Callable[[dict], None] | None = None,
+    checkpoint: Callable[[int], None] | None = None,
+    checkpoint_every: int = 200,
+) -> list[float]:
+    """Train the encoder and the x0 predictor on ``targets`` for ``cfg.epochs`` passes.
+
+    ``done`` steps were taken before (resume: the learning-rate schedule and the batch order
+    carry on where they were); ``checkpoint(step)`` is called every ``checkpoint_every``
+    steps with the number of distillation steps taken so far. Returns every step's loss.
+    """
+    if len(targets) != len(group):
+        raise ValueError(f"{len(targets)} targets for {len(group)} windows")
+    per_epoch = max(1, len(group) // cfg.batch_size)
+    total = per_epoch * cfg.epochs
+    params = [*denoiser.encoder.parameters(), *denoiser.x0_predictor.parameters()]
+    opt = torch.optim.Adam(params, lr=cfg.lr)
+    device = params[0].device  # the windows and targets stay where they are, batches move
+    col_weight = column_weights(cfg.velocity_weight, group.yn.shape[-1]).to(device)
+    denoiser.train()
+    losses = []
+    perm = None
+    for step in range(done, total):
+        epoch, i = divmod(step, per_epoch)
+        if perm is None or i == 0:
+            perm = torch.randperm(len(group), generator=torch.Generator().manual_seed(seed + epoch))
+        idx = perm[i * cfg.batch_size : (i + 1) * cfg.batch_size]
+        lr = cfg.lr_final + 0.5 * (cfg.lr - cfg.lr_final) * (1 + math.cos(math.pi * step / total))
+        for pg in opt.param_groups:
+            pg["lr"] = lr
+        batch = Targets(*(t[idx].to(device) for t in (targets.z, targets.x0, targets.z_logvar)))
+        terms = distill_loss(denoiser, group.yn[idx].to(device), batch, col_weight,
+                             cfg.latent_weight)  # fmt: skip
+        opt.zero_grad(set_to_none=True)
+        terms["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(params, 5.0)
+        opt.step()
+        losses.append(terms["loss"].item())
+        if progress is not None:
+            progress({"step": step + 1, "steps": total, **{k: v.item() for k, v in terms.items()}})
+        if checkpoint is not None and (step + 1) % checkpoint_every == 0:
+            denoiser.eval()
+            checkpoint(step + 1)
+            denoiser.train()
+    denoiser.eval()
+    return losses

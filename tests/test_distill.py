@@ -1,0 +1,169 @@
+"""Amortised refinement: refined targets, distillation into the inference networks, and
+``fit-dataset --distill-epochs``."""
+
+import json
+from dataclasses import replace
+
+import pytest
+import torch
+from click.testing import CliRunner
+
+from mdvae_cli.body.builtin import builtin_body_model
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.cli.main import cli
+from mdvae_cli.errors import InputError
+from mdvae_cli.fit import fit_dataset as fd
+from mdvae_cli.fit.distill import DistillConfig, distill, refine_targets
+from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_denoiser, load_noisy_windows
+from mdvae_cli.fit.refine import RefineConfig, refine_posterior
+from mdvae_cli.fit.window_groups import make_windows
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.motion.mirror import mirror_motion
+from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.motion.resample import resample_motion
+from tests.test_denoise import noisy_dir, tiny_prior, write_denoiser  # noqa: F401 (fixtures)
+
+
+@pytest.fixture(scope="module")
+def windows(tiny_prior, noisy_dir):  # noqa: F811
+    prior, _ = load_prior(tiny_prior / "run")
+    torch.manual_seed(0)
+    den = Denoiser(prior, DenoiserConfig(hidden_dim=16)).eval()
+    body = BodyModel(builtin_body_model())
+    files = sorted(noisy_dir.glob("*.npz"))
+    return den, load_noisy_windows(files, den, body, 20, 5)[0]
+
+
+def test_refine_targets_are_what_refinement_finds(windows):
+    den, group = windows
+    targets = refine_targets(den, group, steps=5)
+    assert targets.z.shape == (len(group), 20, den.prior.cfg.latent_dim)
+    assert targets.x0.shape == (len(group), 138)
+    direct = refine_posterior(den, group.yn, group.obs, None, RefineConfig(steps=5))
+    torch.testing.assert_close(targets.z, direct.z)
+    torch.testing.assert_close(targets.x0, direct.x0)
+
+    # refinement moved the posterior away from the encoder's answer
+    start = den.infer(group.yn, with_prior=False)["q_z"].mean
+    assert (targets.z - start).abs().mean() > 1e-3
+
+
+def test_distillation_brings_one_pass_output_to_the_refined_states(windows):
+    den, group = windows
+    den = Denoiser(den.prior, den.cfg)
+    den.load_state_dict(windows[0].state_dict())
+    targets = refine_targets(den, group, steps=20)
+    with torch.no_grad():
+        x_mean, _ = den.prior.dvae.decoder(targets.z, targets.x0)
+        refined = torch.cat([targets.x0[:, None], x_mean], dim=1)
+
+    @torch.no_grad()
+    def gap() -> float:
+        return float(((den.infer(group.yn, with_prior=False)["x_hat_n"] - refined) ** 2).mean())
+
+    before_gap = gap()
+    before = {k: v.clone() for k, v in den.state_dict().items()}
+    cfg = DistillConfig(epochs=30, batch_size=8, lr=3e-3, lr_final=1e-3)
+    losses = distill(den, group, targets, cfg, seed=0)
+    assert len(losses) == 30 * (len(group) // 8)
+    assert sum(losses[-5:]) < 0.7 * sum(losses[:5]), (losses[:5], losses[-5:])
+    assert gap() < 0.7 * before_gap
+    # the posterior variances stay near the encoder's (refinement reads them through the KL);
+    # without the latent terms they drift further
+    loose = Denoiser(den.prior, den.cfg)
+    loose.load_state_dict(windows[0].state_dict())
+    distill(loose, group, targets, replace(cfg, latent_weight=0.0), seed=0)
+
+    @torch.no_grad()
+    def drift(model: Denoiser) -> float:
+        logvar = model.infer(group.yn, with_prior=False)["q_z"].logvar
+        return float((logvar - targets.z_logvar).abs().mean())
+
+    assert drift(den) < 0.5 * drift(loose), (drift(den), drift(loose))
+    changed = {k for k, v in den.state_dict().items() if not torch.equal(before[k], v)}
+    assert changed and all(k.startswith(("encoder.", "x0_predictor.")) for k in changed)
+
+
+def test_mirror_augment_adds_the_mirror_image_of_every_window(windows, noisy_dir):  # noqa: F811
+    den, group = windows
+    body = BodyModel(builtin_body_model())
+    files = sorted(noisy_dir.glob("*.npz"))
+    both = load_noisy_windows(files, den, body, 20, 5, mirror=True)[0]
+    assert len(both) == 2 * len(group)
+    torch.testing.assert_close(both.yn[: len(group)], group.yn)
+    torch.testing.assert_close(both.obs[: len(group)], group.obs)
+    mirror_files = [mirror_motion(resample_motion(load_motion(f), 30), body) for f in files]
+    mirrored = make_windows(mirror_files, den, body, 20, 5)
+    torch.testing.assert_close(both.yn[len(group) :], mirrored[-1].yn)
+
+
+def test_distill_config_is_validated():
+    with pytest.raises(InputError):
+        DistillConfig(epochs=-1)
+    with pytest.raises(InputError):
+        DistillConfig(lr=0)
+    with pytest.raises(InputError):
+        DistillConfig(refine_steps=0)
+
+
+def test_fit_dataset_distils_and_a_resumed_run_reuses_its_targets(
+    tiny_prior,  # noqa: F811
+    noisy_dir,  # noqa: F811
+    tmp_path,
+    monkeypatch,
+):
+    start = write_denoiser(tiny_prior, tmp_path / "start")
+    cfg = FitConfig(
+        data=[str(noisy_dir)], init_from=str(start), window=20, stride=5, batch_size=8,
+        epochs=0, device="cpu", distill=DistillConfig(epochs=2, batch_size=8, refine_steps=3),
+    )  # fmt: skip
+    stages = []
+    summary = fit_dataset(cfg, tmp_path / "den", progress=lambda d: stages.append(d["stage"]))
+    assert summary.steps == 0 and summary.distill_steps > 0
+    assert set(stages) == {"targets", "distill"}
+    den, meta = load_denoiser(tmp_path / "den")
+    assert meta["distill_steps"] == summary.distill_steps
+    assert meta["started_from"]["path"] == str(start)
+    assert (tmp_path / "den" / fd.TARGETS_FILE).exists()
+    saved = json.loads((tmp_path / "den" / "config.json").read_text())
+    assert saved["distill"]["epochs"] == 2 and saved["init_from"] == str(start)
+    # the networks it started from are not the ones it ends with
+    first, _ = load_denoiser(start)
+    assert not torch.equal(first.encoder.head[0].weight, den.encoder.head[0].weight)
+
+    def no_refining(*args, **kwargs):
+        raise AssertionError("targets recomputed")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(fd, "refine_targets", no_refining)
+        cfg.distill.epochs = 3
+        resumed = fit_dataset(cfg, tmp_path / "den", resume=True)
+        assert resumed.distill_steps == summary.distill_steps * 3 // 2
+        # a new run from the same networks into the same folder may reuse them too
+        fit_dataset(cfg, tmp_path / "den")
+    # but not a run from other networks
+    cfg.init_from = str(tmp_path / "den")
+    calls = []
+    real = fd.refine_targets
+    monkeypatch.setattr(fd, "refine_targets", lambda *a, **k: calls.append(1) or real(*a, **k))
+    fit_dataset(cfg, tmp_path / "den")
+    assert calls == [1]
+
+
+def test_cli_fit_dataset_distill_options(tiny_prior, noisy_dir, tmp_path):  # noqa: F811
+    start = write_denoiser(tiny_prior, tmp_path / "start")
+    out = tmp_path / "den"
+    args = ["fit-dataset", str(noisy_dir), "-o", str(out), "--init-from", str(start),
+            "--epochs", "0", "--window", "20", "--stride", "5", "--batch-size", "8",
+            "--distill-epochs", "1", "--distill-refine-steps", "2",
+            "--distill-lr", "1e-3"]  # fmt: skip
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    assert "amortised refinement" in res.output
+    assert "refining targets" in res.output and "distilling" in res.output  # batch-job log lines
+    saved = json.loads((out / "config.json").read_text())
+    assert saved["distill"] == {**saved["distill"], "epochs": 1, "refine_steps": 2, "lr": 1e-3}
+    res = CliRunner().invoke(cli, [*args, "--prior", str(tiny_prior / "run")])
+    assert res.exit_code == 1 and "--init-from brings its own prior" in res.output
+    assert "Traceback" not in res.output
