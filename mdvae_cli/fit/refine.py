@@ -57,8 +57,8 @@ class RefineConfig:
     strength of the IG(offset_lam/2, offset_lam/2 * offset_std^2) prior on each joint's
     offset variance, in pseudo-coefficients; offset_terms: how many cosines (1 = a constant
     offset per window); offset_decay: cosine k's prior scale is offset_decay^k times the
-    joint's (faster terms are smaller: a smoothness prior; by default 0.85 with refinement
-    steps and 0.7 without, each the best on the val split for its mode, docs/model.md);
+    joint's (faster terms are smaller: a smoothness prior; 0.85, the best on the val split
+    with refinement steps and, for the shipped distilled networks, without, docs/model.md);
     offset_iterations: rounds of the
     closed-form updates when ``steps`` = 0 (the offset on regression mode's output);
     outlier_dof: 0 = Gaussian noise with one variance per joint and window; > 0 = Student-t
@@ -75,13 +75,11 @@ class RefineConfig:
     offset_std: float = 0.03
     offset_terms: int = 10
     offset_lam: float = 3.0
-    offset_decay: float | None = None
+    offset_decay: float = 0.85
     offset_iterations: int = 5
     outlier_dof: float = 0.0
 
     def __post_init__(self):
-        if self.offset_decay is None:
-            self.offset_decay = 0.85 if self.steps > 0 else 0.7
         if self.steps < 0:
             raise InputError(f"refinement steps must be >= 0, got {self.steps}")
         for name in ("lr", "lam", "rot_unit", "trans_unit"):
