@@ -161,6 +161,7 @@ def test_cli_fit_dataset_distill_options(tiny_prior, noisy_dir, tmp_path):  # no
     res = CliRunner().invoke(cli, args)
     assert res.exit_code == 0, res.output
     assert "amortised refinement" in res.output
+    assert "no ELBO steps in this run" in res.output and "nan" not in res.output
     assert "refining targets" in res.output and "distilling" in res.output  # batch-job log lines
     saved = json.loads((out / "config.json").read_text())
     assert saved["distill"] == {**saved["distill"], "epochs": 1, "refine_steps": 2, "lr": 1e-3}

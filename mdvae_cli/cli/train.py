@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import click
@@ -377,9 +378,14 @@ def fit_dataset(
                 console.print(f"{labels[stage]} {info['step']}/{info['steps']} {text}")
 
         summary = run(cfg, out_dir, resume=resume, progress=tick, max_steps=max_steps)
+    elbo = (
+        f"loss {summary.first_loss:.3f} -> {summary.last_loss:.3f}"
+        if not math.isnan(summary.first_loss)  # ELBO steps were taken in this run
+        else "no ELBO steps in this run"
+    )
     console.print(
         f"fitted {summary.steps} steps on {summary.windows} windows in {summary.seconds:.0f} s; "
-        f"loss {summary.first_loss:.3f} -> {summary.last_loss:.3f}; denoiser in {out_dir}"
+        f"{elbo}; denoiser in {out_dir}"
     )
     if summary.distill_steps:
         console.print(
