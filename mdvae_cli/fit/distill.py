@@ -15,7 +15,6 @@ regression mode's cost. The prior, the decoder and the noise predictor are not t
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
@@ -23,6 +22,7 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fit.refine import RefineConfig, refine_posterior
+from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.fit.window_groups import WindowGroup
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.state import VELOCITY_DIMS
@@ -160,22 +160,14 @@ def distill(
         if perm is None or i == 0:
             perm = torch.randperm(len(group), generator=torch.Generator().manual_seed(seed + epoch))
         idx = perm[i * cfg.batch_size : (i + 1) * cfg.batch_size]
-        lr = cfg.lr_final + 0.5 * (cfg.lr - cfg.lr_final) * (1 + math.cos(math.pi * step / total))
-        for pg in opt.param_groups:
-            pg["lr"] = lr
+        set_lr(opt, cosine_lr(step, total, cfg.lr, cfg.lr_final))
         batch = Targets(*(t[idx].to(device) for t in (targets.z, targets.x0, targets.z_logvar)))
         terms = distill_loss(denoiser, group.yn[idx].to(device), batch, col_weight,
                              cfg.latent_weight)  # fmt: skip
-        opt.zero_grad(set_to_none=True)
-        terms["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(params, 5.0)
-        opt.step()
+        clipped_step(opt, terms["loss"], params, 5.0)
         losses.append(terms["loss"].item())
         if progress is not None:
             progress({"step": step + 1, "steps": total, **{k: v.item() for k, v in terms.items()}})
-        if checkpoint is not None and (step + 1) % checkpoint_every == 0:
-            denoiser.eval()
-            checkpoint(step + 1)
-            denoiser.train()
+        checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
     denoiser.eval()
     return losses

@@ -23,6 +23,7 @@ from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.fit.data import MODEL_FPS
 from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_targets
 from mdvae_cli.fit.distributed import parameter_digest
+from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.fit.train_prior import pick_device
 from mdvae_cli.fit.window_groups import WindowGroup, make_windows
 from mdvae_cli.model.config import ModelConfig
@@ -126,25 +127,17 @@ def fit_denoiser(
         cursors[gi] += batch_size
         b = g.batch(idx)
         if lr_final is not None:
-            frac = step / max(1, steps)
-            for group in opt.param_groups:
-                group["lr"] = lr_final + 0.5 * (lr - lr_final) * (1 + math.cos(math.pi * frac))
+            set_lr(opt, cosine_lr(step, steps, lr, lr_final))
         w = None if b.weight is None else b.weight.to(device)
         terms = denoiser.elbo(
             b.yn.to(device), b.y3d.to(device), b.betas.to(device), body, w,
             generator=sample_generator,
         )  # fmt: skip
-        opt.zero_grad(set_to_none=True)
-        terms["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(denoiser.trainable_parameters(), 5.0)
-        opt.step()
+        clipped_step(opt, terms["loss"], denoiser.trainable_parameters(), 5.0)
         losses.append(terms["loss"].item())
         if progress is not None:
             progress({"step": step + 1, "steps": steps, **{k: v.item() for k, v in terms.items()}})
-        if checkpoint is not None and (step + 1) % checkpoint_every == 0:
-            denoiser.eval()
-            checkpoint(step + 1)
-            denoiser.train()
+        checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
     denoiser.eval()
     return losses
 

@@ -29,6 +29,7 @@ from mdvae_cli.fit.distributed import (
     parameter_digest,
     shutdown_distributed,
 )
+from mdvae_cli.fit.schedule import clipped_step, cosine_lr, set_lr
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, kl_weight
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
@@ -307,10 +308,7 @@ def train_prior(
                 idx = mine[i * cfg.batch_size : (i + 1) * cfg.batch_size]
                 b = train.subset(idx)
                 batch = WindowSet(b.x0.to(device), b.x.to(device), b.betas.to(device))
-                frac = step / max(1, total_steps)
-                lr = cfg.lr_final + 0.5 * (cfg.lr - cfg.lr_final) * (1 + math.cos(math.pi * frac))
-                for g in opt.param_groups:
-                    g["lr"] = lr
+                set_lr(opt, cosine_lr(step, total_steps, cfg.lr, cfg.lr_final))
                 kl_w = cfg.kl_max * kl_weight(step, cfg.kl_warmup_steps)
                 terms = prior_losses(
                     model,
@@ -324,10 +322,7 @@ def train_prior(
                     cfg.recon_weight,
                     cfg.velocity_weight,
                 )
-                opt.zero_grad(set_to_none=True)
-                terms["loss"].backward()
-                torch.nn.utils.clip_grad_norm_(model.dvae.parameters(), cfg.grad_clip)
-                opt.step()
+                clipped_step(opt, terms["loss"], model.dvae.parameters(), cfg.grad_clip)
                 step += 1
                 if progress is not None and dist.is_main:
                     progress(
