@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import os
 import sys
 from collections.abc import Callable
@@ -57,6 +58,38 @@ def handle_errors(fn: Callable) -> Callable:
             fail(f"{type(exc).__name__}: {exc} (set MDVAE_DEBUG=1 for a traceback)")
 
     return wrapper
+
+
+class Finite(click.ParamType):
+    """A finite float (nan and inf refused) within optional bounds; ``open_low``: the lower
+    bound itself is refused (e.g. a learning rate must be > 0)."""
+
+    name = "number"
+
+    def __init__(self, low: float | None = None, high: float | None = None, open_low: bool = False):
+        self.low, self.high, self.open_low = low, high, open_low
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float):
+            x = value
+        else:
+            try:
+                x = float(value)
+            except (TypeError, ValueError):
+                self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(x):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        if self.low is not None and (x < self.low or (self.open_low and x == self.low)):
+            self.fail(f"{x:g} is not {'>' if self.open_low else '>='} {self.low:g}", param, ctx)
+        if self.high is not None and x > self.high:
+            self.fail(f"{x:g} is not <= {self.high:g}", param, ctx)
+        return x
+
+
+#: common shapes of numeric options
+POSITIVE = Finite(0.0, open_low=True)
+NON_NEGATIVE = Finite(0.0)
+FRACTION = Finite(0.0, 1.0)
 
 
 def body_model_option(fn: Callable) -> Callable:
