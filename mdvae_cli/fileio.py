@@ -21,6 +21,13 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
     for p in forbid:
         if Path(p).exists() and Path(p).resolve() == target:
             raise InputError(f"refusing to overwrite the input file {p}")
+    if path.is_dir():
+        raise InputError(f"cannot write {path}: it is a folder; give a file name")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"cannot write {path}: {parent} is a file, not a folder")
+            break
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
     os.close(fd)
@@ -48,8 +55,9 @@ def expand_inputs(
 ) -> list[tuple[Path, Path]]:
     """Expand files and folders into ``(file, relative_path)`` pairs, sorted.
 
-    A folder contributes every file below it whose name ends in one of ``suffixes``
-    (``.gz`` variants included), with its path relative to the folder; a file given directly
+    A folder contributes every file below it whose name ends in one of ``suffixes`` (any
+    case, ``.gz`` variants included; hidden files and folders skipped), with its path relative
+    to the folder; a file given directly
     contributes its own name. A missing path raises InputError.
     """
     out: list[tuple[Path, Path]] = []
@@ -57,8 +65,9 @@ def expand_inputs(
         item = Path(item)
         if item.is_dir():
             for f in sorted(item.rglob("*")):
-                name = f.name[:-3] if f.name.endswith(".gz") else f.name
-                if f.is_file() and name.endswith(suffixes) and not f.name.startswith("."):
+                name = f.name.lower().removesuffix(".gz")
+                hidden = any(part.startswith(".") for part in f.relative_to(item).parts)
+                if f.is_file() and name.endswith(suffixes) and not hidden:
                     out.append((f, f.relative_to(item)))
         elif item.exists():
             out.append((item, Path(item.name)))

@@ -463,8 +463,9 @@ def test_cli_cmu_corpus_split_duplicates_donor_and_60hz(tmp_path):
 def test_cli_rejects_bad_options(tmp_path):
     code, out, err = run(tmp_path, "-o", tmp_path / "o", "--split", tmp_path / "s.json")
     assert code == 1 and "error: --split only goes with --cmu-corpus" in err
-    code, out, err = run(tmp_path, "-o", tmp_path / "o", "--fps", -1)
-    assert code == 1 and "--fps must be >= 0" in err
+    for bad, why in ((-1, "-1 is not >= 0"), ("inf", "'inf' is not a finite number")):
+        code, out, err = run(tmp_path, "-o", tmp_path / "o", "--fps", bad)
+        assert code == 2 and f"Invalid value for '--fps': {why}" in out + err
 
 
 # --- the split --------------------------------------------------------------------------------

@@ -17,11 +17,8 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.fit.data import WindowSet
-from mdvae_cli.fit.train_prior import (
-    TrainConfig,
-    prior_losses,
-    train_prior,
-)
+from mdvae_cli.fit.prior_loss import prior_losses
+from mdvae_cli.fit.train_prior import TrainConfig, train_prior
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel, load_prior, widen_state

@@ -14,7 +14,7 @@ from mdvae_cli.cli.batch import (
     print_notes,
     run_batch,
 )
-from mdvae_cli.cli.common import allow_pickle_option, handle_errors
+from mdvae_cli.cli.common import FRACTION, NON_NEGATIVE, allow_pickle_option, handle_errors
 from mdvae_cli.motion.noise import NoiseSettings, add_pose_noise, file_rng
 from mdvae_cli.motion.npz_io import load_motion, save_motion
 
@@ -26,31 +26,32 @@ from mdvae_cli.motion.npz_io import load_motion, save_motion
     help="Output .npz (one input file) or folder (inputs mirrored below it).",
 )  # fmt: skip
 @click.option(
-    "--sigma", type=float, default=0.15, show_default=True,
+    "--sigma", type=NON_NEGATIVE, default=0.15, show_default=True,
     help="Std of the Gaussian noise on the body joints' axis-angles, radians "
-    "(the paper uses 0.1, 0.15, 0.2).",
+    "(>= 0; the paper uses 0.1, 0.15, 0.2).",
 )  # fmt: skip
 @click.option(
     "--seed", type=click.IntRange(min=0), default=0, show_default=True,
     help="Random seed; each file's noise depends only on it and the file's relative path.",
 )  # fmt: skip
 @click.option(
-    "--joint-noise", "joint_noise", type=float, default=0.0, show_default=True, metavar="METRES",
+    "--joint-noise", "joint_noise", type=NON_NEGATIVE, default=0.0, show_default=True,
+    metavar="METRES",
     help="Std of Gaussian per-frame jitter on the root translation, per axis; moves every "
     "joint of a frame by the same offset.",
 )  # fmt: skip
 @click.option(
-    "--drop-frac", type=float, default=0.0, show_default=True,
+    "--drop-frac", type=FRACTION, default=0.0, show_default=True,
     help="Fraction of (frame, joint) entries to mark missing in a 'joint_mask' array "
-    "(poses are not changed).",
+    "(0 to 1; poses are not changed).",
 )  # fmt: skip
 @click.option(
-    "--spike-frac", type=float, default=0.0, show_default=True,
+    "--spike-frac", type=FRACTION, default=0.0, show_default=True,
     help="Probability that a (frame, body joint) entry gets a spike (an outlier such as a "
-    "swapped marker or a solver flip), on top of --sigma.",
+    "swapped marker or a solver flip), on top of --sigma (0 to 1).",
 )  # fmt: skip
 @click.option(
-    "--spike-rad", type=float, default=1.0, show_default=True, metavar="RADIANS",
+    "--spike-rad", type=NON_NEGATIVE, default=1.0, show_default=True, metavar="RADIANS",
     help="Std of a spike per axis-angle component (with --spike-frac).",
 )  # fmt: skip
 @allow_pickle_option

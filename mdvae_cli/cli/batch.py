@@ -94,6 +94,14 @@ class BatchReport:
             "failed": len(self.failed),
         }
 
+    def print_summary(self, description: str) -> None:
+        """``<description>: N of M files done[, K failed]`` on the console."""
+        n_bad = len(self.failed)
+        tail = f", [red]{n_bad} failed[/]" if n_bad else ""
+        console.print(
+            f"{description}: {len(self.succeeded)} of {len(self.outcomes)} files done{tail}"
+        )
+
     def exit(self) -> None:
         """End the command with exit code 1 when any file failed (returns otherwise)."""
         if self.failed:
@@ -143,14 +151,31 @@ def plan_jobs(
     if out_suffix is None:
         if single:
             return [FileJob(items[0][1], items[0][0], out)]
-        return [FileJob(rel, src, out / strip_gz(rel).with_suffix("")) for src, rel in items]
+        return no_clashes(
+            [FileJob(rel, src, out / strip_gz(rel).with_suffix("")) for src, rel in items]
+        )
 
     if single and out.suffix == out_suffix:
         return [FileJob(items[0][1], items[0][0], out)]
     if (out.exists() and not out.is_dir()) or (not out.exists() and out.suffix == out_suffix):
         raise InputError(f"with a folder or several inputs, the output {out} must be a folder")
     rename = rename or strip_gz
-    return [FileJob(rel, src, out / rename(rel)) for src, rel in items]
+    return no_clashes([FileJob(rel, src, out / rename(rel)) for src, rel in items])
+
+
+def no_clashes(jobs: list[FileJob]) -> list[FileJob]:
+    """``jobs`` unchanged, or InputError when two inputs would be written to one output (e.g.
+    ``a/take.npz`` and ``b/take.npz`` given as two folders' contents into one output folder)."""
+    seen: dict[str, FileJob] = {}
+    for job in jobs:
+        key = os.path.normcase(os.path.abspath(job.output))
+        if key in seen:
+            raise InputError(
+                f"{seen[key].source} and {job.source} would both be written to {job.output}; "
+                "give their common parent folder as the input, or run them separately"
+            )
+        seen[key] = job
+    return jobs
 
 
 def _message(job: FileJob, exc: BaseException) -> str:
@@ -195,9 +220,7 @@ def run_batch(
             report.outcomes.append(outcome)
             progress.advance(task)
     if len(jobs) > 1 and not quiet:
-        n_bad = len(report.failed)
-        tail = f", [red]{n_bad} failed[/]" if n_bad else ""
-        console.print(f"{description}: {len(report.succeeded)} of {len(jobs)} files done{tail}")
+        report.print_summary(description)
     return report
 
 

@@ -10,6 +10,8 @@ import click
 
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
 from mdvae_cli.cli.common import (
+    NON_NEGATIVE,
+    POSITIVE,
     allow_pickle_option,
     body_model_option,
     console,
@@ -49,9 +51,14 @@ from mdvae_cli.errors import InputError
     help="With --optimize: adapt once per file instead of once to the whole set.",
 )
 @click.option(
-    "--lr", type=float, default=3e-4, show_default=True, help="Learning rate of optimisation mode."
+    "--lr",
+    type=POSITIVE,
+    default=None,
+    help="With --optimize: its learning rate (> 0) [default: 3e-4].",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of optimisation mode.")
+@click.option(
+    "--seed", type=int, default=0, show_default=True, help="With --optimize: its random seed."
+)
 @click.option(
     "--refine",
     "refine_steps",
@@ -64,14 +71,14 @@ from mdvae_cli.errors import InputError
 )
 @click.option(
     "--refine-lr",
-    type=click.FloatRange(min=0, min_open=True),
+    type=POSITIVE,
     default=0.1,
     show_default=True,
-    help="Step size of --refine.",
+    help="Step size of --refine (> 0).",
 )
 @click.option(
     "--refine-offset",
-    type=click.FloatRange(min=0),
+    type=NON_NEGATIVE,
     default=0.03,
     show_default=True,
     help="The scale (rad) each joint's slow rotation offset (--offset, --refine) starts from "
@@ -110,9 +117,8 @@ from mdvae_cli.errors import InputError
 @click.option(
     "--mesh-format",
     type=click.Choice(["obj", "ply"]),
-    default="ply",
-    show_default=True,
-    help="Mesh file format for --mesh-dir.",
+    default=None,
+    help="Mesh file format for --mesh-dir [default: ply].",
 )
 @click.option(
     "--window",
@@ -173,7 +179,7 @@ def denoise(
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
-    from mdvae_cli.fit.denoise import check_length, denoise_motions
+    from mdvae_cli.fit.denoise import check_finite, check_length, denoise_motions
     from mdvae_cli.fit.fit_dataset import load_denoiser
     from mdvae_cli.fit.refine import OUTLIER_DOF, RefineConfig
     from mdvae_cli.motion.npz_io import load_motion, save_motion
@@ -182,6 +188,14 @@ def denoise(
         raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
     if outliers and not refine_steps:
         raise InputError("--outliers re-weights frames while refining: use it with --refine N")
+    if not optimize_steps and (per_file or lr is not None):
+        raise InputError(f"{'--per-file' if per_file else '--lr'} only applies with --optimize N")
+    if mesh_format is not None and mesh_dir is None:
+        raise InputError("--mesh-format only applies with --mesh-dir DIR")
+    if mesh_dir is not None and Path(mesh_dir).exists() and not Path(mesh_dir).is_dir():
+        raise InputError(f"--mesh-dir {mesh_dir} is a file; give a folder")
+    lr = 3e-4 if lr is None else lr
+    mesh_format = mesh_format or "ply"
     jobs = plan_jobs(inputs, out)
     sources = tuple(job.source for job in jobs)
     loaded: dict[Path, object] = {}
@@ -252,16 +266,19 @@ def denoise(
 
     def write(job: FileJob) -> dict:
         motion = results[job.source]
-        save_motion(motion, job.output, forbid=sources)
-        if mesh_dir is not None:
+        check_finite(motion)
+        if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
             target = (
                 Path(mesh_dir) / job.relpath.with_suffix("") if len(jobs) > 1 else Path(mesh_dir)
             )
             export_mesh_sequence(motion, body, target, mesh_format, forbid=sources)
+        save_motion(motion, job.output, forbid=sources)
         return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
 
-    write_report = run_batch(good, write, "denoise")
+    write_report = run_batch(good, write, "denoise", quiet=True)
     write_report.outcomes = report.failed + write_report.outcomes
+    if len(jobs) > 1:
+        write_report.print_summary("denoise")
     if as_json:
         emit_json(
             {

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
+from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
@@ -167,7 +168,10 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
         )
     elif good:
         rows = [(o.job.relpath.as_posix(), o.result) for o in good]
-        console.print(results_table(rows, mean if len(good) > 1 else None))
+        table = results_table(rows, mean if len(good) > 1 else None)
+        # off a terminal (logs, pipes) rich would cut the table at 80 columns
+        wide = console if console.is_terminal else Console(stderr=True, width=200)
+        wide.print(table)
     report.exit()
 
 

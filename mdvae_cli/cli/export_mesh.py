@@ -8,7 +8,7 @@ import click
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
-from mdvae_cli.cli.common import allow_pickle_option, body_model_option, handle_errors
+from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
 from mdvae_cli.motion.npz_io import load_motion
 
 
@@ -55,6 +55,10 @@ def export_mesh(inputs, out, fmt, every, body_model, allow_pickle, as_json) -> N
     report = run_batch(jobs, process, "export-mesh")
     if as_json:
         emit_json(report.to_dict())
+    elif report.succeeded:
+        meshes = sum(o.result["meshes"] for o in report.succeeded)
+        where = jobs[0].output if len(jobs) == 1 else out
+        console.print(f"wrote {meshes} {fmt} meshes to {where}")
     report.exit()
 
 

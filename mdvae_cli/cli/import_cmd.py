@@ -21,7 +21,7 @@ from mdvae_cli.cli.batch import (
     run_batch,
     strip_gz,
 )
-from mdvae_cli.cli.common import body_model_option, console, handle_errors
+from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, console, handle_errors
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.motion import cmu
@@ -83,7 +83,7 @@ def _print_summary(summary: dict) -> None:
     help="Output folder (inputs mirrored below it), or an .npz for a single input file.",
 )  # fmt: skip
 @click.option(
-    "--fps", type=float, default=30.0, show_default=True,
+    "--fps", type=NON_NEGATIVE, default=30.0, show_default=True,
     help="Frame rate of the output; 0 keeps the source's.",
 )  # fmt: skip
 @click.option(
@@ -92,11 +92,11 @@ def _print_summary(summary: dict) -> None:
     "An .asf among INPUTS does the same.",
 )  # fmt: skip
 @click.option(
-    "--source-fps", type=float,
+    "--source-fps", type=POSITIVE,
     help="The inputs' true frame rate, when their files are wrong (AMC files assume 120).",
 )  # fmt: skip
 @click.option(
-    "--scale", type=float, metavar="METRES",
+    "--scale", type=POSITIVE, metavar="METRES",
     help="Metres per file unit (default: ASF units; BVH guessed from the skeleton's height).",
 )  # fmt: skip
 @click.option(
@@ -138,11 +138,6 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
       mdvae import ../shared/data/cmu -o data/cmu_amass --cmu-corpus --jobs 2
     """
     started = time.perf_counter()
-    if fps < 0:
-        raise InputError(f"--fps must be >= 0, got {fps:g}")
-    for name, value in (("--source-fps", source_fps), ("--scale", scale)):
-        if value is not None and not value > 0:
-            raise InputError(f"{name} must be > 0, got {value:g}")
     out, out_fps = Path(out), (fps if fps > 0 else None)
     asf_inputs = [p for p in inputs if is_kind(p, ".asf")]
     inputs = [p for p in inputs if not is_kind(p, ".asf")]

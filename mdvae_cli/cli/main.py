@@ -5,7 +5,16 @@ from __future__ import annotations
 import click
 
 from mdvae_cli import __version__
-from mdvae_cli.cli import add_noise, denoise, eval_cmd, export_mesh, import_cmd, sample, train
+from mdvae_cli.cli import (
+    add_noise,
+    denoise,
+    eval_cmd,
+    export_mesh,
+    fit_dataset_cmd,
+    import_cmd,
+    sample,
+    train,
+)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -24,7 +33,16 @@ def cli() -> None:
     """
 
 
-for module in (train, denoise, add_noise, eval_cmd, export_mesh, import_cmd, sample):
+for module in (
+    train,
+    fit_dataset_cmd,
+    denoise,
+    add_noise,
+    eval_cmd,
+    export_mesh,
+    import_cmd,
+    sample,
+):
     for command in module.COMMANDS:
         cli.add_command(command)
 

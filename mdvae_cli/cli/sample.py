@@ -2,11 +2,20 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import click
+import numpy as np
 
-from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
+from mdvae_cli.cli.common import (
+    NON_NEGATIVE,
+    allow_pickle_option,
+    body_model_option,
+    console,
+    handle_errors,
+)
+from mdvae_cli.errors import InputError
 
 
 @click.command("sample")
@@ -24,7 +33,7 @@ from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console
     show_default=True,
     help="Frames to generate at 30 Hz.",
 )
-@click.option("-o", "--out", required=True, type=click.Path(path_type=Path), help="Output .npz.")
+@click.option("-o", "--out", required=True, type=click.Path(), help="Output .npz file.")
 @click.option(
     "--prior",
     "prior_path",
@@ -34,7 +43,7 @@ from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
 @click.option(
     "--temperature",
-    type=click.FloatRange(min=0.0),
+    type=NON_NEGATIVE,
     default=0.5,
     show_default=True,
     help="Scale of the prior's spread: 1 = exact samples (jerky with the shipped prior), "
@@ -49,7 +58,7 @@ from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console
 )
 @click.option(
     "--speed-limit",
-    type=click.FloatRange(min=0.0),
+    type=NON_NEGATIVE,
     default=10.0,
     show_default=True,
     help="Keep every joint slower than this (m/s; in 99.9 % of CMU frames all are): the prior is "
@@ -96,6 +105,9 @@ def sample(
     from mdvae_cli.motion.npz_io import load_motion, save_motion
     from mdvae_cli.weights import default_weights
 
+    if out.endswith(("/", os.sep)) or Path(out).is_dir():
+        raise InputError(f"-o {out} is a folder; give the output .npz file's name")
+    out = Path(out)
     motion = load_motion(start, allow_pickle=allow_pickle)
     prior, _ = load_prior(prior_path if prior_path is not None else default_weights("prior"))
     body = BodyModel(load_body_model(body_model))
@@ -104,6 +116,8 @@ def sample(
         floor=motion_floor(body, motion) if floor else None, particles=particles,
         speed_limit=speed_limit or None,
     )  # fmt: skip
+    if "source" in result.extras:  # the sample was not captured where the start file was
+        result.extras["source"] = np.array(f"mdvae sample from the first frame of {start.name}")
     save_motion(result, out, forbid=(start,))
     console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
 

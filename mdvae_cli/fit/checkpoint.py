@@ -32,8 +32,12 @@ def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
     """Read a checkpoint written by :func:`save_checkpoint`; never unpickles anything."""
     path = Path(path)
     meta_path = path.with_suffix(".json")
-    if not path.exists() or not meta_path.exists():
-        raise InputError(f"checkpoint {path} (with {meta_path.name}) not found")
+    if not path.exists():
+        raise InputError(f"checkpoint {path} not found")
+    if not meta_path.exists():
+        raise InputError(
+            f"{path} is not an mdvae checkpoint: its metadata {meta_path.name} is not beside it"
+        )
     try:
         with np.load(path, allow_pickle=False) as npz:
             tensors = {k: torch.from_numpy(npz[k].copy()) for k in npz.files}

@@ -53,6 +53,17 @@ def check_length(motion: Motion) -> None:
         )
 
 
+def check_finite(motion: Motion) -> None:
+    """Raise InputError when a result holds nan or inf (a diverged optimisation or
+    refinement), so that it is never written."""
+    for name in ("root_orient", "pose_body", "trans"):
+        if not np.isfinite(getattr(motion, name)).all():
+            raise InputError(
+                f"the result's {name} is not finite (the optimisation diverged); nothing "
+                "written: try a smaller --lr or --refine-lr"
+            )
+
+
 SMALL_BATCH = 8  # windows; below this, per-operation overhead dominates the networks' cost
 
 

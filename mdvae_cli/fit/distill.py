@@ -15,15 +15,17 @@ regression mode's cost. The prior, the decoder and the noise predictor are not t
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import torch
 
-from mdvae_cli.errors import InputError
+from mdvae_cli.fit.guards import diverged
 from mdvae_cli.fit.refine import RefineConfig, refine_posterior
 from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.fit.window_groups import WindowGroup
+from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.state import VELOCITY_DIMS
 
@@ -49,12 +51,17 @@ class DistillConfig:
     refine_steps: int = 50
 
     def __post_init__(self):
-        if self.epochs < 0 or self.refine_steps < 1 or self.batch_size < 1:
-            raise InputError(
-                "distillation needs epochs >= 0, refine_steps >= 1 and batch_size >= 1"
-            )
-        if not (self.lr > 0 and self.lr_final > 0):
-            raise InputError("distillation learning rates must be > 0")
+        self.validate()
+
+    def validate(self) -> None:
+        """InputError naming the first invalid setting (``--distill-...`` where it has one)."""
+        require_int("--distill-epochs", self.epochs, 0)
+        require_int("--distill-refine-steps", self.refine_steps, 1)
+        require_int("distill batch_size", self.batch_size, 1)
+        require_number("--distill-lr", self.lr, 0.0, open_low=True)
+        require_number("distill lr_final", self.lr_final, 0.0, open_low=True)
+        require_number("distill latent_weight", self.latent_weight, 0.0)
+        require_number("distill velocity_weight", self.velocity_weight, 0.0)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -164,8 +171,11 @@ def distill(
         batch = Targets(*(t[idx].to(device) for t in (targets.z, targets.x0, targets.z_logvar)))
         terms = distill_loss(denoiser, group.yn[idx].to(device), batch, col_weight,
                              cfg.latent_weight)  # fmt: skip
+        loss = terms["loss"].item()
+        if not math.isfinite(loss):  # the weights are still the last good ones
+            raise diverged("distillation", step + 1, f"loss {loss:g}", "--distill-lr")
         clipped_step(opt, terms["loss"], params, 5.0)
-        losses.append(terms["loss"].item())
+        losses.append(loss)
         if progress is not None:
             progress({"step": step + 1, "steps": total, **{k: v.item() for k, v in terms.items()}})
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)

@@ -23,10 +23,10 @@ from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.fit.data import MODEL_FPS
 from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_targets
 from mdvae_cli.fit.distributed import parameter_digest
+from mdvae_cli.fit.guards import check_device, diverged, pick_device, weights_are_finite
 from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
-from mdvae_cli.fit.train_prior import pick_device
 from mdvae_cli.fit.window_groups import WindowGroup, make_windows
-from mdvae_cli.model.config import ModelConfig
+from mdvae_cli.model.config import ModelConfig, require_int, require_number
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors
 from mdvae_cli.motion.mirror import mirror_motion
@@ -61,6 +61,21 @@ class FitConfig:
     mirror_augment: bool = False
     denoiser: DenoiserConfig = field(default_factory=DenoiserConfig)
     distill: DistillConfig = field(default_factory=DistillConfig)
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """InputError naming the first invalid setting (its ``mdvae fit-dataset`` option).
+        Run again after changing fields. ``epochs`` may be 0 (distillation only)."""
+        for name, low in (("window", 1), ("stride", 1), ("batch_size", 1), ("epochs", 0)):
+            require_int(f"--{name.replace('_', '-')}", getattr(self, name), low)
+        require_int("--seed", self.seed, 0)
+        require_number("--lr", self.lr, 0.0, open_low=True)
+        require_number("--lr-final", self.lr_final, 0.0)
+        check_device(self.device)
+        self.denoiser.validate()
+        self.distill.validate()
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -102,7 +117,8 @@ def fit_denoiser(
     Batches cycle through a seeded permutation of all windows (each group separately, larger
     groups visited in proportion). With ``lr_final`` the learning rate decays from ``lr`` to it
     on a cosine; ``checkpoint(step)`` is called every ``checkpoint_every`` steps. One-frame
-    windows (x0 alone) have nothing to fit and are left out. Returns the loss of every step.
+    windows (x0 alone) have nothing to fit and are left out. Returns the loss of every step;
+    a loss that is not finite raises InputError before its step is taken.
     The ELBO's Monte-Carlo draws come from ``sample_generator`` (None: torch's global
     generator, which ``mdvae fit-dataset`` seeds).
     """
@@ -133,8 +149,11 @@ def fit_denoiser(
             b.yn.to(device), b.y3d.to(device), b.betas.to(device), body, w,
             generator=sample_generator,
         )  # fmt: skip
+        loss = terms["loss"].item()
+        if not math.isfinite(loss):  # the weights are still the last good ones
+            raise diverged("training", step + 1, f"loss {loss:g}")
         clipped_step(opt, terms["loss"], denoiser.trainable_parameters(), 5.0)
-        losses.append(terms["loss"].item())
+        losses.append(loss)
         if progress is not None:
             progress({"step": step + 1, "steps": steps, **{k: v.item() for k, v in terms.items()}})
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
@@ -230,8 +249,13 @@ def fit_dataset(
     ``cfg.epochs`` of ELBO steps and ``cfg.distill.epochs`` of amortised refinement, whose
     targets are kept in ``out_dir`` (``distill_targets.npz``) for a resumed run. ``progress``
     gets every step's dict with "stage": "fit", "targets" or "distill". ``max_steps`` caps
-    the ELBO steps (tests).
+    the ELBO steps (tests; 0 = none). ``cfg`` is validated here (fields may have changed since
+    it was made). A loss or weights that stop being finite end the run with InputError, and
+    such weights are never saved.
     """
+    cfg.validate()
+    if max_steps is not None:
+        require_int("max_steps", max_steps, 0)
     start = time.time()
     out_dir = Path(out_dir)
     device = pick_device(cfg.device)
@@ -254,6 +278,11 @@ def fit_dataset(
     body.to(device)
 
     def save(elbo_steps: int, distill_steps: int, **extra) -> None:
+        if not weights_are_finite(denoiser):
+            what, step = (
+                ("distillation", distill_steps) if distill_steps else ("training", elbo_steps)
+            )
+            raise diverged(what, step, "weights not finite")
         meta = {
             "fit_config": cfg.to_dict(),
             "steps": elbo_steps,

@@ -15,8 +15,9 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.fit.data import WindowSet
+from mdvae_cli.fit.prior_loss import prior_losses, spread_vertex_ids
 from mdvae_cli.fit.refine import Adam
-from mdvae_cli.fit.train_prior import TrainConfig, prior_losses, spread_vertex_ids
+from mdvae_cli.fit.train_prior import TrainConfig
 from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import PriorModel
 

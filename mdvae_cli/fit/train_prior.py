@@ -9,13 +9,13 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
 from torch.nn.parallel import DistributedDataParallel
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.fit.checkpoint import (
     load_checkpoint,
     optimizer_from_tensors,
@@ -29,11 +29,20 @@ from mdvae_cli.fit.distributed import (
     parameter_digest,
     shutdown_distributed,
 )
+from mdvae_cli.fit.guards import (
+    check_device,
+    diverged,
+    json_safe,
+    loss_is_finite,
+    pick_device,
+    weights_are_finite,
+)
+from mdvae_cli.fit.prior_loss import prior_losses, spread_vertex_ids
 from mdvae_cli.fit.schedule import clipped_step, cosine_lr, set_lr
-from mdvae_cli.model.config import ModelConfig
-from mdvae_cli.model.losses import gaussian_kl, kl_weight
+from mdvae_cli.model.config import ModelConfig, require_int, require_number
+from mdvae_cli.model.losses import kl_weight
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
-from mdvae_cli.motion.state import VELOCITY_DIMS, state_to_params
+from mdvae_cli.motion.state import VELOCITY_DIMS
 
 
 @dataclass
@@ -70,6 +79,42 @@ class TrainConfig:
     mirror_augment: bool = False
     model: ModelConfig = field(default_factory=ModelConfig)
 
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """InputError naming the first invalid setting (its ``mdvae train-prior`` option, or
+        its config key where it has none). Run again after changing fields."""
+        for name, option, low in (
+            ("window", "--window", 1),
+            ("stride", "--stride", 1),
+            ("batch_size", "--batch-size", 1),
+            ("epochs", "--epochs", 1),
+            ("kl_warmup_steps", "--kl-warmup", 0),
+            ("body_vertices", "body_vertices", 0),
+            ("body_frame_stride", "body_frame_stride", 1),
+            ("max_val_windows", "max_val_windows", 1),
+            ("seed", "--seed", 0),
+        ):
+            require_int(option, getattr(self, name), low)
+        for name, option, low, open_low in (
+            ("lr", "--lr", 0.0, True),
+            ("lr_final", "lr_final", 0.0, False),
+            ("kl_max", "--kl-max", 0.0, False),
+            ("recon_weight", "--recon-weight", 0.0, True),
+            ("velocity_weight", "--velocity-weight", 0.0, False),
+            ("body_weight", "--body-weight", 0.0, False),
+            ("velocity_std_scale", "--velocity-std-scale", 0.0, True),
+            ("grad_clip", "grad_clip", 0.0, True),
+        ):
+            require_number(option, getattr(self, name), low, open_low=open_low)
+        if self.train_only not in TRAINABLE:  # the CLI's --train-only is a choice already
+            raise InputError(
+                f"train_only must be one of {', '.join(TRAINABLE)}, got {self.train_only!r}"
+            )
+        check_device(self.device)
+        self.model.validate()
+
     def to_dict(self) -> dict:
         d = asdict(self)
         d["model"] = self.model.to_dict()
@@ -80,75 +125,6 @@ class TrainConfig:
         d = dict(d)
         d["model"] = ModelConfig.from_dict(d.get("model", {}))
         return cls(**d)
-
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
-
-
-def spread_vertex_ids(num_vertices: int, count: int) -> torch.Tensor:
-    """``count`` vertex ids spread evenly over the mesh (deterministic).  -> (count,)"""
-    count = min(count, num_vertices)
-    return torch.as_tensor(np.linspace(0, num_vertices - 1, count).round().astype(np.int64))
-
-
-def body_points(
-    body: BodyModel, x: torch.Tensor, betas: torch.Tensor, vertex_ids: torch.Tensor
-) -> torch.Tensor:
-    """Joints, markers and some vertices of states.  x: (B, T, 138), betas: (B, S) ->
-    (B, T, P, 3) in metres."""
-    B, T = x.shape[:2]
-    p = state_to_params(x.reshape(B * T, -1))
-    out = body(
-        p.root_orient, p.pose_body, p.trans, betas.repeat_interleave(T, 0), vertex_ids=vertex_ids
-    )
-    pts = torch.cat([out.joints, out.markers, out.vertices], dim=1)
-    return pts.reshape(B, T, -1, 3)
-
-
-def prior_losses(
-    model: PriorModel,
-    forward,
-    batch: WindowSet,
-    body: BodyModel,
-    vertex_ids: torch.Tensor,
-    kl_w: float,
-    body_w: float,
-    frame_stride: int = 1,
-    recon_w: float = 1.0,
-    velocity_w: float = 1.0,
-) -> dict[str, torch.Tensor]:
-    """Negative ELBO (per frame) + body regulariser for a batch.
-
-    ``recon_w`` = 1 / sigma_x^2: the decoder's Gaussian is N(mu_x, sigma_x^2 I) in normalised
-    units (1 = the paper's N(mu_x, I)); ``velocity_w`` scales that weight on the velocity
-    columns (a wider variance there). ``recon`` is reported unweighted.
-
-    ``forward`` is the (possibly DDP-wrapped) ``model.dvae``. The body term is evaluated on
-    every ``frame_stride``-th frame from a random phase (an unbiased, cheaper estimate).
-    Returns the terms and ``loss``.
-    """
-    norm = model.normalizer
-    xn, x0n = norm.normalize(batch.x), norm.normalize(batch.x0)
-    x_mean, _, post, prior = forward(xn, x0n)
-    recon = 0.5 * ((xn - x_mean) ** 2).sum(-1).mean()
-    kl = gaussian_kl(post.mean, post.logvar, prior.mean, prior.logvar).mean()
-    phase = int(torch.randint(frame_stride, (1,))) if frame_stride > 1 else 0
-    frames = slice(phase, None, frame_stride)
-    pts_hat = body_points(body, norm.denormalize(x_mean[:, frames]), batch.betas, vertex_ids)
-    with torch.no_grad():
-        pts_gt = body_points(body, batch.x[:, frames], batch.betas, vertex_ids)
-    body_mse = ((pts_hat - pts_gt) ** 2).sum(-1).mean() * 1e4  # cm^2
-    if velocity_w != 1.0:
-        dims = torch.as_tensor(VELOCITY_DIMS, device=xn.device)
-        sq = ((xn - x_mean) ** 2)[..., dims].sum(-1).mean()
-        fit = recon + 0.5 * (velocity_w - 1.0) * sq
-    else:
-        fit = recon
-    loss = recon_w * fit + kl_w * kl + body_w * body_mse
-    return {"loss": loss, "recon": recon, "kl": kl, "body_cm2": body_mse}
 
 
 @torch.no_grad()
@@ -208,7 +184,26 @@ def _save(run_dir: Path, name: str, model, opt, meta: dict) -> None:
         t, groups = optimizer_to_tensors(opt)
         tensors.update(t)
         meta = {**meta, "optimizer": groups}
-    save_checkpoint(run_dir / f"{name}.npz", tensors, meta)
+    save_checkpoint(run_dir / f"{name}.npz", tensors, json_safe(meta))
+
+
+def no_training_files(data: list[Path], split: Path | None, val_files: list[Path]) -> str:
+    """Why a run found nothing to train on, and what to do about it."""
+    if split is not None:
+        found = len(expand_inputs(data))
+        return (
+            f'none of the {found} motion files found is in the "train" list of {split} '
+            "(its paths are relative to its folder)"
+        )
+    if not val_files:
+        return "no motion files found in the given data paths"
+    n = len(val_files)
+    return (
+        f"found {n} motion file{'s' if n > 1 else ''} and the automatic split put "
+        f"{'them all' if n > 1 else 'it'} into validation, leaving none to train on: give 2 or "
+        'more files, or a --split file ({"train": [...], "val": [...]}) that lists the '
+        "training files"
+    )
 
 
 TRAINABLE = ("all", "encoder", "prior")
@@ -247,8 +242,13 @@ def train_prior(
     """Train (or resume) a prior into ``run_dir``; works alone or under torchrun (DDP).
 
     ``progress`` receives a dict after every step (epoch, step, steps_per_epoch, loss terms)
-    and after every epoch (with ``val``). ``max_steps`` stops early (tests).
+    and after every epoch (with ``val``). ``max_steps`` (>= 1) stops early (tests). ``cfg``
+    is validated here (fields may have changed since it was made). A loss or weights that
+    stop being finite end the run with InputError before anything of them is saved.
     """
+    cfg.validate()
+    if max_steps is not None:
+        require_int("--max-steps", max_steps, 1)
     start = time.time()
     run_dir = Path(run_dir)
     device = pick_device(cfg.device)
@@ -264,7 +264,7 @@ def train_prior(
         train_files = select_files(data, split, "train")
         val_files = select_files(data, split, "val")
         if not train_files:
-            raise InputError("no training files found (check the data paths and split file)")
+            raise InputError(no_training_files(data, split, val_files))
         cpu_body = BodyModel(body.data)
         train = load_windows(
             train_files, cpu_body, cfg.window, cfg.stride, mirror=cfg.mirror_augment
@@ -288,7 +288,8 @@ def train_prior(
             tensors, meta = load_checkpoint(run_dir / "last.npz")
             model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model/")})
             opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
-            first_epoch, step, best = meta["epoch"] + 1, meta["step"], meta["best_val_loss"]
+            first_epoch, step = meta["epoch"] + 1, meta["step"]
+            best = meta["best_val_loss"] if meta.get("best_val_loss") is not None else math.inf
         if dist.is_main:
             run_dir.mkdir(parents=True, exist_ok=True)
             (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
@@ -322,6 +323,8 @@ def train_prior(
                     cfg.recon_weight,
                     cfg.velocity_weight,
                 )
+                if not loss_is_finite(terms["loss"], dist):  # the weights are still good
+                    raise diverged("training", step + 1, f"loss {terms['loss'].item():g}")
                 clipped_step(opt, terms["loss"], model.dvae.parameters(), cfg.grad_clip)
                 step += 1
                 if progress is not None and dist.is_main:
@@ -337,6 +340,8 @@ def train_prior(
                     )
                 if max_steps is not None and step >= max_steps:
                     break
+            if not weights_are_finite(model):  # every rank holds the same weights
+                raise diverged("training", step, "weights not finite")
             if dist.is_main:
                 val_terms = evaluate(model, val, body, vertex_ids, cfg, device) if val else {}
                 val_loss = val_terms.get("loss", terms["loss"].item())
@@ -345,25 +350,21 @@ def train_prior(
                     "epoch": epoch,
                     "step": step,
                     "val": val_terms,
-                    "best_val_loss": min(best, val_loss),
+                    "best_val_loss": val_loss if val_loss < best else best,
                 }
                 if val_loss < best:
                     best = val_loss
                     _save(run_dir, "best", model, None, meta)
                 _save(run_dir, "last", model, opt, meta)
                 with open(run_dir / "log.jsonl", "a") as fh:
-                    fh.write(
-                        json.dumps(
-                            {
-                                "epoch": epoch,
-                                "step": step,
-                                "val": val_terms,
-                                "train_loss": terms["loss"].item(),
-                                "seconds": time.time() - start,
-                            }
-                        )
-                        + "\n"
-                    )
+                    record = {
+                        "epoch": epoch,
+                        "step": step,
+                        "val": val_terms,
+                        "train_loss": terms["loss"].item(),
+                        "seconds": time.time() - start,
+                    }
+                    fh.write(json.dumps(json_safe(record)) + "\n")
                 if progress is not None:
                     progress({"epoch": epoch, "step": step, "val": val_terms, "epoch_end": True})
             if max_steps is not None and step >= max_steps:
@@ -380,7 +381,8 @@ def train_prior(
             digests,
         )
         if dist.is_main:
-            (run_dir / "summary.json").write_text(json.dumps(asdict(summary), indent=2) + "\n")
+            text = json.dumps(json_safe(asdict(summary)), indent=2, allow_nan=False)
+            (run_dir / "summary.json").write_text(text + "\n")
         return summary
     finally:
         shutdown_distributed(dist)

@@ -1,10 +1,42 @@
-"""Model hyper-parameters: one dataclass, saved as JSON beside every checkpoint."""
+"""Model hyper-parameters: one dataclass, saved as JSON beside every checkpoint; and the checks
+every settings dataclass (model, training, fitting, denoiser) runs on its values."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 
+from mdvae_cli.errors import InputError
 from mdvae_cli.motion.state import STATE_DIM
+
+
+def require_number(
+    name: str,
+    value,
+    low: float | None = None,
+    high: float | None = None,
+    open_low: bool = False,
+) -> None:
+    """InputError unless ``value`` is a finite number within [low, high] (``open_low``: > low).
+
+    ``name`` is what the user calls the setting (``--lam``, or a config key)."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    ok = ok and (low is None or value > low or (value == low and not open_low))
+    ok = ok and (high is None or value <= high)
+    if not ok:
+        if low is not None and high is not None:
+            bounds = f" in {'(' if open_low else '['}{low:g}, {high:g}]"
+        elif low is not None:
+            bounds = f" {'>' if open_low else '>='} {low:g}"
+        else:
+            bounds = ""
+        raise InputError(f"{name} must be a finite number{bounds}, got {value!r}")
+
+
+def require_int(name: str, value, low: int) -> None:
+    """InputError unless ``value`` is a whole number >= ``low``."""
+    if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
+        raise InputError(f"{name} must be a whole number >= {low}, got {value!r}")
 
 
 @dataclass
@@ -29,6 +61,20 @@ class ModelConfig:
     decoder_z_skip: bool = True
     encoder_reads_decoder: bool = True
     encoder_x_skip: bool = True
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """InputError naming the first invalid size (every width >= 1)."""
+        for name, option in (
+            ("state_dim", "state_dim"),
+            ("latent_dim", "--latent-dim"),
+            ("hidden_dim", "--hidden-dim"),
+            ("mlp_dim", "mlp_dim"),
+            ("obs_dim", "obs_dim"),
+        ):
+            require_int(option, getattr(self, name), 1)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -20,6 +20,7 @@ from torch import nn
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
+from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel
@@ -57,11 +58,21 @@ class DenoiserConfig:
     input_order: int = 1
 
     def __post_init__(self):
-        if self.input_window < 0 or (self.input_window > 1 and self.input_window % 2 == 0):
+        self.validate()
+
+    def validate(self) -> None:
+        """InputError naming the first invalid setting (in ``mdvae fit-dataset``'s words)."""
+        require_number("--lam", self.lam, 0.0, open_low=True)
+        require_number("--obs-unit", self.obs_unit, 0.0, open_low=True)
+        for name in ("hidden_dim", "velocity_window", "x0_window"):
+            require_int(name, getattr(self, name), 1)
+        require_int("--input-window", self.input_window, 0)
+        if self.input_window > 1 and self.input_window % 2 == 0:
             raise InputError(
-                f"input window must be 0 or an odd number of frames, got {self.input_window}"
+                f"--input-window must be 0 or an odd number of frames, got {self.input_window}"
             )
-        if self.input_window > 1 and not 0 <= self.input_order < self.input_window:
+        require_int("input_order", self.input_order, 0)
+        if self.input_window > 1 and not self.input_order < self.input_window:
             raise InputError(
                 f"input filter degree must be below its window, got {self.input_order}"
             )

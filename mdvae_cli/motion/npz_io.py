@@ -14,6 +14,20 @@ from mdvae_cli.motion.motion import POSE_WIDTHS, Motion
 FPS_KEYS = ("mocap_framerate", "mocap_frame_rate")
 _OWN_KEYS = {"poses", "trans", "betas", "gender", "joint_mask", *FPS_KEYS}
 
+#: The split pose arrays of SMPL-H/SMPL-X ("stage-ii") files, each a copy of some columns of
+#: ``poses``: key -> (columns, {poses width: first column}). root_orient and pose_body are the
+#: body; the others slices of Motion.pose_extra (SMPL-X ``poses``: root, body, jaw, eyes, hands).
+SPLIT_KEYS: dict[str, tuple[int, dict[int, int]]] = {
+    "root_orient": (3, dict.fromkeys(POSE_WIDTHS, 0)),
+    "pose_body": (63, dict.fromkeys(POSE_WIDTHS, 3)),
+    "pose_jaw": (3, {165: 66}),
+    "pose_eye": (6, {165: 69}),
+    "pose_hand": (90, {165: 75, 156: 66}),
+}
+_BODY_SPLIT_KEYS = ("root_orient", "pose_body")
+#: radians: a split array further than this from its ``poses`` columns disagrees with them
+_SPLIT_TOL = 1e-5
+
 
 def _decode_gender(value: np.ndarray) -> tuple[str, bool]:
     item = value.item() if value.ndim == 0 else value.reshape(-1)[0]
@@ -52,8 +66,10 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
             )
         raise InputError(f"{path}: not an .npz archive")
     try:
+        with zipfile.ZipFile(path) as zf:
+            compressed = any(i.compress_type != zipfile.ZIP_STORED for i in zf.infolist())
         with np.load(path, allow_pickle=allow_pickle) as npz:
-            data = {k: npz[k] for k in npz.files}
+            data = {k: npz[k] for k in npz.files}  # in the archive's order
     except InputError:
         raise
     except (zipfile.BadZipFile, EOFError, OSError) as exc:
@@ -66,22 +82,33 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
         raise InputError(f"{path}: not a readable .npz archive ({exc})") from None
     except Exception as exc:  # zlib errors, truncated members, ...
         raise InputError(f"{path}: corrupt .npz archive ({type(exc).__name__}: {exc})") from None
-    return motion_from_arrays(data, path)
+    motion = motion_from_arrays(data, path)
+    motion.layout["compressed"] = compressed
+    return motion
 
 
 def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>") -> Motion:
-    """Build a Motion from the arrays of an AMASS-layout file (see :func:`load_motion`)."""
+    """Build a Motion from the arrays of an AMASS-layout file (see :func:`load_motion`).
+
+    ``poses`` is the source of truth for the pose; a file without it is read from its split
+    arrays (``root_orient``, ``pose_body``, and ``pose_jaw``/``pose_eye``/``pose_hand`` when
+    present, see SPLIT_KEYS). ``layout`` records what :func:`motion_to_arrays` needs to write
+    the file back as it was: key order, dtypes and shapes, split arrays, compression.
+    """
     path = Path(path)
     notes: list[str] = []
-    if "poses" not in data:
-        raise InputError(f"{path}: no 'poses' array (keys: {', '.join(sorted(data)) or 'none'})")
-    poses = _finite("poses", data["poses"], path)
+    has_poses = "poses" in data
+    if has_poses:
+        poses = _finite("poses", data["poses"], path)
+    else:
+        poses = _poses_from_split(data, path)
     if poses.ndim != 2 or poses.shape[1] not in POSE_WIDTHS:
         widths = "/".join(str(w) for w in POSE_WIDTHS)
         raise InputError(f"{path}: 'poses' has shape {poses.shape}, expected (T, {widths})")
     T = poses.shape[0]
     if T < 2:
         raise InputError(f"{path}: motion has {T} frame(s); at least 2 are needed")
+    split = _split_layout(data, poses, path, notes)
 
     if "trans" in data:
         trans = _finite("trans", data["trans"], path)
@@ -91,8 +118,20 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         trans = np.zeros((T, 3))
         notes.append("no 'trans' array: using zero translation")
 
+    betas_rows = None
     if "betas" in data:
-        betas = _finite("betas", data["betas"], path).reshape(-1)
+        betas = _finite("betas", data["betas"], path)
+        if betas.ndim == 2 and betas.shape[0] == T:  # one shape vector per frame
+            betas_rows = data["betas"]
+            spread = float(np.ptp(betas, axis=0).max(initial=0.0))
+            if spread > 0:
+                notes.append(
+                    f"per-frame 'betas' {betas.shape} vary by up to {spread:.3g} over the frames: "
+                    "using their mean"
+                )
+            betas = betas.mean(axis=0)
+        else:
+            betas = betas.reshape(-1)
     else:
         betas = np.zeros(10)
         notes.append("no 'betas' array: using the mean shape")
@@ -114,40 +153,197 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         if mask.shape != (T, 22):
             raise InputError(f"{path}: 'joint_mask' has shape {mask.shape}, expected ({T}, 22)")
 
-    extras = {k: v for k, v in data.items() if k not in _OWN_KEYS}
-    layout = {"fps_key": fps_key, "gender_bytes": gender_bytes, "has_gender": "gender" in data,
-              "poses_dtype": str(data["poses"].dtype)}  # fmt: skip
+    extras = {k: v for k, v in data.items() if k not in _OWN_KEYS and k not in split}
+    own = [k for k in ("poses", "trans", "betas", fps_key, "gender", "joint_mask") if k in data]
+    layout = {
+        "fps_key": fps_key,
+        "gender_bytes": gender_bytes,
+        "has_gender": "gender" in data,
+        "has_poses": has_poses,
+        "poses_dtype": str(data["poses"].dtype) if has_poses else str(poses.dtype),
+        "key_order": list(data),
+        "arrays": {k: (str(np.asarray(data[k]).dtype), np.shape(data[k])) for k in own},
+        "split": split,
+        "betas_rows": betas_rows,
+    }
     return Motion.from_poses(
         poses, trans, betas, fps, gender=gender, joint_mask=mask, extras=extras,
         layout=layout, notes=notes,
     )  # fmt: skip
 
 
+def _split_array(data: dict[str, np.ndarray], key: str, T: int) -> np.ndarray | None:
+    """``data[key]`` as (T, columns) float64, or None when it is absent or not that shape."""
+    columns = SPLIT_KEYS[key][0]
+    if key not in data:
+        return None
+    arr = np.asarray(data[key])
+    if not np.issubdtype(arr.dtype, np.number):
+        return None
+    if arr.ndim < 2 or arr.shape[0] != T or arr.size != T * columns:
+        return None
+    return np.asarray(arr, dtype=np.float64).reshape(T, columns)
+
+
+def _poses_from_split(data: dict[str, np.ndarray], path: Path) -> np.ndarray:
+    """(T, W) ``poses`` put together from a file's split arrays (a file without ``poses``)."""
+    if not all(k in data for k in _BODY_SPLIT_KEYS):
+        raise InputError(
+            f"{path}: no 'poses' array, nor 'root_orient' and 'pose_body' "
+            f"(keys: {', '.join(sorted(data)) or 'none'})"
+        )
+    T = np.shape(data["root_orient"])[0] if np.ndim(data["root_orient"]) else 0
+    body = [_split_array(data, k, T) for k in _BODY_SPLIT_KEYS]
+    for key, arr in zip(_BODY_SPLIT_KEYS, body, strict=True):
+        if arr is None:
+            shape = np.shape(data[key])
+            raise InputError(
+                f"{path}: '{key}' has shape {shape}, expected ({T}, {SPLIT_KEYS[key][0]})"
+            )
+        _finite(key, arr, path)
+    for width in (165, 156, 66):  # the widest layout whose split arrays are all there
+        keys = [k for k, (_, starts) in SPLIT_KEYS.items() if width in starts]
+        parts = {k: _split_array(data, k, T) for k in keys}
+        if all(p is not None for p in parts.values()):
+            poses = np.zeros((T, width))
+            for k, p in parts.items():
+                start = SPLIT_KEYS[k][1][width]
+                poses[:, start : start + p.shape[1]] = _finite(k, p, path)
+            return poses
+    raise AssertionError("unreachable: width 66 needs only the body arrays")
+
+
+def _split_layout(
+    data: dict[str, np.ndarray], poses: np.ndarray, path: Path, notes: list[str]
+) -> dict[str, dict[str, object]]:
+    """The split arrays of ``data`` that mirror columns of ``poses``: {key: start, dtype, shape}.
+
+    These are rewritten from the motion on save. ``poses`` wins where they disagree: a body
+    array (root_orient, pose_body) that differs is noted and rewritten; a hand, jaw or eye
+    array that differs (another column layout) is noted and kept as it is, as an extra.
+    """
+    T, width = poses.shape
+    split: dict[str, dict[str, object]] = {}
+    for key, (columns, starts) in SPLIT_KEYS.items():
+        arr = _split_array(data, key, T)
+        start = starts.get(width)
+        if arr is None or start is None:
+            continue
+        cols = f"poses[:, {start}:{start + columns}]"
+        diff = np.abs(arr - poses[:, start : start + columns])
+        worst = float(diff.max()) if np.all(np.isfinite(diff)) else float("inf")
+        if worst > _SPLIT_TOL and key not in _BODY_SPLIT_KEYS:
+            notes.append(f"'{key}' differs from {cols} by up to {worst:.3g}: kept as it is")
+            continue
+        if worst > _SPLIT_TOL:
+            notes.append(
+                f"'{key}' differs from {cols} by up to {worst:.3g} rad: "
+                f"'poses' is used, and '{key}' is rewritten from it"
+            )
+        split[key] = {
+            "start": start,
+            "dtype": str(np.asarray(data[key]).dtype),
+            "shape": np.shape(data[key]),
+        }
+    return split
+
+
 def motion_to_arrays(motion: Motion) -> dict[str, np.ndarray]:
-    """The arrays to write for a Motion, in the layout it was read with."""
+    """The arrays to write for a Motion, in the layout it was read with.
+
+    Every key read is written back with its dtype, shape and place in the key order (keys the
+    file did not have, e.g. a new ``joint_mask``, come last); split pose arrays are rewritten
+    from the motion's pose, so they agree with ``poses``.
+    """
     layout = motion.layout
-    dtype = np.dtype(str(layout.get("poses_dtype", "float64")))
-    if not np.issubdtype(dtype, np.floating):
-        dtype = np.dtype("float64")
+    specs: dict = layout.get("arrays") or {}
+    T = motion.num_frames
+    poses_dtype = _float_dtype(layout.get("poses_dtype"), np.dtype("float64"))
+
+    def float_dtype(key: str) -> np.dtype:
+        return _float_dtype(specs[key][0] if key in specs else None, poses_dtype)
+
     out: dict[str, np.ndarray] = dict(motion.extras)
-    out["poses"] = motion.poses.astype(dtype)
-    out["trans"] = motion.trans.astype(dtype)
-    out["betas"] = np.asarray(motion.betas, dtype=dtype)
-    out[str(layout.get("fps_key", "mocap_framerate"))] = np.array(motion.fps)
+    poses = motion.poses
+    if layout.get("has_poses", True):
+        out["poses"] = poses.astype(poses_dtype)
+    for key, spec in (layout.get("split") or {}).items():
+        columns = SPLIT_KEYS[key][0]
+        start = int(spec["start"])
+        shape = (T, *tuple(spec["shape"])[1:])
+        out[key] = poses[:, start : start + columns].reshape(shape).astype(spec["dtype"])
+    out["trans"] = motion.trans.astype(float_dtype("trans"))
+    out["betas"] = _betas_array(motion, specs.get("betas"), float_dtype("betas"))
+    fps_key = str(layout.get("fps_key", "mocap_framerate"))
+    out[fps_key] = _fps_array(motion.fps, specs.get(fps_key))
     if layout.get("has_gender", True):
         g = motion.gender.encode() if layout.get("gender_bytes") else motion.gender
-        out["gender"] = np.array(g)
+        out["gender"] = _like(np.array(g), specs.get("gender"))
     if motion.joint_mask is not None:
-        out["joint_mask"] = motion.joint_mask.astype(bool)
-    return out
+        mask = motion.joint_mask.astype(bool)
+        spec = specs.get("joint_mask")
+        out["joint_mask"] = mask if spec is None else mask.astype(spec[0])
+
+    order = [k for k in layout.get("key_order") or () if k in out]
+    return {k: out[k] for k in [*order, *(k for k in out if k not in order)]}
+
+
+def _float_dtype(name: object, default: np.dtype) -> np.dtype:
+    """``name`` as a dtype when it is a floating one, else ``default`` (never round to ints)."""
+    if name is None:
+        return default
+    dtype = np.dtype(str(name))
+    return dtype if np.issubdtype(dtype, np.floating) else default
+
+
+def _betas_array(motion: Motion, spec: tuple | None, dtype: np.dtype) -> np.ndarray:
+    """``betas`` in the file's shape: per frame (T, S) when it was, else its own shape."""
+    betas = np.asarray(motion.betas, dtype=np.float64)
+    rows = motion.layout.get("betas_rows")
+    if rows is not None:  # per frame: the file's rows while the shape and frames are unchanged
+        rows = np.asarray(rows)
+        unchanged = rows.shape[0] == motion.num_frames and rows.shape[1] == betas.size
+        if unchanged and np.allclose(rows.astype(np.float64).mean(axis=0), betas, atol=1e-6):
+            return rows.astype(dtype)
+        return np.tile(betas, (motion.num_frames, 1)).astype(dtype)
+    if spec is not None and int(np.prod(spec[1])) == betas.size:
+        betas = betas.reshape(spec[1])
+    return betas.astype(dtype)
+
+
+def _fps_array(fps: float, spec: tuple | None) -> np.ndarray:
+    """The frame rate in the file's dtype (an integer one only for a whole rate) and shape."""
+    out = np.array(fps)
+    if spec is None:
+        return out
+    dtype = np.dtype(spec[0])
+    if np.issubdtype(dtype, np.floating) or (
+        np.issubdtype(dtype, np.integer) and float(fps).is_integer()
+    ):
+        out = out.astype(dtype)
+    return out.reshape(spec[1]) if int(np.prod(spec[1])) == 1 else out
+
+
+def _like(arr: np.ndarray, spec: tuple | None) -> np.ndarray:
+    """A string array in the file's dtype and shape, where the text fits."""
+    if spec is None:
+        return arr
+    dtype = np.dtype(spec[0])
+    fits = dtype.kind == "O" or (dtype.kind == arr.dtype.kind and dtype.itemsize >= arr.itemsize)
+    out = arr.astype(dtype) if fits else arr
+    return out.reshape(spec[1]) if int(np.prod(spec[1])) == out.size else out
 
 
 def save_motion(motion: Motion, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:
-    """Write ``motion`` to ``path`` atomically (temporary file + rename), never onto ``forbid``."""
+    """Write ``motion`` to ``path`` atomically (temporary file + rename), never onto ``forbid``.
+
+    The archive is compressed when the file the motion was read from was.
+    """
     arrays = motion_to_arrays(motion)
+    savez = np.savez_compressed if motion.layout.get("compressed") else np.savez
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
+            savez(fh, **arrays)
 
     write_atomic(Path(path), write, forbid=forbid)

@@ -1,0 +1,217 @@
+"""``mdvae fit-dataset``: unsupervised denoising learning on a folder of noisy files."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+
+from mdvae_cli.cli.common import (
+    NON_NEGATIVE,
+    POSITIVE,
+    body_model_option,
+    console,
+    handle_errors,
+    progress_bar,
+)
+from mdvae_cli.cli.train import apply_overrides, start_config
+from mdvae_cli.errors import InputError
+
+
+@click.command("fit-dataset")
+@click.argument("noisy", nargs=-1, required=True, type=click.Path(path_type=Path))
+@click.option(
+    "-o",
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(path_type=Path),
+    help="Denoiser folder: config.json, denoiser.npz/.json, log.jsonl.",
+)
+@click.option(
+    "--prior",
+    "prior_path",
+    type=click.Path(path_type=Path),
+    help="Prior checkpoint or train-prior run folder (default: the shipped prior).",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path, exists=True),
+    help="A config.json to start from; options given here override it.",
+)
+@click.option(
+    "--lam",
+    type=POSITIVE,
+    help="lambda of the IG(lam/2, lam/2) noise prior (> 0): large = "
+    "Gaussian noise, small = heavy-tailed (outliers, video) [default: 10].",
+)
+@click.option(
+    "--obs-unit",
+    type=POSITIVE,
+    help="Metres per observation unit (noise scale, > 0) [default: 0.08].",
+)
+@click.option(
+    "--input-window",
+    type=click.IntRange(min=0),
+    help="Savitzky-Golay window (frames, odd; 0 = off) through which the inference networks "
+    "read the noisy motion; the likelihood always scores the raw observations [default: 11].",
+)
+@click.option(
+    "--window", type=click.IntRange(min=1), help="Frames per window at 30 Hz [default: 60]."
+)
+@click.option(
+    "--stride",
+    type=click.IntRange(min=1),
+    help="Frames between window starts [default: 10].",
+)
+@click.option("--batch-size", type=click.IntRange(min=1), help="Windows per step [default: 64].")
+@click.option(
+    "--epochs",
+    type=click.IntRange(min=0),
+    help="Passes over the windows (0 = none, e.g. distillation only) [default: 8].",
+)
+@click.option(
+    "--lr",
+    type=POSITIVE,
+    help="Adam learning rate (> 0), cosine-decayed to --lr-final [default: 3e-3].",
+)
+@click.option("--lr-final", type=NON_NEGATIVE, help="Final learning rate (>= 0) [default: 3e-4].")
+@click.option("--seed", type=click.IntRange(min=0), help="Random seed [default: 0].")
+@click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto].")
+@click.option(
+    "--init-from",
+    type=click.Path(path_type=Path, exists=True),
+    help="Start from this denoiser (checkpoint or fit-dataset folder; its prior and settings "
+    "come with it) instead of new networks on --prior.",
+)
+@click.option(
+    "--distill-epochs",
+    type=click.IntRange(min=0),
+    help="After the ELBO epochs, passes of amortised refinement: every window is refined "
+    "(--refine-style gradient steps on its own noisy data) and the networks learn to output "
+    "the result in one pass; 0 = off [default: 0].",
+)
+@click.option(
+    "--distill-lr",
+    type=POSITIVE,
+    help="Learning rate of --distill-epochs (> 0) [default: 1e-3].",
+)
+@click.option(
+    "--distill-refine-steps",
+    type=click.IntRange(min=1),
+    help="Refinement steps per window for --distill-epochs' targets [default: 50].",
+)
+@click.option(
+    "--mirror-augment/--no-mirror-augment",
+    default=None,
+    help="Also fit to the left-right mirror image of every noisy file: twice the windows "
+    "(still no clean data) [default: off].",
+)
+@click.option("--resume", is_flag=True, help="Continue from OUT/denoiser.npz.")
+@click.option("--max-steps", type=click.IntRange(min=1), help="Stop after this many ELBO steps.")
+@click.option("--threads", type=click.IntRange(min=1), help="CPU threads for torch.")
+@body_model_option
+@handle_errors
+def fit_dataset(
+    noisy,
+    out_dir,
+    prior_path,
+    config_file,
+    init_from,
+    resume,
+    max_steps,
+    threads,
+    body_model,
+    **overrides,
+) -> None:
+    """Fit the denoiser to noisy motion files, unsupervised (no clean data needed).
+
+    Learns the encoder, initial-state predictor and noise predictor by maximising the ELBO of
+    the noisy observations (22 joints + 43 markers) under the frozen prior (paper Sec. 4.2).
+    The result denoises new files in one pass: `mdvae denoise --denoiser OUT ...`.
+
+    With --distill-epochs, it then teaches the networks what latent refinement (`mdvae
+    denoise --refine`) finds on each of these windows, so that the one pass lands closer to
+    it (amortised refinement; still no clean data).
+
+    \b
+    Examples:
+      mdvae fit-dataset noisy_takes/ -o runs/denoiser --epochs 20
+      mdvae fit-dataset noisy_takes/ -o runs/denoiser_a --init-from runs/denoiser \\
+          --epochs 0 --distill-epochs 6 --mirror-augment
+    """
+    import torch
+
+    from mdvae_cli.fit.fit_dataset import FitConfig
+    from mdvae_cli.fit.fit_dataset import fit_dataset as run
+
+    if threads is not None:
+        torch.set_num_threads(threads)
+    cfg = start_config(FitConfig, out_dir, resume, config_file)
+    if not resume:
+        cfg.data = [str(p) for p in noisy]
+        if prior_path is not None:
+            cfg.prior = str(prior_path)
+        if init_from is not None:
+            cfg.init_from = str(init_from)
+        if body_model is not None:
+            cfg.body_model = str(body_model)
+    apply_overrides(
+        cfg,
+        overrides,
+        nested={
+            "lam": "denoiser",
+            "obs_unit": "denoiser",
+            "input_window": "denoiser",
+            "distill_epochs": ("distill", "epochs"),
+            "distill_lr": ("distill", "lr"),
+            "distill_refine_steps": ("distill", "refine_steps"),
+        },
+        resume=resume,
+    )
+    if cfg.init_from is not None and prior_path is not None:
+        raise InputError("--init-from brings its own prior: drop --prior")
+    with progress_bar() as progress:
+        tasks: dict[str, object] = {}
+        labels = {"fit": "fitting", "targets": "refining targets", "distill": "distilling"}
+        logged: dict[str, int] = {}
+
+        def tick(info: dict) -> None:
+            stage = info["stage"]
+            if stage not in tasks:
+                tasks[stage] = progress.add_task(labels[stage], total=info["steps"], info="")
+            if stage == "fit":
+                text = (
+                    f"loss {info['loss']:.2f} rec {info['rec']:.2f} "
+                    f"kl_z {info['kl_z']:.2f} err {info['err_cm']:.1f} cm"
+                )
+            elif stage == "distill":
+                text = f"loss {info['loss']:.3f} state {info['state']:.3f}"
+            else:
+                text = "windows"
+            progress.update(tasks[stage], total=info["steps"], completed=info["step"], info=text)
+            part = 20 * info["step"] // max(1, info["steps"])
+            if not console.is_terminal and part > logged.get(stage, 0):  # batch jobs' logs
+                logged[stage] = part  # a line every 5 % of a stage
+                console.print(f"{labels[stage]} {info['step']}/{info['steps']} {text}")
+
+        summary = run(cfg, out_dir, resume=resume, progress=tick, max_steps=max_steps)
+    elbo = (
+        f"loss {summary.first_loss:.3f} -> {summary.last_loss:.3f}"
+        if not math.isnan(summary.first_loss)  # ELBO steps were taken in this run
+        else "no ELBO steps in this run"
+    )
+    console.print(
+        f"fitted {summary.steps} steps on {summary.windows} windows in {summary.seconds:.0f} s; "
+        f"{elbo}; denoiser in {out_dir}"
+    )
+    if summary.distill_steps:
+        console.print(
+            f"amortised refinement: {summary.distill_steps} steps, loss "
+            f"{summary.distill_first_loss:.3f} -> {summary.distill_last_loss:.3f}"
+        )
+
+
+COMMANDS = [fit_dataset]

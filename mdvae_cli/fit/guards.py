@@ -1,0 +1,65 @@
+"""Guards every training loop shares: the device a ``--device`` value names, what happens when
+a loss or the weights stop being finite (the run ends before anything of them is saved), and
+JSON that stays strict (no nan or inf)."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import torch
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.fit.distributed import DistInfo
+
+
+def check_device(name) -> None:
+    """InputError unless ``name`` is auto, cpu, cuda or cuda:N."""
+    if not (isinstance(name, str) and re.fullmatch(r"auto|cpu|cuda(:\d+)?", name)):
+        raise InputError(f"--device must be auto, cpu, cuda or cuda:N, got {name!r}")
+
+
+def pick_device(name: str) -> torch.device:
+    """The torch device of a ``--device`` value; InputError for a GPU this machine lacks."""
+    check_device(name)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            raise InputError(f"--device {name}: no CUDA GPU is available here; use cpu or auto")
+        count = torch.cuda.device_count()
+        if device.index is not None and device.index >= count:
+            raise InputError(f"--device {name}: this machine has {count} CUDA GPU(s), cuda:0..")
+    return device
+
+
+def diverged(what: str, step: int, detail: str, lr_option: str = "--lr") -> InputError:
+    """The error a training loop raises once its loss or weights stop being finite."""
+    return InputError(
+        f"{what} diverged at step {step} ({detail}): lower {lr_option}; nothing was saved from "
+        "the diverged weights"
+    )
+
+
+def loss_is_finite(loss: torch.Tensor, dist: DistInfo | None = None) -> bool:
+    """Whether a step's loss is finite (under DDP: on every rank, so that all stop together)."""
+    ok = torch.isfinite(loss.detach()).all().float()
+    if dist is not None and dist.enabled:
+        torch.distributed.all_reduce(ok, op=torch.distributed.ReduceOp.MIN)
+    return bool(ok)
+
+
+def weights_are_finite(module: torch.nn.Module) -> bool:
+    return all(bool(torch.isfinite(t).all()) for t in module.state_dict().values())
+
+
+def json_safe(value):
+    """``value`` with every nan/inf float replaced by None (strict JSON has neither)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value

@@ -1,0 +1,78 @@
+"""The prior's training loss (paper Sec. 3.2): the negative ELBO per frame, with the decoder's
+Gaussian width and the KL weight as settings, plus the body-model regulariser on joints,
+markers and a spread of mesh vertices. Used by training (``fit.train_prior``) and by
+semi-amortised reconstruction (``fit.reconstruct``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.fit.data import WindowSet
+from mdvae_cli.model.losses import gaussian_kl
+from mdvae_cli.model.prior_model import PriorModel
+from mdvae_cli.motion.state import VELOCITY_DIMS, state_to_params
+
+
+def spread_vertex_ids(num_vertices: int, count: int) -> torch.Tensor:
+    """``count`` vertex ids spread evenly over the mesh (deterministic).  -> (count,)"""
+    count = min(count, num_vertices)
+    return torch.as_tensor(np.linspace(0, num_vertices - 1, count).round().astype(np.int64))
+
+
+def body_points(
+    body: BodyModel, x: torch.Tensor, betas: torch.Tensor, vertex_ids: torch.Tensor
+) -> torch.Tensor:
+    """Joints, markers and some vertices of states.  x: (B, T, 138), betas: (B, S) ->
+    (B, T, P, 3) in metres."""
+    B, T = x.shape[:2]
+    p = state_to_params(x.reshape(B * T, -1))
+    out = body(
+        p.root_orient, p.pose_body, p.trans, betas.repeat_interleave(T, 0), vertex_ids=vertex_ids
+    )
+    pts = torch.cat([out.joints, out.markers, out.vertices], dim=1)
+    return pts.reshape(B, T, -1, 3)
+
+
+def prior_losses(
+    model: PriorModel,
+    forward,
+    batch: WindowSet,
+    body: BodyModel,
+    vertex_ids: torch.Tensor,
+    kl_w: float,
+    body_w: float,
+    frame_stride: int = 1,
+    recon_w: float = 1.0,
+    velocity_w: float = 1.0,
+) -> dict[str, torch.Tensor]:
+    """Negative ELBO (per frame) + body regulariser for a batch.
+
+    ``recon_w`` = 1 / sigma_x^2: the decoder's Gaussian is N(mu_x, sigma_x^2 I) in normalised
+    units (1 = the paper's N(mu_x, I)); ``velocity_w`` scales that weight on the velocity
+    columns (a wider variance there). ``recon`` is reported unweighted.
+
+    ``forward`` is the (possibly DDP-wrapped) ``model.dvae``. The body term is evaluated on
+    every ``frame_stride``-th frame from a random phase (an unbiased, cheaper estimate).
+    Returns the terms and ``loss``.
+    """
+    norm = model.normalizer
+    xn, x0n = norm.normalize(batch.x), norm.normalize(batch.x0)
+    x_mean, _, post, prior = forward(xn, x0n)
+    recon = 0.5 * ((xn - x_mean) ** 2).sum(-1).mean()
+    kl = gaussian_kl(post.mean, post.logvar, prior.mean, prior.logvar).mean()
+    phase = int(torch.randint(frame_stride, (1,))) if frame_stride > 1 else 0
+    frames = slice(phase, None, frame_stride)
+    pts_hat = body_points(body, norm.denormalize(x_mean[:, frames]), batch.betas, vertex_ids)
+    with torch.no_grad():
+        pts_gt = body_points(body, batch.x[:, frames], batch.betas, vertex_ids)
+    body_mse = ((pts_hat - pts_gt) ** 2).sum(-1).mean() * 1e4  # cm^2
+    if velocity_w != 1.0:
+        dims = torch.as_tensor(VELOCITY_DIMS, device=xn.device)
+        sq = ((xn - x_mean) ** 2)[..., dims].sum(-1).mean()
+        fit = recon + 0.5 * (velocity_w - 1.0) * sq
+    else:
+        fit = recon
+    loss = recon_w * fit + kl_w * kl + body_w * body_mse
+    return {"loss": loss, "recon": recon, "kl": kl, "body_cm2": body_mse}

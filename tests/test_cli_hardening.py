@@ -1,0 +1,178 @@
+"""What a demanding user runs into: option values that are not numbers, options that need
+another, outputs that would clash or land on folders, results that must never be written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from mdvae_cli.cli.main import cli
+from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import expand_inputs, write_atomic
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+NOISY = EXAMPLES / "noisy_walk.npz"
+
+
+def invoke(*args):
+    res = CliRunner().invoke(cli, [str(a) for a in args])
+    if res.exception is not None and not isinstance(res.exception, SystemExit):
+        raise res.exception
+    return res
+
+
+def one_error_line(res) -> str:
+    assert res.exit_code == 1
+    assert "Traceback" not in res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["denoise", NOISY, "--refine", "5", "--refine-lr", "inf"], "'inf' is not a finite number"),
+        (["denoise", NOISY, "--refine-offset", "nan"], "'nan' is not a finite number"),
+        (["denoise", NOISY, "--optimize", "1", "--lr", "0"], "0 is not > 0"),
+        (["add-noise", NOISY, "--sigma", "nan"], "'nan' is not a finite number"),
+        (["add-noise", NOISY, "--sigma", "-0.1"], "-0.1 is not >= 0"),
+        (["add-noise", NOISY, "--drop-frac", "2"], "2 is not <= 1"),
+        (["add-noise", NOISY, "--joint-noise", "abc"], "'abc' is not a number"),
+        (["sample", "--from", NOISY, "--temperature", "nan"], "'nan' is not a finite number"),
+        (["sample", "--from", NOISY, "--speed-limit", "inf"], "'inf' is not a finite number"),
+        (["import", NOISY, "--fps", "inf"], "'inf' is not a finite number"),
+    ],
+)
+def test_numbers_that_are_not_finite_or_in_range_are_usage_errors(tmp_path, args, message):
+    out = tmp_path / "o.npz"
+    res = invoke(*args, "-o", out)
+    assert res.exit_code == 2 and message in res.output and "Traceback" not in res.output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--per-file"], "--per-file only applies with --optimize N"),
+        (["--lr", "0.001"], "--lr only applies with --optimize N"),
+        (["--mesh-format", "obj"], "--mesh-format only applies with --mesh-dir DIR"),
+    ],
+)
+def test_denoise_options_that_need_another_say_so(tmp_path, extra, message):
+    out = tmp_path / "o.npz"
+    line = one_error_line(invoke("denoise", NOISY, "-o", out, *extra))
+    assert message in line and not out.exists()
+
+
+def test_denoise_mesh_dir_that_is_a_file_writes_nothing(tmp_path):
+    blocker = tmp_path / "meshes"
+    blocker.write_text("a file")
+    out = tmp_path / "o.npz"
+    line = one_error_line(invoke("denoise", NOISY, "-o", out, "--mesh-dir", blocker))
+    assert "is a file; give a folder" in line and not out.exists()
+
+
+def test_two_inputs_with_one_output_name_are_refused_before_any_work(tmp_path):
+    for sub in ("cA", "cB"):
+        (tmp_path / sub).mkdir()
+        (tmp_path / sub / "take.npz").write_bytes(NOISY.read_bytes())
+    coll = tmp_path / "coll"
+    res = invoke("add-noise", tmp_path / "cA", tmp_path / "cB", "-o", coll)
+    line = one_error_line(res)
+    assert "would both be written to" in line and "take.npz" in line
+    assert not coll.exists()
+    # the same files named one by one clash too; their common parent is fine
+    res = invoke("add-noise", tmp_path / "cA/take.npz", tmp_path / "cB/take.npz", "-o", coll)
+    one_error_line(res)
+    res = invoke("add-noise", tmp_path / "cA", tmp_path / "cB", "-o", coll, "--sigma", "0")
+    assert res.exit_code == 1 and not coll.exists()
+    parent = tmp_path / "both"
+    parent.mkdir()
+    for sub in ("cA", "cB"):
+        (tmp_path / sub).rename(parent / sub)
+    res = invoke("add-noise", parent, "-o", coll)
+    assert res.exit_code == 0, res.output
+    assert sorted(p.relative_to(coll).as_posix() for p in coll.rglob("*.npz")) == [
+        "cA/take.npz",
+        "cB/take.npz",
+    ]
+
+
+def test_denoise_summary_counts_files_that_could_not_be_read(tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    (src / "walk.npz").write_bytes(NOISY.read_bytes())
+    (src / "bad1.npz").write_text("not a zip")
+    (src / "bad2.npz").write_text("not a zip either")
+    res = invoke("denoise", src, "-o", tmp_path / "out")
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert "denoise: 1 of 3 files done, 2 failed" in " ".join(res.output.split())
+    assert sorted(p.name for p in (tmp_path / "out").glob("*.npz")) == ["walk.npz"]
+
+
+def test_a_result_that_is_not_finite_is_never_written(tmp_path, monkeypatch):
+    from mdvae_cli.fit import denoise as denoise_module
+
+    def diverged(motions, *args, **kwargs):
+        m = motions[0]
+        return [m.with_body(pose_body=np.full_like(m.pose_body, np.nan))]
+
+    monkeypatch.setattr(denoise_module, "denoise_motions", diverged)
+    out = tmp_path / "o.npz"
+    line = one_error_line(invoke("denoise", NOISY, "-o", out))
+    assert "pose_body is not finite" in line and not out.exists()
+
+
+def test_writing_onto_a_folder_or_below_a_file_is_one_clear_error(tmp_path):
+    folder = tmp_path / "existing"
+    folder.mkdir()
+    with pytest.raises(InputError, match="it is a folder"):
+        write_atomic(folder, lambda tmp: tmp.write_bytes(b"x"))
+    a_file = tmp_path / "walk.npz"
+    a_file.write_bytes(b"x")
+    with pytest.raises(InputError, match="walk.npz is a file, not a folder"):
+        write_atomic(a_file / "o.npz", lambda tmp: tmp.write_bytes(b"x"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing", "walk.npz"]
+    # sample's output is one file: a folder (trailing slash) is refused in one line
+    line = one_error_line(invoke("sample", "--from", NOISY, "-o", str(folder) + "/"))
+    assert "is a folder; give the output .npz file's name" in line
+
+
+def test_folders_yield_upper_case_suffixes_and_skip_hidden_folders(tmp_path):
+    (tmp_path / "A.NPZ").write_bytes(b"x")
+    (tmp_path / "b.npz.gz").write_bytes(b"x")
+    (tmp_path / ".cache").mkdir()
+    (tmp_path / ".cache" / "c.npz").write_bytes(b"x")
+    (tmp_path / "notes.txt").write_text("x")
+    found = sorted(rel.as_posix() for _, rel in expand_inputs([tmp_path]))
+    assert found == ["A.NPZ", "b.npz.gz"]
+
+
+def test_a_file_without_checkpoint_metadata_is_named_as_such(tmp_path):
+    from mdvae_cli.fit.checkpoint import load_checkpoint
+
+    with pytest.raises(InputError, match="is not an mdvae checkpoint"):
+        load_checkpoint(NOISY)
+    with pytest.raises(InputError, match="not found"):
+        load_checkpoint(tmp_path / "missing.npz")
+
+
+def test_eval_table_is_not_cut_off_a_terminal():
+    res = invoke("eval", "--gt", EXAMPLES / "walk.npz", "--pred", NOISY)
+    assert res.exit_code == 0, res.output
+    assert "acc err" in res.output and "…" not in res.output
+    assert max(len(line) for line in res.output.splitlines()) > 80
+
+
+def test_sample_does_not_claim_the_start_file_s_source(tmp_path):
+    out = tmp_path / "s.npz"
+    res = invoke(
+        "sample", "--from", EXAMPLES / "walk.npz", "--frames", "3", "--particles", "1", "-o", out
+    )
+    assert res.exit_code == 0, res.output
+    with np.load(out) as z:
+        assert str(z["source"]) == "mdvae sample from the first frame of walk.npz"

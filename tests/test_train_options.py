@@ -1,0 +1,404 @@
+"""Options of train-prior and fit-dataset: bad values refused (CLI and config classes) before
+anything is written, divergence stopped before a non-finite checkpoint, strict-JSON summaries,
+and a plain message when the automatic split leaves nothing to train on."""
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+import mdvae_cli.fit.distill as distill_module
+import mdvae_cli.fit.train_prior as tp
+from mdvae_cli.cli.main import cli
+from mdvae_cli.errors import InputError
+from mdvae_cli.fit.distill import DistillConfig
+from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset
+from mdvae_cli.fit.guards import json_safe, pick_device
+from mdvae_cli.fit.train_prior import TrainConfig, train_prior
+from mdvae_cli.model.config import ModelConfig
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.weights import default_weights
+from tests.test_prior import TINY, tiny_config, write_corpus
+
+NAN = math.nan
+
+
+def strict_json(text: str):
+    """json.loads that refuses NaN/Infinity, as strict JSON parsers do."""
+
+    def refuse(name):
+        raise ValueError(f"{name} in JSON")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def all_finite_npz(path: Path) -> bool:
+    with np.load(path) as z:
+        return all(np.isfinite(z[k]).all() for k in z.files if z[k].dtype.kind == "f")
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory) -> Path:
+    return write_corpus(tmp_path_factory.mktemp("train_options") / "data", n=3, T=40)
+
+
+@pytest.fixture(scope="module")
+def tiny_prior(corpus) -> Path:
+    run = corpus.parent / "prior"
+    train_prior(tiny_config(corpus, epochs=1, batch_size=4), run, max_steps=1)
+    return run
+
+
+def tiny_fit_config(data: Path, prior: Path, **kw) -> FitConfig:
+    base = dict(
+        data=[str(data)],
+        prior=str(prior),
+        window=20,
+        stride=5,
+        batch_size=4,
+        epochs=1,
+        device="cpu",
+        denoiser=DenoiserConfig(hidden_dim=16),
+    )
+    base.update(kw)
+    return FitConfig(**base)
+
+
+# --- the command line refuses bad values at parse time (exit 2) ---------------------------------
+
+TRAIN_BAD = [
+    ["--kl-max", "nan"],
+    ["--kl-max", "-1"],
+    ["--epochs", "-1"],
+    ["--epochs", "0"],
+    ["--recon-weight", "-1"],
+    ["--recon-weight", "0"],
+    ["--body-weight", "inf"],
+    ["--velocity-weight", "-0.5"],
+    ["--velocity-std-scale", "0"],
+    ["--batch-size", "0"],
+    ["--window", "0"],
+    ["--stride", "0"],
+    ["--lr", "nan"],
+    ["--lr", "0"],
+    ["--kl-warmup", "-1"],
+    ["--latent-dim", "0"],
+    ["--hidden-dim", "-4"],
+    ["--threads", "-2"],
+    ["--threads", "0"],
+    ["--max-steps", "0"],
+    ["--seed", "-1"],
+]
+
+FIT_BAD = [
+    ["--lam", "nan"],
+    ["--lam", "-1"],
+    ["--lam", "0"],
+    ["--obs-unit", "nan"],
+    ["--obs-unit", "0"],
+    ["--input-window", "-3"],
+    ["--window", "0"],
+    ["--stride", "0"],
+    ["--batch-size", "0"],
+    ["--epochs", "-1"],
+    ["--lr", "nan"],
+    ["--lr", "-1e-3"],
+    ["--lr-final", "-1"],
+    ["--distill-lr", "0"],
+    ["--distill-epochs", "-1"],
+    ["--distill-refine-steps", "0"],
+    ["--max-steps", "0"],
+    ["--threads", "0"],
+]
+
+
+@pytest.mark.parametrize(
+    "command, bad", [("train-prior", b) for b in TRAIN_BAD] + [("fit-dataset", b) for b in FIT_BAD]
+)
+def test_cli_refuses_bad_numbers_before_writing_anything(corpus, tmp_path, command, bad):
+    out = tmp_path / "out"
+    res = CliRunner().invoke(cli, [command, str(corpus), "-o", str(out), "--device", "cpu", *bad])
+    assert res.exit_code == 2, res.output
+    errors = [line for line in res.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and bad[0] in errors[0], res.output
+    assert "Traceback" not in res.output
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "command, args, message",
+    [
+        ("train-prior", ["--device", "bogus"], "--device must be auto, cpu, cuda or cuda:N"),
+        ("train-prior", ["--device", "cuda:x"], "--device must be auto, cpu, cuda or cuda:N"),
+        ("fit-dataset", ["--device", "gpu"], "--device must be auto, cpu, cuda or cuda:N"),
+        ("fit-dataset", ["--input-window", "4"], "--input-window must be 0 or an odd number"),
+    ],
+)
+def test_cli_library_checks_are_one_error_line(corpus, tmp_path, command, args, message):
+    out = tmp_path / "out"
+    res = CliRunner().invoke(cli, [command, str(corpus), "-o", str(out), *args])
+    assert res.exit_code == 1, res.output
+    assert f"error: {message}" in res.output and "Traceback" not in res.output
+    assert len([line for line in res.output.splitlines() if "error:" in line]) == 1
+    assert not out.exists()
+
+
+def test_cli_config_file_with_bad_values_is_refused(corpus, tmp_path):
+    config = tmp_path / "config.json"
+    config.write_text(json.dumps({**TrainConfig().to_dict(), "kl_max": -1.0}))
+    out = tmp_path / "out"
+    args = ["train-prior", str(corpus), "-o", str(out), "--config", str(config)]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1, res.output
+    assert "error: --kl-max must be a finite number >= 0, got -1.0" in res.output
+    assert "Traceback" not in res.output and not out.exists()
+
+
+def test_cuda_without_a_gpu_is_one_plain_error(monkeypatch):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(InputError, match="no CUDA GPU is available here"):
+        pick_device("cuda")
+    with pytest.raises(InputError, match="no CUDA GPU is available here"):
+        pick_device("cuda:1")
+    assert pick_device("auto").type == "cpu" and pick_device("cpu").type == "cpu"
+
+
+# --- the config classes validate themselves (InputError, the option named) ---------------------
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: TrainConfig(kl_max=NAN), "--kl-max must be a finite number >= 0, got nan"),
+        (lambda: TrainConfig(epochs=0), "--epochs must be a whole number >= 1, got 0"),
+        (lambda: TrainConfig(epochs=-1), "--epochs must be a whole number >= 1"),
+        (lambda: TrainConfig(recon_weight=-1.0), "--recon-weight must be a finite number > 0"),
+        (lambda: TrainConfig(lr=0.0), "--lr must be a finite number > 0, got 0.0"),
+        (lambda: TrainConfig(lr=math.inf), "--lr must be a finite number > 0, got inf"),
+        (lambda: TrainConfig(batch_size=0), "--batch-size must be a whole number >= 1"),
+        (lambda: TrainConfig(window=2.5), "--window must be a whole number >= 1, got 2.5"),
+        (lambda: TrainConfig(stride=0), "--stride must be a whole number >= 1"),
+        (lambda: TrainConfig(body_weight=-0.1), "--body-weight must be a finite number >= 0"),
+        (lambda: TrainConfig(grad_clip=NAN), "grad_clip must be a finite number > 0"),
+        (lambda: TrainConfig(device="gpu"), "--device must be auto, cpu, cuda or cuda:N"),
+        (lambda: TrainConfig(train_only="decoder"), "train_only must be one of all"),
+        (lambda: ModelConfig(latent_dim=0), "--latent-dim must be a whole number >= 1, got 0"),
+        (lambda: ModelConfig(hidden_dim=-1), "--hidden-dim must be a whole number >= 1"),
+        (lambda: TrainConfig.from_dict({"model": {"latent_dim": 0}}), "--latent-dim"),
+        (lambda: DenoiserConfig(lam=NAN), "--lam must be a finite number > 0, got nan"),
+        (lambda: DenoiserConfig(lam=-1.0), "--lam must be a finite number > 0, got -1.0"),
+        (lambda: DenoiserConfig(obs_unit=0.0), "--obs-unit must be a finite number > 0"),
+        (lambda: DenoiserConfig(obs_unit=NAN), "--obs-unit must be a finite number > 0"),
+        (lambda: DenoiserConfig(input_window=-3), "--input-window must be a whole number >= 0"),
+        (lambda: DenoiserConfig(input_window=4), "--input-window must be 0 or an odd number"),
+        (lambda: DenoiserConfig(hidden_dim=0), "hidden_dim must be a whole number >= 1"),
+        (lambda: FitConfig(epochs=-1), "--epochs must be a whole number >= 0, got -1"),
+        (lambda: FitConfig(lr=NAN), "--lr must be a finite number > 0, got nan"),
+        (lambda: FitConfig(lr_final=-1.0), "--lr-final must be a finite number >= 0"),
+        (lambda: FitConfig(batch_size=0), "--batch-size must be a whole number >= 1"),
+        (lambda: FitConfig(device="bogus"), "--device must be auto, cpu, cuda or cuda:N"),
+        (lambda: FitConfig.from_dict({"denoiser": {"lam": -2}}), "--lam must be"),
+        (lambda: FitConfig.from_dict({"distill": {"lr": NAN}}), "--distill-lr must be"),
+        (lambda: DistillConfig(epochs=-1), "--distill-epochs must be a whole number >= 0"),
+        (lambda: DistillConfig(refine_steps=0), "--distill-refine-steps must be a whole number"),
+        (lambda: DistillConfig(latent_weight=-1.0), "distill latent_weight must be a finite"),
+    ],
+)
+def test_config_classes_refuse_bad_values(make, message):
+    with pytest.raises(InputError) as info:
+        make()
+    assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_shipped_and_default_configs_are_valid():
+    for name in ("prior", "denoiser"):
+        meta = json.loads(default_weights(name).with_suffix(".json").read_text())
+        if "train_config" in meta:
+            TrainConfig.from_dict(meta["train_config"])
+        if "fit_config" in meta:
+            FitConfig.from_dict(meta["fit_config"])
+        ModelConfig.from_dict(meta["model_config"])
+    TrainConfig(), FitConfig(), ModelConfig(), DenoiserConfig(), DistillConfig()
+
+
+def test_fields_changed_after_construction_are_checked_before_anything_is_written(
+    corpus, tiny_prior, tmp_path
+):
+    cfg = tiny_config(corpus, model=replace(TINY))  # its own copy: mutated below
+    cfg.recon_weight = -1.0
+    with pytest.raises(InputError, match="--recon-weight must be a finite number > 0"):
+        train_prior(cfg, tmp_path / "run")
+    cfg.recon_weight, cfg.model.latent_dim = 1.0, 0
+    with pytest.raises(InputError, match="--latent-dim"):
+        train_prior(cfg, tmp_path / "run")
+    cfg.model.latent_dim = 8
+    with pytest.raises(InputError, match="--max-steps must be a whole number >= 1"):
+        train_prior(cfg, tmp_path / "run", max_steps=0)
+    assert not (tmp_path / "run").exists()
+    fit = tiny_fit_config(corpus, tiny_prior)
+    fit.denoiser.lam = NAN
+    with pytest.raises(InputError, match="--lam must be a finite number > 0, got nan"):
+        fit_dataset(fit, tmp_path / "den")
+    fit.denoiser.lam, fit.denoiser.input_window = 10.0, -3
+    with pytest.raises(InputError, match="--input-window"):
+        fit_dataset(fit, tmp_path / "den")
+    assert not (tmp_path / "den").exists()
+
+
+# --- divergence stops the run before a non-finite checkpoint -----------------------------------
+
+
+def test_prior_divergence_stops_and_keeps_the_last_good_checkpoint(corpus, tmp_path, monkeypatch):
+    real, calls = tp.prior_losses, []
+
+    def nan_from_the_fourth_step(*args, **kwargs):
+        terms = real(*args, **kwargs)
+        calls.append(torch.is_grad_enabled())  # validation runs without gradients
+        if sum(calls) >= 4:
+            terms["loss"] = terms["loss"] * NAN
+        return terms
+
+    monkeypatch.setattr(tp, "prior_losses", nan_from_the_fourth_step)
+    run = tmp_path / "run"
+    # 3 clips, 1 held out: 2 x 4 windows of 20 frames, 2 steps of 4 per epoch
+    cfg = tiny_config(corpus, epochs=5, batch_size=4)
+    with pytest.raises(InputError) as info:
+        train_prior(cfg, run)
+    message = str(info.value)
+    assert message.startswith("training diverged at step 4 (loss nan): lower --lr")
+    meta = json.loads((run / "last.json").read_text())
+    assert meta["step"] == 2  # epoch 1's checkpoint stays, with finite weights
+    assert all_finite_npz(run / "last.npz") and all_finite_npz(run / "best.npz")
+    assert not (run / "summary.json").exists()
+
+
+def poison_after(module, real_step, at: int):
+    """A ``clipped_step`` that takes the real step, then makes the weights nan at call ``at``
+    (a finite loss whose step overflowed)."""
+    calls = []
+
+    def step(opt, loss, params, max_norm):
+        real_step(opt, loss, params, max_norm)
+        calls.append(1)
+        if len(calls) == at:
+            with torch.no_grad():
+                next(iter(module().parameters())).fill_(NAN)
+
+    return step
+
+
+def test_non_finite_weights_are_never_saved(corpus, tiny_prior, tmp_path, monkeypatch):
+    import mdvae_cli.fit.fit_dataset as fd
+
+    models = []
+    real_model = tp.PriorModel
+    monkeypatch.setattr(tp, "PriorModel", lambda cfg: models.append(real_model(cfg)) or models[-1])
+    monkeypatch.setattr(tp, "clipped_step", poison_after(lambda: models[0], tp.clipped_step, 2))
+    run = tmp_path / "run"
+    with pytest.raises(InputError, match=r"^training diverged at step 2 \(weights not finite\)"):
+        train_prior(tiny_config(corpus, epochs=2, batch_size=4), run)
+    assert not list(run.glob("*.npz"))
+    monkeypatch.undo()
+
+    dens = []
+    real_den = fd.Denoiser
+    monkeypatch.setattr(fd, "Denoiser", lambda *a: dens.append(real_den(*a)) or dens[-1])
+    monkeypatch.setattr(
+        fd, "clipped_step", poison_after(lambda: dens[0].encoder, fd.clipped_step, 1)
+    )
+    out = tmp_path / "den"
+    with pytest.raises(InputError, match=r"^training diverged at step 1 \(weights not finite\)"):
+        fit_dataset(tiny_fit_config(corpus, tiny_prior), out, max_steps=1)
+    assert not (out / "denoiser.npz").exists()
+
+
+def test_prior_divergence_with_a_huge_learning_rate_via_the_cli(corpus, tmp_path):
+    out = tmp_path / "run"
+    args = ["train-prior", str(corpus), "-o", str(out), "--window", "20", "--batch-size", "4",
+            "--epochs", "3", "--latent-dim", "8", "--hidden-dim", "32", "--device", "cpu",
+            "--lr", "1e30"]  # fmt: skip
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1, res.output
+    assert "error: training diverged at step" in res.output and "lower --lr" in res.output
+    assert "Traceback" not in res.output
+    assert all(all_finite_npz(path) for path in out.glob("*.npz"))
+
+
+def test_summary_and_checkpoint_meta_are_strict_json_when_validation_is_not_finite(
+    corpus, tmp_path, monkeypatch
+):
+    monkeypatch.setattr(tp, "evaluate", lambda *a, **k: {"loss": NAN, "recon": math.inf})
+    run = tmp_path / "run"
+    summary = train_prior(tiny_config(corpus, epochs=1, batch_size=4), run, max_steps=1)
+    assert math.isinf(summary.best_val_loss)
+    saved = strict_json((run / "summary.json").read_text())
+    assert saved["best_val_loss"] is None
+    meta = strict_json((run / "last.json").read_text())
+    assert meta["val"] == {"loss": None, "recon": None} and meta["best_val_loss"] is None
+    strict_json((run / "log.jsonl").read_text().splitlines()[-1])
+    assert json_safe({"a": [1.0, NAN, (math.inf, "x")]}) == {"a": [1.0, None, [None, "x"]]}
+
+
+def test_denoiser_divergence_stops_before_saving(corpus, tiny_prior, tmp_path, monkeypatch):
+    real, calls = Denoiser.elbo, []
+
+    def nan_from_the_second_step(self, *args, **kwargs):
+        terms = real(self, *args, **kwargs)
+        calls.append(1)
+        if len(calls) >= 2:
+            terms["loss"] = terms["loss"] * NAN
+        return terms
+
+    monkeypatch.setattr(Denoiser, "elbo", nan_from_the_second_step)
+    out = tmp_path / "den"
+    with pytest.raises(InputError, match=r"^training diverged at step 2 \(loss nan\): lower --lr"):
+        fit_dataset(tiny_fit_config(corpus, tiny_prior), out)
+    assert not (out / "denoiser.npz").exists()
+
+
+def test_distillation_divergence_keeps_the_finite_denoiser(
+    corpus, tiny_prior, tmp_path, monkeypatch
+):
+    real = distill_module.distill_loss
+
+    def nan_loss(*args, **kwargs):
+        terms = real(*args, **kwargs)
+        terms["loss"] = terms["loss"] * NAN
+        return terms
+
+    monkeypatch.setattr(distill_module, "distill_loss", nan_loss)
+    cfg = tiny_fit_config(
+        corpus, tiny_prior, epochs=0, distill=DistillConfig(epochs=1, batch_size=4, refine_steps=1)
+    )
+    out = tmp_path / "den"
+    with pytest.raises(InputError, match=r"^distillation diverged at step 1 .*--distill-lr"):
+        fit_dataset(cfg, out)
+    meta = json.loads((out / "denoiser.json").read_text())
+    assert meta["distill_steps"] == 0 and all_finite_npz(out / "denoiser.npz")
+
+
+# --- nothing to train on ------------------------------------------------------------------------
+
+
+def test_a_single_file_says_the_automatic_split_held_it_out(corpus, tmp_path):
+    out = tmp_path / "run"
+    res = CliRunner().invoke(cli, ["train-prior", str(corpus / "clip0.npz"), "-o", str(out)])
+    assert res.exit_code == 1, res.output
+    assert "error: found 1 motion file and the automatic split put it into validation" in (
+        res.output
+    )
+    assert "--split" in res.output and "Traceback" not in res.output
+    assert not out.exists()
+    split = tmp_path / "split.json"
+    split.write_text(json.dumps({"train": ["elsewhere.npz"], "val": []}))
+    with pytest.raises(InputError, match=r'none of the 3 motion files found is in the "train"'):
+        train_prior(tiny_config(corpus, split_file=str(split)), tmp_path / "run2")
+    # a split file that names the one file for training makes it trainable
+    split.write_text(json.dumps({"train": [str(corpus / "clip0.npz")], "val": []}))
+    cfg = tiny_config(corpus / "clip0.npz", split_file=str(split), epochs=1, batch_size=4)
+    assert train_prior(cfg, tmp_path / "run3", max_steps=1).steps == 1
