@@ -176,3 +176,19 @@ def test_sample_does_not_claim_the_start_file_s_source(tmp_path):
     assert res.exit_code == 0, res.output
     with np.load(out) as z:
         assert str(z["source"]) == "mdvae sample from the first frame of walk.npz"
+
+
+def test_a_one_frame_file_is_a_pose_every_command_but_denoise_takes(tmp_path):
+    with np.load(EXAMPLES / "walk.npz") as z:
+        arrays = dict(z)
+    one = tmp_path / "pose.npz"
+    np.savez(one, **{**arrays, "poses": arrays["poses"][:1], "trans": arrays["trans"][:1]})
+    assert invoke("eval", "--gt", one, "--pred", one).exit_code == 0
+    res = invoke("export-mesh", one, "-o", tmp_path / "mesh")
+    assert res.exit_code == 0 and len(list((tmp_path / "mesh").glob("*.ply"))) == 1
+    res = invoke(
+        "sample", "--from", one, "--frames", "4", "--particles", "1", "-o", tmp_path / "s.npz"
+    )
+    assert res.exit_code == 0 and np.load(tmp_path / "s.npz")["poses"].shape[0] == 4
+    line = one_error_line(invoke("denoise", one, "-o", tmp_path / "d.npz"))
+    assert "too short to denoise" in line and "at least 6 frames" in line

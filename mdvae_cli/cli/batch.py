@@ -110,7 +110,7 @@ class BatchReport:
 
 def strip_gz(relpath: Path) -> Path:
     """``a/b.npz.gz`` -> ``a/b.npz`` (outputs are written uncompressed)."""
-    return relpath.with_suffix("") if relpath.suffix == ".gz" else relpath
+    return relpath.with_suffix("") if relpath.suffix.lower() == ".gz" else relpath
 
 
 def is_kind(path: Path, suffix: str) -> bool:

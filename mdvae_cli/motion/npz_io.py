@@ -106,8 +106,8 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         widths = "/".join(str(w) for w in POSE_WIDTHS)
         raise InputError(f"{path}: 'poses' has shape {poses.shape}, expected (T, {widths})")
     T = poses.shape[0]
-    if T < 2:
-        raise InputError(f"{path}: motion has {T} frame(s); at least 2 are needed")
+    if T < 1:  # one frame is a pose: it can be evaluated, exported or sampled from
+        raise InputError(f"{path}: the motion has no frames")
     split = _split_layout(data, poses, path, notes)
 
     if "trans" in data:
