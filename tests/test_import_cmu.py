@@ -499,3 +499,23 @@ def test_whole_corpus_meets_the_issue(tmp_path):
         assert abs(check["sole_height_mean_cm"]) <= 3.0
     assert 0.9 <= walk["speed_mps"]["min"] and walk["speed_mps"]["max"] <= 2.0
     assert math.isclose(sum(s["files"] for s in summary["splits"].values()), summary["succeeded"])
+
+
+@needs_cmu
+def test_cli_import_never_writes_a_non_finite_retarget(tmp_path, monkeypatch):
+    # a retarget that comes out non-finite (e.g. a wildly wrong --scale) is one error line and
+    # no file, not a NaN motion with exit 0
+    import mdvae_cli.cli.import_worker as worker
+
+    real = worker.import_motion
+
+    def broken(*args, **kwargs):
+        result = real(*args, **kwargs)
+        result.motion.trans[:] = np.nan
+        return result
+
+    monkeypatch.setattr(worker, "import_motion", broken)
+    out = tmp_path / "walk.npz"
+    code, _, err = run(CMU / "asfamc/07/07.asf", CMU / "asfamc/07/07_01.amc.gz", "-o", out)
+    assert code == 1 and "non-finite values" in err and "Traceback" not in err
+    assert not out.exists()

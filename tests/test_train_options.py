@@ -402,3 +402,105 @@ def test_a_single_file_says_the_automatic_split_held_it_out(corpus, tmp_path):
     split.write_text(json.dumps({"train": [str(corpus / "clip0.npz")], "val": []}))
     cfg = tiny_config(corpus / "clip0.npz", split_file=str(split), epochs=1, batch_size=4)
     assert train_prior(cfg, tmp_path / "run3", max_steps=1).steps == 1
+
+
+# --- second QA pass: configs a user writes, run folders, checkpoints of the wrong kind ---------
+
+
+def test_a_partial_config_file_takes_todays_defaults_and_a_run_s_own_its_history():
+    user = TrainConfig.from_dict({"epochs": 3}, legacy=False)
+    assert user.model.decoder_z_skip and user.model.encoder_x_skip
+    assert user.model.encoder_reads_decoder
+    old = TrainConfig.from_dict({"epochs": 3})  # a checkpoint written before the options
+    assert not old.model.decoder_z_skip
+    assert DenoiserConfig.from_dict({}, legacy=False).input_window == DenoiserConfig().input_window
+    assert DenoiserConfig.from_dict({}).input_window == 0
+
+
+def test_cli_partial_config_file_keeps_the_default_architecture(corpus, tmp_path):
+    cfg = tmp_path / "cfg.json"
+    tiny = {"latent_dim": 8, "hidden_dim": 32, "mlp_dim": 32}  # a partial model section
+    cfg.write_text(json.dumps({"epochs": 1, "batch_size": 4, "window": 20, "model": tiny}))
+    res = CliRunner().invoke(
+        cli, ["train-prior", str(corpus), "-o", str(tmp_path / "run"), "--config", str(cfg),
+              "--max-steps", "1"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert saved["model"]["decoder_z_skip"] is True
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: TrainConfig(mirror_augment="no"), "--mirror-augment must be true or false"),
+        (lambda: ModelConfig(decoder_z_skip="no"), "decoder_z_skip must be true or false"),
+        (lambda: DenoiserConfig(x0_bidirectional=1), "x0_bidirectional must be true or false"),
+    ],
+)
+def test_switches_must_be_booleans(make, message):
+    with pytest.raises(InputError, match=message):
+        make()
+
+
+def test_threads_has_an_upper_bound(corpus, tmp_path):
+    res = CliRunner().invoke(
+        cli, ["train-prior", str(corpus), "-o", str(tmp_path / "r"), "--threads", "100000"]
+    )
+    assert res.exit_code == 2 and "Invalid value for '--threads'" in res.output
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_new_prior_run_never_lands_on_an_old_one(corpus, tiny_prior, tmp_path):
+    before = sorted(p.name for p in tiny_prior.iterdir())
+    with pytest.raises(InputError, match="already holds a run .* add --resume"):
+        train_prior(tiny_config(corpus, epochs=1, batch_size=4), tiny_prior, max_steps=1)
+    assert sorted(p.name for p in tiny_prior.iterdir()) == before
+
+
+def test_resuming_refuses_inputs_it_would_ignore(corpus, tiny_prior, tmp_path):
+    split = tmp_path / "split.json"
+    split.write_text('{"train": [], "val": []}')
+    res = CliRunner().invoke(
+        cli, ["train-prior", str(corpus), "-o", str(tiny_prior), "--resume", "--split", str(split)]
+    )
+    assert res.exit_code == 1 and "--split cannot change when resuming" in res.output
+    res = CliRunner().invoke(
+        cli,
+        ["fit-dataset", str(corpus), "-o", str(tmp_path / "d"), "--init-from", str(tiny_prior),
+         "--lam", "5"],
+    )  # fmt: skip
+    assert res.exit_code == 1 and "--lam: the denoiser --init-from starts from" in res.output
+
+
+def test_checkpoints_of_the_wrong_kind_are_named(tiny_prior, tmp_path):
+    from mdvae_cli.fit.fit_dataset import load_denoiser, save_denoiser
+    from mdvae_cli.model.prior_model import load_prior
+
+    prior, _ = load_prior(tiny_prior)
+    den = tmp_path / "den"
+    save_denoiser(den / "denoiser.npz", Denoiser(prior, DenoiserConfig(hidden_dim=8)), {})
+    with pytest.raises(InputError, match="is a denoiser \\(fit-dataset\\), not a prior"):
+        load_prior(den / "denoiser.npz")
+    with pytest.raises(InputError, match="is a denoiser \\(fit-dataset\\) folder, not a prior"):
+        load_prior(den)
+    with pytest.raises(InputError, match="is a train-prior run \\(a prior\\), not a denoiser"):
+        load_denoiser(tiny_prior)
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("[1, 2]", "must be a JSON object"),
+        ('{"splits": 5}', "must be a JSON object"),
+        ('{"train": [1]}', '"train" must be a list of file paths'),
+        ('{"train": "a.npz"}', '"train" must be a list of file paths'),
+    ],
+)
+def test_bad_split_files_are_one_plain_error(tmp_path, content, message):
+    from mdvae_cli.fit.data import read_split
+
+    split = tmp_path / "split.json"
+    split.write_text(content)
+    with pytest.raises(InputError, match=message):
+        read_split(split)

@@ -111,7 +111,7 @@ from mdvae_cli.errors import InputError
 )
 @click.option("--resume", is_flag=True, help="Continue from OUT/denoiser.npz.")
 @click.option("--max-steps", type=click.IntRange(min=1), help="Stop after this many ELBO steps.")
-@click.option("--threads", type=click.IntRange(min=1), help="CPU threads for torch.")
+@click.option("--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256).")
 @body_model_option
 @handle_errors
 def fit_dataset(
@@ -173,6 +173,16 @@ def fit_dataset(
     )
     if cfg.init_from is not None and prior_path is not None:
         raise InputError("--init-from brings its own prior: drop --prior")
+    given = [f"--{k.replace('_', '-')}" for k in ("lam", "obs_unit", "input_window")
+             if overrides.get(k) is not None]  # fmt: skip
+    if cfg.init_from is not None and given:
+        raise InputError(
+            f"{', '.join(given)}: the denoiser --init-from starts from keeps its own settings"
+        )
+    fixed = {"--prior": prior_path, "--init-from": init_from, "--body-model": body_model}
+    if resume and any(v is not None for v in fixed.values()):
+        named = ", ".join(k for k, v in fixed.items() if v is not None)
+        raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
     with progress_bar() as progress:
         tasks: dict[str, object] = {}
         labels = {"fit": "fitting", "targets": "refining targets", "distill": "distilling"}

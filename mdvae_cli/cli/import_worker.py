@@ -69,6 +69,13 @@ class FileImporter:
                         description=item.description, donor_skeleton=donor)  # fmt: skip
         result = import_motion(src, self.body, self.fps, self.betas[key], self.settings, meta)
         motion = result.motion
+        arrays = (motion.root_orient, motion.pose_body, motion.trans, motion.betas)
+        if not all(np.isfinite(a).all() for a in arrays) or not np.isfinite(result.mean_error):
+            hint = f" (is --scale {self.scale:g} metres per file unit right?)" if self.scale else ""
+            raise InputError(
+                f"{job.source}: the retarget to the body gave non-finite values{hint}; "
+                "nothing written"
+            )
         save_motion(motion, job.output, forbid=(job.source,))
         out = job.output
         out = out.relative_to(self.out) if out.is_relative_to(self.out) else out

@@ -58,7 +58,9 @@ def start_config(cls, run_dir: Path, resume: bool, config_file: Path | None):
     if path is None:
         return cls()
     try:
-        return cls.from_dict(json.loads(Path(path).read_text()))
+        # a run's own config.json was written by mdvae (an option it lacks predates it); a
+        # config a user wrote leaves out what should take its default
+        return cls.from_dict(json.loads(Path(path).read_text()), legacy=resume)
     except (OSError, ValueError, TypeError) as exc:
         raise InputError(f"config {path} is unreadable ({exc})") from None
 
@@ -209,7 +211,7 @@ def apply_overrides(
 @click.option(
     "--max-steps", type=click.IntRange(min=1), help="Stop after this many steps (smoke runs)."
 )
-@click.option("--threads", type=click.IntRange(min=1), help="CPU threads for torch.")
+@click.option("--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256).")
 @body_model_option
 @handle_errors
 def train_prior(
@@ -232,6 +234,10 @@ def train_prior(
 
     if threads is not None:
         torch.set_num_threads(threads)
+    fixed = {"--split": split_file, "--body-model": body_model, "--config": config_file}
+    if resume and any(v is not None for v in fixed.values()):
+        named = ", ".join(k for k, v in fixed.items() if v is not None)
+        raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
     cfg = start_config(TrainConfig, run_dir, resume, config_file)
     if not resume:
         cfg.data = [str(p) for p in data]

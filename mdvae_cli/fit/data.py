@@ -86,14 +86,22 @@ def read_split(split_file: Path) -> dict[str, list[Path]]:
     split_file = Path(split_file)
     try:
         raw = json.loads(split_file.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"split file {split_file} is unreadable ({exc})") from None
-    splits = raw.get("splits", raw)
-    return {
-        name: [split_file.parent / p for p in files]
-        for name, files in splits.items()
-        if isinstance(files, list)
-    }
+    splits = raw.get("splits", raw) if isinstance(raw, dict) else None
+    if not isinstance(splits, dict):
+        raise InputError(
+            f'split file {split_file} must be a JSON object {{"train": [...], "val": [...]}}'
+        )
+    out = {}
+    for name, files in splits.items():
+        if name in ("train", "val", "test") and not (
+            isinstance(files, list) and all(isinstance(p, str) for p in files)
+        ):
+            raise InputError(f'split file {split_file}: "{name}" must be a list of file paths')
+        if isinstance(files, list):
+            out[name] = [split_file.parent / p for p in files if isinstance(p, str)]
+    return out
 
 
 def select_files(

@@ -23,10 +23,15 @@ from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.fit.data import MODEL_FPS
 from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_targets
 from mdvae_cli.fit.distributed import parameter_digest
-from mdvae_cli.fit.guards import check_device, diverged, pick_device, weights_are_finite
+from mdvae_cli.fit.guards import (
+    check_device,
+    diverged,
+    pick_device,
+    weights_are_finite,
+)
 from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.fit.window_groups import WindowGroup, make_windows
-from mdvae_cli.model.config import ModelConfig, require_int, require_number
+from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors
 from mdvae_cli.motion.mirror import mirror_motion
@@ -70,6 +75,7 @@ class FitConfig:
         Run again after changing fields. ``epochs`` may be 0 (distillation only)."""
         for name, low in (("window", 1), ("stride", 1), ("batch_size", 1), ("epochs", 0)):
             require_int(f"--{name.replace('_', '-')}", getattr(self, name), low)
+        require_bool("--mirror-augment", self.mirror_augment)
         require_int("--seed", self.seed, 0)
         require_number("--lr", self.lr, 0.0, open_low=True)
         require_number("--lr-final", self.lr_final, 0.0)
@@ -84,9 +90,10 @@ class FitConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> FitConfig:
+    def from_dict(cls, d: dict, legacy: bool = True) -> FitConfig:
+        """``legacy``: see :meth:`ModelConfig.from_dict`."""
         d = dict(d)
-        d["denoiser"] = DenoiserConfig.from_dict(d.get("denoiser", {}))
+        d["denoiser"] = DenoiserConfig.from_dict(d.get("denoiser", {}), legacy)
         d["distill"] = DistillConfig(**d.get("distill", {}))
         return cls(**d)
 
@@ -179,6 +186,10 @@ def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
     loads the weights shipped with the package."""
     path = default_weights("denoiser") if path is None else Path(path)
     if path.is_dir():
+        if not (path / "denoiser.npz").exists() and (path / "best.npz").exists():
+            raise InputError(
+                f"{path} is a train-prior run (a prior), not a denoiser: pass it as --prior"
+            )
         path = path / "denoiser.npz"
     tensors, meta = load_checkpoint(path)
     if meta.get("kind") != "mdvae-denoiser":
@@ -261,13 +272,13 @@ def fit_dataset(
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
     denoiser, done, distilled, history = _starting_point(cfg, out_dir, resume)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     body = BodyModel(load_body_model(cfg.body_model))
     files = [f for f, _ in expand_inputs([Path(p) for p in cfg.data])]
     if not files:
         raise InputError("no noisy .npz files found in the given paths")
     groups = load_noisy_windows(files, denoiser, body, cfg.window, cfg.stride, cfg.mirror_augment)
+    out_dir.mkdir(parents=True, exist_ok=True)  # the inputs are good: the run folder is made
+    (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     total = math.ceil(len(groups[0]) / cfg.batch_size) * cfg.epochs
     steps = max(0, total - done)
     if max_steps is not None:

@@ -63,3 +63,16 @@ def json_safe(value):
     if isinstance(value, (list, tuple)):
         return [json_safe(v) for v in value]
     return value
+
+
+def refuse_to_overwrite(run_dir, names: tuple[str, ...]) -> None:
+    """InputError when ``run_dir`` already holds a run (any of ``names``): a new run there would
+    mix its files with the old one's; ``--resume`` continues it."""
+    from pathlib import Path
+
+    held = [n for n in names if (Path(run_dir) / n).exists()]
+    if held:
+        raise InputError(
+            f"{run_dir} already holds a run ({', '.join(held)}): add --resume to continue it, "
+            "or give another folder"
+        )

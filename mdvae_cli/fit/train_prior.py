@@ -35,11 +35,12 @@ from mdvae_cli.fit.guards import (
     json_safe,
     loss_is_finite,
     pick_device,
+    refuse_to_overwrite,
     weights_are_finite,
 )
 from mdvae_cli.fit.prior_loss import prior_losses, spread_vertex_ids
 from mdvae_cli.fit.schedule import clipped_step, cosine_lr, set_lr
-from mdvae_cli.model.config import ModelConfig, require_int, require_number
+from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
 from mdvae_cli.model.losses import kl_weight
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
 from mdvae_cli.motion.state import VELOCITY_DIMS
@@ -112,6 +113,7 @@ class TrainConfig:
             raise InputError(
                 f"train_only must be one of {', '.join(TRAINABLE)}, got {self.train_only!r}"
             )
+        require_bool("--mirror-augment", self.mirror_augment)
         check_device(self.device)
         self.model.validate()
 
@@ -121,9 +123,10 @@ class TrainConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> TrainConfig:
+    def from_dict(cls, d: dict, legacy: bool = True) -> TrainConfig:
+        """``legacy``: see :meth:`ModelConfig.from_dict`."""
         d = dict(d)
-        d["model"] = ModelConfig.from_dict(d.get("model", {}))
+        d["model"] = ModelConfig.from_dict(d.get("model", {}), legacy)
         return cls(**d)
 
 
@@ -251,6 +254,8 @@ def train_prior(
         require_int("--max-steps", max_steps, 1)
     start = time.time()
     run_dir = Path(run_dir)
+    if not resume:
+        refuse_to_overwrite(run_dir, ("last.npz", "best.npz"))
     device = pick_device(cfg.device)
     dist = init_distributed(device)
     if device.type == "cuda" and dist.enabled:

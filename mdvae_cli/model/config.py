@@ -33,6 +33,12 @@ def require_number(
         raise InputError(f"{name} must be a finite number{bounds}, got {value!r}")
 
 
+def require_bool(name: str, value) -> None:
+    """InputError unless ``value`` is true or false (not a string such as "no")."""
+    if not isinstance(value, bool):
+        raise InputError(f"{name} must be true or false, got {value!r}")
+
+
 def require_int(name: str, value, low: int) -> None:
     """InputError unless ``value`` is a whole number >= ``low``."""
     if not (isinstance(value, int) and not isinstance(value, bool) and value >= low):
@@ -75,14 +81,18 @@ class ModelConfig:
             ("obs_dim", "obs_dim"),
         ):
             require_int(option, getattr(self, name), 1)
+        for name in ("decoder_z_skip", "encoder_reads_decoder", "encoder_x_skip"):
+            require_bool(name, getattr(self, name))
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> ModelConfig:
+    def from_dict(cls, d: dict, legacy: bool = True) -> ModelConfig:
+        """``legacy``: ``d`` was saved by mdvae, and an option it lacks predates that option (it
+        was off then); otherwise (a config a user wrote) a missing option takes its default."""
         names = {f.name for f in fields(cls)}
-        # configs written before these options existed
-        old = {"decoder_z_skip": False, "encoder_reads_decoder": False, "encoder_x_skip": False}
-        d = {**old, **d}
+        if legacy:  # configs written before these options existed
+            old = {"decoder_z_skip": False, "encoder_reads_decoder": False, "encoder_x_skip": False}
+            d = {**old, **d}
         return cls(**{k: v for k, v in d.items() if k in names})

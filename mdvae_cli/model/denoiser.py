@@ -20,7 +20,7 @@ from torch import nn
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.model.config import require_int, require_number
+from mdvae_cli.model.config import require_bool, require_int, require_number
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel
@@ -63,6 +63,7 @@ class DenoiserConfig:
     def validate(self) -> None:
         """InputError naming the first invalid setting (in ``mdvae fit-dataset``'s words)."""
         require_number("--lam", self.lam, 0.0, open_low=True)
+        require_bool("x0_bidirectional", self.x0_bidirectional)
         require_number("--obs-unit", self.obs_unit, 0.0, open_low=True)
         for name in ("hidden_dim", "velocity_window", "x0_window"):
             require_int(name, getattr(self, name), 1)
@@ -81,10 +82,11 @@ class DenoiserConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> DenoiserConfig:
+    def from_dict(cls, d: dict, legacy: bool = True) -> DenoiserConfig:
+        """``legacy``: as :meth:`ModelConfig.from_dict` (missing options predate them)."""
         names = {f.name for f in fields(cls)}
-        # configs written before these options existed
-        d = {"x0_bidirectional": True, "input_window": 0, **d}
+        if legacy:  # configs written before these options existed
+            d = {"x0_bidirectional": True, "input_window": 0, **d}
         return cls(**{k: v for k, v in d.items() if k in names})
 
 

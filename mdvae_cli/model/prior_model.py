@@ -58,8 +58,15 @@ def load_prior(path: Path | str) -> tuple[PriorModel, dict]:
     (its ``best.npz``). Returns the model in eval mode and the checkpoint metadata."""
     path = Path(path)
     if path.is_dir():
+        if not (path / "best.npz").exists() and (path / "denoiser.npz").exists():
+            raise InputError(f"{path} is a denoiser (fit-dataset) folder, not a prior run")
         path = path / "best.npz"
     tensors, meta = load_checkpoint(path)
+    if meta.get("kind") == "mdvae-denoiser":
+        raise InputError(
+            f"{path} is a denoiser (fit-dataset), not a prior: pass it as --denoiser, or as "
+            "fit-dataset's --init-from"
+        )
     if "model_config" not in meta:
         raise InputError(f"{path} is not a Motion-DVAE prior checkpoint (no model_config)")
     model = PriorModel(ModelConfig.from_dict(meta["model_config"]))
