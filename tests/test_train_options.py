@@ -504,3 +504,26 @@ def test_bad_split_files_are_one_plain_error(tmp_path, content, message):
     split.write_text(content)
     with pytest.raises(InputError, match=message):
         read_split(split)
+
+
+def test_train_only_part_needs_a_trained_prior_to_start_from():
+    with pytest.raises(InputError, match="--train-only encoder trains part of a trained prior"):
+        TrainConfig(train_only="encoder")
+
+
+def test_resuming_a_run_that_never_saved_says_so(corpus, tiny_prior, tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps(tiny_config(corpus).to_dict()))
+    with pytest.raises(InputError, match="nothing to resume in .*no checkpoint yet"):
+        train_prior(tiny_config(corpus), run, resume=True)
+    with pytest.raises(InputError, match="nothing to resume in .*no denoiser.npz yet"):
+        fit_dataset(tiny_fit_config(corpus, tiny_prior), tmp_path / "den", resume=True)
+
+
+def test_a_run_folder_inside_the_data_folder_is_not_read_as_motion(tmp_path):
+    data = write_corpus(tmp_path / "data", n=3, T=40)
+    run = data / "run"
+    train_prior(tiny_config(data, epochs=1, batch_size=4), run, max_steps=1)
+    summary = train_prior(tiny_config(data, epochs=2, batch_size=4), run, resume=True, max_steps=2)
+    assert summary.steps >= 1 and (run / "last.npz").exists()

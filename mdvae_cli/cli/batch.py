@@ -172,7 +172,7 @@ def no_clashes(jobs: list[FileJob]) -> list[FileJob]:
         if key in seen:
             raise InputError(
                 f"{seen[key].source} and {job.source} would both be written to {job.output}; "
-                "give their common parent folder as the input, or run them separately"
+                "rename one, give a folder that holds both, or run them separately"
             )
         seen[key] = job
     return jobs

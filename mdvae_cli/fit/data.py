@@ -122,6 +122,12 @@ def select_files(
     return [f for i, f in enumerate(files) if i % every != 0]
 
 
+def outside(files: list[Path], folder: Path) -> list[Path]:
+    """``files`` less those inside ``folder`` (e.g. a run folder kept among the data)."""
+    root = Path(folder).resolve()
+    return [f for f in files if not Path(f).resolve().is_relative_to(root)]
+
+
 def load_windows(
     files: list[Path],
     body: BodyModel,

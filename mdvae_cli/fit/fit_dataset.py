@@ -20,7 +20,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
-from mdvae_cli.fit.data import MODEL_FPS
+from mdvae_cli.fit.data import MODEL_FPS, outside
 from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_targets
 from mdvae_cli.fit.distributed import parameter_digest
 from mdvae_cli.fit.guards import (
@@ -273,7 +273,7 @@ def fit_dataset(
     torch.manual_seed(cfg.seed)
     denoiser, done, distilled, history = _starting_point(cfg, out_dir, resume)
     body = BodyModel(load_body_model(cfg.body_model))
-    files = [f for f, _ in expand_inputs([Path(p) for p in cfg.data])]
+    files = outside([f for f, _ in expand_inputs([Path(p) for p in cfg.data])], out_dir)
     if not files:
         raise InputError("no noisy .npz files found in the given paths")
     groups = load_noisy_windows(files, denoiser, body, cfg.window, cfg.stride, cfg.mirror_augment)
@@ -360,6 +360,11 @@ def _starting_point(cfg: FitConfig, out_dir: Path, resume: bool) -> tuple[Denois
     """The denoiser a run starts from, the ELBO and distillation steps it has taken, and what
     the networks had been through before the run (``init_from``: its path and record)."""
     if resume:
+        if not (out_dir / "denoiser.npz").exists():
+            raise InputError(
+                f"nothing to resume in {out_dir}: it has no denoiser.npz yet (the run stopped "
+                "before its first save); start it again without --resume"
+            )
         denoiser, meta = load_denoiser(out_dir / "denoiser.npz")
         steps, distilled = int(meta.get("steps", 0)), int(meta.get("distill_steps", 0))
         return denoiser, steps, distilled, meta.get("started_from", {})

@@ -22,7 +22,7 @@ from mdvae_cli.fit.checkpoint import (
     optimizer_to_tensors,
     save_checkpoint,
 )
-from mdvae_cli.fit.data import WindowSet, load_windows, select_files
+from mdvae_cli.fit.data import WindowSet, load_windows, outside, select_files
 from mdvae_cli.fit.distributed import (
     gather_strings,
     init_distributed,
@@ -114,6 +114,10 @@ class TrainConfig:
                 f"train_only must be one of {', '.join(TRAINABLE)}, got {self.train_only!r}"
             )
         require_bool("--mirror-augment", self.mirror_augment)
+        if self.train_only != "all" and not self.init_from:
+            raise InputError(
+                f"--train-only {self.train_only} trains part of a trained prior: give --init-from"
+            )
         check_device(self.device)
         self.model.validate()
 
@@ -266,8 +270,9 @@ def train_prior(
         vertex_ids = spread_vertex_ids(body.v_template.shape[0], cfg.body_vertices).to(device)
         split = Path(cfg.split_file) if cfg.split_file else None
         data = [Path(p) for p in cfg.data]
-        train_files = select_files(data, split, "train")
-        val_files = select_files(data, split, "val")
+        # a run folder inside a data folder: its checkpoints are not motion
+        train_files = outside(select_files(data, split, "train"), run_dir)
+        val_files = outside(select_files(data, split, "val"), run_dir)
         if not train_files:
             raise InputError(no_training_files(data, split, val_files))
         cpu_body = BodyModel(body.data)
@@ -290,6 +295,11 @@ def train_prior(
         total_steps = steps_per_epoch * cfg.epochs
         first_epoch, step, best = 0, 0, math.inf
         if resume:
+            if not (run_dir / "last.npz").exists():
+                raise InputError(
+                    f"nothing to resume in {run_dir}: it has no checkpoint yet (the run stopped "
+                    "before its first epoch ended); start it again without --resume"
+                )
             tensors, meta = load_checkpoint(run_dir / "last.npz")
             model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model/")})
             opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
