@@ -1,11 +1,12 @@
 """Guards every training loop shares: the device a ``--device`` value names, what happens when
 a loss or the weights stop being finite (the run ends before anything of them is saved), and
-JSON that stays strict (no nan or inf)."""
+JSON that stays strict (no nan or inf), and a new run that would land on an old one."""
 
 from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import torch
 
@@ -68,8 +69,6 @@ def json_safe(value):
 def refuse_to_overwrite(run_dir, names: tuple[str, ...]) -> None:
     """InputError when ``run_dir`` already holds a run (any of ``names``): a new run there would
     mix its files with the old one's; ``--resume`` continues it."""
-    from pathlib import Path
-
     held = [n for n in names if (Path(run_dir) / n).exists()]
     if held:
         raise InputError(
