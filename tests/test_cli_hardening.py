@@ -168,14 +168,17 @@ def test_eval_table_is_not_cut_off_a_terminal():
     assert max(len(line) for line in res.output.splitlines()) > 80
 
 
-def test_sample_does_not_claim_the_start_file_s_source(tmp_path):
+def test_sample_does_not_claim_the_start_file_s_source_or_duration(tmp_path):
+    with np.load(EXAMPLES / "walk.npz") as z:
+        arrays = dict(z)
+    start = tmp_path / "walk.npz"
+    np.savez(start, **arrays, mocap_time_length=np.array(79 / 30.0))
     out = tmp_path / "s.npz"
-    res = invoke(
-        "sample", "--from", EXAMPLES / "walk.npz", "--frames", "3", "--particles", "1", "-o", out
-    )
+    res = invoke("sample", "--from", start, "--frames", "3", "--particles", "1", "-o", out)
     assert res.exit_code == 0, res.output
     with np.load(out) as z:
         assert str(z["source"]) == "mdvae sample from the first frame of walk.npz"
+        assert float(z["mocap_time_length"]) == 0.1  # 3 frames at 30 Hz
 
 
 def test_a_one_frame_file_is_a_pose_every_command_but_denoise_takes(tmp_path):

@@ -241,6 +241,22 @@ def test_amc_bones_in_any_order_and_errors(tmp_path):
         parse_asf(ASF.replace("b1 b2\n", "b1 b3\n"))
 
 
+def test_amc_cut_off_mid_frame_drops_that_frame_and_gaps_hold(tmp_path):
+    sk = load_asf(write(tmp_path / "s.asf", ASF))
+    cut = AMC + "3\nroot 2 0 0 0 0 0\n"  # the file ends before frame 3's b1
+    m = load_amc(write(tmp_path / "cut.amc", cut), sk)
+    full = load_amc(write(tmp_path / "a.amc", AMC), sk)
+    assert m.rotations.shape == full.rotations.shape  # two frames, not three
+    assert any("cut-off" in n for n in m.notes)
+    gap = (
+        AMC.replace("2\nroot 1 0 0 0 0 0\nb1 0", "2\nroot 1 0 0 0 0 0")
+        + "3\nroot 2 0 0 0 0 0\nb1 0\n"
+    )
+    g = load_amc(write(tmp_path / "gap.amc", gap), sk)
+    assert g.rotations.shape[0] == 3 and np.allclose(g.rotations[1], g.rotations[0])
+    assert any("previous frame's held" in n for n in g.notes)
+
+
 @needs_cmu
 def test_cmu_units_and_cmuconvert_first_frame():
     sk = load_asf(CMU / "asfamc/07/07.asf")

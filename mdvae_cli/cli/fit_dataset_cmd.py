@@ -110,7 +110,11 @@ from mdvae_cli.errors import InputError
     "(still no clean data) [default: off].",
 )
 @click.option("--resume", is_flag=True, help="Continue from OUT/denoiser.npz.")
-@click.option("--max-steps", type=click.IntRange(min=1), help="Stop after this many ELBO steps.")
+@click.option(
+    "--max-steps",
+    type=click.IntRange(min=1),
+    help="Stop after this many ELBO steps in this invocation (a --resume counts afresh).",
+)
 @click.option("--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256).")
 @body_model_option
 @handle_errors

@@ -118,6 +118,9 @@ def sample(
     )  # fmt: skip
     if "source" in result.extras:  # the sample was not captured where the start file was
         result.extras["source"] = np.array(f"mdvae sample from the first frame of {start.name}")
+    if "mocap_time_length" in result.extras:  # AMASS's duration (s), of the sample now
+        kept = result.extras["mocap_time_length"]
+        result.extras["mocap_time_length"] = np.array(frames / result.fps, dtype=kept.dtype)
     save_motion(result, out, forbid=(start,))
     console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
 

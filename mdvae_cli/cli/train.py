@@ -209,7 +209,10 @@ def apply_overrides(
 @click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto].")
 @click.option("--resume", is_flag=True, help="Continue the run in RUN_DIR from last.npz.")
 @click.option(
-    "--max-steps", type=click.IntRange(min=1), help="Stop after this many steps (smoke runs)."
+    "--max-steps",
+    type=click.IntRange(min=1),
+    help="Stop once the run has taken this many steps in all, counting those before a "
+    "--resume (smoke runs).",
 )
 @click.option("--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256).")
 @body_model_option

@@ -262,7 +262,8 @@ def _axis_frame(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:
 
 
 def _read_amc_values(text: str, layout: dict[str, int], path: str):
-    """Frame values per bone: {name: (T, n)}, plus the angle unit if the header says one.
+    """Frame values per bone: {name: (T, n)}, the angle unit if the header says one, and
+    notes on frames that lacked bones.
 
     A fast path handles files whose frames all list the same bones in the same order (CMU);
     other files go through a line-by-line reader.
@@ -299,10 +300,10 @@ def _read_amc_values(text: str, layout: dict[str, int], path: str):
         order.append(bone)
         k += 1 + layout[bone]
     block = 1 + sum(1 + layout[b] for b in order)
-    values = _fast_amc(tokens, order, layout, block)
+    values, notes = _fast_amc(tokens, order, layout, block), []
     if values is None:
-        values = _slow_amc(lines[start:], layout, path)
-    return values, degrees
+        values, notes = _slow_amc(lines[start:], layout, path)
+    return values, degrees, notes
 
 
 def _is_int(tok: str) -> bool:
@@ -330,7 +331,11 @@ def _fast_amc(tokens: list[str], order: list[str], layout: dict[str, int], block
     return values
 
 
-def _slow_amc(lines: list[str], layout: dict[str, int], path: str) -> dict[str, np.ndarray]:
+def _slow_amc(
+    lines: list[str], layout: dict[str, int], path: str
+) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Frames read line by line; a bone a frame leaves out holds its previous value, and a last
+    frame that lists fewer bones than the others (a file cut off mid-frame) is dropped."""
     frames: list[dict[str, list[float]]] = []
     for ln in lines:
         words = ln.split()
@@ -351,15 +356,24 @@ def _slow_amc(lines: list[str], layout: dict[str, int], path: str) -> dict[str, 
             frames[-1][bone] = [float(v) for v in vals]
         except ValueError:
             raise InputError(f"{path}: non-numeric AMC value in frame {len(frames)}") from None
+    notes = []
+    seen = set().union(*frames) if frames else set()
+    if len(frames) > 1 and seen - set(frames[-1]):
+        frames.pop()
+        notes.append("the last frame lists fewer bones than the others (a cut-off file?): dropped")
     T = len(frames)
-    out = {}
+    out, held = {}, 0
     for bone, n in layout.items():
         arr = np.zeros((T, n))
         for t, fr in enumerate(frames):
             if bone in fr:
                 arr[t] = fr[bone]
+            elif bone in seen and t > 0:
+                arr[t], held = arr[t - 1], held + 1
         out[bone] = arr
-    return out
+    if held:
+        notes.append(f"{held} bone entries missing from their frames: the previous frame's held")
+    return out, notes
 
 
 def load_amc(
@@ -383,7 +397,7 @@ def load_amc(
         raise InputError(f"{path}: this is an ASF skeleton, not an AMC motion")
     layout = {"root": len(skeleton.root_order)}
     layout.update({name: len(b.dofs) for name, b in skeleton.bones.items()})
-    values, amc_degrees = _read_amc_values(text, layout, path)
+    values, amc_degrees, amc_notes = _read_amc_values(text, layout, path)
     degrees = skeleton.degrees if amc_degrees is None else amc_degrees
     T = T_file = next(iter(values.values())).shape[0]
     if max_frames is not None:
@@ -442,7 +456,7 @@ def load_amc(
             end_site.append(True)
             offsets.append(bone.direction * bone.length)
             rotations.append(np.broadcast_to(np.eye(3), (T, 3, 3)))
-    notes = list(skeleton.notes)
+    notes = list(skeleton.notes) + amc_notes
     if any(d in ("tx", "ty", "tz", "l") for b in skeleton.bones.values() for d in b.dofs):
         notes.append("translation/length dofs on bones are ignored")
     info = {"format": "amc", "skeleton": Path(skeleton.path).name, "unit": unit,
