@@ -37,8 +37,15 @@ _WORKER = None  # each --jobs process's FileImporter
 
 
 def _start_worker(*args) -> None:
+    """A worker process's setup. Ctrl-C is the parent's to handle: a worker interrupted while
+    holding the pool's queue lock could leave the parent waiting forever; instead the parent
+    cancels what has not started and the workers finish the file they are on (written
+    atomically) and exit."""
+    import signal
+
     from mdvae_cli.cli.import_worker import FileImporter
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     global _WORKER
     _WORKER = FileImporter(*args)
 
