@@ -647,7 +647,7 @@ def _run(args: argparse.Namespace, command: list[str]) -> int:
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.errors import MdvaeError
     from mdvae_cli.fit.data import read_split
-    from mdvae_cli.fit.fit_dataset import load_denoiser
+    from mdvae_cli.model.denoiser import load_denoiser
 
     if args.quick:
         args.max_files = args.max_files or 6

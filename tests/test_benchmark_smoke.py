@@ -29,10 +29,9 @@ from benchmarks.denoise_table import (
 )
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.fit_dataset import save_denoiser
 from mdvae_cli.fit.train_prior import train_prior
 from mdvae_cli.metrics import evaluate_pair, mean_result
-from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, save_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.npz_io import motion_from_arrays
 from tests.conftest import motion_arrays

@@ -18,10 +18,10 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import savgol_filter_motion
 from mdvae_cli.fit.denoise import blend_windows, denoise_motions
-from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_denoiser
+from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset
 from mdvae_cli.fit.train_prior import train_prior
 from mdvae_cli.metrics import evaluate_pair
-from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.npz_io import load_motion
@@ -143,7 +143,7 @@ def test_blend_windows_reproduces_a_consistent_sequence():
 
 def write_denoiser(tiny_prior: Path, out: Path) -> Path:
     prior, _ = load_prior(tiny_prior / "run")
-    from mdvae_cli.fit.fit_dataset import save_denoiser
+    from mdvae_cli.model.denoiser import save_denoiser
 
     save_denoiser(out / "denoiser.npz", Denoiser(prior, DenoiserConfig(hidden_dim=16)), {})
     return out

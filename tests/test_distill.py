@@ -14,10 +14,10 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.fit import fit_dataset as fd
 from mdvae_cli.fit.distill import DistillConfig, distill, refine_targets
-from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_denoiser, load_noisy_windows
+from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_noisy_windows
 from mdvae_cli.fit.refine import RefineConfig, refine_posterior
 from mdvae_cli.fit.window_groups import make_windows
-from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.npz_io import load_motion

@@ -25,7 +25,6 @@ from mdvae_cli.fit.closed_form import (
 )
 from mdvae_cli.fit.data import load_windows
 from mdvae_cli.fit.denoise import denoise_motions, refine_windows
-from mdvae_cli.fit.fit_dataset import load_denoiser
 from mdvae_cli.fit.prior_loss import prior_losses, spread_vertex_ids
 from mdvae_cli.fit.reconstruct import refine_reconstruction
 from mdvae_cli.fit.refine import (
@@ -37,7 +36,7 @@ from mdvae_cli.fit.refine import (
 from mdvae_cli.fit.train_prior import TrainConfig
 from mdvae_cli.fit.window_groups import WindowGroup, make_windows
 from mdvae_cli.metrics import evaluate_pair
-from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.noise import add_pose_noise

@@ -474,7 +474,7 @@ def test_resuming_refuses_inputs_it_would_ignore(corpus, tiny_prior, tmp_path):
 
 
 def test_checkpoints_of_the_wrong_kind_are_named(tiny_prior, tmp_path):
-    from mdvae_cli.fit.fit_dataset import load_denoiser, save_denoiser
+    from mdvae_cli.model.denoiser import load_denoiser, save_denoiser
     from mdvae_cli.model.prior_model import load_prior
 
     prior, _ = load_prior(tiny_prior)

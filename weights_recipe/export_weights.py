@@ -9,7 +9,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from mdvae_cli.fit.fit_dataset import load_denoiser
+from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.model.prior_model import load_prior
 
 TARGET = Path(__file__).resolve().parents[1] / "mdvae_cli" / "weights"

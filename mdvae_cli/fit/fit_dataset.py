@@ -31,9 +31,9 @@ from mdvae_cli.fit.guards import (
 )
 from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.fit.window_groups import WindowGroup, make_windows
-from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
-from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
-from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors
+from mdvae_cli.model.config import require_bool, require_int, require_number
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, save_denoiser
+from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
@@ -166,48 +166,6 @@ def fit_denoiser(
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
     denoiser.eval()
     return losses
-
-
-def save_denoiser(path: Path, denoiser: Denoiser, meta: dict) -> None:
-    tensors = model_tensors(denoiser.prior, "prior/")
-    for name in ("encoder", "x0_predictor", "noise_predictor"):
-        tensors.update(model_tensors(getattr(denoiser, name), f"{name}/"))
-    meta = {
-        **meta,
-        "model_config": denoiser.prior.cfg.to_dict(),
-        "denoiser_config": denoiser.cfg.to_dict(),
-        "kind": "mdvae-denoiser",
-    }
-    save_checkpoint(Path(path), tensors, meta)
-
-
-def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
-    """Load a denoiser checkpoint (file, or a fit-dataset folder's ``denoiser.npz``); None
-    loads the weights shipped with the package."""
-    path = default_weights("denoiser") if path is None else Path(path)
-    if path.is_dir():
-        if not (path / "denoiser.npz").exists() and (path / "best.npz").exists():
-            raise InputError(
-                f"{path} is a train-prior run (a prior), not a denoiser: pass it as --prior"
-            )
-        path = path / "denoiser.npz"
-    tensors, meta = load_checkpoint(path)
-    if meta.get("kind") != "mdvae-denoiser":
-        raise InputError(f"{path} is not a denoiser checkpoint (train one with fit-dataset)")
-    prior = PriorModel(ModelConfig.from_dict(meta["model_config"]))
-    denoiser = Denoiser(prior, DenoiserConfig.from_dict(meta["denoiser_config"]))
-    for prefix, module in (
-        ("prior/", denoiser.prior),
-        ("encoder/", denoiser.encoder),
-        ("x0_predictor/", denoiser.x0_predictor),
-        ("noise_predictor/", denoiser.noise_predictor),
-    ):
-        state = {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
-        try:
-            module.load_state_dict(state)
-        except RuntimeError as exc:
-            raise InputError(f"{path}: weights do not match its config ({exc})") from None
-    return denoiser.eval(), meta
 
 
 def load_noisy_windows(

@@ -14,17 +14,20 @@ from __future__ import annotations
 
 import copy
 from dataclasses import asdict, dataclass, fields
+from pathlib import Path
 
 import torch
 from torch import nn
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.model.config import require_bool, require_int, require_number
+from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
+from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
-from mdvae_cli.model.prior_model import PriorModel
+from mdvae_cli.model.prior_model import PriorModel, model_tensors
 from mdvae_cli.motion.state import state_to_params
+from mdvae_cli.weights import default_weights
 
 
 @dataclass
@@ -248,3 +251,46 @@ def observe(body: BodyModel, x: torch.Tensor, betas: torch.Tensor) -> torch.Tens
     p = state_to_params(x.reshape(B * T, -1))
     out = body(p.root_orient, p.pose_body, p.trans, betas.repeat_interleave(T, 0))
     return torch.cat([out.joints, out.markers], dim=1).reshape(B, T, -1, 3)
+
+
+def save_denoiser(path: Path, denoiser: Denoiser, meta: dict) -> None:
+    """Write a denoiser checkpoint (its prior inside it) with ``meta`` beside the configs."""
+    tensors = model_tensors(denoiser.prior, "prior/")
+    for name in ("encoder", "x0_predictor", "noise_predictor"):
+        tensors.update(model_tensors(getattr(denoiser, name), f"{name}/"))
+    meta = {
+        **meta,
+        "model_config": denoiser.prior.cfg.to_dict(),
+        "denoiser_config": denoiser.cfg.to_dict(),
+        "kind": "mdvae-denoiser",
+    }
+    save_checkpoint(Path(path), tensors, meta)
+
+
+def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
+    """Load a denoiser checkpoint (file, or a fit-dataset folder's ``denoiser.npz``); None
+    loads the weights shipped with the package."""
+    path = default_weights("denoiser") if path is None else Path(path)
+    if path.is_dir():
+        if not (path / "denoiser.npz").exists() and (path / "best.npz").exists():
+            raise InputError(
+                f"{path} is a train-prior run (a prior), not a denoiser: pass it as --prior"
+            )
+        path = path / "denoiser.npz"
+    tensors, meta = load_checkpoint(path)
+    if meta.get("kind") != "mdvae-denoiser":
+        raise InputError(f"{path} is not a denoiser checkpoint (train one with fit-dataset)")
+    prior = PriorModel(ModelConfig.from_dict(meta["model_config"]))
+    denoiser = Denoiser(prior, DenoiserConfig.from_dict(meta["denoiser_config"]))
+    for prefix, module in (
+        ("prior/", denoiser.prior),
+        ("encoder/", denoiser.encoder),
+        ("x0_predictor/", denoiser.x0_predictor),
+        ("noise_predictor/", denoiser.noise_predictor),
+    ):
+        state = {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
+        try:
+            module.load_state_dict(state)
+        except RuntimeError as exc:
+            raise InputError(f"{path}: weights do not match its config ({exc})") from None
+    return denoiser.eval(), meta
