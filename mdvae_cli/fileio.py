@@ -57,8 +57,8 @@ def expand_inputs(
 
     A folder contributes every file below it whose name ends in one of ``suffixes`` (any
     case, ``.gz`` variants included; hidden files and folders skipped), with its path relative
-    to the folder; a file given directly
-    contributes its own name. A missing path raises InputError.
+    to the folder; a file given directly contributes its own name. A file named twice (or
+    also inside a folder named) counts once. A missing path raises InputError.
     """
     out: list[tuple[Path, Path]] = []
     for item in inputs:
@@ -73,4 +73,10 @@ def expand_inputs(
             out.append((item, Path(item.name)))
         else:
             raise InputError(f"no such file or folder: {item}")
-    return out
+    unique, seen = [], set()
+    for f, rel in out:
+        key = f.resolve()
+        if key not in seen:
+            seen.add(key)
+            unique.append((f, rel))
+    return unique

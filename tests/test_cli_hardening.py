@@ -195,3 +195,20 @@ def test_a_one_frame_file_is_a_pose_every_command_but_denoise_takes(tmp_path):
     assert res.exit_code == 0 and np.load(tmp_path / "s.npz")["poses"].shape[0] == 4
     line = one_error_line(invoke("denoise", one, "-o", tmp_path / "d.npz"))
     assert "too short to denoise" in line and "at least 6 frames" in line
+
+
+def test_a_file_named_twice_counts_once(tmp_path):
+    (tmp_path / "a.npz").write_bytes(b"x")
+    found = expand_inputs([tmp_path / "a.npz", tmp_path, tmp_path / "a.npz"])
+    assert [rel.as_posix() for _, rel in found] == ["a.npz"]
+    out = tmp_path / "o"
+    res = invoke("add-noise", NOISY, NOISY, "-o", out)
+    assert res.exit_code == 0, res.output
+    assert [p.name for p in out.iterdir()] == ["noisy_walk.npz"]
+
+
+def test_import_of_a_skeleton_alone_says_what_is_missing(tmp_path):
+    asf = tmp_path / "07.asf"
+    asf.write_text(":version 1.10\n")
+    line = one_error_line(invoke("import", asf, "-o", tmp_path / "out"))
+    assert "is a skeleton only: give the .amc motions too" in line

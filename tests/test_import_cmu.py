@@ -535,3 +535,12 @@ def test_cli_import_never_writes_a_non_finite_retarget(tmp_path, monkeypatch):
     code, _, err = run(CMU / "asfamc/07/07.asf", CMU / "asfamc/07/07_01.amc.gz", "-o", out)
     assert code == 1 and "non-finite values" in err and "Traceback" not in err
     assert not out.exists()
+
+
+@needs_cmu
+def test_cli_single_file_import_json_names_its_output(tmp_path):
+    out = tmp_path / "walk.npz"
+    code, stdout, err = run(CMU / "asfamc/07/07.asf", CMU / "asfamc/07/07_01.amc.gz", "-o", out,
+                            "--json")  # fmt: skip
+    assert code == 0, err
+    assert json.loads(stdout)["files"][0]["result"]["output"] == out.as_posix()

@@ -154,6 +154,8 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
         asf = asf_inputs[0]
     if asf is not None and not Path(asf).is_file():
         raise InputError(f"no such skeleton file: {asf}")
+    if not inputs and asf_inputs:
+        raise InputError(f"{asf_inputs[0]} is a skeleton only: give the .amc motions too")
 
     skipped: list[dict] = []
     if cmu_corpus:

@@ -77,8 +77,8 @@ class FileImporter:
                 "nothing written"
             )
         save_motion(motion, job.output, forbid=(job.source,))
-        out = job.output
-        out = out.relative_to(self.out) if out.is_relative_to(self.out) else out
+        out = job.output  # relative to the output folder, or the output file's own path
+        out = out.relative_to(self.out) if out != self.out and out.is_relative_to(self.out) else out
         row = {
             "output": out.as_posix(),
             "format": item.kind if item else src.info["format"],
