@@ -112,7 +112,8 @@ from mdvae_cli.errors import InputError
 @click.option(
     "--mesh-dir",
     type=click.Path(path_type=Path),
-    help="Also write the cleaned mesh sequence here (a subfolder per file).",
+    help="Also write the cleaned mesh sequence here (one input: into the folder itself; "
+    "several: a subfolder per file).",
 )
 @click.option(
     "--mesh-format",

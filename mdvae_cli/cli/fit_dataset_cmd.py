@@ -109,7 +109,7 @@ from mdvae_cli.errors import InputError
     help="Also fit to the left-right mirror image of every noisy file: twice the windows "
     "(still no clean data) [default: off].",
 )
-@click.option("--resume", is_flag=True, help="Continue from OUT/denoiser.npz.")
+@click.option("--resume", is_flag=True, help="Continue the -o run from its denoiser.npz.")
 @click.option(
     "--max-steps",
     type=click.IntRange(min=1),

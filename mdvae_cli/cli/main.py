@@ -28,8 +28,9 @@ def cli() -> None:
       mdvae denoise noisy.npz -o cleaned.npz
       mdvae eval --gt clean.npz --pred cleaned.npz
 
-    Files are AMASS-style .npz (poses, trans, betas, mocap_framerate). Every command takes
-    files or folders; folders are mirrored into the output folder.
+    Files are AMASS-style .npz (poses, trans, betas, mocap_framerate). The file commands
+    (add-noise, denoise, eval, export-mesh, import) take files or folders; folders are
+    mirrored into the output folder.
     """
 
 

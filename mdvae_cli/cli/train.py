@@ -207,7 +207,7 @@ def apply_overrides(
 )
 @click.option("--seed", type=click.IntRange(min=0), help="Random seed [default: 0].")
 @click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto].")
-@click.option("--resume", is_flag=True, help="Continue the run in RUN_DIR from last.npz.")
+@click.option("--resume", is_flag=True, help="Continue the run in the -o folder from its last.npz.")
 @click.option(
     "--max-steps",
     type=click.IntRange(min=1),
