@@ -515,7 +515,7 @@ def test_resuming_a_run_that_never_saved_says_so(corpus, tiny_prior, tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_text(json.dumps(tiny_config(corpus).to_dict()))
-    with pytest.raises(InputError, match="nothing to resume in .*no checkpoint yet"):
+    with pytest.raises(InputError, match="nothing to resume in .*no last.npz yet"):
         train_prior(tiny_config(corpus), run, resume=True)
     with pytest.raises(InputError, match="nothing to resume in .*no denoiser.npz yet"):
         fit_dataset(tiny_fit_config(corpus, tiny_prior), tmp_path / "den", resume=True)

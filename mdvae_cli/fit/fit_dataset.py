@@ -25,6 +25,7 @@ from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_target
 from mdvae_cli.fit.distributed import parameter_digest
 from mdvae_cli.fit.guards import (
     check_device,
+    checkpoint_to_resume,
     diverged,
     pick_device,
     weights_are_finite,
@@ -318,12 +319,7 @@ def _starting_point(cfg: FitConfig, out_dir: Path, resume: bool) -> tuple[Denois
     """The denoiser a run starts from, the ELBO and distillation steps it has taken, and what
     the networks had been through before the run (``init_from``: its path and record)."""
     if resume:
-        if not (out_dir / "denoiser.npz").exists():
-            raise InputError(
-                f"nothing to resume in {out_dir}: it has no denoiser.npz yet (the run stopped "
-                "before its first save); start it again without --resume"
-            )
-        denoiser, meta = load_denoiser(out_dir / "denoiser.npz")
+        denoiser, meta = load_denoiser(checkpoint_to_resume(out_dir, "denoiser.npz"))
         steps, distilled = int(meta.get("steps", 0)), int(meta.get("distill_steps", 0))
         return denoiser, steps, distilled, meta.get("started_from", {})
     if cfg.init_from:

@@ -75,3 +75,15 @@ def refuse_to_overwrite(run_dir, names: tuple[str, ...]) -> None:
             f"{run_dir} already holds a run ({', '.join(held)}): add --resume to continue it, "
             "or give another folder"
         )
+
+
+def checkpoint_to_resume(run_dir, name: str) -> Path:
+    """``run_dir / name``, or InputError when a run stopped before saving it (nothing to
+    resume: the run starts again without --resume)."""
+    path = Path(run_dir) / name
+    if not path.exists():
+        raise InputError(
+            f"nothing to resume in {run_dir}: it has no {name} yet (the run stopped before its "
+            "first save); start it again without --resume"
+        )
+    return path

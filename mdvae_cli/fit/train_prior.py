@@ -31,6 +31,7 @@ from mdvae_cli.fit.distributed import (
 )
 from mdvae_cli.fit.guards import (
     check_device,
+    checkpoint_to_resume,
     diverged,
     json_safe,
     loss_is_finite,
@@ -295,12 +296,7 @@ def train_prior(
         total_steps = steps_per_epoch * cfg.epochs
         first_epoch, step, best = 0, 0, math.inf
         if resume:
-            if not (run_dir / "last.npz").exists():
-                raise InputError(
-                    f"nothing to resume in {run_dir}: it has no checkpoint yet (the run stopped "
-                    "before its first epoch ended); start it again without --resume"
-                )
-            tensors, meta = load_checkpoint(run_dir / "last.npz")
+            tensors, meta = load_checkpoint(checkpoint_to_resume(run_dir, "last.npz"))
             model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model/")})
             opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
             first_epoch, step = meta["epoch"] + 1, meta["step"]
