@@ -192,6 +192,34 @@ def test_canonicalize_round_trip_and_canonical_pose():
     torch.testing.assert_close(rotvec_to_rotmat(back.pose_body), rotvec_to_rotmat(p.pose_body))
 
 
+def test_chunk_state_pair_matches_two_separate_passes(tiny_body):
+    """Canonicalising the inputs and the raw chunks together (one pass) gives what two passes
+    give: the inputs in their own frames, the raw chunks in the inputs' frames, plain
+    differences for the raw velocities."""
+    from mdvae_cli.body.skinning import BodyModel
+    from mdvae_cli.fit.data import chunk_state_pair, chunk_states
+
+    body = BodyModel(tiny_body)
+    B, T = 3, 12
+    g = torch.Generator().manual_seed(4)
+    raw = BodyParams(
+        torch.randn(B, T, 3, generator=g),
+        0.3 * torch.randn(B, T, 21, 3, generator=g),
+        torch.randn(B, T, 3, generator=g),
+    )
+    smooth = lambda a: (a + a.roll(1, dims=1) + a.roll(-1, dims=1)) / 3  # noqa: E731
+    inputs = BodyParams(smooth(raw.root_orient), smooth(raw.pose_body), smooth(raw.trans))
+    betas = 0.5 * torch.randn(B, 10, generator=g)
+    states, raw_states, frame = chunk_state_pair(inputs, raw, betas, body, velocity_window=5)
+    want, want_frame = chunk_states(inputs, betas, body, velocity_window=5)
+    want_raw, _ = chunk_states(raw, betas, body, frame=want_frame)
+    torch.testing.assert_close(states, want)
+    torch.testing.assert_close(raw_states, want_raw)
+    torch.testing.assert_close(frame.yaw, want_frame.yaw)
+    torch.testing.assert_close(frame.origin, want_frame.origin)
+    assert not torch.allclose(raw_states, states)
+
+
 def test_window_starts_cover_every_frame():
     assert window_starts(50, 61, 30) == [0]
     starts = window_starts(200, 61, 40)

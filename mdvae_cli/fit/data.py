@@ -18,7 +18,7 @@ from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.motion.state import BodyParams, params_to_state
-from mdvae_cli.motion.windows import CanonicalFrame, canonicalize
+from mdvae_cli.motion.windows import CanonicalFrame, canonical_frame, canonicalize
 
 MODEL_FPS = 30.0
 
@@ -56,6 +56,38 @@ def chunk_states(
     """
     canon, frame = canonicalize(params, body.pelvis_rest(betas), frame)
     return params_to_state(canon, fps, velocity_window), frame
+
+
+def chunk_state_pair(
+    inputs: BodyParams,
+    raw: BodyParams,
+    betas: torch.Tensor,
+    body: BodyModel,
+    fps: float = MODEL_FPS,
+    velocity_window: int = 1,
+) -> tuple[torch.Tensor, torch.Tensor, CanonicalFrame]:
+    """Two versions of the same chunks — what the networks read (``inputs``) and the raw
+    motion — canonicalised together in the frames of ``inputs`` (one pass over twice the
+    chunks costs less than two passes). The raw states take plain differences.
+
+    inputs, raw: (B, T+1, ...) chunks; betas: (B, S) -> (input states, raw states), each
+    (B, T+1, 138), and the frames
+    """
+    pelvis = body.pelvis_rest(betas)
+    frame = canonical_frame(inputs, pelvis)
+    both = BodyParams(
+        *(torch.cat([a, b]) for a, b in zip(_fields(inputs), _fields(raw), strict=True))
+    )
+    twice = CanonicalFrame(torch.cat([frame.yaw] * 2), torch.cat([frame.origin] * 2))
+    canon, _ = canonicalize(both, torch.cat([pelvis, pelvis]), twice)
+    B = len(betas)
+    half = lambda sl: BodyParams(*(a[sl] for a in _fields(canon)))  # noqa: E731
+    states = params_to_state(half(slice(0, B)), fps, velocity_window)
+    return states, params_to_state(half(slice(B, None)), fps), frame
+
+
+def _fields(p: BodyParams) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    return p.root_orient, p.pose_body, p.trans
 
 
 def motion_to_params(motion: Motion, dtype=torch.float32) -> BodyParams:

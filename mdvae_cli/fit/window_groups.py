@@ -11,7 +11,7 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import filter_motions, savgol_smooth
-from mdvae_cli.fit.data import chunk_states, motion_to_params
+from mdvae_cli.fit.data import chunk_state_pair, chunk_states, motion_to_params
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.state import BodyParams
@@ -97,16 +97,18 @@ def make_windows(
         stack = lambda k, items=items: torch.stack([it[k] for it in items])  # noqa: E731
         params = BodyParams(stack(2), stack(3), stack(4))
         betas = stack(5)
+        vw = denoiser.cfg.velocity_window
         with torch.no_grad():
-            states, frame = chunk_states(
-                params, betas, body, velocity_window=denoiser.cfg.velocity_window
-            )
-            y3d, raw_states = states.new_zeros(0), None
+            if observations and denoiser.cfg.input_window > 1:  # the raw motion too
+                raw = BodyParams(*(torch.stack([it[7][k] for it in items]) for k in range(3)))
+                states, raw_states, frame = chunk_state_pair(
+                    params, raw, betas, body, velocity_window=vw
+                )
+            else:
+                states, frame = chunk_states(params, betas, body, velocity_window=vw)
+                raw_states = states if observations else None
+            y3d = states.new_zeros(0)
             if observations:
-                raw_states = states
-                if denoiser.cfg.input_window > 1:  # the raw motion, in the same frames
-                    raw = BodyParams(*(torch.stack([it[7][k] for it in items]) for k in range(3)))
-                    raw_states = chunk_states(raw, betas, body, frame=frame)[0]
                 if points:
                     y3d = observe(body, raw_states, betas)
         weight = None

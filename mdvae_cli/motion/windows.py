@@ -41,6 +41,15 @@ class CanonicalFrame:
     origin: torch.Tensor
 
 
+def canonical_frame(params: BodyParams, pelvis_rest: torch.Tensor) -> CanonicalFrame:
+    """Each window's own canonical frame: frame 0's heading, and its pelvis on the floor.
+
+    params: root_orient (B, T, 3), trans (B, T, 3); pelvis_rest: (B, 3)"""
+    origin = params.trans[:, 0] + pelvis_rest
+    origin = torch.cat([origin[:, :2], torch.zeros_like(origin[:, 2:])], dim=-1)
+    return CanonicalFrame(yaw=heading(params.root_orient[:, 0]), origin=origin)
+
+
 def canonicalize(
     params: BodyParams, pelvis_rest: torch.Tensor, frame: CanonicalFrame | None = None
 ) -> tuple[BodyParams, CanonicalFrame]:
@@ -54,11 +63,8 @@ def canonicalize(
     """
     pelvis = params.trans + pelvis_rest[:, None]
     if frame is None:
-        yaw = heading(params.root_orient[:, 0])
-        origin = pelvis[:, 0].clone()
-        origin[:, 2] = 0.0
-    else:
-        yaw, origin = frame.yaw, frame.origin
+        frame = canonical_frame(params, pelvis_rest)
+    yaw, origin = frame.yaw, frame.origin
     Rz = rotation_about_z(-yaw)[:, None]
     R = Rz @ rotvec_to_rotmat(params.root_orient)
     new_pelvis = (Rz @ (pelvis - origin[:, None])[..., None])[..., 0]
@@ -67,7 +73,7 @@ def canonicalize(
         pose_body=rotvec_unwrap(params.pose_body, dim=1),
         trans=new_pelvis - pelvis_rest[:, None],
     )
-    return out, CanonicalFrame(yaw=yaw, origin=origin)
+    return out, frame
 
 
 def uncanonicalize(
