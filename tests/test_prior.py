@@ -129,6 +129,36 @@ def test_tiny_training_lowers_loss_and_resumes(tmp_path):
     assert len((run / "log.jsonl").read_text().splitlines()) == 7
 
 
+def test_interrupted_and_resumed_run_ends_bit_identical(tmp_path):
+    """A run stopped after its first epoch (Ctrl-C) and resumed ends with exactly the weights
+    of the same run left alone: data order, learning rate, Adam's moments and the random
+    draws (posterior samples, the body term's frame phase) all continue where they stopped.
+    A summary.json left by an earlier finished run is removed when the resumed run starts."""
+    data = write_corpus(tmp_path / "data", n=3, T=60)
+    cfg = tiny_config(data, epochs=3)
+    whole = train_prior(cfg, tmp_path / "whole")
+
+    def stop_after_first_epoch(d):
+        if d.get("epoch_end"):
+            raise KeyboardInterrupt
+
+    run = tmp_path / "stopped"
+    with pytest.raises(KeyboardInterrupt):
+        train_prior(cfg, run, progress=stop_after_first_epoch)
+    (run / "summary.json").write_text("{}\n")  # as if an earlier run had finished here
+    stale = []
+    resumed = train_prior(
+        cfg, run, resume=True, progress=lambda d: stale.append((run / "summary.json").exists())
+    )
+    assert stale and not any(stale)
+    assert resumed.steps == whole.steps and resumed.rank_digests == whole.rank_digests
+    a, _ = load_prior(tmp_path / "whole" / "last.npz")
+    b, _ = load_prior(run / "last.npz")
+    for (name, x), y in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+        assert torch.equal(x, y), name
+    assert json.loads((run / "summary.json").read_text())["steps"] == whole.steps
+
+
 def test_init_from_widens_an_older_architecture_exactly(tmp_path):
     """A prior without the decoder z-skip / encoder-reads-decoder links fine-tunes into the
     current architecture: the new input columns start at zero, so it computes the same."""

@@ -207,7 +207,13 @@ def apply_overrides(
 )
 @click.option("--seed", type=click.IntRange(min=0), help="Random seed [default: 0].")
 @click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto].")
-@click.option("--resume", is_flag=True, help="Continue the run in the -o folder from its last.npz.")
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue the run in the -o folder from its last.npz (the end of its last finished "
+    "epoch): with the same settings it ends with exactly the weights of an uninterrupted run "
+    "(one process).",
+)
 @click.option(
     "--max-steps",
     type=click.IntRange(min=1),

@@ -186,13 +186,33 @@ class TrainSummary:
     rank_digests: list[str]
 
 
-def _save(run_dir: Path, name: str, model, opt, meta: dict) -> None:
+def _save(run_dir: Path, name: str, model, opt, meta: dict, device=None) -> None:
+    """A checkpoint; with ``opt`` (the one a run resumes from) also Adam's state and the
+    random generators' states, so that a resumed run draws what the run would have drawn."""
     tensors = model_tensors(model)
     if opt is not None:
         t, groups = optimizer_to_tensors(opt)
         tensors.update(t)
+        tensors.update(rng_tensors(device))
         meta = {**meta, "optimizer": groups}
     save_checkpoint(run_dir / f"{name}.npz", tensors, json_safe(meta))
+
+
+def rng_tensors(device: torch.device | None) -> dict[str, torch.Tensor]:
+    """The states of torch's generators (CPU, and the GPU's when training on one)."""
+    out = {"rng/cpu": torch.get_rng_state()}
+    if device is not None and device.type == "cuda":
+        out["rng/cuda"] = torch.cuda.get_rng_state(device)
+    return out
+
+
+def restore_rng(tensors: dict[str, torch.Tensor], device: torch.device) -> None:
+    """Inverse of :func:`rng_tensors`; a checkpoint without them (older runs) leaves the
+    generators as seeded."""
+    if "rng/cpu" in tensors:
+        torch.set_rng_state(tensors["rng/cpu"])
+    if "rng/cuda" in tensors and device.type == "cuda":
+        torch.cuda.set_rng_state(tensors["rng/cuda"], device)
 
 
 def no_training_files(data: list[Path], split: Path | None, val_files: list[Path]) -> str:
@@ -301,8 +321,11 @@ def train_prior(
             opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
             first_epoch, step = meta["epoch"] + 1, meta["step"]
             best = meta["best_val_loss"] if meta.get("best_val_loss") is not None else math.inf
+            restore_rng(tensors, device)
         if dist.is_main:
             run_dir.mkdir(parents=True, exist_ok=True)
+            # a summary of an earlier, finished run no longer describes this folder
+            (run_dir / "summary.json").unlink(missing_ok=True)
             (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
         forward = DistributedDataParallel(model.dvae) if dist.enabled else model.dvae
         meta_base = {
@@ -366,7 +389,7 @@ def train_prior(
                 if val_loss < best:
                     best = val_loss
                     _save(run_dir, "best", model, None, meta)
-                _save(run_dir, "last", model, opt, meta)
+                _save(run_dir, "last", model, opt, meta, device)
                 with open(run_dir / "log.jsonl", "a") as fh:
                     record = {
                         "epoch": epoch,
