@@ -158,6 +158,10 @@ def test_bvh_blank_frames_dropped_and_gzip(tmp_path):
         ("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 0", "not a multiple"),
         ("Frame Time: 0.0333333", "Frame Time: 0", "Frame Time must be > 0"),
         ("    OFFSET 0 5 0\n", "", "expected 'OFFSET'"),
+        ("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 1e30 0", "joint Arm holds an angle of 1e+30 degrees"),
+        ("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 200000 0", "angles over 100000 degrees are refused"),
+        ("1 2 3 0 0 0 0 0 0", "1e30 2 3 0 0 0 0 0 0", "the root position reaches 5.64e+28 m"),
+        ("OFFSET 10 0 0", "OFFSET 1e30 0 0", "a bone reaches 1e+27 m"),
     ],
 )
 def test_bvh_malformed_files_give_one_line_errors(tmp_path, old, new, message):
@@ -234,6 +238,9 @@ def test_amc_bones_in_any_order_and_errors(tmp_path):
         (AMC.replace("b1 90", "b1 90 4"), "has 2 values"),
         (ASF, "not an AMC motion"),
         (AMC.replace("b1 90", "b1 x"), "non-numeric"),
+        (AMC.replace("b1 90", "b1 1e30"), "bone b1 holds an angle of 1e\\+30 degrees"),
+        (AMC.replace("root 1 0 0 0 0 0", "root 1 0 0 1e30 0 0"), "the root holds an angle"),
+        (AMC.replace("root 1 0 0", "root 1e30 0 0"), "the root position reaches"),
     ]:
         with pytest.raises(InputError, match=message):
             load_amc(write(tmp_path / "bad.amc", bad), sk)

@@ -25,6 +25,7 @@ import numpy as np
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion.bvh import (
     SourceMotion,
+    check_angles,
     euler_to_rotmat,
     guess_length_unit,
     read_text,
@@ -429,8 +430,9 @@ def load_amc(
     for axis, i in t_cols.items():
         root_pos[:, "xyz".index(axis)] += root_vals[:, i]
     C0 = _axis_frame(skeleton.root_orientation, skeleton.root_axis_order, skeleton.degrees)
-    M0 = euler_to_rotmat(root_vals[:, [i for i, _ in r_cols[::-1]]] * to_rad,
-                         "".join(a for _, a in r_cols[::-1]))  # fmt: skip
+    root_angles = root_vals[:, [i for i, _ in r_cols[::-1]]] * to_rad
+    check_angles(root_angles, "the root", path)
+    M0 = euler_to_rotmat(root_angles, "".join(a for _, a in r_cols[::-1]))
     rotations.append(C0 @ M0 @ C0.T)
 
     for name in bone_order:
@@ -446,6 +448,7 @@ def load_amc(
         if r:
             C = _axis_frame(bone.axis, bone.axis_order, skeleton.degrees)
             vals = values[name][:, [i for i, _ in r[::-1]]] * to_rad
+            check_angles(vals, f"bone {name}", path)
             M = euler_to_rotmat(vals, "".join(a for _, a in r[::-1]))
             rotations.append(C @ M @ C.T)
         else:
@@ -472,4 +475,4 @@ def load_amc(
         end_site=np.array(end_site, dtype=bool),
         info=info,
         notes=notes,
-    )
+    ).check_distances(path)

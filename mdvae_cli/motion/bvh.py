@@ -32,6 +32,22 @@ CMU_UNIT = 0.0254 / 0.45
 _UNIT_GUESSES = (("m", 1.0), ("cm", 0.01), ("mm", 0.001), ("in", 0.0254), ("cmu", CMU_UNIT))
 
 
+#: no exporter writes an angle this large (degrees): a file that does is corrupt
+MAX_ANGLE_DEG = 1e5
+#: a root this far from the origin, or a bone this long (metres), is not mocap of a person
+MAX_DISTANCE_M = 1e4
+
+
+def check_angles(radians: np.ndarray, what: str, path) -> None:
+    """Refuse angle channels no exporter writes (|angle| > MAX_ANGLE_DEG).  radians: any shape"""
+    if radians.size and np.abs(radians).max() > math.radians(MAX_ANGLE_DEG):
+        worst = math.degrees(float(np.abs(radians).max()))
+        raise InputError(
+            f"{path}: {what} holds an angle of {worst:.3g} degrees; the file is corrupt "
+            f"(angles over {MAX_ANGLE_DEG:g} degrees are refused)"
+        )
+
+
 @dataclass
 class SourceMotion:
     """A mocap clip on its own skeleton.  J joints (end sites included), T frames.
@@ -72,6 +88,16 @@ class SourceMotion:
     def with_fps(self, fps: float) -> SourceMotion:
         """The same frames declared at another rate (e.g. CMU's 60 Hz captures labelled 120)."""
         return replace(self, fps=float(fps), info=dict(self.info), notes=list(self.notes))
+
+    def check_distances(self, path) -> SourceMotion:
+        """Refuse a root trajectory or bones beyond MAX_DISTANCE_M (a corrupt file, or a
+        --scale far off). -> self"""
+        for what, a in (("the root position", self.root_positions), ("a bone", self.offsets)):
+            worst = float(np.abs(a).max()) if a.size else 0.0
+            if worst > MAX_DISTANCE_M:
+                raise InputError(f"{path}: {what} reaches {worst:.3g} m; the file is corrupt or "
+                                 "its length unit is wrong (check --scale)")  # fmt: skip
+        return self
 
     def rest_positions(self) -> np.ndarray:
         """Joint positions in the rest pose, root at the origin.  -> (J, 3)"""
@@ -348,6 +374,7 @@ def load_bvh(
         rot = [(c, axis) for c, kind, axis in cols if kind == "r"]
         if rot:
             angles = np.deg2rad(data[:, [c for c, _ in rot]])
+            check_angles(angles, f"joint {names[j]}", path)
             rotations[:, j] = euler_to_rotmat(angles, "".join(a for _, a in rot))
         for c, kind, axis in cols:
             if kind != "t":
@@ -383,4 +410,4 @@ def load_bvh(
         end_site=np.array(end_site, dtype=bool),
         info=info,
         notes=notes,
-    )
+    ).check_distances(path)
