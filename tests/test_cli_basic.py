@@ -110,7 +110,8 @@ def test_add_noise_then_eval_json(make_motion_file, tmp_path, hash_tree):
     assert set(data) == {"files", "mean", "failed", "units", "body_model"}
     assert data["failed"] == 0
     (row,) = data["files"]
-    assert set(row) == {"file", "gt", "pred", "ok", "error", "metrics"}
+    assert set(row) == {"file", "gt", "pred", "ok", "error", "result", "metrics"}
+    assert row["result"] == row["metrics"]  # "result" as in every command's --json
     assert row["ok"] is True and row["error"] is None and row["file"] == "clean.npz"
     metrics = row["metrics"]
     keys = {"num_frames", "fps", "v2v_cm", "v2v_abs_cm", "mpjpe_cm", "accel_gt", "accel_pred",

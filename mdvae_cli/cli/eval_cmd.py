@@ -156,6 +156,8 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
                         "pred": str(o.job.data),
                         "ok": o.ok,
                         "error": o.error,
+                        # "result" as in every other command's --json; "metrics" kept
+                        "result": o.result.to_dict() if o.ok else None,
                         "metrics": o.result.to_dict() if o.ok else None,
                     }
                     for o in report.outcomes
