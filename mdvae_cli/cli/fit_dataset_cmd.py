@@ -109,7 +109,13 @@ from mdvae_cli.errors import InputError
     help="Also fit to the left-right mirror image of every noisy file: twice the windows "
     "(still no clean data) [default: off].",
 )
-@click.option("--resume", is_flag=True, help="Continue the -o run from its denoiser.npz.")
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue the -o run from its denoiser.npz (saved every 200 ELBO steps). The ELBO "
+    "fit then ends with exactly the networks of an uninterrupted run (resume.npz keeps Adam's "
+    "state and the random draws); distillation restarts its Adam.",
+)
 @click.option(
     "--max-steps",
     type=click.IntRange(min=1),

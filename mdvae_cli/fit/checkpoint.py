@@ -66,3 +66,20 @@ def optimizer_from_tensors(tensors: dict[str, torch.Tensor], groups: dict) -> di
         _, idx, key = name.split("/", 2)
         state.setdefault(int(idx), {})[key] = value
     return {"state": state, "param_groups": groups["param_groups"]}
+
+
+def rng_tensors(device: torch.device | None) -> dict[str, torch.Tensor]:
+    """The states of torch's generators (CPU, and the GPU's when training on one)."""
+    out = {"rng/cpu": torch.get_rng_state()}
+    if device is not None and device.type == "cuda":
+        out["rng/cuda"] = torch.cuda.get_rng_state(device)
+    return out
+
+
+def restore_rng(tensors: dict[str, torch.Tensor], device: torch.device) -> None:
+    """Inverse of :func:`rng_tensors`; a checkpoint without them (older runs) leaves the
+    generators as seeded."""
+    if "rng/cpu" in tensors:
+        torch.set_rng_state(tensors["rng/cpu"])
+    if "rng/cuda" in tensors and device.type == "cuda":
+        torch.cuda.set_rng_state(tensors["rng/cuda"], device)

@@ -6,10 +6,11 @@ The same loop serves ``mdvae fit-dataset`` (many noisy files, many epochs, check
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -19,7 +20,14 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
+from mdvae_cli.fit.checkpoint import (
+    load_checkpoint,
+    optimizer_from_tensors,
+    optimizer_to_tensors,
+    restore_rng,
+    rng_tensors,
+    save_checkpoint,
+)
 from mdvae_cli.fit.data import MODEL_FPS, outside
 from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_targets
 from mdvae_cli.fit.distributed import parameter_digest
@@ -105,6 +113,27 @@ def concat_groups(groups: list[WindowGroup], length: int) -> WindowGroup | None:
     return same[0] if same else None
 
 
+def batch_order(
+    lengths: list[int], batch_size: int, seed: int
+) -> Iterator[tuple[int, torch.Tensor]]:
+    """The batches an ELBO fit visits, step after step: (group index, window indices).
+
+    Batches cycle through a seeded permutation of each group's windows, groups chosen in
+    proportion to their sizes. The same seed gives the same endless sequence, so a resumed
+    run skips the batches already taken and carries on with the very next one."""
+    gen = torch.Generator().manual_seed(seed)
+    sizes = torch.tensor(lengths, dtype=torch.float)
+    perms = [torch.randperm(n, generator=gen) for n in lengths]
+    cursors = [0] * len(lengths)
+    while True:
+        gi = int(torch.multinomial(sizes, 1, generator=gen)) if len(lengths) > 1 else 0
+        if cursors[gi] >= lengths[gi]:
+            perms[gi] = torch.randperm(lengths[gi], generator=gen)
+            cursors[gi] = 0
+        yield gi, perms[gi][cursors[gi] : cursors[gi] + batch_size]
+        cursors[gi] += batch_size
+
+
 def fit_denoiser(
     denoiser: Denoiser,
     groups: list[WindowGroup],
@@ -119,14 +148,19 @@ def fit_denoiser(
     checkpoint: Callable[[int], None] | None = None,
     checkpoint_every: int = 200,
     sample_generator: torch.Generator | None = None,
+    first_step: int = 0,
+    total_steps: int | None = None,
+    optimizer: torch.optim.Optimizer | None = None,
 ) -> list[float]:
     """Maximise the ELBO over phi, gamma, omega for ``steps`` Adam steps on ``groups``.
 
-    Batches cycle through a seeded permutation of all windows (each group separately, larger
-    groups visited in proportion). With ``lr_final`` the learning rate decays from ``lr`` to it
-    on a cosine; ``checkpoint(step)`` is called every ``checkpoint_every`` steps. One-frame
-    windows (x0 alone) have nothing to fit and are left out. Returns the loss of every step;
-    a loss that is not finite raises InputError before its step is taken.
+    Batches follow :func:`batch_order`. With ``lr_final`` the learning rate decays from ``lr``
+    to it on a cosine over ``total_steps`` (default ``steps``); ``first_step`` steps of that
+    schedule and of the batch order were taken before (a resumed run, whose ``optimizer``
+    carries Adam's state; default a new Adam). ``checkpoint(step)`` is called every
+    ``checkpoint_every`` steps, ``step`` counted from the start of the run. One-frame windows
+    (x0 alone) have nothing to fit and are left out. Returns the loss of every step; a loss
+    that is not finite raises InputError before its step is taken.
     The ELBO's Monte-Carlo draws come from ``sample_generator`` (None: torch's global
     generator, which ``mdvae fit-dataset`` seeds).
     """
@@ -134,24 +168,16 @@ def fit_denoiser(
     groups = [g for g in groups if g.moves]
     if not groups:
         return []
-    opt = torch.optim.Adam(denoiser.trainable_parameters(), lr=lr)
-    gen = torch.Generator().manual_seed(seed)
-    sizes = torch.tensor([len(g) for g in groups], dtype=torch.float)
-    perms = [torch.randperm(len(g), generator=gen) for g in groups]
-    cursors = [0] * len(groups)
+    opt = optimizer or torch.optim.Adam(denoiser.trainable_parameters(), lr=lr)
+    total = steps + first_step if total_steps is None else total_steps
+    order = batch_order([len(g) for g in groups], batch_size, seed)
+    order = itertools.islice(order, first_step, first_step + steps)
     denoiser.train()
     losses = []
-    for step in range(steps):
-        gi = int(torch.multinomial(sizes, 1, generator=gen)) if len(groups) > 1 else 0
-        g = groups[gi]
-        if cursors[gi] >= len(g):
-            perms[gi] = torch.randperm(len(g), generator=gen)
-            cursors[gi] = 0
-        idx = perms[gi][cursors[gi] : cursors[gi] + batch_size]
-        cursors[gi] += batch_size
-        b = g.batch(idx)
+    for step, (gi, idx) in enumerate(order, start=first_step):
+        b = groups[gi].batch(idx)
         if lr_final is not None:
-            set_lr(opt, cosine_lr(step, steps, lr, lr_final))
+            set_lr(opt, cosine_lr(step, total, lr, lr_final))
         w = None if b.weight is None else b.weight.to(device)
         terms = denoiser.elbo(
             b.yn.to(device), b.y3d.to(device), b.betas.to(device), body, w,
@@ -163,7 +189,8 @@ def fit_denoiser(
         clipped_step(opt, terms["loss"], denoiser.trainable_parameters(), 5.0)
         losses.append(loss)
         if progress is not None:
-            progress({"step": step + 1, "steps": steps, **{k: v.item() for k, v in terms.items()}})
+            done = step + 1 - first_step
+            progress({"step": done, "steps": steps, **{k: v.item() for k, v in terms.items()}})
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
     denoiser.eval()
     return losses
@@ -203,6 +230,8 @@ class FitSummary:
 
 
 TARGETS_FILE = "distill_targets.npz"
+#: Adam's state and the random generators' where the ELBO fit stands (fit-dataset --resume)
+RESUME_FILE = "resume.npz"
 
 
 def fit_dataset(
@@ -246,6 +275,9 @@ def fit_dataset(
         distilled = 0
     denoiser.to(device)
     body.to(device)
+    opt = torch.optim.Adam(denoiser.trainable_parameters(), lr=cfg.lr)
+    if resume and steps > 0:
+        _resume_state(out_dir / RESUME_FILE, done, opt, device)
 
     def save(elbo_steps: int, distill_steps: int, **extra) -> None:
         if not weights_are_finite(denoiser):
@@ -263,6 +295,10 @@ def fit_dataset(
         denoiser.cpu()
         save_denoiser(out_dir / "denoiser.npz", denoiser, meta)
         denoiser.to(device)
+        if not distill_steps:  # where the ELBO fit stands, for --resume
+            tensors, groups = optimizer_to_tensors(opt)
+            state = {"kind": "mdvae-fit-resume", "steps": elbo_steps, "optimizer": groups}
+            save_checkpoint(out_dir / RESUME_FILE, {**tensors, **rng_tensors(device)}, state)
 
     losses = fit_denoiser(
         denoiser,
@@ -271,11 +307,14 @@ def fit_dataset(
         steps,
         cfg.lr,
         cfg.batch_size,
-        seed=cfg.seed + done,
+        seed=cfg.seed,
         progress=_staged(progress, "fit"),
         device=device,
         lr_final=cfg.lr_final,
-        checkpoint=lambda step: save(done + step, 0),
+        checkpoint=lambda step: save(step, 0),
+        first_step=done,
+        total_steps=total,
+        optimizer=opt,
     )
     done += steps
     last = {"final_loss": losses[-1]} if losses else {}
@@ -313,6 +352,19 @@ def fit_dataset(
         d_losses[0] if d_losses else math.nan,
         d_losses[-1] if d_losses else math.nan,
     )
+
+
+def _resume_state(path: Path, steps: int, opt: torch.optim.Optimizer, device) -> None:
+    """Load Adam's state and the generators' saved with the denoiser after ``steps`` ELBO
+    steps, so that the resumed fit takes the steps the whole run would have taken. A run
+    saved without them (older versions) resumes with a new Adam."""
+    if not path.exists():
+        return
+    tensors, meta = load_checkpoint(path)
+    if meta.get("kind") != "mdvae-fit-resume" or meta.get("steps") != steps:
+        return  # not the state of the denoiser being resumed
+    opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
+    restore_rng(tensors, device)
 
 
 def _starting_point(cfg: FitConfig, out_dir: Path, resume: bool) -> tuple[Denoiser, int, int, dict]:

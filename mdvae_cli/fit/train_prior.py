@@ -20,6 +20,8 @@ from mdvae_cli.fit.checkpoint import (
     load_checkpoint,
     optimizer_from_tensors,
     optimizer_to_tensors,
+    restore_rng,
+    rng_tensors,
     save_checkpoint,
 )
 from mdvae_cli.fit.data import WindowSet, load_windows, outside, select_files
@@ -196,23 +198,6 @@ def _save(run_dir: Path, name: str, model, opt, meta: dict, device=None) -> None
         tensors.update(rng_tensors(device))
         meta = {**meta, "optimizer": groups}
     save_checkpoint(run_dir / f"{name}.npz", tensors, json_safe(meta))
-
-
-def rng_tensors(device: torch.device | None) -> dict[str, torch.Tensor]:
-    """The states of torch's generators (CPU, and the GPU's when training on one)."""
-    out = {"rng/cpu": torch.get_rng_state()}
-    if device is not None and device.type == "cuda":
-        out["rng/cuda"] = torch.cuda.get_rng_state(device)
-    return out
-
-
-def restore_rng(tensors: dict[str, torch.Tensor], device: torch.device) -> None:
-    """Inverse of :func:`rng_tensors`; a checkpoint without them (older runs) leaves the
-    generators as seeded."""
-    if "rng/cpu" in tensors:
-        torch.set_rng_state(tensors["rng/cpu"])
-    if "rng/cuda" in tensors and device.type == "cuda":
-        torch.cuda.set_rng_state(tensors["rng/cuda"], device)
 
 
 def no_training_files(data: list[Path], split: Path | None, val_files: list[Path]) -> str:
