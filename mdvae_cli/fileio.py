@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
-import tempfile
+import secrets
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -14,7 +15,10 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
     """Write a file by calling ``write(tmp)`` on a temporary name, then renaming it to ``path``.
 
     ``forbid`` lists input files: writing onto one of them is refused (inputs are never
-    overwritten). The temporary keeps ``path``'s suffix so writers that look at it still work.
+    overwritten). The temporary keeps ``path``'s suffix so writers that look at it still work;
+    ``write`` creates it. Its name is chosen before it exists, so an interrupt (Ctrl-C) at any
+    moment leaves no temporary behind. A file-system failure (read-only folder, disk full) is
+    one InputError naming ``path``.
     """
     path = Path(path)
     target = path.resolve()
@@ -28,46 +32,46 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
             if not parent.is_dir():
                 raise InputError(f"cannot write {path}: {parent} is a file, not a folder")
             break
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    tmp = path.parent / f".{path.stem}.{secrets.token_hex(6)}{path.suffix}"
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         write(tmp)
-        os.chmod(tmp, 0o666 & ~_current_umask())  # mkstemp makes 0600; outputs get the usual mode
         os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):  # absent, or a read-only folder
+            tmp.unlink()
+        if isinstance(exc, OSError):
+            raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise
-
-
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 MOTION_SUFFIXES = (".npz",)
 
 
 def expand_inputs(
-    inputs: Iterable[Path], suffixes: tuple[str, ...] = MOTION_SUFFIXES
+    inputs: Iterable[Path], suffixes: tuple[str, ...] = MOTION_SUFFIXES, skip: Iterable[Path] = ()
 ) -> list[tuple[Path, Path]]:
     """Expand files and folders into ``(file, relative_path)`` pairs, sorted.
 
     A folder contributes every file below it whose name ends in one of ``suffixes`` (any
     case, ``.gz`` variants included; hidden files and folders skipped), with its path relative
     to the folder; a file given directly contributes its own name. A file named twice (or
-    also inside a folder named) counts once. A missing path raises InputError.
+    also inside a folder named) counts once. A folder in ``skip`` that lies inside a folder
+    named is left out of it (e.g. the output folder kept inside the input folder: a second
+    run must not read the first one's outputs). A missing path raises InputError.
     """
+    skip = [Path(s).resolve() for s in skip]
     out: list[tuple[Path, Path]] = []
     for item in inputs:
         item = Path(item)
         if item.is_dir():
+            root = item.resolve()
+            inner = [s for s in skip if s != root and s.is_relative_to(root)]
             for f in sorted(item.rglob("*")):
                 name = f.name.lower().removesuffix(".gz")
                 hidden = any(part.startswith(".") for part in f.relative_to(item).parts)
-                if f.is_file() and name.endswith(suffixes) and not hidden:
+                left_out = any(f.resolve().is_relative_to(s) for s in inner)
+                if f.is_file() and name.endswith(suffixes) and not hidden and not left_out:
                     out.append((f, f.relative_to(item)))
         elif item.exists():
             out.append((item, Path(item.name)))

@@ -3,6 +3,9 @@ another, outputs that would clash or land on folders, results that must never be
 
 from __future__ import annotations
 
+import errno
+import inspect
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +48,8 @@ def one_error_line(res) -> str:
         (["sample", "--from", NOISY, "--temperature", "nan"], "'nan' is not a finite number"),
         (["sample", "--from", NOISY, "--speed-limit", "inf"], "'inf' is not a finite number"),
         (["import", NOISY, "--fps", "inf"], "'inf' is not a finite number"),
+        (["sample", "--from", NOISY, "--seed", str(2**64)], "is not in the range 0<=x<="),
+        (["denoise", NOISY, "--optimize", "1", "--seed", "-1"], "is not in the range 0<=x<="),
     ],
 )
 def test_numbers_that_are_not_finite_or_in_range_are_usage_errors(tmp_path, args, message):
@@ -212,3 +217,94 @@ def test_import_of_a_skeleton_alone_says_what_is_missing(tmp_path):
     asf.write_text(":version 1.10\n")
     line = one_error_line(invoke("import", asf, "-o", tmp_path / "out"))
     assert "is a skeleton only: give the .amc motions too" in line
+
+
+def test_an_interrupt_at_any_moment_of_a_write_leaves_no_temporary(tmp_path):
+    """Ctrl-C lands between any two Python lines of write_atomic (or of what it calls): the
+    folder then holds the old file or the complete new one, never a temporary beside it."""
+    target = tmp_path / "o.npz"
+    interrupted_at, previous = [], sys.gettrace()  # e.g. a coverage tracer, given back after
+    for n in range(1, 5000):
+        target.write_bytes(b"old")
+        left = n
+
+        def tracer(frame, event, arg):
+            nonlocal left
+            if frame.f_code.co_flags & inspect.CO_GENERATOR:
+                return None  # an exception while a generator is closed is only "ignored"
+            left -= event == "line"
+            if left == 0:
+                raise KeyboardInterrupt  # as a signal handler would, here; unsets the tracer
+            return tracer
+
+        sys.settrace(tracer)
+        try:
+            write_atomic(target, lambda tmp: tmp.write_bytes(b"new"))
+        except KeyboardInterrupt:
+            interrupted_at.append(n)
+        finally:
+            sys.settrace(previous)
+        assert [p.name for p in tmp_path.iterdir()] == ["o.npz"], n
+        assert target.read_bytes() in (b"old", b"new")
+        if left > 0:  # the write ran to its end before the n-th event
+            break
+    assert len(interrupted_at) > 20 and target.read_bytes() == b"new"
+
+
+def test_a_failing_file_system_is_one_line_naming_the_output(tmp_path, monkeypatch):
+    def no_space(tmp):
+        tmp.write_bytes(b"half")
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+
+    with pytest.raises(InputError, match=r"^cannot write .*o\.npz: No space left on device$"):
+        write_atomic(tmp_path / "o.npz", no_space)
+    assert list(tmp_path.iterdir()) == []
+
+    def read_only(self, *args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system", str(self))
+
+    monkeypatch.setattr(Path, "mkdir", read_only)
+    line = one_error_line(invoke("add-noise", NOISY, "-o", tmp_path / "sub" / "o.npz"))
+    assert line.endswith(
+        "cannot write " + str(tmp_path / "sub" / "o.npz") + ": Read-only file system"
+    )
+
+
+def test_an_output_folder_inside_the_input_folder_is_not_read_back(tmp_path):
+    src = tmp_path / "takes"
+    src.mkdir()
+    (src / "walk.npz").write_bytes(NOISY.read_bytes())
+    for _ in range(2):  # the second run must not take the first one's output as an input
+        res = invoke("add-noise", src, "-o", src / "noisy", "--json")
+        assert res.exit_code == 0, res.output
+    assert sorted(p.relative_to(src).as_posix() for p in src.rglob("*.npz")) == [
+        "noisy/walk.npz",
+        "walk.npz",
+    ]
+    # an input folder inside the output folder is still read
+    res = invoke("add-noise", src / "noisy", "-o", tmp_path)
+    assert res.exit_code == 0 and (tmp_path / "walk.npz").exists()
+
+
+def test_sigma_minus_zero_is_zero(tmp_path):
+    out = tmp_path / "o.npz"
+    assert invoke("add-noise", EXAMPLES / "walk.npz", "-o", out, "--sigma", "-0").exit_code == 0
+    with np.load(out) as z, np.load(EXAMPLES / "walk.npz") as ref:
+        np.testing.assert_array_equal(z["poses"], ref["poses"])
+
+
+def test_values_too_large_for_the_file_s_dtype_are_never_written(tmp_path):
+    out = tmp_path / "o.npz"  # walk.npz holds float32 poses: 1e308 rad noise overflows them
+    line = one_error_line(invoke("add-noise", EXAMPLES / "walk.npz", "-o", out, "--sigma", "1e308"))
+    assert "'poses' is not finite as float32" in line and "nothing written" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_output_name_in_upper_case_is_a_file_as_an_input_s_would_be(tmp_path):
+    out = tmp_path / "CLEAN.NPZ"
+    assert invoke("add-noise", NOISY, "-o", out).exit_code == 0
+    assert out.is_file() and np.load(out)["poses"].shape == (79, 156)
+    line = one_error_line(
+        invoke("add-noise", NOISY, EXAMPLES / "walk.npz", "-o", tmp_path / "B.Npz")
+    )
+    assert "must be a folder" in line and not (tmp_path / "B.Npz").exists()

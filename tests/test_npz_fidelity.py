@@ -3,6 +3,7 @@ SMPL-X "stage-ii" split pose arrays (root_orient, pose_body, ...) consistent wit
 
 from __future__ import annotations
 
+import gzip
 import zipfile
 
 import numpy as np
@@ -212,3 +213,27 @@ def test_split_only_file_missing_body_array_is_an_input_error(tmp_path):
     del ref["poses"], ref["pose_body"]
     with pytest.raises(InputError, match="no 'poses' array, nor 'root_orient' and 'pose_body'"):
         load_motion(write(tmp_path / "in.npz", ref))
+
+
+def test_a_gzipped_npz_a_folder_yields_is_read_and_written_without_gz(tmp_path):
+    ref = stage_ii_arrays()
+    plain = write(tmp_path / "plain.npz", ref, compressed=True)
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    gz = folder / "take.npz.gz"
+    gz.write_bytes(gzip.compress(plain.read_bytes()))
+    before = gz.read_bytes()
+    a, b = load_motion(plain), load_motion(gz)
+    np.testing.assert_array_equal(a.poses, b.poses)
+    np.testing.assert_array_equal(a.trans, b.trans)
+    assert (b.fps, b.layout["compressed"]) == (120.0, True)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(cli, ["add-noise", str(folder), "-o", str(out), "--sigma", "0"])
+    assert res.exit_code == 0, res.output
+    assert [p.name for p in out.iterdir()] == ["take.npz"] and gz.read_bytes() == before
+    assert_same_layout(read(out / "take.npz"), ref)
+    res = CliRunner().invoke(cli, ["eval", "--gt", str(folder), "--pred", str(out), "--json"])
+    assert res.exit_code == 0 and '"failed": 0' in res.output  # take.npz.gz pairs take.npz
+    (folder / "bad.npz.gz").write_bytes(b"not gzip data")
+    with pytest.raises(InputError, match=r"bad\.npz\.gz: not a readable \.gz file"):
+        load_motion(folder / "bad.npz.gz")

@@ -128,25 +128,27 @@ def plan_jobs(
     """Expand ``inputs`` (files/folders) into jobs and choose each output path.
 
     With ``out_suffix`` (file outputs): one input file and an ``out`` ending in ``out_suffix``
-    writes exactly ``out``; otherwise ``out`` is a folder and each output is ``out/relpath``
-    (``rename(relpath)`` when given). With ``out_suffix=None`` (folder outputs, e.g. meshes):
-    one input file writes into ``out`` itself, several into ``out/<relpath without suffix>``.
-    Raises InputError for no inputs, no matching files, an output folder that is an input
-    folder, or a file where a folder is needed.
+    (any case) writes exactly ``out``; otherwise ``out`` is a folder and each output is
+    ``out/relpath`` (``rename(relpath)`` when given). With ``out_suffix=None`` (folder
+    outputs, e.g. meshes): one input file writes into ``out`` itself, several into
+    ``out/<relpath without suffix>``.
+    Files below ``out`` are not taken from an input folder that holds it. Raises InputError
+    for no inputs, no matching files, an output folder that is an input folder, or a file
+    where a folder is needed.
     """
     if not inputs:
         raise InputError("no input files given")
-    items = expand_inputs(inputs, suffixes)
+    out = None if out is None else Path(out)
+    for item in inputs:
+        if out is not None and Path(item).is_dir() and out.resolve() == Path(item).resolve():
+            raise InputError(f"the output folder {out} is an input folder; choose another")
+    items = expand_inputs(inputs, suffixes, skip=() if out is None else (out,))
     if not items:
         names = ", ".join(str(p) for p in inputs)
         raise InputError(f"no {'/'.join(suffixes)} files found in {names}")
     if out is None:
         return [FileJob(rel, src) for src, rel in items]
-    out = Path(out)
     single = len(inputs) == 1 and Path(inputs[0]).is_file()
-    for item in inputs:
-        if Path(item).is_dir() and out.exists() and out.resolve() == Path(item).resolve():
-            raise InputError(f"the output folder {out} is an input folder; choose another")
 
     if out_suffix is None:
         if single:
@@ -155,9 +157,10 @@ def plan_jobs(
             [FileJob(rel, src, out / strip_gz(rel).with_suffix("")) for src, rel in items]
         )
 
-    if single and out.suffix == out_suffix:
+    named = out.suffix.lower() == out_suffix  # any case, as inputs are found
+    if single and named:
         return [FileJob(items[0][1], items[0][0], out)]
-    if (out.exists() and not out.is_dir()) or (not out.exists() and out.suffix == out_suffix):
+    if (out.exists() and not out.is_dir()) or (not out.exists() and named):
         raise InputError(f"with a folder or several inputs, the output {out} must be a folder")
     rename = rename or strip_gz
     return no_clashes([FileJob(rel, src, out / rename(rel)) for src, rel in items])

@@ -83,13 +83,15 @@ class Finite(click.ParamType):
             self.fail(f"{x:g} is not {'>' if self.open_low else '>='} {self.low:g}", param, ctx)
         if self.high is not None and x > self.high:
             self.fail(f"{x:g} is not <= {self.high:g}", param, ctx)
-        return x
+        return x + 0.0  # -0.0 -> 0.0 (numpy refuses a noise scale of -0.0 as negative)
 
 
 #: common shapes of numeric options
 POSITIVE = Finite(0.0, open_low=True)
 NON_NEGATIVE = Finite(0.0)
 FRACTION = Finite(0.0, 1.0)
+#: a random seed: torch's generators take at most 64 bits
+SEED = click.IntRange(0, 2**63 - 1)
 
 
 def body_model_option(fn: Callable) -> Callable:

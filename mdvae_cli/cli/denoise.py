@@ -12,6 +12,7 @@ from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, prin
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
+    SEED,
     allow_pickle_option,
     body_model_option,
     console,
@@ -57,7 +58,7 @@ from mdvae_cli.errors import InputError
     help="With --optimize: its learning rate (> 0) [default: 3e-4].",
 )
 @click.option(
-    "--seed", type=int, default=0, show_default=True, help="With --optimize: its random seed."
+    "--seed", type=SEED, default=0, show_default=True, help="With --optimize: its random seed."
 )
 @click.option(
     "--refine",

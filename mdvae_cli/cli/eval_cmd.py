@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.cli.batch import FileJob, FileOutcome, emit_json, json_option, run_batch
+from mdvae_cli.cli.batch import FileJob, FileOutcome, emit_json, json_option, run_batch, strip_gz
 from mdvae_cli.cli.common import (
     allow_pickle_option,
     body_model_option,
@@ -53,9 +53,13 @@ def pair_files(gt: Path, pred: Path) -> tuple[list[FileJob], list[Path]]:
     gt_items = expand_inputs([gt])
     if not gt_items:
         raise InputError(f"no .npz files found in {gt}")
-    pred_by_rel = {rel: src for src, rel in expand_inputs([pred])}
-    jobs = [FileJob(rel, src, data=pred_by_rel.get(rel, pred / rel)) for src, rel in gt_items]
-    unmatched = sorted(set(pred_by_rel) - {rel for _, rel in gt_items})
+    # a prediction made from take.npz.gz is take.npz: pair them without .gz
+    pred_by_rel = {strip_gz(rel): src for src, rel in expand_inputs([pred])}
+    jobs = [
+        FileJob(rel, src, data=pred_by_rel.get(strip_gz(rel), pred / strip_gz(rel)))
+        for src, rel in gt_items
+    ]
+    unmatched = sorted(set(pred_by_rel) - {strip_gz(rel) for _, rel in gt_items})
     return jobs, [pred_by_rel[rel] for rel in unmatched]
 
 

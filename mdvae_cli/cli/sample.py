@@ -10,6 +10,7 @@ import numpy as np
 
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
+    SEED,
     allow_pickle_option,
     body_model_option,
     console,
@@ -40,7 +41,7 @@ from mdvae_cli.errors import InputError
     type=click.Path(path_type=Path),
     help="Prior checkpoint or train-prior run folder (default: the shipped prior).",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
 @click.option(
     "--temperature",
     type=NON_NEGATIVE,

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import gzip
+import io
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -48,16 +51,18 @@ def _finite(name: str, arr: np.ndarray, path: Path) -> np.ndarray:
 def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     """Read an AMASS-layout motion file.
 
-    Never executes pickled objects unless ``allow_pickle``. Raises InputError with a one-line
+    A ``.gz`` file (``take.npz.gz``, as folders are searched) is gunzipped first. Never
+    executes pickled objects unless ``allow_pickle``. Raises InputError with a one-line
     message for every malformed input (missing file, not an npz, corrupt archive, missing or
-    mis-shaped keys, NaN/inf, fewer than 2 frames, frame rate <= 0).
+    mis-shaped keys, NaN/inf, no frames, frame rate <= 0).
     """
     path = Path(path)
     if not path.exists():
         raise InputError(f"no such file: {path}")
     if path.is_dir():
         raise InputError(f"{path} is a folder, expected an .npz file")
-    if not zipfile.is_zipfile(path):
+    source = _gunzip(path) if path.suffix.lower() == ".gz" else path
+    if not zipfile.is_zipfile(source):
         kind = path.name.lower().removesuffix(".gz").rsplit(".", 1)[-1]
         if kind in ("bvh", "amc", "asf"):  # mocap a studio exported: the importer reads it
             raise InputError(
@@ -66,9 +71,11 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
             )
         raise InputError(f"{path}: not an .npz archive")
     try:
-        with zipfile.ZipFile(path) as zf:
+        with zipfile.ZipFile(source) as zf:
             compressed = any(i.compress_type != zipfile.ZIP_STORED for i in zf.infolist())
-        with np.load(path, allow_pickle=allow_pickle) as npz:
+        if isinstance(source, io.BytesIO):
+            source.seek(0)  # np.load reads from where the last reader left off
+        with np.load(source, allow_pickle=allow_pickle) as npz:
             data = {k: npz[k] for k in npz.files}  # in the archive's order
     except InputError:
         raise
@@ -85,6 +92,15 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     motion = motion_from_arrays(data, path)
     motion.layout["compressed"] = compressed
     return motion
+
+
+def _gunzip(path: Path) -> io.BytesIO:
+    """A ``.gz`` file's decompressed bytes; InputError when it is not gzip data."""
+    try:
+        with gzip.open(path, "rb") as fh:
+            return io.BytesIO(fh.read())
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError(f"{path}: not a readable .gz file ({exc})") from None
 
 
 def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>") -> Motion:
@@ -337,9 +353,18 @@ def _like(arr: np.ndarray, spec: tuple | None) -> np.ndarray:
 def save_motion(motion: Motion, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:
     """Write ``motion`` to ``path`` atomically (temporary file + rename), never onto ``forbid``.
 
-    The archive is compressed when the file the motion was read from was.
+    The archive is compressed when the file the motion was read from was. A motion whose
+    pose, translation or shape is not finite in the file's dtypes (e.g. 1e300 in float32) is
+    refused: it could not be read back.
     """
-    arrays = motion_to_arrays(motion)
+    with np.errstate(over="ignore", invalid="ignore"):  # the check below says it in one line
+        arrays = motion_to_arrays(motion)
+    for key in ("poses", "trans", "betas", *SPLIT_KEYS):
+        if key in arrays and not np.isfinite(arrays[key]).all():
+            raise InputError(
+                f"cannot write {path}: its '{key}' is not finite as {arrays[key].dtype} "
+                "(values too large); nothing written"
+            )
     savez = np.savez_compressed if motion.layout.get("compressed") else np.savez
 
     def write(tmp: Path) -> None:
