@@ -116,7 +116,7 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
 
     header, rows = table_columns(settings), table_rows(result)
     assert [r[0] for r in rows] == list(ROWS)
-    assert len(header) == 13 and all(len(r) == len(header) for r in rows)
+    assert len(header) == 14 and all(len(r) == len(header) for r in rows)
     for sigma in ("0.10", "0.15", "0.20"):
         assert f"V2V σ={sigma} (cm) ↓" in header and f"Accel σ={sigma} (m/s²)" in header
     assert "s/frame ↓" in header and "frames/s ↑" in header and "1 clip, warm (ms)" in header
@@ -146,6 +146,12 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
     ):
         assert float(cell(row, "frames/s ↑").replace(",", "")) > 0
     assert cell("Observations", "V2V / V2V(obs) σ=0.15") == "1.000"
+    # the noise leaves the root clean: the observations' absolute V2V is their root-relative
+    absolute = "absolute V2V σ=0.15 (cm)"
+    assert cell("Observations", absolute) == cell("Observations", "V2V σ=0.15 (cm) ↓")
+    assert cell("Ground truth", absolute) == "-"
+    for r in rows[1:]:
+        assert math.isfinite(float(r[header.index(absolute)])), r[0]
     best = [cell(r, header[-1]) for r in ("Gaussian filter", "Savitzky-Golay filter")]
     assert "best filter" in best
     # the gain over the best filter is given at every sigma, and matches the V2V columns

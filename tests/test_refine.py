@@ -41,7 +41,7 @@ from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.state import POSE, ROOT, finite_difference
+from mdvae_cli.motion.state import POSE, ROOT, TRANS, finite_difference
 from tests.test_denoise import EXAMPLES, tiny_prior, write_denoiser  # noqa: F401
 
 
@@ -288,15 +288,23 @@ def test_refinement_lowers_its_elbo_and_zero_steps_is_regression(tiny_prior):  #
         assert losses[-1]["loss"] < factor * losses[0]["loss"], (losses[0], losses[-1])
     with torch.no_grad():
         regression = den.infer(yn, with_prior=False)["x_hat"]
-    no_offset = RefineConfig(steps=0, offset_std=0.0)
+    no_offset = RefineConfig(steps=0, offset_std=0.0, trans_offset_std=0.0)
     assert not no_offset.active and RefineConfig(steps=0).active
+    assert RefineConfig(steps=0, offset_std=0.0).active  # the translation's offset alone
     assert torch.allclose(refine_latents(den, yn, obs, None, no_offset), regression)
     # 0 steps with the offset: the encoder's latents, plus an offset towards the observations
     only = refine_latents(den, yn, obs, None, RefineConfig(steps=0))
     assert not torch.allclose(only, regression)
-    assert float((only - obs)[..., POSE].abs().mean()) < float(
-        (regression - obs)[..., POSE].abs().mean()
-    )
+    for cols in (POSE, TRANS):
+        assert float((only - obs)[..., cols].abs().mean()) < float(
+            (regression - obs)[..., cols].abs().mean()
+        )
+    # each offset moves its own columns only
+    rot_only = refine_latents(den, yn, obs, None, RefineConfig(steps=0, trans_offset_std=0.0))
+    trans_only = refine_latents(den, yn, obs, None, RefineConfig(steps=0, offset_std=0.0))
+    torch.testing.assert_close(rot_only[..., TRANS], regression[..., TRANS])
+    torch.testing.assert_close(trans_only[..., POSE], regression[..., POSE])
+    torch.testing.assert_close(only[..., TRANS], trans_only[..., TRANS], rtol=0, atol=1e-3)
     # the networks are not touched
     assert all(p.grad is None for p in den.parameters())
 

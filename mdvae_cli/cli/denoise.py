@@ -86,6 +86,15 @@ from mdvae_cli.errors import InputError
     "in every window, then estimated from the file. 0 = no offset.",
 )
 @click.option(
+    "--trans-offset",
+    type=NON_NEGATIVE,
+    default=0.03,
+    show_default=True,
+    help="The scale (m) the root translation's slow offset (--offset) starts from in every "
+    "window: it keeps the file's path, from which the decoded one drifts by ~4 cm. 0 = no "
+    "translation offset. (--refine fits the translation itself.)",
+)
+@click.option(
     "--offset/--no-offset",
     default=True,
     show_default=True,
@@ -151,6 +160,7 @@ def denoise(
     refine_steps,
     refine_lr,
     refine_offset,
+    trans_offset,
     offset,
     outliers,
     mirror,
@@ -220,6 +230,7 @@ def denoise(
             steps=refine_steps,
             lr=refine_lr,
             offset_std=refine_offset,
+            trans_offset_std=trans_offset,
             outlier_dof=OUTLIER_DOF if outliers else 0.0,
         )
     results: dict[Path, object] = {}

@@ -59,7 +59,14 @@ def student_t_weights(sq: torch.Tensor, precision: torch.Tensor, dof: float) -> 
 # joints, pelvis first, as the joint masks); "trans" = the translation
 ROTATIONS = torch.tensor([*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop)])
 GROUPS = {"rot": ROTATIONS, "trans": TRANS}
-ROTATION_GROUPS = ("rot",)
+
+
+def offset_scales(cfg: RefineConfig, translation: bool = True) -> dict[str, float]:
+    """The groups that get a slow offset, and the scale each one's prior centres on: the
+    rotations (``offset_std``, rad) and, with ``translation``, the translation
+    (``trans_offset_std``, m); a scale of 0 = no offset for that group."""
+    scales = {"rot": cfg.offset_std, "trans": cfg.trans_offset_std if translation else 0.0}
+    return {g: s for g, s in scales.items() if s > 0}
 
 
 def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -154,10 +161,17 @@ class ClosedFormFactors:
     group's noise precision E[1/v], the slow offset's coefficients and each joint's offset
     precision E[1/s_g^2]. ``update(x_hat)`` is one round of coordinate ascent on them.
 
-    obs: (N, T, 138) the noisy states; joint_weight: (N, T, 22) or None.
+    obs: (N, T, 138) the noisy states; joint_weight: (N, T, 22) or None; ``translation``:
+    whether the translation gets a slow offset too (``cfg.trans_offset_std``).
     """
 
-    def __init__(self, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig):
+    def __init__(
+        self,
+        obs: torch.Tensor,
+        joint_weight: torch.Tensor | None,
+        cfg: RefineConfig,
+        translation: bool = True,
+    ):
         N, T = obs.shape[:2]
         self.obs, self.cfg = obs, cfg
         self.masks = group_weights(joint_weight)  # 1 = observed, None = all
@@ -169,10 +183,9 @@ class ClosedFormFactors:
         self.offset = torch.zeros_like(obs)
         self.started = False
         self.precision: dict[str, torch.Tensor] = {}
+        self.offset_std = offset_scales(cfg, translation)
         self.offset_precision: dict[str, torch.Tensor] = {  # E[1/s_g^2]: (N, G)
-            g: obs.new_full((N, 1), 1.0 / cfg.offset_std**2)
-            for g in ROTATION_GROUPS
-            if cfg.offset_std > 0
+            g: obs.new_full((N, 1), 1.0 / std**2) for g, std in self.offset_std.items()
         }
 
     def start(self, x_hat: torch.Tensor) -> None:
@@ -198,7 +211,7 @@ class ClosedFormFactors:
             unit = res[g].new_ones(res[g].shape[0], res[g].shape[2])
             coef[g], var = offset_coefficients(res[g], unit, None, self.basis, 1e-3 * self.relative)
             self.offset_precision[g] = offset_precision(
-                coef[g], torch.zeros_like(var), self.relative, s0, s0 * self.cfg.offset_std**2
+                coef[g], torch.zeros_like(var), self.relative, s0, s0 * self.offset_std[g] ** 2
             )
         self.offset = offset_states(coef, self.basis, self.obs)
 
@@ -227,7 +240,7 @@ class ClosedFormFactors:
                 res[g], self.precision[g], self.weights[g], self.basis, prior
             )
             self.offset_precision[g] = offset_precision(
-                coef[g], var, self.relative, s0, s0 * cfg.offset_std**2
+                coef[g], var, self.relative, s0, s0 * self.offset_std[g] ** 2
             )
         self.offset = offset_states(coef, self.basis, self.obs)
 
@@ -265,6 +278,6 @@ def add_offset(
     x_hat, obs: (N, T+1, 138) state units; joint_weight: (N, T+1, 22) or None -> (N, T+1, 138)
     """
     factors = ClosedFormFactors(obs, joint_weight, cfg)
-    for _ in range(cfg.offset_iterations if cfg.offset_std > 0 else 0):
+    for _ in range(cfg.offset_iterations if offset_scales(cfg) else 0):
         factors.update(x_hat)
     return x_hat + factors.offset

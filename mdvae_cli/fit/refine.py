@@ -59,6 +59,9 @@ class RefineConfig:
     offset per window); offset_decay: cosine k's prior scale is offset_decay^k times the
     joint's (faster terms are smaller: a smoothness prior; 0.85, the best on the val split
     with refinement steps and, for the shipped distilled networks, without, docs/model.md);
+    trans_offset_std (m): the same for the root translation's slow offset, fitted with the
+    rotations' when ``steps`` = 0 (the decoded translation drifts from the file's by ~4 cm on
+    average within a window; refinement fits it through the latents instead); 0 = none;
     offset_iterations: rounds of the
     closed-form updates when ``steps`` = 0 (the offset on regression mode's output);
     outlier_dof: 0 = Gaussian noise with one variance per joint and window; > 0 = Student-t
@@ -73,6 +76,7 @@ class RefineConfig:
     trans_unit: float = 0.05
     batch_windows: int = 256
     offset_std: float = 0.03
+    trans_offset_std: float = 0.03
     offset_terms: int = 10
     offset_lam: float = 3.0
     offset_decay: float = 0.85
@@ -87,8 +91,9 @@ class RefineConfig:
                 raise InputError(f"refinement {name} must be > 0, got {getattr(self, name)}")
         if self.batch_windows < 1:
             raise InputError(f"refinement batch must be >= 1 window, got {self.batch_windows}")
-        if self.offset_std < 0:
-            raise InputError(f"refinement offset_std must be >= 0, got {self.offset_std}")
+        for name in ("offset_std", "trans_offset_std"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"refinement {name} must be >= 0, got {getattr(self, name)}")
         if not self.offset_lam > 0:
             raise InputError(f"refinement offset_lam must be > 0, got {self.offset_lam}")
         if not 0 < self.offset_decay <= 1:
@@ -105,7 +110,7 @@ class RefineConfig:
     @property
     def active(self) -> bool:
         """Whether these settings change regression mode's output at all (steps or offset)."""
-        return self.steps > 0 or self.offset_std > 0
+        return self.steps > 0 or self.offset_std > 0 or self.trans_offset_std > 0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -194,7 +199,8 @@ def refine_posterior(
     z = start["q_z"].mean.clone().requires_grad_(True)
     z_logvar = start["q_z"].logvar
     x0 = start["q_x0"].mean.clone().requires_grad_(True)
-    factors = ClosedFormFactors(obs, joint_weight, cfg)
+    # the latents fit the translation here: a slow offset on it measured no better (model.md)
+    factors = ClosedFormFactors(obs, joint_weight, cfg, translation=False)
     opt = Adam([z, x0], lr=cfg.lr)
 
     def decode() -> torch.Tensor:
