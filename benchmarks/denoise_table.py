@@ -313,7 +313,8 @@ def build_table(
             _denoise(denoiser, body, s, 0, mirror=True),
         ),
         ROW_OFFSET: (
-            f"one forward pass + closed-form slow offset {s.refine_offset:g} rad (`mdvae denoise`)",
+            f"one forward pass + closed-form slow offsets {s.refine_offset:g} rad, "
+            f"{RefineConfig.trans_offset_std:g} m on the root (`mdvae denoise`)",
             _denoise(denoiser, body, s, 0, 0),
         ),
         ROW_OPTIMIZATION: (
