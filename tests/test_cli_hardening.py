@@ -15,6 +15,7 @@ from click.testing import CliRunner
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs, write_atomic
+from mdvae_cli.motion.npz_io import load_motion
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 NOISY = EXAMPLES / "noisy_walk.npz"
@@ -308,3 +309,77 @@ def test_an_output_name_in_upper_case_is_a_file_as_an_input_s_would_be(tmp_path)
         invoke("add-noise", NOISY, EXAMPLES / "walk.npz", "-o", tmp_path / "B.Npz")
     )
     assert "must be a folder" in line and not (tmp_path / "B.Npz").exists()
+
+
+def test_an_implausible_frame_rate_is_refused_when_the_file_is_read(tmp_path):
+    """A frame time stored as the rate (1/120) made 30 frames into an hour of motion; rates
+    such as 1e-9 or 1e-300 ended in MemoryError/OverflowError text. 1 and 10,000 Hz are read."""
+    with np.load(EXAMPLES / "walk.npz") as z:
+        arrays = dict(z)
+    for rate, message in [
+        (1 / 120, "frame rate 0.00833333 Hz is implausible (1 to 10000 Hz); is mocap_framerate "
+         "a frame time? (1/0.00833333 = 120 Hz)"),
+        (1e-9, "frame rate 1e-09 Hz is implausible (1 to 10000 Hz)"),
+        (1e-300, "frame rate 1e-300 Hz is implausible (1 to 10000 Hz)"),
+        (10_001.0, "frame rate 10001 Hz is implausible (1 to 10000 Hz)"),
+    ]:  # fmt: skip
+        src = tmp_path / "take.npz"
+        np.savez(src, **{**arrays, "mocap_framerate": np.array(rate)})
+        with pytest.raises(InputError) as info:
+            load_motion(src)
+        assert str(info.value) == f"{src}: {message}"
+        line = one_error_line(invoke("add-noise", src, "-o", tmp_path / "o.npz"))
+        assert line.endswith(message) and not (tmp_path / "o.npz").exists()
+    for rate in (1.0, 10_000.0):
+        np.savez(src, **{**arrays, "mocap_framerate": np.array(rate)})
+        assert load_motion(src).fps == rate
+
+
+def test_an_output_that_is_an_input_is_refused_before_anything_is_read(tmp_path, monkeypatch):
+    import mdvae_cli.motion.npz_io as npz_io
+
+    def never(*args, **kwargs):
+        raise AssertionError("an input was read")
+
+    monkeypatch.setattr(npz_io, "load_motion", never)
+    folder = tmp_path / "takes"
+    folder.mkdir()
+    for name in ("a.npz", "b.npz"):
+        (folder / name).write_bytes(NOISY.read_bytes())
+    a = folder / "a.npz"
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    for args in [
+        ("denoise", a, "-o", a, "--optimize", "50"),
+        ("denoise", a, "-o", folder / "." / "a.npz"),  # the same file by another name
+        ("denoise", a, folder / "b.npz", "-o", folder),  # mirrored onto themselves
+        ("add-noise", a, "-o", a),
+        ("export-mesh", a, "-o", a),
+        ("sample", "--from", a, "-o", a),
+    ]:
+        line = one_error_line(invoke(*args))
+        assert line.startswith("error: refusing to overwrite the input file "), args
+        assert line.endswith(": choose another -o") and "a.npz" in line, args
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+
+
+def test_output_names_mean_what_they_say(tmp_path):
+    # a trailing slash is a folder, even when the name ends in .npz
+    res = invoke("add-noise", NOISY, "-o", str(tmp_path / "new.npz") + "/")
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "new.npz").is_dir() and (tmp_path / "new.npz/noisy_walk.npz").is_file()
+    # mdvae writes .npz: a .gz name is refused, not made a folder (nor a file no reader takes)
+    for name, fix in (("x.npz.gz", "x.npz"), ("y.GZ", "y.npz")):
+        line = one_error_line(invoke("add-noise", NOISY, "-o", tmp_path / name))
+        assert line.endswith(f"mdvae writes .npz, not .gz: name the output {tmp_path / fix}")
+        line = one_error_line(invoke("sample", "--from", NOISY, "-o", tmp_path / name))
+        assert line.endswith(f"mdvae writes .npz, not .gz: name the output {tmp_path / fix}")
+    # an existing file that is not .npz, for one input
+    notes = tmp_path / "existing.txt"
+    notes.write_text("keep")
+    line = one_error_line(invoke("add-noise", NOISY, "-o", notes))
+    assert (
+        line
+        == f"error: the output {notes} is a file that is not .npz: name an .npz file or a folder"
+    )
+    assert notes.read_text() == "keep"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing.txt", "new.npz"]

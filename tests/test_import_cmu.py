@@ -172,6 +172,22 @@ def test_bvh_malformed_files_give_one_line_errors(tmp_path, old, new, message):
     assert message in text and str(path) in text and "\n" not in text
 
 
+def test_bvh_frame_time_that_is_a_frame_rate_is_refused_unless_overridden(tmp_path):
+    """A Frame Time of 120 (a rate written as a frame time) would be resampled to 30 Hz into
+    hours of frames: refused as the .npz reader refuses such a rate; --source-fps overrides."""
+    path = write(tmp_path / "arm.bvh", BVH_TWO_JOINTS.replace("0.0333333", "120"))
+    with pytest.raises(InputError) as err:
+        load_source(path)
+    assert str(err.value) == (
+        f"{path}: frame rate 0.00833333 Hz is implausible (1 to 10000 Hz); is its Frame Time a "
+        "frame rate? Pass --source-fps (1/0.00833333 = 120 Hz)"
+    )
+    assert load_source(path, fps=120.0).fps == 120.0
+    code, out, err = run(path, "-o", tmp_path / "o.npz")
+    assert code == 1 and "is its Frame Time a frame rate?" in err and not out
+    assert not (tmp_path / "o.npz").exists()
+
+
 ASF = """:version 1.10
 :units
   length 1.0
@@ -489,6 +505,10 @@ def test_cli_rejects_bad_options(tmp_path):
     for bad, why in ((-1, "-1 is not >= 0"), ("inf", "'inf' is not a finite number")):
         code, out, err = run(tmp_path, "-o", tmp_path / "o", "--fps", bad)
         assert code == 2 and f"Invalid value for '--fps': {why}" in out + err
+    for option, rate in (("--fps", "0.5"), ("--source-fps", "20000")):
+        code, out, err = run(tmp_path, "-o", tmp_path / "o", option, rate)
+        assert code == 1 and f"error: {option}: frame rate {rate} Hz is implausible" in err
+    assert not (tmp_path / "o").exists()
 
 
 # --- the split --------------------------------------------------------------------------------

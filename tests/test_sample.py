@@ -164,3 +164,26 @@ def test_cli_sample_keeps_the_floor_by_default(tmp_path, body):
     # the CLI keeps literal defaults (a fast --help); they are the library's
     params = {p.name: p.default for p in cli.commands["sample"].params}
     assert params["speed_limit"] == SPEED_LIMIT and params["particles"] == PARTICLES
+
+
+def test_progress_is_told_per_window_and_leaves_the_sample_as_it_is(body):
+    """sample_motion reports each 60-frame window to ``progress``; the sample is the same with
+    and without it (fixed seed). `mdvae sample --frames` stops at 10 hours (1,080,000)."""
+    prior, _ = load_prior(default_weights("prior"))
+    start = load_motion(EXAMPLE)
+    kw = dict(seed=3, temperature=0.5, floor=motion_floor(body, start), particles=2)
+    plain = sample_motion(prior, body, start, 130, **kw)
+    told: list[dict] = []
+    watched = sample_motion(prior, body, start, 130, progress=told.append, **kw)
+    assert told == [
+        {"step": 1, "steps": 3, "frames": 60},
+        {"step": 2, "steps": 3, "frames": 120},
+        {"step": 3, "steps": 3, "frames": 130},
+    ]
+    for key in ("root_orient", "pose_body", "trans"):
+        np.testing.assert_array_equal(getattr(watched, key), getattr(plain, key))
+    runner = CliRunner()
+    res = runner.invoke(cli, ["sample", "--from", str(EXAMPLE), "--frames", "1080001", "-o", "x"])
+    assert res.exit_code == 2 and "1080001 is not in the range 1<=x<=1080000" in res.output
+    help_text = " ".join(runner.invoke(cli, ["sample", "--help"]).output.split())
+    assert "Frames to generate at 30 Hz (at most 1,080,000: 10 hours)." in help_text

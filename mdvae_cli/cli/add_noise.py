@@ -22,7 +22,7 @@ from mdvae_cli.motion.npz_io import load_motion, save_motion
 @click.command("add-noise")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    "-o", "--out", type=click.Path(), required=True,
     help="Output .npz (one input file) or folder (inputs mirrored below it).",
 )  # fmt: skip
 @click.option(

@@ -120,7 +120,7 @@ def is_kind(path: Path, suffix: str) -> bool:
 
 def plan_jobs(
     inputs: Sequence[Path],
-    out: Path | None,
+    out: Path | str | None,
     suffixes: tuple[str, ...] = MOTION_SUFFIXES,
     out_suffix: str | None = ".npz",
     rename: Callable[[Path], Path] | None = None,
@@ -129,15 +129,17 @@ def plan_jobs(
 
     With ``out_suffix`` (file outputs): one input file and an ``out`` ending in ``out_suffix``
     (any case) writes exactly ``out``; otherwise ``out`` is a folder and each output is
-    ``out/relpath`` (``rename(relpath)`` when given). With ``out_suffix=None`` (folder
-    outputs, e.g. meshes): one input file writes into ``out`` itself, several into
-    ``out/<relpath without suffix>``.
+    ``out/relpath`` (``rename(relpath)`` when given). An ``out`` given as a string ending in a
+    slash is always a folder. With ``out_suffix=None`` (folder outputs, e.g. meshes): one
+    input file writes into ``out`` itself, several into ``out/<relpath without suffix>``.
     Files below ``out`` are not taken from an input folder that holds it. Raises InputError
-    for no inputs, no matching files, an output folder that is an input folder, or a file
-    where a folder is needed.
+    for no inputs, no matching files, an output that is an input (file or folder), two inputs
+    with one output, a ``.gz`` output name for one input file, or a file where a folder is
+    needed: before anything is read.
     """
     if not inputs:
         raise InputError("no input files given")
+    as_folder = out is not None and str(out).endswith(("/", os.sep))
     out = None if out is None else Path(out)
     for item in inputs:
         if out is not None and Path(item).is_dir() and out.resolve() == Path(item).resolve():
@@ -152,25 +154,46 @@ def plan_jobs(
 
     if out_suffix is None:
         if single:
-            return [FileJob(items[0][1], items[0][0], out)]
+            return no_clashes([FileJob(items[0][1], items[0][0], out)])
         return no_clashes(
             [FileJob(rel, src, out / strip_gz(rel).with_suffix("")) for src, rel in items]
         )
 
-    named = out.suffix.lower() == out_suffix  # any case, as inputs are found
+    named = out.suffix.lower() == out_suffix and not as_folder  # any case, as inputs are found
     if single and named:
-        return [FileJob(items[0][1], items[0][0], out)]
+        return no_clashes([FileJob(items[0][1], items[0][0], out)])
+    if single and not as_folder and not out.is_dir():
+        refuse_gz(out, out_suffix)
+        if out.exists():
+            raise InputError(
+                f"the output {out} is a file that is not {out_suffix}: name an {out_suffix} "
+                "file or a folder"
+            )
     if (out.exists() and not out.is_dir()) or (not out.exists() and named):
         raise InputError(f"with a folder or several inputs, the output {out} must be a folder")
     rename = rename or strip_gz
     return no_clashes([FileJob(rel, src, out / rename(rel)) for src, rel in items])
 
 
+def refuse_gz(out: Path, suffix: str = ".npz") -> None:
+    """InputError when the output file name ``out`` ends in ``.gz``: what is written is a plain
+    ``suffix`` file, which a ``.gz`` name would hide from every reader."""
+    if out.suffix.lower() == ".gz":
+        name = out.stem if out.stem.lower().endswith(suffix) else out.stem + suffix
+        raise InputError(f"mdvae writes {suffix}, not .gz: name the output {out.with_name(name)}")
+
+
 def no_clashes(jobs: list[FileJob]) -> list[FileJob]:
-    """``jobs`` unchanged, or InputError when two inputs would be written to one output (e.g.
-    ``a/take.npz`` and ``b/take.npz`` given as two folders' contents into one output folder)."""
+    """``jobs`` unchanged, or InputError when an output is one of the inputs (inputs are never
+    overwritten) or when two inputs would be written to one output (e.g. ``a/take.npz`` and
+    ``b/take.npz`` given as two folders' contents into one output folder)."""
+    inputs = {job.source.resolve() for job in jobs}
     seen: dict[str, FileJob] = {}
     for job in jobs:
+        if job.output.resolve() in inputs:
+            raise InputError(
+                f"refusing to overwrite the input file {job.output}: choose another -o"
+            )
         key = os.path.normcase(os.path.abspath(job.output))
         if key in seen:
             raise InputError(

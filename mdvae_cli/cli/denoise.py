@@ -28,7 +28,7 @@ from mdvae_cli.errors import InputError
     "-o",
     "--out",
     required=True,
-    type=click.Path(path_type=Path),
+    type=click.Path(),
     help="Output .npz (one input file) or folder (inputs mirrored below it).",
 )
 @click.option(

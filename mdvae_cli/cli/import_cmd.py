@@ -25,6 +25,7 @@ from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, cons
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.motion import cmu
+from mdvae_cli.motion.motion import check_fps
 
 SUFFIXES = (".bvh", ".amc")
 
@@ -86,7 +87,7 @@ def _print_summary(summary: dict) -> None:
 @click.command("import")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    "-o", "--out", type=click.Path(), required=True,
     help="Output folder (inputs mirrored below it), or an .npz for a single input file.",
 )  # fmt: skip
 @click.option(
@@ -145,7 +146,11 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
       mdvae import ../shared/data/cmu -o data/cmu_amass --cmu-corpus --jobs 2
     """
     started = time.perf_counter()
-    out, out_fps = Path(out), (fps if fps > 0 else None)
+    out_arg, out = out, Path(out)  # as typed: a trailing slash makes it a folder (plan_jobs)
+    out_fps = fps if fps > 0 else None
+    for option, rate in (("--fps", out_fps), ("--source-fps", source_fps)):
+        if rate is not None:
+            check_fps(rate, option)
     asf_inputs = [p for p in inputs if is_kind(p, ".asf")]
     inputs = [p for p in inputs if not is_kind(p, ".asf")]
     if asf_inputs:
@@ -177,7 +182,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
     else:
         if split_file is not None:
             raise InputError("--split only goes with --cmu-corpus")
-        jobs = plan_jobs(inputs, out, suffixes=SUFFIXES, rename=_output_name)
+        jobs = plan_jobs(inputs, out_arg, suffixes=SUFFIXES, rename=_output_name)
     outputs = [j.output for j in jobs]
     if len(set(outputs)) != len(outputs):
         dup = next(o for o in outputs if outputs.count(o) > 1)

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from mdvae_cli.cli.batch import refuse_gz
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     SEED,
@@ -15,6 +16,7 @@ from mdvae_cli.cli.common import (
     body_model_option,
     console,
     handle_errors,
+    progress_bar,
 )
 from mdvae_cli.errors import InputError
 
@@ -29,10 +31,10 @@ from mdvae_cli.errors import InputError
 )
 @click.option(
     "--frames",
-    type=click.IntRange(min=1),
+    type=click.IntRange(1, 1_080_000),
     default=300,
     show_default=True,
-    help="Frames to generate at 30 Hz.",
+    help="Frames to generate at 30 Hz (at most 1,080,000: 10 hours).",
 )
 @click.option("-o", "--out", required=True, type=click.Path(), help="Output .npz file.")
 @click.option(
@@ -109,14 +111,26 @@ def sample(
     if out.endswith(("/", os.sep)) or Path(out).is_dir():
         raise InputError(f"-o {out} is a folder; give the output .npz file's name")
     out = Path(out)
+    refuse_gz(out)
+    if Path(start).is_file() and out.resolve() == Path(start).resolve():
+        raise InputError(f"refusing to overwrite the input file {out}: choose another -o")
     motion = load_motion(start, allow_pickle=allow_pickle)
     prior, _ = load_prior(prior_path if prior_path is not None else default_weights("prior"))
     body = BodyModel(load_body_model(body_model))
-    result = sample_motion(
-        prior, body, motion, frames, seed=seed, temperature=temperature,
-        floor=motion_floor(body, motion) if floor else None, particles=particles,
-        speed_limit=speed_limit or None,
-    )  # fmt: skip
+    with progress_bar(transient=True) as progress:
+        task = progress.add_task("sampling", total=None, visible=False, info="")
+
+        def tick(info: dict) -> None:  # shown when the sample takes more than one window
+            progress.update(
+                task, visible=info["steps"] > 1, completed=info["step"], total=info["steps"],
+                info=f"{info['frames']:,} frames",
+            )  # fmt: skip
+
+        result = sample_motion(
+            prior, body, motion, frames, seed=seed, temperature=temperature,
+            floor=motion_floor(body, motion) if floor else None, particles=particles,
+            speed_limit=speed_limit or None, progress=tick,
+        )  # fmt: skip
     if "source" in result.extras:  # the sample was not captured where the start file was
         result.extras["source"] = np.array(f"mdvae sample from the first frame of {start.name}")
     if "mocap_time_length" in result.extras:  # AMASS's duration (s), of the sample now

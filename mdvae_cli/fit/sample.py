@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -78,6 +80,7 @@ def sample_motion(
     particles: int = PARTICLES,
     floor_tolerance: float = 0.01,
     speed_limit: float | None = None,
+    progress: Callable[[dict], None] | None = None,
 ) -> Motion:
     """``num_frames`` frames at 30 Hz sampled from p(x | x0), x0 = the start's first frame.
 
@@ -90,7 +93,8 @@ def sample_motion(
     With either, the prior is conditioned on them by a particle filter over ``particles``
     prior samples, each frame weighted by :func:`plausibility_log_weight` (``floor_tolerance``:
     how far below the floor a foot may dip before its weight falls by e^-0.5); with neither
-    (None), plain prior samples.
+    (None), plain prior samples. ``progress`` gets {"step", "steps", "frames"} after each
+    window (steps counted in windows, frames made so far); it does not change the sample.
     """
     gen = torch.Generator().manual_seed(seed)
     m30 = resample_motion(start, MODEL_FPS)
@@ -116,6 +120,8 @@ def sample_motion(
         world = uncanonicalize(state_to_params(x), frame, pelvis)
         pieces.append(world)
         made += n
+        if progress is not None:
+            progress({"step": len(pieces), "steps": -(-num_frames // window), "frames": made})
         prev = pieces[-1]
         last2 = slice(max(0, n - 2), n)
         first = BodyParams(

@@ -7,9 +7,28 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS
+from mdvae_cli.errors import InputError
 
 #: AMASS ``poses`` widths we read, and the layout name of each.
 POSE_WIDTHS = {156: "smplh", 165: "smplx", 72: "smpl", 66: "body"}
+#: the frame rates (Hz) a motion may have: outside is a mistake (e.g. a frame time stored as the
+#: rate, 1/120), and resampling it to 30 Hz would make hours of frames, or none
+FPS_RANGE = (1.0, 10_000.0)
+
+
+def check_fps(fps: float, where: str, swapped: str = "") -> float:
+    """``fps`` when it lies in FPS_RANGE, else InputError naming ``where`` (a file, an option).
+    ``swapped``: a question the message asks when 1/fps would lie in it (e.g. "is
+    mocap_framerate a frame time?")."""
+    low, high = FPS_RANGE
+    if low <= fps <= high:
+        return fps
+    hint = ""
+    if swapped and fps > 0 and low <= 1 / fps <= high:
+        hint = f"; {swapped} (1/{fps:.6g} = {1 / fps:.3g} Hz)"
+    raise InputError(
+        f"{where}: frame rate {fps:.6g} Hz is implausible ({low:g} to {high:g} Hz){hint}"
+    )
 
 
 @dataclass

@@ -12,7 +12,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
-from mdvae_cli.motion.motion import POSE_WIDTHS, Motion
+from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, check_fps
 
 FPS_KEYS = ("mocap_framerate", "mocap_frame_rate")
 _OWN_KEYS = {"poses", "trans", "betas", "gender", "joint_mask", *FPS_KEYS}
@@ -54,7 +54,7 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     A ``.gz`` file (``take.npz.gz``, as folders are searched) is gunzipped first. Never
     executes pickled objects unless ``allow_pickle``. Raises InputError with a one-line
     message for every malformed input (missing file, not an npz, corrupt archive, missing or
-    mis-shaped keys, NaN/inf, no frames, frame rate <= 0).
+    mis-shaped keys, NaN/inf, no frames, frame rate <= 0 or outside FPS_RANGE).
     """
     path = Path(path)
     if not path.exists():
@@ -158,6 +158,7 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     fps = float(_finite(fps_key, np.asarray(data[fps_key]), path).reshape(-1)[0])
     if not fps > 0:
         raise InputError(f"{path}: frame rate must be > 0, got {fps:g}")
+    check_fps(fps, str(path), swapped=f"is {fps_key} a frame time?")
 
     gender, gender_bytes = ("neutral", False)
     if "gender" in data:

@@ -46,7 +46,7 @@ from mdvae_cli.motion.joint_map import (
     canonicalise,
     normalise_name,
 )
-from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.motion import Motion, check_fps
 
 __all__ = [
     "Y_UP_TO_Z_UP",
@@ -426,7 +426,8 @@ def load_source(
     """Read a ``.bvh`` or ``.amc`` file (``.gz`` too) into a :class:`SourceMotion`.
 
     skeleton: the ``.asf`` an AMC motion needs. fps: the true frame rate when the file's is
-    wrong (AMC files have none: 120 is assumed). scale: metres per file unit.
+    wrong (AMC files have none: 120 is assumed). scale: metres per file unit. A rate outside
+    FPS_RANGE (e.g. a BVH Frame Time of 120, a rate written as a frame time) is refused.
     """
     name = Path(path).name.lower().removesuffix(".gz")
     if name.endswith(".bvh"):
@@ -440,6 +441,7 @@ def load_source(
     if fps is not None and abs(fps - src.fps) > 1e-9:
         src = src.with_fps(fps)
         src.notes.append(f"frame rate {src.info.get('fps_in_file'):g} in the file, {fps:g} used")
+    check_fps(src.fps, str(path), swapped="is its Frame Time a frame rate? Pass --source-fps")
     return src
 
 
