@@ -55,28 +55,36 @@ def student_t_weights(sq: torch.Tensor, precision: torch.Tensor, dof: float) -> 
     return (dof + 3.0) / (dof + sq * precision[:, None])
 
 
-# state columns per residual group: "rot" = the root orientation, then the 21 body joints (22
-# joints, pelvis first, as the joint masks); "trans" = the translation
-ROTATIONS = torch.tensor([*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop)])
-GROUPS = {"rot": ROTATIONS, "trans": TRANS}
+# the residual groups, three state columns each (one noise variance and one offset scale per
+# group and window): the root orientation and the 21 body joints (groups 0-21, pelvis first, as
+# the joint masks), then the root translation (group 22)
+GROUP_COLUMNS = torch.tensor(
+    [*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop), *range(TRANS.start, TRANS.stop)]
+)
+NUM_ROTATIONS = 22
+NUM_GROUPS = NUM_ROTATIONS + 1
 
 
-def offset_scales(cfg: RefineConfig, translation: bool = True) -> dict[str, float]:
-    """The groups that get a slow offset, and the scale each one's prior centres on: the
-    rotations (``offset_std``, rad) and, with ``translation``, the translation
-    (``trans_offset_std``, m); a scale of 0 = no offset for that group."""
-    scales = {"rot": cfg.offset_std, "trans": cfg.trans_offset_std if translation else 0.0}
-    return {g: s for g, s in scales.items() if s > 0}
+def per_group(rotation: float, translation: float, like: torch.Tensor) -> torch.Tensor:
+    """A value per residual group: ``rotation`` for groups 0-21, ``translation`` for 22. -> (23,)"""
+    out = like.new_full((NUM_GROUPS,), rotation)
+    out[NUM_ROTATIONS] = translation
+    return out
 
 
-def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> dict[str, torch.Tensor]:
-    """Residuals x_hat - obs of the parameters a file stores, grouped per noise variance.
+def offset_scales(cfg: RefineConfig, translation: bool = True) -> tuple[float, float]:
+    """The scales the slow offsets' priors centre on: the rotations' (``offset_std``, rad)
+    and, with ``translation``, the root translation's (``trans_offset_std``, m); 0 = none."""
+    return cfg.offset_std, cfg.trans_offset_std if translation else 0.0
 
-    x_hat, obs: (N, T, 138) states -> {"rot": (N, T, 22, 3) root then body joints,
-    "trans": (N, T, 1, 3)}
+
+def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+    """Residuals x_hat - obs of the parameters a file stores, one group per noise variance.
+
+    x_hat, obs: (N, T, 138) states -> (N, T, 23, 3): root orientation, 21 body joints,
+    translation
     """
-    d = x_hat - obs
-    return {k: d[..., cols].unflatten(-1, (-1, 3)) for k, cols in GROUPS.items()}
+    return (x_hat[..., GROUP_COLUMNS] - obs[..., GROUP_COLUMNS]).unflatten(-1, (NUM_GROUPS, 3))
 
 
 def cosine_basis(num_frames: int, terms: int, like: torch.Tensor) -> torch.Tensor:
@@ -132,34 +140,32 @@ def offset_precision(
     return noise_precision(sq, sq.new_ones(sq.shape[:3]), a0, b0)
 
 
-def offset_states(coef: dict[str, torch.Tensor], basis: torch.Tensor, like: torch.Tensor):
-    """The offset B c as state columns.  coef: {group: (N, G, 3, K)}, basis: (T, K), like:
-    (N, T, 138) -> (N, T, 138), zero outside the offset groups."""
+def offset_states(coef: torch.Tensor, basis: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """The offset B c as state columns.  coef: (N, 23, 3, K) per residual group, basis: (T, K),
+    like: (N, T, 138) -> (N, T, 138), zero outside the groups' columns."""
     out = torch.zeros_like(like)
-    for key, c in coef.items():
-        out[..., GROUPS[key]] = torch.einsum("tk,ngck->ntgc", basis, c).flatten(-2)
+    out[..., GROUP_COLUMNS] = torch.einsum("tk,ngck->ntgc", basis, coef).flatten(-2)
     return out
 
 
-def group_weights(joint_weight: torch.Tensor | None) -> dict[str, torch.Tensor | None]:
+def group_weights(joint_weight: torch.Tensor | None) -> torch.Tensor | None:
     """Observation weights per residual group from the per-joint mask.
 
-    joint_weight: (N, T, 22) (pelvis first) -> {"rot": (N, T, 22), "trans": (N, T, 1)}; the
-    root orientation and the translation follow the pelvis. None (all observed) gives
-    None for every group (the solvers' all-observed case).
+    joint_weight: (N, T, 22) (pelvis first) -> (N, T, 23): the root orientation and the
+    translation follow the pelvis. None (all observed) stays None (the solvers' all-observed
+    case).
     """
     if joint_weight is None:
-        return dict.fromkeys(GROUPS)
-    return {
-        "rot": joint_weight[..., :22],
-        "trans": joint_weight[..., :1],
-    }
+        return None
+    return torch.cat([joint_weight[..., :NUM_ROTATIONS], joint_weight[..., :1]], dim=-1)
 
 
 class ClosedFormFactors:
     """The factors of a batch's refinement ELBO that are closed form for fixed latents: each
-    group's noise precision E[1/v], the slow offset's coefficients and each joint's offset
-    precision E[1/s_g^2]. ``update(x_hat)`` is one round of coordinate ascent on them.
+    group's noise precision E[1/v], the slow offset's coefficients and each group's offset
+    precision E[1/s_g^2]. ``update(x_hat)`` is one round of coordinate ascent on them. All
+    23 residual groups (22 rotations, the translation) are solved together, each with its own
+    noise unit and offset scale; a group whose scale is 0 gets no offset.
 
     obs: (N, T, 138) the noisy states; joint_weight: (N, T, 22) or None; ``translation``:
     whether the translation gets a slow offset too (``cfg.trans_offset_std``).
@@ -174,23 +180,23 @@ class ClosedFormFactors:
     ):
         N, T = obs.shape[:2]
         self.obs, self.cfg = obs, cfg
-        self.masks = group_weights(joint_weight)  # 1 = observed, None = all
-        self.weights = dict(self.masks)  # what the solvers read: masks, x Student-t weights
-        self.units = {"rot": cfg.rot_unit, "trans": cfg.trans_unit}
+        self.mask = group_weights(joint_weight)  # (N, T, 23): 1 = observed; None = all
+        self.weights = self.mask  # what the solvers read: the mask, x Student-t weights
+        self.units = per_group(cfg.rot_unit, cfg.trans_unit, obs)  # (23,)
         self.basis = cosine_basis(T, cfg.offset_terms, obs)
         k = torch.arange(cfg.offset_terms, dtype=obs.dtype, device=obs.device)
         self.relative = cfg.offset_decay ** (-2.0 * k)  # prior precision of cosine k, relative
         self.offset = torch.zeros_like(obs)
         self.started = False
-        self.precision: dict[str, torch.Tensor] = {}
-        self.offset_std = offset_scales(cfg, translation)
-        self.offset_precision: dict[str, torch.Tensor] = {  # E[1/s_g^2]: (N, G)
-            g: obs.new_full((N, 1), 1.0 / std**2) for g, std in self.offset_std.items()
-        }
+        self.precision: torch.Tensor | None = None  # E[1/v]: (N, 23)
+        self.offset_std = per_group(*offset_scales(cfg, translation), obs)  # (23,)
+        self.has_offset = self.offset_std > 0  # (23,)
+        scale = torch.where(self.has_offset, self.offset_std, torch.ones_like(self.offset_std))
+        self.offset_precision = (1.0 / scale**2).expand(N, -1).clone()  # E[1/s_g^2]: (N, 23)
 
     def start(self, x_hat: torch.Tensor) -> None:
         """Where coordinate ascent starts when every frame is observed: the slow cosines
-        fitted to the residual by least squares (next to no shrinkage), and the per-joint
+        fitted to the residual by least squares (next to no shrinkage), and the per-group
         offset scales that fit implies.
 
         From a zero offset the first noise estimate holds the whole slow discrepancy, the
@@ -201,71 +207,64 @@ class ClosedFormFactors:
         """
         self.started = True
         T, K = self.basis.shape
-        free = self.masks["rot"] is None and T >= 4 * K and self.cfg.outlier_dof == 0
-        if not self.offset_precision or not free:
+        free = self.mask is None and T >= 4 * K and self.cfg.outlier_dof == 0
+        if not bool(self.has_offset.any()) or not free:
             return
         res = observation_residuals(x_hat.detach(), self.obs)
-        s0 = self.cfg.offset_lam / 2
-        coef = {}
-        for g in self.offset_precision:
-            unit = res[g].new_ones(res[g].shape[0], res[g].shape[2])
-            coef[g], var = offset_coefficients(res[g], unit, None, self.basis, 1e-3 * self.relative)
-            self.offset_precision[g] = offset_precision(
-                coef[g], torch.zeros_like(var), self.relative, s0, s0 * self.offset_std[g] ** 2
-            )
-        self.offset = offset_states(coef, self.basis, self.obs)
+        unit = res.new_ones(res.shape[0], NUM_GROUPS)
+        coef, var = offset_coefficients(res, unit, None, self.basis, 1e-3 * self.relative)
+        self._set_offset(coef, torch.zeros_like(var))
 
     def update(self, x_hat: torch.Tensor) -> None:
-        """Noise precisions, then the offset's coefficients, then each joint's offset scale,
+        """Noise precisions, then the offset's coefficients, then each group's offset scale,
         for the decoded states x_hat (N, T, 138) (no gradients kept). The first call begins
         with :meth:`start`."""
         cfg, a0 = self.cfg, self.cfg.lam / 2
         x_hat = x_hat.detach()
         if not self.started:
             self.start(x_hat)
-        for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
-            b0 = a0 * self.units[key] ** 2
-            if cfg.outlier_dof > 0:
-                self._reweight(key, r, a0, b0)
-            else:
-                self.precision[key] = noise_precision(r**2, self.masks[key], a0, b0)
-        if not self.offset_precision:
-            return
         res = observation_residuals(x_hat, self.obs)
-        s0 = cfg.offset_lam / 2
-        coef = {}
-        for g, prec in self.offset_precision.items():
-            prior = prec[..., None] * self.relative  # (N, G, K)
-            coef[g], var = offset_coefficients(
-                res[g], self.precision[g], self.weights[g], self.basis, prior
-            )
-            self.offset_precision[g] = offset_precision(
-                coef[g], var, self.relative, s0, s0 * self.offset_std[g] ** 2
-            )
+        r = res + self.offset[..., GROUP_COLUMNS].unflatten(-1, (NUM_GROUPS, 3))
+        b0 = a0 * self.units**2
+        if cfg.outlier_dof > 0:
+            self._reweight(r, a0, b0)
+        else:
+            self.precision = noise_precision(r**2, self.mask, a0, b0)
+        if not bool(self.has_offset.any()):
+            return
+        prior = self.offset_precision[..., None] * self.relative  # (N, 23, K)
+        coef, var = offset_coefficients(res, self.precision, self.weights, self.basis, prior)
+        self._set_offset(coef, var)
+
+    def _set_offset(self, coef: torch.Tensor, var: torch.Tensor) -> None:
+        """Keep the coefficients' posterior (mean (N, 23, 3, K), variance (N, 23, K)) of the
+        groups that have an offset: the offset states, and each group's E[1/s_g^2]."""
+        s0 = self.cfg.offset_lam / 2
+        coef = coef * self.has_offset[:, None, None]
+        precision = offset_precision(coef, var, self.relative, s0, s0 * self.offset_std**2)
+        self.offset_precision = torch.where(self.has_offset, precision, self.offset_precision)
         self.offset = offset_states(coef, self.basis, self.obs)
 
-    def _reweight(self, key: str, r: torch.Tensor, a0: float, b0: float) -> None:
+    def _reweight(self, r: torch.Tensor, a0: float, b0: torch.Tensor) -> None:
         """Student-t noise (``cfg.outlier_dof`` > 0): each frame's weight from the group's last
         noise precision, then the precision from the weighted residuals; ``self.weights``
-        becomes mask x weight, which every solver and the ELBO read. r: (N, T, G, 3)."""
-        sq = (r**2).sum(-1)  # (N, T, G)
-        mask = self.masks[key] if self.masks[key] is not None else torch.ones_like(sq)
+        becomes mask x weight, which every solver and the ELBO read. r: (N, T, 23, 3)."""
+        sq = (r**2).sum(-1)  # (N, T, 23)
+        mask = self.mask if self.mask is not None else torch.ones_like(sq)
         weight = torch.ones_like(sq)
-        if key in self.precision:
-            weight = student_t_weights(sq, self.precision[key], self.cfg.outlier_dof)
+        if self.precision is not None:
+            weight = student_t_weights(sq, self.precision, self.cfg.outlier_dof)
         n, s = 3.0 * mask.sum(1), (mask * weight * sq).sum(1)
-        self.precision[key] = (a0 + 0.5 * n) / (b0 + 0.5 * s)
-        self.weights[key] = mask * weight
+        self.precision = (a0 + 0.5 * n) / (b0 + 0.5 * s)
+        self.weights = mask * weight
 
     def reconstruction(self, x_hat: torch.Tensor) -> torch.Tensor:
         """The ELBO's expected negative log-likelihood (up to constants), summed: a scalar."""
-        rec = x_hat.new_zeros(())
-        for key, r in observation_residuals(x_hat + self.offset, self.obs).items():
-            w = self.precision[key][:, None]
-            if self.weights[key] is not None:
-                w = self.weights[key] * w
-            rec = rec + 0.5 * (r**2 * w[..., None]).sum()
-        return rec
+        r = observation_residuals(x_hat + self.offset, self.obs)
+        w = self.precision[:, None]
+        if self.weights is not None:
+            w = self.weights * w
+        return 0.5 * (r**2 * w[..., None]).sum()
 
 
 @torch.no_grad()
@@ -273,11 +272,11 @@ def add_offset(
     x_hat: torch.Tensor, obs: torch.Tensor, joint_weight: torch.Tensor | None, cfg: RefineConfig
 ) -> torch.Tensor:
     """Decoded states plus the slow offset fitted to the observations in closed form with the
-    latents held (``cfg.offset_iterations`` rounds; none when ``cfg.offset_std`` = 0).
+    latents held (``cfg.offset_iterations`` rounds; none when both offset scales are 0).
 
     x_hat, obs: (N, T+1, 138) state units; joint_weight: (N, T+1, 22) or None -> (N, T+1, 138)
     """
     factors = ClosedFormFactors(obs, joint_weight, cfg)
-    for _ in range(cfg.offset_iterations if offset_scales(cfg) else 0):
+    for _ in range(cfg.offset_iterations if any(offset_scales(cfg)) else 0):
         factors.update(x_hat)
     return x_hat + factors.offset
