@@ -98,11 +98,12 @@ from mdvae_cli.errors import InputError
     "--offset/--no-offset",
     default=True,
     show_default=True,
-    help="After the forward pass, fit a slow rotation offset per joint to the file in closed "
-    "form (no gradient steps): it follows slow motion the learned prior cannot express, so "
-    "clean parts of a take come back almost unchanged and the result is more accurate than a "
-    "tuned filter, at ~1.3x the time. --no-offset is the paper's plain regression mode. Part "
-    "of --refine already.",
+    help="After the forward pass, fit a slow rotation offset per joint, and one for the root "
+    "translation, to the file in closed form (no gradient steps): it follows slow motion the "
+    "learned prior cannot express, so clean parts of a take come back almost unchanged, the "
+    "body keeps the file's path, and the result is more accurate than a tuned filter, at "
+    "~1.3x the time. --no-offset is the paper's plain regression mode. Part of --refine "
+    "already.",
 )
 @click.option(
     "--outliers",
