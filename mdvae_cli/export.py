@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -92,8 +93,10 @@ def export_mesh_sequence(
 
     NNNNNN is the source frame index (0-based, six digits), so ``every=2`` writes frame_000000,
     frame_000002, ... Each file is written to a temporary name and renamed; ``forbid`` lists
-    files never to overwrite. ``progress(n)`` is called after each chunk with the number of
-    files just written. Returns the written paths, in frame order.
+    files never to overwrite. Once every frame is written, ``frame_NNNNNN.<fmt>`` files that an
+    earlier export left in the folder (a longer take, another ``every``) are removed, so that
+    the folder holds this sequence and no stale tail. ``progress(n)`` is called after each chunk
+    with the number of files just written. Returns the written paths, in frame order.
     """
     fmt = fmt.lower().lstrip(".")
     if fmt not in MESH_FORMATS:
@@ -119,4 +122,20 @@ def export_mesh_sequence(
             written.append(path)
         if progress is not None:
             progress(len(ids))
+    remove_stale_frames(out_dir, fmt, written)
     return written
+
+
+def remove_stale_frames(out_dir: Path, fmt: str, keep: list[Path]) -> int:
+    """Delete ``frame_NNNNNN.<fmt>`` files in ``out_dir`` other than ``keep`` (what an earlier
+    export into the folder left). Other files are never touched. -> how many were removed"""
+    pattern = re.compile(rf"frame_\d{{6}}\.{re.escape(fmt)}")
+    kept = {p.name for p in keep}
+    stale = [
+        p
+        for p in out_dir.glob(f"frame_*.{fmt}")
+        if p.is_file() and pattern.fullmatch(p.name) and p.name not in kept
+    ]
+    for p in stale:
+        p.unlink()
+    return len(stale)

@@ -417,3 +417,19 @@ def test_export_mesh_sequence_library(tiny_body, tmp_path):
         export_mesh_sequence(m, tiny_body, tmp_path / "o", "ply", every=0)
     with pytest.raises(InputError):
         export_mesh_sequence(m, tiny_body, paths[0], "ply")  # a file, not a folder
+    # a shorter take exported into the same folder: the earlier take's tail is removed, other
+    # files (another format, the user's own) are left alone
+    (tmp_path / "o" / "notes.txt").write_text("mine")
+    (tmp_path / "o" / "frame_000099.obj").write_text("another format")
+    (tmp_path / "o" / "frame_12.ply").write_text("not our naming")
+    short = motion_from_arrays(motion_arrays(T=2))
+    again = export_mesh_sequence(short, tiny_body, tmp_path / "o", "ply")
+    assert [p.name for p in again] == ["frame_000000.ply", "frame_000001.ply"]
+    left = sorted(p.name for p in (tmp_path / "o").iterdir())
+    assert left == [
+        "frame_000000.ply",
+        "frame_000001.ply",
+        "frame_000099.obj",
+        "frame_12.ply",
+        "notes.txt",
+    ]

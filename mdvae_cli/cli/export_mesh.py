@@ -34,7 +34,9 @@ def export_mesh(inputs, out, fmt, every, body_model, allow_pickle, as_json) -> N
     """Export the posed body mesh of each frame as .ply or .obj.
 
     One input file writes into --out itself; several files or a folder write
-    --out/<relative path without .npz>/frame_NNNNNN.<format>.
+    --out/<relative path without .npz>/frame_NNNNNN.<format>. Frame files of that
+    format that an earlier export left there (a longer take) are removed, so a
+    folder holds one sequence; other files are never touched.
 
     \b
     Example:
