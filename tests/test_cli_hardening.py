@@ -383,3 +383,21 @@ def test_output_names_mean_what_they_say(tmp_path):
     )
     assert notes.read_text() == "keep"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["existing.txt", "new.npz"]
+
+
+def test_denoise_mesh_subfolders_are_named_as_export_mesh_names_them(tmp_path):
+    """A gzipped take's meshes go to a subfolder without .npz.gz (take.npz.gz -> take/), as
+    `mdvae export-mesh` names it, beside its cleaned .npz."""
+    import gzip
+
+    src = tmp_path / "in"
+    src.mkdir()
+    (src / "b.npz").write_bytes(NOISY.read_bytes())
+    with gzip.open(src / "a.npz.gz", "wb") as fh:
+        fh.write(NOISY.read_bytes())
+    res = invoke("denoise", src, "-o", tmp_path / "out", "--mesh-dir", tmp_path / "mesh")
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "mesh").iterdir()) == ["a", "b"]
+    frames = load_motion(NOISY).num_frames
+    assert len(list((tmp_path / "mesh" / "a").glob("frame_*.ply"))) == frames
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.npz", "b.npz"]

@@ -8,7 +8,15 @@ from pathlib import Path
 
 import click
 
-from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
+from mdvae_cli.cli.batch import (
+    FileJob,
+    emit_json,
+    json_option,
+    plan_jobs,
+    print_notes,
+    run_batch,
+    strip_gz,
+)
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
@@ -282,9 +290,8 @@ def denoise(
         motion = results[job.source]
         check_finite(motion)
         if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
-            target = (
-                Path(mesh_dir) / job.relpath.with_suffix("") if len(jobs) > 1 else Path(mesh_dir)
-            )
+            sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
+            target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
             export_mesh_sequence(motion, body, target, mesh_format, forbid=sources)
         save_motion(motion, job.output, forbid=sources)
         return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
