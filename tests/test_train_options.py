@@ -527,3 +527,109 @@ def test_a_run_folder_inside_the_data_folder_is_not_read_as_motion(tmp_path):
     train_prior(tiny_config(data, epochs=1, batch_size=4), run, max_steps=1)
     summary = train_prior(tiny_config(data, epochs=2, batch_size=4), run, resume=True, max_steps=2)
     assert summary.steps >= 1 and (run / "last.npz").exists()
+
+
+def _copy_run(src: Path, dst: Path) -> Path:
+    dst.mkdir()
+    for f in src.iterdir():
+        (dst / f.name).write_bytes(f.read_bytes())
+    return dst
+
+
+def test_a_truncated_checkpoint_is_one_plain_error(corpus, tiny_prior, tmp_path):
+    from mdvae_cli.fit.checkpoint import load_checkpoint
+
+    run = _copy_run(tiny_prior, tmp_path / "run")
+    (run / "last.npz").write_bytes((tiny_prior / "last.npz").read_bytes()[:1000])
+    with pytest.raises(InputError, match="checkpoint .*last.npz is unreadable"):
+        load_checkpoint(run / "last.npz")
+    res = CliRunner().invoke(cli, ["train-prior", str(corpus), "-o", str(run), "--resume"])
+    assert res.exit_code == 1, res.output
+    assert "error: checkpoint" in res.output and "is unreadable" in res.output
+    assert "Traceback" not in res.output and "BadZipFile" not in res.output
+    start = str(next(corpus.glob("*.npz")))
+    args = ["sample", "--from", start, "--prior", str(run / "last.npz"), "-o", str(tmp_path / "s")]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1 and "is unreadable" in res.output, res.output
+
+
+def test_a_last_checkpoint_without_optimizer_state_cannot_be_resumed(corpus, tiny_prior, tmp_path):
+    run = _copy_run(tiny_prior, tmp_path / "run")
+    (run / "last.json").write_text((run / "best.json").read_text())  # no Adam state in it
+    with pytest.raises(InputError, match="last.npz cannot be resumed: last.json lacks"):
+        train_prior(tiny_config(corpus, epochs=2, batch_size=4), run, resume=True)
+
+
+def test_resuming_the_other_command_s_folder_says_so(corpus, tiny_prior, tmp_path):
+    den = tmp_path / "den"
+    den.mkdir()
+    (den / "config.json").write_text(json.dumps(tiny_fit_config(corpus, tiny_prior).to_dict()))
+    for command, folder, key in [
+        ("train-prior", den, "'denoiser'"),
+        ("fit-dataset", tiny_prior, "'body_frame_stride'"),
+    ]:
+        res = CliRunner().invoke(cli, [command, str(corpus), "-o", str(folder), "--resume"])
+        assert res.exit_code == 1, res.output
+        assert f"error: {folder} is not a run of this command" in res.output
+        assert key in res.output and "unexpected keyword" not in res.output
+
+
+@pytest.mark.parametrize(
+    "command, content, message",
+    [
+        ("train-prior", "[1, 2]", "it must be a JSON object"),
+        ("train-prior", "null", "it must be a JSON object"),
+        ("train-prior", '{"bogus": 1}', 'unknown key "bogus"'),
+        ("train-prior", '{"model": [8]}', '"model" must be a JSON object'),
+        ("train-prior", '{"model": null}', '"model" must be a JSON object'),
+        ("train-prior", '{"model": {"latent_dimm": 8}}', 'unknown key "model.latent_dimm"'),
+        ("train-prior", '{"split_file": 5}', '"split_file" must be a string or null, got 5'),
+        ("train-prior", '{"body_model": 5}', '"body_model" must be a string or null, got 5'),
+        ("train-prior", '{"data": "d"}', "\"data\" must be a list of paths, got 'd'"),
+        ("fit-dataset", '{"prior": 3}', '"prior" must be a string or null, got 3'),
+        ("fit-dataset", '{"distill": 3}', '"distill" must be a JSON object'),
+        ("fit-dataset", '{"denoiser": {"lamm": 1}}', 'unknown key "denoiser.lamm"'),
+    ],
+)
+def test_config_files_of_the_wrong_shape_name_the_key(corpus, tmp_path, command, content, message):
+    config = tmp_path / "c.json"
+    config.write_text(content)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(cli, [command, str(corpus), "-o", str(out), "--config", str(config)])
+    assert res.exit_code == 1, res.output
+    assert f"error: config {config}: {message}" in res.output, res.output
+    assert "Traceback" not in res.output and "Error:" not in res.output and not out.exists()
+
+
+def test_a_run_stopped_inside_an_epoch_by_max_steps_resumes_to_the_same_weights(tmp_path):
+    data = write_corpus(tmp_path / "data", n=3, T=40)
+    cfg = tiny_config(data, epochs=2, batch_size=4, body_vertices=8)
+    whole = train_prior(cfg, tmp_path / "whole")
+    assert whole.steps >= 4
+    run = tmp_path / "run"
+    assert train_prior(cfg, run, max_steps=1).steps == 1  # inside the first epoch
+    resumed = train_prior(cfg, run, resume=True)
+    assert resumed.steps == whole.steps and resumed.rank_digests == whole.rank_digests
+
+
+def test_ctrl_c_while_a_checkpoint_is_written_leaves_its_two_files_matched(tmp_path, monkeypatch):
+    import signal
+
+    import mdvae_cli.fit.checkpoint as ck
+
+    path = tmp_path / "last.npz"
+    ck.save_checkpoint(path, {"w": torch.zeros(2)}, {"step": 1})
+    real = ck.write_atomic
+
+    def interrupted(target, write):
+        real(target, write)
+        if target.suffix == ".npz":  # Ctrl-C between the weights and their metadata
+            signal.raise_signal(signal.SIGINT)
+
+    monkeypatch.setattr(ck, "write_atomic", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        ck.save_checkpoint(path, {"w": torch.ones(2)}, {"step": 2})
+    tensors, meta = ck.load_checkpoint(path)
+    assert meta["step"] == 2 and torch.equal(tensors["w"], torch.ones(2))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.json", "last.npz"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
+import signal
+import threading
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -21,11 +25,33 @@ def save_checkpoint(path: Path, tensors: dict[str, torch.Tensor], meta: dict) ->
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
 
-    write_atomic(path, write_npz)
-    write_atomic(
-        path.with_suffix(".json"),
-        lambda tmp: tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n"),
-    )
+    with interrupts_deferred():  # a Ctrl-C between the two leaves weights and meta unmatched
+        write_atomic(path, write_npz)
+        write_atomic(
+            path.with_suffix(".json"),
+            lambda tmp: tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n"),
+        )
+
+
+@contextlib.contextmanager
+def interrupts_deferred():
+    """Hold a Ctrl-C (SIGINT) back until the block is done, then raise KeyboardInterrupt (in
+    the main thread; elsewhere Python delivers no signals anyway). An ignored SIGINT (a
+    background job) stays ignored."""
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    ):
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda *_: caught.append(True))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
@@ -42,7 +68,7 @@ def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
         with np.load(path, allow_pickle=False) as npz:
             tensors = {k: torch.from_numpy(npz[k].copy()) for k in npz.files}
         meta = json.loads(meta_path.read_text())
-    except (ValueError, OSError, json.JSONDecodeError) as exc:
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:  # truncated, corrupt
         raise InputError(f"checkpoint {path} is unreadable ({exc})") from None
     return tensors, meta
 

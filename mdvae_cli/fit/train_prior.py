@@ -299,12 +299,21 @@ def train_prior(
         opt = torch.optim.Adam(trainable_parameters(model, cfg.train_only), lr=cfg.lr)
         steps_per_epoch = max(1, len(train) // (cfg.batch_size * dist.world_size))
         total_steps = steps_per_epoch * cfg.epochs
-        first_epoch, step, best = 0, 0, math.inf
+        first_epoch, step, best, skip = 0, 0, math.inf, 0
         if resume:
-            tensors, meta = load_checkpoint(checkpoint_to_resume(run_dir, "last.npz"))
+            last = checkpoint_to_resume(run_dir, "last.npz")
+            tensors, meta = load_checkpoint(last)
+            if not all(k in meta for k in ("optimizer", "epoch", "step")):
+                raise InputError(
+                    f"{last} cannot be resumed: {last.with_suffix('.json').name} lacks the "
+                    "optimizer state and step a run saves there; start a new run instead"
+                )
             model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model/")})
             opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
             first_epoch, step = meta["epoch"] + 1, meta["step"]
+            if meta.get("epoch_steps", steps_per_epoch) < steps_per_epoch:  # --max-steps
+                # stopped the run inside that epoch: the resumed run takes the rest of it
+                first_epoch, skip = meta["epoch"], meta["epoch_steps"]
             best = meta["best_val_loss"] if meta.get("best_val_loss") is not None else math.inf
             restore_rng(tensors, device)
         if dist.is_main:
@@ -324,7 +333,8 @@ def train_prior(
             gen = torch.Generator().manual_seed(cfg.seed * 1000 + epoch)
             perm = torch.randperm(len(train), generator=gen)
             mine = perm[dist.rank :: dist.world_size]
-            for i in range(steps_per_epoch):
+            taken = steps_per_epoch
+            for i in range(skip if epoch == first_epoch else 0, steps_per_epoch):
                 idx = mine[i * cfg.batch_size : (i + 1) * cfg.batch_size]
                 b = train.subset(idx)
                 batch = WindowSet(b.x0.to(device), b.x.to(device), b.betas.to(device))
@@ -358,6 +368,7 @@ def train_prior(
                         }
                     )
                 if max_steps is not None and step >= max_steps:
+                    taken = i + 1
                     break
             if not weights_are_finite(model):  # every rank holds the same weights
                 raise diverged("training", step, "weights not finite")
@@ -370,6 +381,8 @@ def train_prior(
                     "step": step,
                     "val": val_terms,
                     "best_val_loss": val_loss if val_loss < best else best,
+                    # batches of this epoch taken, where the run stopped inside it
+                    **({"epoch_steps": taken} if taken < steps_per_epoch else {}),
                 }
                 if val_loss < best:
                     best = val_loss
