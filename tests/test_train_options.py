@@ -633,3 +633,20 @@ def test_ctrl_c_while_a_checkpoint_is_written_leaves_its_two_files_matched(tmp_p
     assert meta["step"] == 2 and torch.equal(tensors["w"], torch.ones(2))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["last.json", "last.npz"]
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_one_seed_bound_for_every_command_and_the_largest_seed_trains(corpus, tmp_path):
+    """Options and configs take seeds 0..MAX_SEED (torch's 64 bits); the largest one trains
+    (the epoch order's seed is taken mod 2^64; it used to overflow for seeds over ~1.8e16)."""
+    from mdvae_cli.cli.common import SEED
+    from mdvae_cli.model.config import MAX_SEED
+
+    assert (SEED.min, SEED.max) == (0, MAX_SEED)
+    for make in (lambda s: TrainConfig(seed=s), lambda s: FitConfig(seed=s)):
+        with pytest.raises(InputError, match="--seed must be at most"):
+            make(MAX_SEED + 1)
+    summary = train_prior(tiny_config(corpus, seed=MAX_SEED), tmp_path / "run", max_steps=2)
+    assert summary.steps == 2
+    res = CliRunner().invoke(cli, ["train-prior", str(corpus), "-o", str(tmp_path / "r2"),
+                                   "--seed", str(MAX_SEED + 1)])  # fmt: skip
+    assert res.exit_code == 2 and "--seed" in res.output

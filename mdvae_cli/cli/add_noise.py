@@ -14,7 +14,7 @@ from mdvae_cli.cli.batch import (
     print_notes,
     run_batch,
 )
-from mdvae_cli.cli.common import FRACTION, NON_NEGATIVE, allow_pickle_option, handle_errors
+from mdvae_cli.cli.common import FRACTION, NON_NEGATIVE, SEED, allow_pickle_option, handle_errors
 from mdvae_cli.motion.noise import NoiseSettings, add_pose_noise, file_rng
 from mdvae_cli.motion.npz_io import load_motion, save_motion
 
@@ -31,7 +31,7 @@ from mdvae_cli.motion.npz_io import load_motion, save_motion
     "(>= 0; the paper uses 0.1, 0.15, 0.2).",
 )  # fmt: skip
 @click.option(
-    "--seed", type=click.IntRange(min=0), default=0, show_default=True,
+    "--seed", type=SEED, default=0, show_default=True,
     help="Random seed; each file's noise depends only on it and the file's relative path.",
 )  # fmt: skip
 @click.option(

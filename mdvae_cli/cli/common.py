@@ -90,7 +90,8 @@ class Finite(click.ParamType):
 POSITIVE = Finite(0.0, open_low=True)
 NON_NEGATIVE = Finite(0.0)
 FRACTION = Finite(0.0, 1.0)
-#: a random seed: torch's generators take at most 64 bits
+#: a random seed: 0..model.config.MAX_SEED, written out so that parsing options does not
+#: import torch (a test checks the two agree)
 SEED = click.IntRange(0, 2**63 - 1)
 
 

@@ -15,7 +15,7 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
-from mdvae_cli.cli.train import apply_overrides, start_config
+from mdvae_cli.cli.train import apply_overrides, run_options, start_config
 from mdvae_cli.errors import InputError
 
 
@@ -34,12 +34,6 @@ from mdvae_cli.errors import InputError
     "prior_path",
     type=click.Path(path_type=Path),
     help="Prior checkpoint or train-prior run folder (default: the shipped prior).",
-)
-@click.option(
-    "--config",
-    "config_file",
-    type=click.Path(path_type=Path, exists=True),
-    help="A config.json to start from; options given here override it.",
 )
 @click.option(
     "--lam",
@@ -78,8 +72,6 @@ from mdvae_cli.errors import InputError
     help="Adam learning rate (> 0), cosine-decayed to --lr-final [default: 3e-3].",
 )
 @click.option("--lr-final", type=NON_NEGATIVE, help="Final learning rate (>= 0) [default: 3e-4].")
-@click.option("--seed", type=click.IntRange(min=0), help="Random seed [default: 0].")
-@click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto].")
 @click.option(
     "--init-from",
     type=click.Path(path_type=Path, exists=True),
@@ -121,7 +113,7 @@ from mdvae_cli.errors import InputError
     type=click.IntRange(min=1),
     help="Stop after this many ELBO steps in this invocation (a --resume counts afresh).",
 )
-@click.option("--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256).")
+@run_options
 @body_model_option
 @handle_errors
 def fit_dataset(

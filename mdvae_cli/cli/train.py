@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import fields, is_dataclass
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import click
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
+    SEED,
     body_model_option,
     console,
     handle_errors,
@@ -128,6 +130,27 @@ def apply_overrides(
         setattr(target, name, value)
 
 
+def run_options(fn: Callable) -> Callable:
+    """The options train-prior and fit-dataset share: --config, --seed, --device, --threads."""
+    for option in reversed(
+        [
+            click.option(
+                "--config",
+                "config_file",
+                type=click.Path(path_type=Path, exists=True),
+                help="A config.json to start from; options given here override it.",
+            ),
+            click.option("--seed", type=SEED, help="Random seed [default: 0]."),
+            click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto]."),
+            click.option(
+                "--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256)."
+            ),
+        ]
+    ):
+        fn = option(fn)
+    return fn
+
+
 @click.command("train-prior")
 @click.argument("data", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
@@ -143,12 +166,6 @@ def apply_overrides(
     "split_file",
     type=click.Path(path_type=Path),
     help="JSON split file {train: [...], val: [...]} of paths relative to it.",
-)
-@click.option(
-    "--config",
-    "config_file",
-    type=click.Path(path_type=Path, exists=True),
-    help="A config.json to start from; options given here override it.",
 )
 @click.option(
     "--window",
@@ -249,8 +266,6 @@ def apply_overrides(
     help="Also train on the left-right mirror image of every training motion: twice the "
     "windows, a body prior closer to symmetric (validation stays unmirrored) [default: off].",
 )
-@click.option("--seed", type=click.IntRange(min=0), help="Random seed [default: 0].")
-@click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto].")
 @click.option(
     "--resume",
     is_flag=True,
@@ -264,7 +279,7 @@ def apply_overrides(
     help="Stop once the run has taken this many steps in all, counting those before a "
     "--resume (smoke runs).",
 )
-@click.option("--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256).")
+@run_options
 @body_model_option
 @handle_errors
 def train_prior(

@@ -40,7 +40,7 @@ from mdvae_cli.fit.guards import (
 )
 from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.fit.window_groups import WindowGroup, make_windows
-from mdvae_cli.model.config import require_bool, require_int, require_number
+from mdvae_cli.model.config import require_bool, require_int, require_number, require_seed
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, save_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.mirror import mirror_motion
@@ -85,7 +85,7 @@ class FitConfig:
         for name, low in (("window", 1), ("stride", 1), ("batch_size", 1), ("epochs", 0)):
             require_int(f"--{name.replace('_', '-')}", getattr(self, name), low)
         require_bool("--mirror-augment", self.mirror_augment)
-        require_int("--seed", self.seed, 0)
+        require_seed("--seed", self.seed)
         require_number("--lr", self.lr, 0.0, open_low=True)
         require_number("--lr-final", self.lr_final, 0.0)
         check_device(self.device)

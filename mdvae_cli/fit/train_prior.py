@@ -43,7 +43,13 @@ from mdvae_cli.fit.guards import (
 )
 from mdvae_cli.fit.prior_loss import prior_losses, spread_vertex_ids
 from mdvae_cli.fit.schedule import clipped_step, cosine_lr, set_lr
-from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
+from mdvae_cli.model.config import (
+    ModelConfig,
+    require_bool,
+    require_int,
+    require_number,
+    require_seed,
+)
 from mdvae_cli.model.losses import kl_weight
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
 from mdvae_cli.motion.state import VELOCITY_DIMS
@@ -98,9 +104,9 @@ class TrainConfig:
             ("body_vertices", "body_vertices", 0),
             ("body_frame_stride", "body_frame_stride", 1),
             ("max_val_windows", "max_val_windows", 1),
-            ("seed", "--seed", 0),
         ):
             require_int(option, getattr(self, name), low)
+        require_seed("--seed", self.seed)
         for name, option, low, open_low in (
             ("lr", "--lr", 0.0, True),
             ("lr_final", "lr_final", 0.0, False),
@@ -330,7 +336,8 @@ def train_prior(
         model.train()
         epoch = first_epoch - 1
         for epoch in range(first_epoch, cfg.epochs):
-            gen = torch.Generator().manual_seed(cfg.seed * 1000 + epoch)
+            # the epoch's order (mod 2^64: any seed fits; the same numbers as ever below ~1e16)
+            gen = torch.Generator().manual_seed((cfg.seed * 1000 + epoch) % 2**64)
             perm = torch.randperm(len(train), generator=gen)
             mine = perm[dist.rank :: dist.world_size]
             taken = steps_per_epoch

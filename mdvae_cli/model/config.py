@@ -45,6 +45,17 @@ def require_int(name: str, value, low: int) -> None:
         raise InputError(f"{name} must be a whole number >= {low}, got {value!r}")
 
 
+#: the largest random seed: torch's generators take 64-bit seeds
+MAX_SEED = 2**63 - 1
+
+
+def require_seed(name: str, value) -> None:
+    """InputError unless ``value`` is a whole number in 0..MAX_SEED."""
+    require_int(name, value, 0)
+    if value > MAX_SEED:
+        raise InputError(f"{name} must be at most {MAX_SEED}, got {value}")
+
+
 @dataclass
 class ModelConfig:
     """Sizes of the Motion-DVAE networks (see docs/model.md for the reasoning).
