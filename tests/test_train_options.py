@@ -293,6 +293,7 @@ def poison_after(module, real_step, at: int):
 
 
 def test_non_finite_weights_are_never_saved(corpus, tiny_prior, tmp_path, monkeypatch):
+    import mdvae_cli.fit.elbo_fit as ef
     import mdvae_cli.fit.fit_dataset as fd
 
     models = []
@@ -308,8 +309,8 @@ def test_non_finite_weights_are_never_saved(corpus, tiny_prior, tmp_path, monkey
     dens = []
     real_den = fd.Denoiser
     monkeypatch.setattr(fd, "Denoiser", lambda *a: dens.append(real_den(*a)) or dens[-1])
-    monkeypatch.setattr(
-        fd, "clipped_step", poison_after(lambda: dens[0].encoder, fd.clipped_step, 1)
+    monkeypatch.setattr(  # the ELBO loop's step, where fit-dataset's loop lives
+        ef, "clipped_step", poison_after(lambda: dens[0].encoder, ef.clipped_step, 1)
     )
     out = tmp_path / "den"
     with pytest.raises(InputError, match=r"^training diverged at step 1 \(weights not finite\)"):

@@ -268,7 +268,7 @@ def denoise_motions(
             motions30, denoiser, body, window, stride, observed, points=optimize_steps > 0
         )
         if optimize_steps > 0:
-            from mdvae_cli.fit.fit_dataset import fit_denoiser
+            from mdvae_cli.fit.elbo_fit import fit_denoiser
 
             tell = _staged(progress, "optimize", 0, optimize_steps)
             draws = torch.Generator().manual_seed(seed)  # reproducible whatever ran before
