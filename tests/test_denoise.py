@@ -54,19 +54,25 @@ def noisy_dir(tiny_prior):
     return out
 
 
-def test_fit_dataset_lowers_its_loss_and_saves_a_loadable_denoiser(tiny_prior, noisy_dir, tmp_path):
-    log = []
-    cfg = FitConfig(
+def tiny_fit(tiny_prior, noisy_dir, epochs: int, lr: float | None = None, **denoiser) -> FitConfig:
+    """A fit-dataset config for the tiny prior and noisy clips (``denoiser``: its settings)."""
+    extra = {} if lr is None else {"lr": lr}
+    return FitConfig(
         data=[str(noisy_dir)],
         prior=str(tiny_prior / "run"),
         window=20,
         stride=5,
         batch_size=8,
-        epochs=6,
-        lr=3e-3,
+        epochs=epochs,
         device="cpu",
-        denoiser=DenoiserConfig(lam=20.0, obs_unit=0.05, hidden_dim=16),
+        denoiser=DenoiserConfig(hidden_dim=16, **denoiser),
+        **extra,
     )
+
+
+def test_fit_dataset_lowers_its_loss_and_saves_a_loadable_denoiser(tiny_prior, noisy_dir, tmp_path):
+    log = []
+    cfg = tiny_fit(tiny_prior, noisy_dir, epochs=6, lr=3e-3, lam=20.0, obs_unit=0.05)
     summary = fit_dataset(cfg, tmp_path / "den", progress=lambda d: log.append(d["loss"]))
     assert summary.steps == len(log) > 20
     assert np.mean(log[-5:]) < 0.8 * np.mean(log[:5]), (log[:5], log[-5:])
@@ -86,16 +92,7 @@ def test_fit_dataset_stopped_and_resumed_ends_bit_identical(tiny_prior, noisy_di
     """A fit stopped part way (here after 7 of its steps) and resumed ends with exactly the
     networks of the whole run: the learning-rate schedule, the batch order, Adam's state and
     the Monte-Carlo draws all carry on (resume.npz beside denoiser.npz)."""
-    cfg = FitConfig(
-        data=[str(noisy_dir)],
-        prior=str(tiny_prior / "run"),
-        window=20,
-        stride=5,
-        batch_size=8,
-        epochs=2,
-        device="cpu",
-        denoiser=DenoiserConfig(hidden_dim=16),
-    )
+    cfg = tiny_fit(tiny_prior, noisy_dir, epochs=2)
     whole = fit_dataset(cfg, tmp_path / "whole")
     part = fit_dataset(cfg, tmp_path / "part", max_steps=7)
     assert part.steps == 7 < whole.steps and (tmp_path / "part" / "resume.npz").exists()
