@@ -49,8 +49,8 @@ def prior_and_windows(prior_path, corpus: Path, split: str, max_files: int):
     frames) of the first ``max_files`` files of a corpus split.
     -> (prior, its checkpoint metadata, body, files, WindowSet)"""
     from mdvae_cli.body.formats import load_body_model
-    from mdvae_cli.fit.data import load_windows, select_files
     from mdvae_cli.model.prior_model import load_prior
+    from mdvae_cli.train.corpus import load_windows, select_files
     from mdvae_cli.weights import default_weights
 
     prior, meta = load_prior(prior_path or default_weights("prior"))

@@ -15,7 +15,7 @@ timed part is loading, denoising and saving all of them in one run:
 * optimisation mode: for each sigma, a copy of the denoiser is fine-tuned for 50 steps on all
   the test clips of that sigma at once, which then predicts them (the paper's protocol);
 * refinement (``mdvae denoise --refine 50``): regression mode, then 50 gradient steps on each
-  window's own latents, with a slow rotation offset (``mdvae_cli.fit.refine``).
+  window's own latents, with a slow rotation offset (``mdvae_cli.infer.refine``).
 
 The metrics are root-relative V2V (cm) and the mean joint acceleration (m/s^2; the ground truth
 row gives the target value), frame-weighted over all clips. Speed is s/frame and frames/s of the
@@ -52,8 +52,8 @@ except ModuleNotFoundError:  # run as a file: python benchmarks/denoise_table.py
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
-from mdvae_cli.fit.denoise import denoise_motions
-from mdvae_cli.fit.refine import RefineConfig
+from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import EvalResult
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
@@ -652,8 +652,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _run(args: argparse.Namespace, command: list[str]) -> int:
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.errors import MdvaeError
-    from mdvae_cli.fit.data import read_split
     from mdvae_cli.model.denoiser import load_denoiser
+    from mdvae_cli.train.corpus import read_split
 
     if args.quick:
         args.max_files = args.max_files or 6

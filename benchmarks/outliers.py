@@ -24,12 +24,12 @@ import torch
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import savgol_filter_motion
-from mdvae_cli.fit.data import read_split
-from mdvae_cli.fit.denoise import denoise_motions
-from mdvae_cli.fit.refine import OUTLIER_DOF, RefineConfig
+from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.settings import OUTLIER_DOF, RefineConfig
 from mdvae_cli.model.denoiser import Denoiser, load_denoiser
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
+from mdvae_cli.train.corpus import read_split
 
 try:
     from benchmarks import common

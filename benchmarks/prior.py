@@ -4,7 +4,7 @@ Prints a markdown table:
 * reconstruction V2V (cm, root-relative and absolute) of 60-frame windows through
   encoder -> decoder (posterior means), and the KL per step; the same after the encoder's
   latents are refined for ``--refine-steps`` Adam steps on each window's training loss
-  (semi-amortised inference, ``mdvae_cli.fit.reconstruct.refine_reconstruction``);
+  (semi-amortised inference, ``mdvae_cli.train.reconstruct.refine_reconstruction``);
 * 10-second prior samples started from real first frames: joint acceleration (m/s^2) vs real
   motion, the lowest foot height over the sample (drift through the floor) and the largest
   joint speed (exploding joints); raw prior samples, and (``--floor-particles``) samples
@@ -24,14 +24,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mdvae_cli.fit.data import MODEL_FPS, WindowSet
-from mdvae_cli.fit.reconstruct import refine_reconstruction
-from mdvae_cli.fit.sample import FOOT_JOINTS, PARTICLES, SPEED_LIMIT, sample_motion
-from mdvae_cli.fit.train_prior import TrainConfig
+from mdvae_cli.infer.sample import FOOT_JOINTS, PARTICLES, SPEED_LIMIT, sample_motion
 from mdvae_cli.model.losses import gaussian_kl
+from mdvae_cli.motion.chunks import MODEL_FPS
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.motion.state import state_to_params
+from mdvae_cli.train.corpus import WindowSet
+from mdvae_cli.train.reconstruct import refine_reconstruction
+from mdvae_cli.train.train_config import TrainConfig
 
 try:
     from benchmarks import common
@@ -44,7 +45,7 @@ def reconstruction(
 ) -> dict[str, float]:
     """Encoder -> decoder on windows (posterior means); V2V on the full mesh. With ``steps``,
     the encoder's latents are first refined for that many steps on each window's training
-    loss (``train``: the run's TrainConfig; semi-amortised, ``fit.refine``)."""
+    loss (``train``: the run's TrainConfig; semi-amortised, ``infer.refine``)."""
     norm = prior.normalizer
     v2v, v2v_abs, kls, n = 0.0, 0.0, 0.0, 0
     for i in range(0, len(windows), batch):

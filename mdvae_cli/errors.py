@@ -14,3 +14,11 @@ class InputError(MdvaeError):
 
 class NotAvailableError(MdvaeError):
     """A feature that exists in the CLI but cannot run here (e.g. no trained weights)."""
+
+
+def diverged(what: str, step: int, detail: str, lr_option: str = "--lr") -> InputError:
+    """The error a training loop raises once its loss or weights stop being finite."""
+    return InputError(
+        f"{what} diverged at step {step} ({detail}): lower {lr_option}; nothing was saved from "
+        "the diverged weights"
+    )

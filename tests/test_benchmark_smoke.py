@@ -29,11 +29,11 @@ from benchmarks.denoise_table import (
 )
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.train_prior import train_prior
 from mdvae_cli.metrics import evaluate_pair, mean_result
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, save_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.npz_io import motion_from_arrays
+from mdvae_cli.train.train_prior import train_prior
 from tests.conftest import motion_arrays
 from tests.test_prior import tiny_config, write_corpus
 

@@ -121,7 +121,7 @@ def test_denoise_summary_counts_files_that_could_not_be_read(tmp_path):
 
 
 def test_a_result_that_is_not_finite_is_never_written(tmp_path, monkeypatch):
-    from mdvae_cli.fit import denoise as denoise_module
+    from mdvae_cli.infer import denoise as denoise_module
 
     def diverged(motions, *args, **kwargs):
         m = motions[0]
@@ -159,7 +159,7 @@ def test_folders_yield_upper_case_suffixes_and_skip_hidden_folders(tmp_path):
 
 
 def test_a_file_without_checkpoint_metadata_is_named_as_such(tmp_path):
-    from mdvae_cli.fit.checkpoint import load_checkpoint
+    from mdvae_cli.model.checkpoint import load_checkpoint
 
     with pytest.raises(InputError, match="is not an mdvae checkpoint"):
         load_checkpoint(NOISY)

@@ -17,16 +17,16 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import savgol_filter_motion
-from mdvae_cli.fit.denoise import blend_windows, denoise_motions
-from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset
-from mdvae_cli.fit.refine import RefineConfig
-from mdvae_cli.fit.train_prior import train_prior
+from mdvae_cli.infer.denoise import blend_windows, denoise_motions
+from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.state import BodyParams
+from mdvae_cli.train.fit_dataset import FitConfig, fit_dataset
+from mdvae_cli.train.train_prior import train_prior
 from tests.test_prior import tiny_config, write_corpus
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -445,7 +445,7 @@ def test_x0_predictor_reads_the_whole_window_and_old_configs_keep_their_layout()
 
 def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(tiny_prior):
     from benchmarks.common import slice_motion
-    from mdvae_cli.fit.window_groups import make_windows, smooth_inputs
+    from mdvae_cli.infer.window_groups import make_windows, smooth_inputs
     from mdvae_cli.motion.state import POSE
 
     assert DenoiserConfig().input_window == 11
@@ -483,8 +483,8 @@ def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(ti
 
 
 def test_small_batch_numpy_path_matches_the_torch_networks(tiny_prior):
-    from mdvae_cli.fit.denoise import predict_windows
-    from mdvae_cli.fit.window_groups import make_windows
+    from mdvae_cli.infer.denoise import predict_windows
+    from mdvae_cli.infer.window_groups import make_windows
     from mdvae_cli.model.small_batch import SmallBatchRegressor
 
     prior, _ = load_prior(tiny_prior / "run")
@@ -502,7 +502,7 @@ def test_small_batch_numpy_path_matches_the_torch_networks(tiny_prior):
         assert got.shape == want.shape and got.dtype == np.float32
         np.testing.assert_allclose(got, want, atol=2e-4 * (1 + np.abs(want).max()))
     # predict_windows takes the numpy path for a handful of windows: same result as torch
-    import mdvae_cli.fit.denoise as denoise_module
+    import mdvae_cli.infer.denoise as denoise_module
 
     body = BodyModel(builtin_body_model())
     noisy = add_pose_noise(load_motion(EXAMPLES / "walk.npz"), 0.15, np.random.default_rng(1))

@@ -12,16 +12,17 @@ from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
-from mdvae_cli.fit import fit_dataset as fd
-from mdvae_cli.fit.distill import DistillConfig, distill, refine_targets
-from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset, load_noisy_windows
-from mdvae_cli.fit.refine import RefineConfig, refine_posterior
-from mdvae_cli.fit.window_groups import make_windows
+from mdvae_cli.infer.refine import refine_posterior
+from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.window_groups import make_windows
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
+from mdvae_cli.train import fit_dataset as fd
+from mdvae_cli.train.distill import DistillConfig, distill, refine_targets
+from mdvae_cli.train.fit_dataset import FitConfig, fit_dataset, load_noisy_windows
 from tests.test_denoise import noisy_dir, tiny_prior, write_denoiser  # noqa: F401 (fixtures)
 
 

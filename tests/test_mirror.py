@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
-from mdvae_cli.fit.denoise import denoise_motions
+from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.mirror import (

@@ -197,7 +197,7 @@ def test_chunk_state_pair_matches_two_separate_passes(tiny_body):
     give: the inputs in their own frames, the raw chunks in the inputs' frames, plain
     differences for the raw velocities."""
     from mdvae_cli.body.skinning import BodyModel
-    from mdvae_cli.fit.data import chunk_state_pair, chunk_states
+    from mdvae_cli.motion.chunks import chunk_state_pair, chunk_states
 
     body = BodyModel(tiny_body)
     B, T = 3, 12

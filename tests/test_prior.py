@@ -16,13 +16,14 @@ from click.testing import CliRunner
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
-from mdvae_cli.fit.data import WindowSet
-from mdvae_cli.fit.prior_loss import prior_losses
-from mdvae_cli.fit.train_prior import TrainConfig, train_prior
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel, load_prior, widen_state
 from mdvae_cli.motion.state import VELOCITY_DIMS
+from mdvae_cli.train.corpus import WindowSet
+from mdvae_cli.train.prior_loss import prior_losses
+from mdvae_cli.train.train_config import TrainConfig
+from mdvae_cli.train.train_prior import train_prior
 from tests.conftest import motion_arrays
 
 TINY = ModelConfig(latent_dim=8, hidden_dim=32, mlp_dim=32)
@@ -351,9 +352,9 @@ def test_mirror_augment_adds_each_motions_mirror_image(tmp_path, tiny_body):
     """``load_windows(mirror=True)``: the original windows, then the same count cut from the
     mirrored motions; a mirrored window's joint rotations are the original's with left and
     right swapped and (a, b, c) -> (a, -b, -c); the config option reaches the training set."""
-    from mdvae_cli.fit.data import load_windows, select_files
     from mdvae_cli.motion.mirror import MIRROR_JOINTS
     from mdvae_cli.motion.state import POSE
+    from mdvae_cli.train.corpus import load_windows, select_files
 
     data = write_corpus(tmp_path / "data", n=2)
     files = sorted(data.glob("*.npz"))

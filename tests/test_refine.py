@@ -14,7 +14,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import savgol_filter_motion
-from mdvae_cli.fit.closed_form import (
+from mdvae_cli.infer.closed_form import (
     ClosedFormFactors,
     cosine_basis,
     noise_precision,
@@ -23,18 +23,10 @@ from mdvae_cli.fit.closed_form import (
     offset_states,
     student_t_weights,
 )
-from mdvae_cli.fit.data import load_windows
-from mdvae_cli.fit.denoise import denoise_motions, refine_windows
-from mdvae_cli.fit.prior_loss import prior_losses, spread_vertex_ids
-from mdvae_cli.fit.reconstruct import refine_reconstruction
-from mdvae_cli.fit.refine import (
-    Adam,
-    RefineConfig,
-    refine_latents,
-    refine_posterior,
-)
-from mdvae_cli.fit.train_prior import TrainConfig
-from mdvae_cli.fit.window_groups import WindowGroup, make_windows
+from mdvae_cli.infer.denoise import denoise_motions, refine_windows
+from mdvae_cli.infer.refine import Adam, refine_latents, refine_posterior
+from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.window_groups import WindowGroup, make_windows
 from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.dvae import Gaussian
@@ -42,6 +34,10 @@ from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.state import POSE, ROOT, TRANS, finite_difference
+from mdvae_cli.train.corpus import load_windows
+from mdvae_cli.train.prior_loss import prior_losses, spread_vertex_ids
+from mdvae_cli.train.reconstruct import refine_reconstruction
+from mdvae_cli.train.train_config import TrainConfig
 from tests.test_denoise import EXAMPLES, tiny_prior, write_denoiser  # noqa: F401
 
 
@@ -483,7 +479,7 @@ def test_written_out_adam_matches_torch_adam():
 def test_offset_alone_takes_the_fast_forward_pass_with_the_same_result(monkeypatch):
     """`--offset` on a few windows runs regression mode's numpy forward pass, then the closed
     form; forcing the torch networks (no small-batch path) gives the same motion."""
-    import mdvae_cli.fit.denoise as denoise_module
+    import mdvae_cli.infer.denoise as denoise_module
 
     clean = load_motion(EXAMPLES / "walk.npz")
     noisy = add_pose_noise(clean, 0.15, np.random.default_rng(3))

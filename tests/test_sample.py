@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
-from mdvae_cli.fit.sample import (
+from mdvae_cli.infer.sample import (
     FOOT_JOINTS,
     PARTICLES,
     SPEED_LIMIT,

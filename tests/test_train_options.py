@@ -12,16 +12,17 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-import mdvae_cli.fit.distill as distill_module
-import mdvae_cli.fit.train_prior as tp
+import mdvae_cli.train.distill as distill_module
+import mdvae_cli.train.train_prior as tp
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
-from mdvae_cli.fit.distill import DistillConfig
-from mdvae_cli.fit.fit_dataset import FitConfig, fit_dataset
-from mdvae_cli.fit.guards import json_safe, pick_device
-from mdvae_cli.fit.train_prior import TrainConfig, train_prior
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
+from mdvae_cli.train.distill import DistillConfig
+from mdvae_cli.train.fit_dataset import FitConfig, fit_dataset
+from mdvae_cli.train.guards import json_safe, pick_device
+from mdvae_cli.train.train_config import TrainConfig
+from mdvae_cli.train.train_prior import train_prior
 from mdvae_cli.weights import default_weights
 from tests.test_prior import TINY, tiny_config, write_corpus
 
@@ -293,8 +294,8 @@ def poison_after(module, real_step, at: int):
 
 
 def test_non_finite_weights_are_never_saved(corpus, tiny_prior, tmp_path, monkeypatch):
-    import mdvae_cli.fit.elbo_fit as ef
-    import mdvae_cli.fit.fit_dataset as fd
+    import mdvae_cli.infer.elbo_fit as ef
+    import mdvae_cli.train.fit_dataset as fd
 
     models = []
     real_model = tp.PriorModel
@@ -499,7 +500,7 @@ def test_checkpoints_of_the_wrong_kind_are_named(tiny_prior, tmp_path):
     ],
 )
 def test_bad_split_files_are_one_plain_error(tmp_path, content, message):
-    from mdvae_cli.fit.data import read_split
+    from mdvae_cli.train.corpus import read_split
 
     split = tmp_path / "split.json"
     split.write_text(content)
@@ -538,7 +539,7 @@ def _copy_run(src: Path, dst: Path) -> Path:
 
 
 def test_a_truncated_checkpoint_is_one_plain_error(corpus, tiny_prior, tmp_path):
-    from mdvae_cli.fit.checkpoint import load_checkpoint
+    from mdvae_cli.model.checkpoint import load_checkpoint
 
     run = _copy_run(tiny_prior, tmp_path / "run")
     (run / "last.npz").write_bytes((tiny_prior / "last.npz").read_bytes()[:1000])
@@ -602,6 +603,23 @@ def test_config_files_of_the_wrong_shape_name_the_key(corpus, tmp_path, command,
     assert "Traceback" not in res.output and "Error:" not in res.output and not out.exists()
 
 
+@pytest.mark.parametrize(
+    "make, d, message",
+    [
+        (TrainConfig.from_dict, {"model": {"latent_dimm": 8}}, 'unknown key "model.latent_dimm"'),
+        (TrainConfig.from_dict, {"split_file": 5}, '"split_file" must be a string or null'),
+        (TrainConfig.from_dict, {"lr": -1.0}, "--lr must be a finite number > 0"),
+        (FitConfig.from_dict, {"denoiser": {"lamm": 1}}, 'unknown key "denoiser.lamm"'),
+        (FitConfig.from_dict, {"distill": 3}, '"distill" must be a JSON object'),
+    ],
+)
+def test_a_library_caller_of_from_dict_gets_the_same_checks(make, d, message):
+    with pytest.raises(InputError) as err:
+        make(d, legacy=False, source="my settings")
+    assert str(err.value).startswith("my settings") or message.startswith("--")
+    assert message in str(err.value)
+
+
 def test_a_run_stopped_inside_an_epoch_by_max_steps_resumes_to_the_same_weights(tmp_path):
     data = write_corpus(tmp_path / "data", n=3, T=40)
     cfg = tiny_config(data, epochs=2, batch_size=4, body_vertices=8)
@@ -616,7 +634,7 @@ def test_a_run_stopped_inside_an_epoch_by_max_steps_resumes_to_the_same_weights(
 def test_ctrl_c_while_a_checkpoint_is_written_leaves_its_two_files_matched(tmp_path, monkeypatch):
     import signal
 
-    import mdvae_cli.fit.checkpoint as ck
+    import mdvae_cli.model.checkpoint as ck
 
     path = tmp_path / "last.npz"
     ck.save_checkpoint(path, {"w": torch.zeros(2)}, {"step": 1})

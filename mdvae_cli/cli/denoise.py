@@ -200,8 +200,8 @@ def denoise(
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
-    from mdvae_cli.fit.denoise import check_finite, check_length, denoise_motions
-    from mdvae_cli.fit.refine import OUTLIER_DOF, RefineConfig
+    from mdvae_cli.infer.denoise import check_finite, check_length, denoise_motions
+    from mdvae_cli.infer.settings import OUTLIER_DOF, RefineConfig
     from mdvae_cli.model.denoiser import load_denoiser
     from mdvae_cli.motion.npz_io import load_motion, save_motion
 

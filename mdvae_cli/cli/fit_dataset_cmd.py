@@ -146,8 +146,8 @@ def fit_dataset(
     """
     import torch
 
-    from mdvae_cli.fit.fit_dataset import FitConfig
-    from mdvae_cli.fit.fit_dataset import fit_dataset as run
+    from mdvae_cli.train.fit_dataset import FitConfig
+    from mdvae_cli.train.fit_dataset import fit_dataset as run
 
     if threads is not None:
         torch.set_num_threads(threads)

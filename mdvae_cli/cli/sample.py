@@ -103,7 +103,7 @@ def sample(
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
-    from mdvae_cli.fit.sample import motion_floor, sample_motion
+    from mdvae_cli.infer.sample import motion_floor, sample_motion
     from mdvae_cli.model.prior_model import load_prior
     from mdvae_cli.motion.npz_io import load_motion, save_motion
     from mdvae_cli.weights import default_weights

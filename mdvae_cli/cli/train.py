@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import fields, is_dataclass
+from dataclasses import fields
 from pathlib import Path
 
 import click
@@ -70,45 +70,10 @@ def start_config(cls, run_dir: Path, resume: bool, config_file: Path | None):
             f"{run_dir} is not a run of this command ({path.name} has the key {key!r}): "
             "resume it with the command that wrote it"
         )
-    # a run's own config was written by mdvae (nested keys it has no more are old options)
-    check_config_keys(cls, d, path, nested=not resume)
-    try:
-        # a run's own config.json was written by mdvae (an option it lacks predates it); a
-        # config a user wrote leaves out what should take its default
-        return cls.from_dict(d, legacy=resume)
-    except (ValueError, TypeError) as exc:
-        raise InputError(f"config {path} is unreadable ({exc})") from None
-
-
-def check_config_keys(cls, d, path: Path, nested: bool = True, where: str = "") -> None:
-    """InputError naming the first key of config ``d`` that ``cls`` lacks (``nested``: in its
-    sub-configs too), or whose value is not of its JSON kind: sub-configs are objects, paths
-    strings (or null), ``data`` a list of strings; numbers are checked by ``validate``."""
-    if not isinstance(d, dict):
-        what = f'"{where[:-1]}"' if where else "it"
-        raise InputError(f"config {path}: {what} must be a JSON object {{key: value, ...}}")
-    known = {f.name: f for f in fields(cls)}
-    for key, value in d.items():
-        f = known.get(key)
-        if f is None:
-            if not nested and where:
-                continue
-            raise InputError(
-                f'config {path}: unknown key "{where}{key}" (a run\'s config.json lists the keys)'
-            )
-        if is_dataclass(f.default_factory):
-            check_config_keys(f.default_factory, value, path, nested, f"{where}{key}.")
-        elif f.type in ("str", "str | None") and not (
-            isinstance(value, str) or (value is None and f.type == "str | None")
-        ):
-            kind = "a string or null" if f.type == "str | None" else "a string"
-            raise InputError(f'config {path}: "{where}{key}" must be {kind}, got {value!r}')
-        elif f.type == "list[str]" and not (
-            isinstance(value, list) and all(isinstance(v, str) for v in value)
-        ):
-            raise InputError(
-                f'config {path}: "{where}{key}" must be a list of paths, got {value!r}'
-            )
+    # a run's own config.json was written by mdvae (an option it lacks predates it, a nested
+    # key it has no more is an old option); a config a user wrote leaves out what should take
+    # its default, and every key it names must exist
+    return cls.from_dict(d, legacy=resume, source=f"config {path}")
 
 
 def apply_overrides(
@@ -297,8 +262,8 @@ def train_prior(
     """
     import torch
 
-    from mdvae_cli.fit.train_prior import TrainConfig
-    from mdvae_cli.fit.train_prior import train_prior as run
+    from mdvae_cli.train.train_config import TrainConfig
+    from mdvae_cli.train.train_prior import train_prior as run
 
     if threads is not None:
         torch.set_num_threads(threads)

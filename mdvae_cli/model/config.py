@@ -4,7 +4,7 @@ every settings dataclass (model, training, fitting, denoiser) runs on its values
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, is_dataclass
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion.state import STATE_DIM
@@ -107,3 +107,33 @@ class ModelConfig:
             old = {"decoder_z_skip": False, "encoder_reads_decoder": False, "encoder_x_skip": False}
             d = {**old, **d}
         return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def check_config_keys(cls, d, source: str, nested: bool = True, where: str = "") -> None:
+    """InputError naming the first key of config ``d`` that the settings dataclass ``cls``
+    lacks (``nested``: in its sub-configs too), or whose value is not of its JSON kind:
+    sub-configs are objects, paths strings (or null), ``data`` a list of strings; numbers are
+    checked by ``validate``. ``source`` starts every message (e.g. "config runs/a.json")."""
+    if not isinstance(d, dict):
+        what = f'"{where[:-1]}"' if where else "it"
+        raise InputError(f"{source}: {what} must be a JSON object {{key: value, ...}}")
+    known = {f.name: f for f in fields(cls)}
+    for key, value in d.items():
+        f = known.get(key)
+        if f is None:
+            if not nested and where:
+                continue
+            raise InputError(
+                f'{source}: unknown key "{where}{key}" (a run\'s config.json lists the keys)'
+            )
+        if is_dataclass(f.default_factory):
+            check_config_keys(f.default_factory, value, source, nested, f"{where}{key}.")
+        elif f.type in ("str", "str | None") and not (
+            isinstance(value, str) or (value is None and f.type == "str | None")
+        ):
+            kind = "a string or null" if f.type == "str | None" else "a string"
+            raise InputError(f'{source}: "{where}{key}" must be {kind}, got {value!r}')
+        elif f.type == "list[str]" and not (
+            isinstance(value, list) and all(isinstance(v, str) for v in value)
+        ):
+            raise InputError(f'{source}: "{where}{key}" must be a list of paths, got {value!r}')

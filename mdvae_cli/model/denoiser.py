@@ -21,7 +21,7 @@ from torch import nn
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.fit.checkpoint import load_checkpoint, save_checkpoint
+from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl

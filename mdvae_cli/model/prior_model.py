@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.fit.checkpoint import load_checkpoint
+from mdvae_cli.model.checkpoint import load_checkpoint
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.dvae import MotionDVAE
 from mdvae_cli.model.normalizer import Normalizer

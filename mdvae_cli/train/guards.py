@@ -11,7 +11,7 @@ from pathlib import Path
 import torch
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.fit.distributed import DistInfo
+from mdvae_cli.train.distributed import DistInfo
 
 
 def check_device(name) -> None:
@@ -33,14 +33,6 @@ def pick_device(name: str) -> torch.device:
         if device.index is not None and device.index >= count:
             raise InputError(f"--device {name}: this machine has {count} CUDA GPU(s), cuda:0..")
     return device
-
-
-def diverged(what: str, step: int, detail: str, lr_option: str = "--lr") -> InputError:
-    """The error a training loop raises once its loss or weights stop being finite."""
-    return InputError(
-        f"{what} diverged at step {step} ({detail}): lower {lr_option}; nothing was saved from "
-        "the diverged weights"
-    )
 
 
 def loss_is_finite(loss: torch.Tensor, dist: DistInfo | None = None) -> bool:

@@ -1,7 +1,7 @@
 """Amortised refinement: teach the inference networks what latent refinement finds.
 
 Regression mode reads each window's latents off the encoder in one pass; latent refinement
-(``fit.refine``) then takes gradient steps on that window's own ELBO and lands markedly closer
+(``infer.refine``) then takes gradient steps on that window's own ELBO and lands markedly closer
 to the clean motion (the encoder's amortisation gap, docs/model.md). Here, after the ELBO fit,
 every noisy training window is refined (its own noisy observations only: still no clean data)
 and the encoder and the initial-state predictor are trained to output those refined posterior
@@ -21,12 +21,13 @@ from dataclasses import asdict, dataclass
 
 import torch
 
-from mdvae_cli.fit.guards import diverged
-from mdvae_cli.fit.refine import RefineConfig, refine_posterior
-from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
-from mdvae_cli.fit.window_groups import WindowGroup
+from mdvae_cli.errors import diverged
+from mdvae_cli.infer.refine import refine_posterior
+from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.window_groups import WindowGroup
 from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.denoiser import Denoiser
+from mdvae_cli.model.optim import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.motion.state import VELOCITY_DIMS
 
 

@@ -1,7 +1,7 @@
 """The prior's training loss (paper Sec. 3.2): the negative ELBO per frame, with the decoder's
 Gaussian width and the KL weight as settings, plus the body-model regulariser on joints,
-markers and a spread of mesh vertices. Used by training (``fit.train_prior``) and by
-semi-amortised reconstruction (``fit.reconstruct``)."""
+markers and a spread of mesh vertices. Used by training (``train.train_prior``) and by
+semi-amortised reconstruction (``train.reconstruct``)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.data import WindowSet
 from mdvae_cli.model.losses import gaussian_kl
 from mdvae_cli.model.prior_model import PriorModel
 from mdvae_cli.motion.state import VELOCITY_DIMS, state_to_params
+from mdvae_cli.train.corpus import WindowSet
 
 
 def spread_vertex_ids(num_vertices: int, count: int) -> torch.Tensor:

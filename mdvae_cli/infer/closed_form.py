@@ -1,4 +1,4 @@
-"""The closed-form factors of latent refinement's ELBO (``fit.refine``): for fixed decoded
+"""The closed-form factors of latent refinement's ELBO (``infer.refine``): for fixed decoded
 states, each group's noise precision (Gaussian per joint and window, or Student-t per frame),
 and the slow per-joint rotation offset with its per-joint scale.
 
@@ -18,14 +18,10 @@ coordinate ascent.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import torch
 
+from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.motion.state import POSE, ROOT, TRANS
-
-if TYPE_CHECKING:
-    from mdvae_cli.fit.refine import RefineConfig
 
 
 def noise_precision(

@@ -4,7 +4,7 @@ The prior's encoder is an amortised approximation of the posterior; starting fro
 a few Adam steps per window on the prior run's own training loss (ELBO with the run's weights plus
 the body regulariser), prior and decoder frozen, find latents that explain held-out motion better
 at a lower KL: the gap between the two is the encoder's amortisation gap. The same step on noisy
-data is ``fit.refine.refine_latents``.
+data is ``infer.refine.refine_latents``.
 """
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from contextlib import contextmanager
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.data import WindowSet
-from mdvae_cli.fit.prior_loss import prior_losses, spread_vertex_ids
-from mdvae_cli.fit.refine import Adam
-from mdvae_cli.fit.train_prior import TrainConfig
+from mdvae_cli.infer.refine import Adam
 from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import PriorModel
+from mdvae_cli.train.corpus import WindowSet
+from mdvae_cli.train.prior_loss import prior_losses, spread_vertex_ids
+from mdvae_cli.train.train_config import TrainConfig
 
 
 @contextmanager

@@ -18,13 +18,14 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.fit.closed_form import add_offset
-from mdvae_cli.fit.data import MODEL_FPS
-from mdvae_cli.fit.refine import RefineConfig, refine_latents
-from mdvae_cli.fit.window_groups import WindowGroup, make_windows, motion_window_starts
 from mdvae_cli.geometry.rotations import rotvec_slerp
+from mdvae_cli.infer.closed_form import add_offset
+from mdvae_cli.infer.refine import refine_latents
+from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor
+from mdvae_cli.motion.chunks import MODEL_FPS
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import (
@@ -117,7 +118,7 @@ def refine_windows(
     cfg: RefineConfig,
     progress: Callable[[dict], None] | None = None,
 ) -> BodyParams:
-    """Latent refinement on a group (see ``fit.refine``), back in world coordinates.
+    """Latent refinement on a group (see ``infer.refine``), back in world coordinates.
 
     The group must hold its raw states (``make_windows(..., observations=True)``).
     ``progress`` counts steps over all of the group's batches. One-frame windows are predicted.
@@ -234,7 +235,7 @@ def denoise_motions(
     Regression mode (``optimize_steps=0``): one forward pass. Optimisation mode: first adapt
     the inference networks to these very motions for ``optimize_steps`` ELBO steps (this
     modifies ``denoiser``; pass a copy to keep the original), then predict. With ``refine``
-    (``steps`` > 0), each window's latents are then refined on its own ELBO (``fit.refine``);
+    (``steps`` > 0), each window's latents are then refined on its own ELBO (``infer.refine``);
     with ``steps`` = 0 and ``offset_std`` > 0, the latents stay the encoder's and only the slow
     offset is fitted (closed form, no gradients).
     With ``mirror``, each motion's left-right mirror image is denoised in the same batch (and,
@@ -268,7 +269,7 @@ def denoise_motions(
             motions30, denoiser, body, window, stride, observed, points=optimize_steps > 0
         )
         if optimize_steps > 0:
-            from mdvae_cli.fit.elbo_fit import fit_denoiser
+            from mdvae_cli.infer.elbo_fit import fit_denoiser
 
             tell = _staged(progress, "optimize", 0, optimize_steps)
             draws = torch.Generator().manual_seed(seed)  # reproducible whatever ran before

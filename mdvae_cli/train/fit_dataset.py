@@ -1,6 +1,6 @@
 """Unsupervised denoising learning on a set of noisy files (paper Sec. 4.2): ``mdvae
 fit-dataset``'s run — its settings, starting point, checkpoints, resume and amortised
-refinement. The ELBO loop itself is ``fit.elbo_fit`` (shared with ``mdvae denoise --optimize``).
+refinement. The ELBO loop itself is ``infer.elbo_fit`` (shared with ``mdvae denoise --optimize``).
 """
 
 from __future__ import annotations
@@ -16,34 +16,39 @@ import torch
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.errors import InputError
+from mdvae_cli.errors import InputError, diverged
 from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.fit.checkpoint import (
-    load_checkpoint,
+from mdvae_cli.infer.elbo_fit import fit_denoiser
+from mdvae_cli.infer.window_groups import WindowGroup, make_windows
+from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
+from mdvae_cli.model.config import (
+    check_config_keys,
+    require_bool,
+    require_int,
+    require_number,
+    require_seed,
+)
+from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, save_denoiser
+from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.motion.chunks import MODEL_FPS
+from mdvae_cli.motion.mirror import mirror_motion
+from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.motion.resample import resample_motion
+from mdvae_cli.train.corpus import outside
+from mdvae_cli.train.distill import DistillConfig, Targets, distill, refine_targets
+from mdvae_cli.train.distributed import parameter_digest
+from mdvae_cli.train.guards import (
+    check_device,
+    checkpoint_to_resume,
+    pick_device,
+    weights_are_finite,
+)
+from mdvae_cli.train.run_state import (
     optimizer_from_tensors,
     optimizer_to_tensors,
     restore_rng,
     rng_tensors,
-    save_checkpoint,
 )
-from mdvae_cli.fit.data import MODEL_FPS, outside
-from mdvae_cli.fit.distill import DistillConfig, Targets, distill, refine_targets
-from mdvae_cli.fit.distributed import parameter_digest
-from mdvae_cli.fit.elbo_fit import fit_denoiser
-from mdvae_cli.fit.guards import (
-    check_device,
-    checkpoint_to_resume,
-    diverged,
-    pick_device,
-    weights_are_finite,
-)
-from mdvae_cli.fit.window_groups import WindowGroup, make_windows
-from mdvae_cli.model.config import require_bool, require_int, require_number, require_seed
-from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, save_denoiser
-from mdvae_cli.model.prior_model import load_prior
-from mdvae_cli.motion.mirror import mirror_motion
-from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.weights import default_weights
 
 
@@ -52,7 +57,7 @@ class FitConfig:
     """Settings of an unsupervised denoising-learning run (saved as ``config.json``).
 
     ``epochs`` of ELBO fitting (paper Sec. 4.2), then ``distill.epochs`` of amortised
-    refinement (``fit.distill``; 0 = off). ``init_from``: start from this denoiser's networks
+    refinement (``train.distill``; 0 = off). ``init_from``: start from this denoiser's networks
     (checkpoint or fit-dataset folder; its prior and denoiser settings come with it) instead
     of new ones on ``prior``. ``mirror_augment``: also fit to every file's left-right mirror
     image (twice the windows).
@@ -97,12 +102,17 @@ class FitConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict, legacy: bool = True) -> FitConfig:
-        """``legacy``: see :meth:`ModelConfig.from_dict`."""
+    def from_dict(cls, d: dict, legacy: bool = True, source: str = "config") -> FitConfig:
+        """Settings from a JSON object; as :meth:`TrainConfig.from_dict` (unknown keys, values
+        of the wrong kind or out of range are InputErrors starting with ``source``)."""
+        check_config_keys(cls, d, source, nested=not legacy)
         d = dict(d)
-        d["denoiser"] = DenoiserConfig.from_dict(d.get("denoiser", {}), legacy)
-        d["distill"] = DistillConfig(**d.get("distill", {}))
-        return cls(**d)
+        try:
+            d["denoiser"] = DenoiserConfig.from_dict(d.get("denoiser", {}), legacy)
+            d["distill"] = DistillConfig(**d.get("distill", {}))
+            return cls(**d)
+        except (ValueError, TypeError) as exc:
+            raise InputError(f"{source} is unreadable ({exc})") from None
 
 
 def concat_groups(groups: list[WindowGroup], length: int) -> WindowGroup | None:

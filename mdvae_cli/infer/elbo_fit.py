@@ -12,10 +12,10 @@ from collections.abc import Callable, Iterator
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.guards import diverged
-from mdvae_cli.fit.schedule import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
-from mdvae_cli.fit.window_groups import WindowGroup
+from mdvae_cli.errors import diverged
+from mdvae_cli.infer.window_groups import WindowGroup
 from mdvae_cli.model.denoiser import Denoiser
+from mdvae_cli.model.optim import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 
 
 def batch_order(

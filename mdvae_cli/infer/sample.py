@@ -8,8 +8,8 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.fit.data import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.model.prior_model import PriorModel
+from mdvae_cli.motion.chunks import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.motion.state import BodyParams, state_to_params

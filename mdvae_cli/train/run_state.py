@@ -1,0 +1,44 @@
+"""What a resumable training run keeps beside its weights: the optimiser's state and torch's
+generators, as flat tensors for :func:`mdvae_cli.model.checkpoint.save_checkpoint`."""
+
+from __future__ import annotations
+
+import torch
+
+
+def optimizer_to_tensors(opt: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict]:
+    """Split an optimizer state dict into flat tensors and JSON-able groups."""
+    sd = opt.state_dict()
+    tensors = {}
+    for idx, state in sd["state"].items():
+        for key, value in state.items():
+            tensors[f"optim/{idx}/{key}"] = torch.as_tensor(value)
+    return tensors, {"param_groups": sd["param_groups"]}
+
+
+def optimizer_from_tensors(tensors: dict[str, torch.Tensor], groups: dict) -> dict:
+    """Inverse of :func:`optimizer_to_tensors`: a state dict for ``load_state_dict``."""
+    state: dict[int, dict] = {}
+    for name, value in tensors.items():
+        if not name.startswith("optim/"):
+            continue
+        _, idx, key = name.split("/", 2)
+        state.setdefault(int(idx), {})[key] = value
+    return {"state": state, "param_groups": groups["param_groups"]}
+
+
+def rng_tensors(device: torch.device | None) -> dict[str, torch.Tensor]:
+    """The states of torch's generators (CPU, and the GPU's when training on one)."""
+    out = {"rng/cpu": torch.get_rng_state()}
+    if device is not None and device.type == "cuda":
+        out["rng/cuda"] = torch.cuda.get_rng_state(device)
+    return out
+
+
+def restore_rng(tensors: dict[str, torch.Tensor], device: torch.device) -> None:
+    """Inverse of :func:`rng_tensors`; a checkpoint without them (older runs) leaves the
+    generators as seeded."""
+    if "rng/cpu" in tensors:
+        torch.set_rng_state(tensors["rng/cpu"])
+    if "rng/cuda" in tensors and device.type == "cuda":
+        torch.cuda.set_rng_state(tensors["rng/cuda"], device)

@@ -1,0 +1,114 @@
+"""The settings of a prior training run (``mdvae train-prior``), saved as ``config.json``."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.model.config import (
+    ModelConfig,
+    check_config_keys,
+    require_bool,
+    require_int,
+    require_number,
+    require_seed,
+)
+from mdvae_cli.train.guards import check_device
+
+#: what ``--train-only`` may name
+TRAINABLE = ("all", "encoder", "prior")
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines a prior training run (saved as ``config.json``)."""
+
+    data: list[str] = field(default_factory=list)
+    split_file: str | None = None
+    window: int = 60
+    stride: int = 10
+    batch_size: int = 64
+    epochs: int = 40
+    lr: float = 1e-3
+    lr_final: float = 1e-4
+    kl_warmup_steps: int = 1500
+    kl_max: float = 1.0
+    recon_weight: float = 1.0
+    velocity_weight: float = 1.0
+    body_weight: float = 0.1
+    body_vertices: int = 256
+    body_frame_stride: int = 4
+    velocity_std_scale: float = 1.0
+    grad_clip: float = 5.0
+    seed: int = 0
+    body_model: str | None = None
+    device: str = "auto"
+    max_val_windows: int = 512
+    init_from: str | None = None
+    #: "all" trains prior, decoder and encoder; "encoder" keeps the generative model (prior and
+    #: decoder, hence sampling) fixed and trains only the inference network, e.g. under a
+    #: sharper reconstruction weight (closing the amortisation gap of a trained prior)
+    train_only: str = "all"
+    #: also train on every training motion's left-right mirror image (twice the windows)
+    mirror_augment: bool = False
+    model: ModelConfig = field(default_factory=ModelConfig)
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """InputError naming the first invalid setting (its ``mdvae train-prior`` option, or
+        its config key where it has none). Run again after changing fields."""
+        for name, option, low in (
+            ("window", "--window", 1),
+            ("stride", "--stride", 1),
+            ("batch_size", "--batch-size", 1),
+            ("epochs", "--epochs", 1),
+            ("kl_warmup_steps", "--kl-warmup", 0),
+            ("body_vertices", "body_vertices", 0),
+            ("body_frame_stride", "body_frame_stride", 1),
+            ("max_val_windows", "max_val_windows", 1),
+        ):
+            require_int(option, getattr(self, name), low)
+        require_seed("--seed", self.seed)
+        for name, option, low, open_low in (
+            ("lr", "--lr", 0.0, True),
+            ("lr_final", "lr_final", 0.0, False),
+            ("kl_max", "--kl-max", 0.0, False),
+            ("recon_weight", "--recon-weight", 0.0, True),
+            ("velocity_weight", "--velocity-weight", 0.0, False),
+            ("body_weight", "--body-weight", 0.0, False),
+            ("velocity_std_scale", "--velocity-std-scale", 0.0, True),
+            ("grad_clip", "grad_clip", 0.0, True),
+        ):
+            require_number(option, getattr(self, name), low, open_low=open_low)
+        if self.train_only not in TRAINABLE:  # the CLI's --train-only is a choice already
+            raise InputError(
+                f"train_only must be one of {', '.join(TRAINABLE)}, got {self.train_only!r}"
+            )
+        require_bool("--mirror-augment", self.mirror_augment)
+        if self.train_only != "all" and not self.init_from:
+            raise InputError(
+                f"--train-only {self.train_only} trains part of a trained prior: give --init-from"
+            )
+        check_device(self.device)
+        self.model.validate()
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["model"] = self.model.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict, legacy: bool = True, source: str = "config") -> TrainConfig:
+        """Settings from a JSON object. InputError (starting with ``source``) for an unknown
+        key, a value of the wrong kind or out of range. ``legacy``: ``d`` is a run's own
+        config.json (see :meth:`ModelConfig.from_dict`; nested keys it has no more are old
+        options, not mistakes)."""
+        check_config_keys(cls, d, source, nested=not legacy)
+        d = dict(d)
+        try:
+            d["model"] = ModelConfig.from_dict(d.get("model", {}), legacy)
+            return cls(**d)
+        except (ValueError, TypeError) as exc:
+            raise InputError(f"{source} is unreadable ({exc})") from None
