@@ -33,14 +33,13 @@ from __future__ import annotations
 import argparse
 import copy
 import json
-import math
 import os
 import shutil
 import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -49,6 +48,72 @@ try:
     from benchmarks import common
 except ModuleNotFoundError:  # run as a file: python benchmarks/denoise_table.py
     import common  # type: ignore[no-redef]
+try:
+    from benchmarks.denoise_rows import (
+        CURVE_STEPS,
+        FILTER_ROWS,
+        REPO,
+        ROW_GAUSSIAN,
+        ROW_GT,
+        ROW_OBS,
+        ROW_OFFSET,
+        ROW_OPTIMIZATION,
+        ROW_OPTIMIZATION_OFFSET,
+        ROW_REFINE,
+        ROW_REFINE_MIRROR,
+        ROW_REGRESSION,
+        ROW_REGRESSION_MIRROR,
+        ROW_SAVGOL,
+        ROWS,
+        SECTION_BEGIN,
+        SECTION_END,
+        CurvePoint,
+        FilterTuning,
+        Process,
+        RowResult,
+        TableResult,
+        TableSettings,
+    )
+except ModuleNotFoundError:  # run as a file
+    from denoise_rows import (  # type: ignore[no-redef]
+        CURVE_STEPS,
+        FILTER_ROWS,
+        REPO,
+        ROW_GAUSSIAN,
+        ROW_GT,
+        ROW_OBS,
+        ROW_OFFSET,
+        ROW_OPTIMIZATION,
+        ROW_OPTIMIZATION_OFFSET,
+        ROW_REFINE,
+        ROW_REFINE_MIRROR,
+        ROW_REGRESSION,
+        ROW_REGRESSION_MIRROR,
+        ROW_SAVGOL,
+        ROWS,
+        SECTION_BEGIN,
+        SECTION_END,
+        CurvePoint,
+        FilterTuning,
+        Process,
+        RowResult,
+        TableResult,
+        TableSettings,
+    )
+try:
+    from benchmarks.denoise_report import (
+        plot_speed_accuracy,
+        report_markdown,
+        table_columns,
+        table_rows,
+    )
+except ModuleNotFoundError:  # run as a file
+    from denoise_report import (  # type: ignore[no-redef]
+        plot_speed_accuracy,
+        report_markdown,
+        table_columns,
+        table_rows,
+    )
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
@@ -57,157 +122,6 @@ from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import EvalResult
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
-
-REPO = Path(__file__).resolve().parents[1]
-SIGMAS = (0.10, 0.15, 0.20)
-REFERENCE_SIGMA = 0.15
-GAUSSIAN_GRID = (0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 6.0)
-SAVGOL_GRID = tuple(
-    (w, p) for w in (5, 7, 9, 11, 15, 19, 25, 31) for p in (1, 2, 3, 4) if p < w - 1
-)
-CURVE_STEPS = (0, 20, 50, 100, 250)
-
-ROW_GT = "Ground truth"
-ROW_OBS = "Observations"
-ROW_GAUSSIAN = "Gaussian filter"
-ROW_SAVGOL = "Savitzky-Golay filter"
-ROW_REGRESSION = "Regression mode"
-ROW_OPTIMIZATION = "Optimization mode"
-ROW_OFFSET = "Regression + offset (default)"
-ROW_OPTIMIZATION_OFFSET = "Optimization + offset"
-ROW_REFINE = "Latent refinement"
-ROW_REGRESSION_MIRROR = "Regression + mirror"
-ROW_REFINE_MIRROR = "Latent refinement + mirror"
-ROWS = (
-    ROW_GT, ROW_OBS, ROW_GAUSSIAN, ROW_SAVGOL, ROW_REGRESSION, ROW_REGRESSION_MIRROR, ROW_OFFSET,
-    ROW_OPTIMIZATION, ROW_OPTIMIZATION_OFFSET, ROW_REFINE, ROW_REFINE_MIRROR,
-)  # fmt: skip
-FILTER_ROWS = (ROW_GAUSSIAN, ROW_SAVGOL)
-
-SECTION_BEGIN = "<!-- denoise_table:begin (written by benchmarks/denoise_table.py) -->"
-SECTION_END = "<!-- denoise_table:end -->"
-
-Process = Callable[[list[Motion]], list[Motion]]
-
-
-@dataclass
-class TableSettings:
-    """What the table is computed with (saved in the report).
-
-    sigmas: noise levels (rad); reference_sigma: one of them, the level for filter tuning,
-    speeds, ratios and the plot; optimize_steps: optimisation-mode steps in the table;
-    curve_steps: steps plotted (0 = regression mode); window/stride: denoiser windows (30 Hz
-    frames); lr, batch_size, seed: optimisation mode (seed also fixes the noise);
-    refine_steps, refine_lr, refine_offset: the latent refinement row;
-    single_clip_repeats: timed repeats of the one-clip measurement.
-    """
-
-    sigmas: tuple[float, ...] = SIGMAS
-    reference_sigma: float = REFERENCE_SIGMA
-    gaussian_grid: tuple[float, ...] = GAUSSIAN_GRID
-    savgol_grid: tuple[tuple[int, int], ...] = SAVGOL_GRID
-    optimize_steps: int = 50
-    curve_steps: tuple[int, ...] = CURVE_STEPS
-    window: int = 60
-    stride: int = 45
-    lr: float = 3e-4
-    batch_size: int = 64
-    seed: int = 0
-    refine_steps: int = RefineConfig.steps
-    refine_lr: float = 0.1
-    refine_offset: float = RefineConfig.offset_std
-    single_clip_repeats: int = 5
-
-
-@dataclass
-class FilterTuning:
-    """Grid search of the filters on val clips: V2V (cm) of every setting, and the winners."""
-
-    noise_sigma: float
-    clips: int
-    gaussian_scores: dict[float, float]
-    savgol_scores: dict[tuple[int, int], float]
-    observations_v2v: float
-
-    @property
-    def gaussian_sigma(self) -> float:
-        return min(self.gaussian_scores, key=self.gaussian_scores.get)
-
-    @property
-    def savgol(self) -> tuple[int, int]:
-        return min(self.savgol_scores, key=self.savgol_scores.get)
-
-
-@dataclass
-class RowResult:
-    """One line of the table. results: sigma -> metrics; speed: the file-to-file run at the
-    speed sigma; one_clip_s: one clip alone, warm (median seconds)."""
-
-    name: str
-    params: str = ""
-    results: dict[float, EvalResult] = field(default_factory=dict)
-    speed: common.Timing | None = None
-    one_clip_s: float | None = None
-
-    def v2v(self, sigma: float) -> float:
-        return self.results[sigma].v2v_cm
-
-
-@dataclass
-class CurvePoint:
-    """A point of Figure 1: s/frame and V2V (cm) at the reference sigma."""
-
-    label: str
-    steps: int | None
-    s_per_frame: float
-    v2v_cm: float
-
-
-@dataclass
-class TableResult:
-    settings: TableSettings
-    rows: list[RowResult]
-    tuning: FilterTuning
-    curve: list[CurvePoint]
-    num_clips: int
-    clip_frames: int
-
-    def row(self, name: str) -> RowResult:
-        return next(r for r in self.rows if r.name == name)
-
-    @property
-    def best_filter(self) -> RowResult:
-        ref = self.settings.reference_sigma
-        return min((self.row(n) for n in FILTER_ROWS), key=lambda r: r.v2v(ref))
-
-    def to_dict(self) -> dict:
-        def results(r: RowResult) -> dict:
-            return {f"{s:g}": e.to_dict() for s, e in r.results.items()}
-
-        return {
-            "settings": asdict(self.settings),
-            "num_clips": self.num_clips,
-            "clip_frames": self.clip_frames,
-            "tuning": {
-                "noise_sigma": self.tuning.noise_sigma,
-                "clips": self.tuning.clips,
-                "observations_v2v": self.tuning.observations_v2v,
-                "gaussian": {f"{k:g}": v for k, v in self.tuning.gaussian_scores.items()},
-                "savgol": {f"{w},{p}": v for (w, p), v in self.tuning.savgol_scores.items()},
-            },
-            "rows": [
-                {
-                    "name": r.name,
-                    "params": r.params,
-                    "results": results(r),
-                    "speed": None if r.speed is None else asdict(r.speed),
-                    "one_clip_s": r.one_clip_s,
-                }
-                for r in self.rows
-            ],
-            "curve": [asdict(p) for p in self.curve],
-        }
-
 
 # --------------------------------------------------------------------------------------------
 # computing the table
@@ -412,168 +326,6 @@ def build_table(
         num_clips=len(test_clips),
         clip_frames=test_clips[0].motion.num_frames,
     )
-
-
-# --------------------------------------------------------------------------------------------
-# rendering
-
-
-def table_columns(settings: TableSettings) -> list[str]:
-    """Header cells of the table, in order."""
-    ref = f"{settings.reference_sigma:.2f}"
-    return [
-        "Method",
-        "Parameters",
-        "s/frame ↓",
-        "frames/s ↑",
-        "1 clip, warm (ms)",
-        *(f"V2V σ={s:.2f} (cm) ↓" for s in settings.sigmas),
-        *(f"Accel σ={s:.2f} (m/s²)" for s in settings.sigmas),
-        f"absolute V2V σ={ref} (cm)",
-        f"V2V / V2V(obs) σ={ref}",
-        f"improvement over best filter σ={' / '.join(f'{x:.2f}' for x in settings.sigmas)}",
-    ]
-
-
-def _num(x: float | None, fmt: str) -> str:
-    return "-" if x is None or not math.isfinite(x) else format(x, fmt)
-
-
-def table_rows(result: TableResult) -> list[list[str]]:
-    """The table's body cells, one list per row (same order as :func:`table_columns`)."""
-    s = result.settings
-    ref = s.reference_sigma
-    obs = result.row(ROW_OBS).v2v(ref)
-    best = result.best_filter
-    out = []
-    for r in result.rows:
-        gt_row = r.name == ROW_GT
-        accel = [r.results[x].accel_pred for x in s.sigmas]
-        absolute = None if gt_row else r.results[ref].v2v_abs_cm
-        if gt_row:
-            v2v, ratio, gain = [None] * len(s.sigmas), "-", "-"
-        else:
-            v2v = [r.v2v(x) for x in s.sigmas]
-            ratio = _num(r.v2v(ref) / obs if obs > 0 else None, ".3f")
-            gains = (100 * (1 - r.v2v(x) / best.v2v(x)) for x in s.sigmas)
-            gain = "best filter" if r is best else " / ".join(f"{g:+.1f} %" for g in gains)
-        out.append(
-            [
-                r.name,
-                r.params or "-",
-                _num(r.speed.s_per_frame if r.speed else None, ".3g"),
-                _num(r.speed.frames_per_s if r.speed else None, ",.0f"),
-                _num(None if r.one_clip_s is None else 1000 * r.one_clip_s, ".3g"),
-                *(_num(v, ".2f") for v in v2v),
-                *(_num(a, ".2f") for a in accel),
-                _num(absolute, ".2f"),
-                ratio,
-                gain,
-            ]
-        )
-    return out
-
-
-def tuning_markdown(t: FilterTuning) -> str:
-    """The val grid as two small tables (V2V in cm)."""
-    gauss = common.markdown_table(
-        ["Gaussian σ (frames)", *(f"{k:g}" for k in t.gaussian_scores)],
-        [["V2V (cm)", *(f"{v:.2f}" for v in t.gaussian_scores.values())]],
-    )
-    windows = sorted({w for w, _ in t.savgol_scores})
-    orders = sorted({p for _, p in t.savgol_scores})
-    sg = common.markdown_table(
-        ["S-G window \\ order", *(str(p) for p in orders)],
-        [[str(w), *(_num(t.savgol_scores.get((w, p)), ".2f") for p in orders)] for w in windows],
-    )
-    return gauss + "\n\n" + sg
-
-
-def report_markdown(
-    result: TableResult,
-    machine: dict[str, str],
-    context: dict[str, str],
-    plot_link: str | None,
-) -> str:
-    """The whole section for docs/benchmarks.md (between the section markers)."""
-    s, t = result.settings, result.tuning
-    ref = f"{s.reference_sigma:.2f}"
-    gw, (sw, sp) = t.gaussian_sigma, t.savgol
-    lines = [
-        SECTION_BEGIN,
-        "## Denoising noisy mocap (paper Table 1 and Figure 1)",
-        "",
-        f"{result.num_clips} clips of {result.clip_frames} frames (30 Hz) from the test split, "
-        f"Pose-NDF noise σ = {', '.join(f'{x:.2f}' for x in s.sigmas)} rad on the body joints "
-        f"(seed {s.seed}). V2V is root-relative (cm), as in the paper; the absolute V2V "
-        "keeps the root translation in (the noise leaves it clean: a method that moves it "
-        "pays here). The acceleration is the mean joint "
-        "acceleration (m/s²; the closer to the ground truth the better). Speed is measured file "
-        f"to file at σ = {ref}: loading, denoising and saving all clips in one run; "
-        "'1 clip, warm' is one clip processed alone after a warm-up (median). The last two "
-        f"columns compare V2V with the observations' (at σ = {ref}) and with the better filter's "
-        f"(the one tuned at σ = {ref}; at every σ; positive = lower error).",
-        "",
-        common.markdown_table(table_columns(s), table_rows(result)),
-        "",
-        f"Filters tuned on {t.clips} val clips at σ = {t.noise_sigma:.2f} (lowest V2V; "
-        f"observations {t.observations_v2v:.2f} cm): Gaussian σ = {gw:g} frames, "
-        f"Savitzky-Golay window {sw} / order {sp}.",
-        "",
-        "<details><summary>Filter grid on the val split (V2V, cm)</summary>",
-        "",
-        tuning_markdown(t),
-        "",
-        "</details>",
-        "",
-    ]
-    if plot_link:
-        lines += [f"![V2V versus speed at σ = {ref}]({plot_link})", ""]
-    curve = ", ".join(
-        f"{p.steps}: {p.v2v_cm:.2f} cm @ {p.s_per_frame:.3g} s/frame"
-        for p in result.curve
-        if p.steps is not None
-    )
-    lines += [f"Optimisation steps (σ = {ref}): {curve}.", "", "Setup:", ""]
-    lines += [f"- {k}: {v}" for k, v in context.items()]
-    lines += [f"- {k}: {v}" for k, v in machine.items()]
-    lines += ["", SECTION_END]
-    return "\n".join(lines) + "\n"
-
-
-def plot_speed_accuracy(result: TableResult, path: Path, fps: float = 30.0) -> bool:
-    """Figure 1: V2V versus s/frame (log x) at the reference sigma. False without matplotlib."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return False
-    ref = result.settings.reference_sigma
-    obs = result.row(ROW_OBS).v2v(ref)
-    ours = [p for p in result.curve if p.steps is not None]
-    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=150)
-    ax.plot([p.s_per_frame for p in ours], [p.v2v_cm for p in ours], "o-", label="Motion-DVAE")
-    for p in ours:
-        ax.annotate(str(p.steps), (p.s_per_frame, p.v2v_cm), textcoords="offset points",
-                    xytext=(4, 4), fontsize=8)  # fmt: skip
-    for p, marker in zip([p for p in result.curve if p.steps is None], "sD^v<>P", strict=False):
-        ax.plot([p.s_per_frame], [p.v2v_cm], marker, label=p.label)
-    ax.axhline(obs, color="grey", ls="--", lw=1, label=f"observations ({obs:.1f} cm)")
-    ax.axhline(obs * (2 / 3), color="tab:red", ls=":", lw=1, label="-33 % error")
-    ax.axvline(10 / fps, color="tab:purple", ls=":", lw=1, label="10x slower than real time")
-    ax.set_xscale("log")
-    ax.set_xlabel("speed (s/frame, file to file, log scale)")
-    ax.set_ylabel("V2V (cm)")
-    ax.set_title(f"Accuracy versus speed, σ = {ref:.2f}")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return True
 
 
 # --------------------------------------------------------------------------------------------

@@ -26,8 +26,9 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion import cmu
-from mdvae_cli.motion.asfamc import load_amc, load_asf, parse_asf
-from mdvae_cli.motion.bvh import CMU_UNIT, euler_to_rotmat, load_bvh
+from mdvae_cli.motion.asf import load_asf, parse_asf
+from mdvae_cli.motion.asfamc import load_amc
+from mdvae_cli.motion.bvh import load_bvh
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.retarget import (
     Y_UP_TO_Z_UP,
@@ -37,6 +38,7 @@ from mdvae_cli.motion.retarget import (
     load_source,
     walking_speed,
 )
+from mdvae_cli.motion.source import CMU_UNIT, euler_to_rotmat
 
 REPO = Path(__file__).resolve().parents[1]
 CMU = Path(os.environ.get("MDVAE_CMU_DATA", REPO.parent / "shared" / "data" / "cmu"))

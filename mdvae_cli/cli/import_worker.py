@@ -12,7 +12,7 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, is_kind
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion import cmu
-from mdvae_cli.motion.asfamc import AsfSkeleton, load_asf
+from mdvae_cli.motion.asf import AsfSkeleton, load_asf
 from mdvae_cli.motion.npz_io import save_motion
 from mdvae_cli.motion.retarget import (
     BodyJoints,

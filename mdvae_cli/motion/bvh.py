@@ -12,193 +12,22 @@ listed outermost first).
 
 from __future__ import annotations
 
-import gzip
 import math
 import re
-import zlib
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotmat, rotmat_to_quat
-
-#: metres per CMU length unit (inches / 0.45); ASF ``:units length 0.45`` and cmuconvert BVH
-CMU_UNIT = 0.0254 / 0.45
-
-#: candidate length units for files that do not say (name, metres per unit)
-_UNIT_GUESSES = (("m", 1.0), ("cm", 0.01), ("mm", 0.001), ("in", 0.0254), ("cmu", CMU_UNIT))
-
-
-#: no exporter writes an angle this large (degrees): a file that does is corrupt
-MAX_ANGLE_DEG = 1e5
-#: a root this far from the origin, or a bone this long (metres), is not mocap of a person
-MAX_DISTANCE_M = 1e4
-
-
-def check_angles(radians: np.ndarray, what: str, path) -> None:
-    """Refuse angle channels no exporter writes (|angle| > MAX_ANGLE_DEG).  radians: any shape"""
-    if radians.size and np.abs(radians).max() > math.radians(MAX_ANGLE_DEG):
-        worst = math.degrees(float(np.abs(radians).max()))
-        raise InputError(
-            f"{path}: {what} holds an angle of {worst:.3g} degrees; the file is corrupt "
-            f"(angles over {MAX_ANGLE_DEG:g} degrees are refused)"
-        )
-
-
-@dataclass
-class SourceMotion:
-    """A mocap clip on its own skeleton.  J joints (end sites included), T frames.
-
-    Attributes:
-        names: J joint names (unique).
-        parents: (J,) int parent index, -1 for the root (joint 0); parents precede children.
-        offsets: (J, 3) rest offset of each joint from its parent, metres, world axes.
-        rotations: (T, J, 3, 3) local rotations (identity for joints without rotation channels).
-        root_positions: (T, 3) position of joint 0, metres.
-        fps: frames per second.
-        end_site: (J,) bool, True for BVH End Sites / ASF bone tips (no channels).
-        info: what the file said (format, units, fps as written, dropped frames), for metadata.
-        notes: remarks for the user.
-    """
-
-    names: tuple[str, ...]
-    parents: np.ndarray
-    offsets: np.ndarray
-    rotations: np.ndarray
-    root_positions: np.ndarray
-    fps: float
-    end_site: np.ndarray
-    info: dict = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def num_frames(self) -> int:
-        return int(self.rotations.shape[0])
-
-    @property
-    def num_joints(self) -> int:
-        return len(self.names)
-
-    def index(self, name: str) -> int:
-        return self.names.index(name)
-
-    def with_fps(self, fps: float) -> SourceMotion:
-        """The same frames declared at another rate (e.g. CMU's 60 Hz captures labelled 120)."""
-        return replace(self, fps=float(fps), info=dict(self.info), notes=list(self.notes))
-
-    def check_distances(self, path) -> SourceMotion:
-        """Refuse a root trajectory or bones beyond MAX_DISTANCE_M (a corrupt file, or a
-        --scale far off). -> self"""
-        for what, a in (("the root position", self.root_positions), ("a bone", self.offsets)):
-            worst = float(np.abs(a).max()) if a.size else 0.0
-            if worst > MAX_DISTANCE_M:
-                raise InputError(f"{path}: {what} reaches {worst:.3g} m; the file is corrupt or "
-                                 "its length unit is wrong (check --scale)")  # fmt: skip
-        return self
-
-    def rest_positions(self) -> np.ndarray:
-        """Joint positions in the rest pose, root at the origin.  -> (J, 3)"""
-        pos = np.zeros((self.num_joints, 3))
-        for j in range(1, self.num_joints):
-            pos[j] = pos[self.parents[j]] + self.offsets[j]
-        return pos
-
-    def forward_kinematics(self) -> tuple[np.ndarray, np.ndarray]:
-        """Global rotations (T, J, 3, 3) and positions (T, J, 3) of every joint."""
-        T, J = self.num_frames, self.num_joints
-        G = np.empty((T, J, 3, 3))
-        P = np.empty((T, J, 3))
-        G[:, 0] = self.rotations[:, 0]
-        P[:, 0] = self.root_positions
-        for j in range(1, J):
-            p = self.parents[j]
-            G[:, j] = G[:, p] @ self.rotations[:, j]
-            P[:, j] = P[:, p] + G[:, p] @ self.offsets[j]
-        return G, P
-
-
-def euler_to_rotmat(angles: np.ndarray, axes: str) -> np.ndarray:
-    """Product of axis rotations, outermost first: ``R_axes[0](a0) @ R_axes[1](a1) @ ...``.
-
-    angles: (T, K) radians; axes: K letters from "xyz" -> (T, 3, 3)
-    """
-    T = angles.shape[0]
-    out = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
-    for k, axis in enumerate(axes):
-        c, s = np.cos(angles[:, k]), np.sin(angles[:, k])
-        R = np.zeros((T, 3, 3))
-        i = "xyz".index(axis)
-        a, b = (i + 1) % 3, (i + 2) % 3
-        R[:, i, i] = 1.0
-        R[:, a, a], R[:, a, b], R[:, b, a], R[:, b, b] = c, -s, s, c
-        out = out @ R
-    return out
-
-
-def read_text(path: Path | str) -> str:
-    """A text file's contents, gunzipped when it ends in ``.gz``; InputError when unreadable."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"no such file: {path}")
-    if path.is_dir():
-        raise InputError(f"{path} is a folder, expected a file")
-    try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rb") as fh:
-                raw = fh.read()
-        else:
-            raw = path.read_bytes()
-    except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"{path}: cannot read ({exc})") from None
-    if b"\0" in raw[:4096]:
-        raise InputError(f"{path}: binary data, not a text mocap file")
-    return raw.decode("utf-8", errors="replace")
-
-
-def guess_length_unit(height: float) -> tuple[str, float]:
-    """The unit (name, metres per unit) that makes a skeleton ``height`` units tall closest to
-    1.7 m (log scale): metres, cm, mm, inches or CMU units."""
-    if not height > 0:
-        return "m", 1.0
-    return min(_UNIT_GUESSES, key=lambda u: abs(math.log(height * u[1] / 1.7)))
-
-
-def skeleton_height(offsets: np.ndarray, parents: np.ndarray) -> float:
-    """Largest extent of the rest-pose joints along any axis, in file units."""
-    pos = np.zeros_like(offsets)
-    for j in range(1, len(parents)):
-        pos[j] = pos[parents[j]] + offsets[j]
-    return float((pos.max(0) - pos.min(0)).max())
-
-
-def resample_source(src: SourceMotion, fps: float) -> SourceMotion:
-    """Resample to ``fps``: slerp on local rotations, lerp on the root.
-
-    Output frames are 1/fps apart from the first frame and never run past the last one.
-    """
-    if abs(src.fps - fps) < 1e-9:
-        return src
-    T = src.num_frames
-    n_out = int(math.floor((T - 1) / src.fps * fps + 1e-6)) + 1
-    t = np.arange(n_out) * (src.fps / fps)
-    i0 = np.clip(np.floor(t + 1e-9).astype(int), 0, T - 1)
-    i1 = np.clip(i0 + 1, 0, T - 1)
-    w = np.clip(t - i0, 0.0, 1.0)
-    rot = src.rotations[i0].copy()
-    root = src.root_positions[i0] * (1 - w[:, None]) + src.root_positions[i1] * w[:, None]
-    mid = np.flatnonzero(w > 1e-9)  # frames between two source frames (none for 120 -> 30)
-    if len(mid):
-        q0 = rotmat_to_quat(torch.from_numpy(src.rotations[i0[mid]]))
-        q1 = rotmat_to_quat(torch.from_numpy(src.rotations[i1[mid]]))
-        wq = torch.from_numpy(w[mid])[:, None].expand(len(mid), src.num_joints)
-        rot[mid] = quat_to_rotmat(quat_slerp(q0, q1, wq)).numpy()
-    out = replace(src, rotations=rot, root_positions=root, fps=float(fps), info=dict(src.info),
-                  notes=list(src.notes))  # fmt: skip
-    return out
-
+from mdvae_cli.motion.source import (
+    CMU_UNIT,
+    SourceMotion,
+    check_angles,
+    euler_to_rotmat,
+    guess_length_unit,
+    read_text,
+    skeleton_height,
+)
 
 # --- BVH ---------------------------------------------------------------------------------------
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.bvh import SourceMotion
+from mdvae_cli.motion.source import SourceMotion
 
 _N = NUM_BODY_JOINTS
 _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
