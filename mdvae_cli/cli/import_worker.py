@@ -13,6 +13,7 @@ from mdvae_cli.cli.batch import FileJob, is_kind
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion import cmu
 from mdvae_cli.motion.asf import AsfSkeleton, load_asf
+from mdvae_cli.motion.corpus_plan import CorpusItem
 from mdvae_cli.motion.npz_io import save_motion
 from mdvae_cli.motion.retarget import (
     BodyJoints,
@@ -48,7 +49,7 @@ class FileImporter:
         self.betas: dict[str, np.ndarray] = {}
 
     def __call__(self, job: FileJob) -> dict:
-        item: cmu.CorpusItem | None = job.data
+        item: CorpusItem | None = job.data
         skeleton, fps = (item.skeleton, item.fps) if item else (None, self.source_fps)
         if item is None and is_kind(job.source, ".amc"):
             skeleton = self.asf or find_asf(job.source)
