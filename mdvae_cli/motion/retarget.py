@@ -55,6 +55,7 @@ from mdvae_cli.motion.pose_solve import (
     solve_pose,
 )
 from mdvae_cli.motion.source import SourceMotion, resample_source
+from mdvae_cli.motion.upright import canonical_axes, stature_unit, upright_rest
 
 __all__ = [
     "Y_UP_TO_Z_UP",
@@ -196,7 +197,8 @@ def retarget(
     if src.num_frames < 2:
         raise InputError(f"a motion needs at least 2 frames, this one has {src.num_frames}")
     jmap = build_joint_map(src)
-    src = canonicalise(src, canonical_rotation(src, jmap))
+    S_rest, S_world = canonical_axes(src, jmap)
+    src = canonicalise(src, S_rest, S_world)
     if betas is None:
         betas = fit_betas(src, body, jmap)
     b = torch.as_tensor(np.asarray(betas, dtype=np.float64))
@@ -313,12 +315,16 @@ def load_source(
     fps: float | None = None,
     scale: float | None = None,
     max_frames: int | None = None,
+    joint_map: dict[str, str] | None = None,
 ) -> SourceMotion:
     """Read a ``.bvh`` or ``.amc`` file (``.gz`` too) into a :class:`SourceMotion`.
 
     skeleton: the ``.asf`` an AMC motion needs. fps: the true frame rate when the file's is
     wrong (AMC files have none: 120 is assumed). scale: metres per file unit. A rate outside
     FPS_RANGE (e.g. a BVH Frame Time of 120, a rate written as a frame time) is refused.
+    joint_map: SMPL joint name -> source joint name, for joints the names do not reveal.
+    A BVH rest pose that does not stand is replaced by the take's most upright frame, and a
+    guessed length unit is checked against the body's stature from its bone lengths.
     """
     name = Path(path).name.lower().removesuffix(".gz")
     if name.endswith(".bvh"):
@@ -329,6 +335,14 @@ def load_source(
         src = load_amc(path, skeleton, scale=scale, max_frames=max_frames)
     else:
         raise InputError(f"{path}: not a .bvh or .amc file")
+    if joint_map:
+        src.info["joint_map"] = dict(joint_map)
+    if src.info.get("format") == "bvh":
+        try:
+            jmap = build_joint_map(src)
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from None
+        src = stature_unit(upright_rest(src, jmap), jmap)
     if fps is not None and abs(fps - src.fps) > 1e-9:
         src = src.with_fps(fps)
         src.notes.append(f"frame rate {src.info.get('fps_in_file'):g} in the file, {fps:g} used")
