@@ -102,6 +102,9 @@ class RetargetResult:
     much the source's ground was tilted (and levelled).
     sole_height: (T,) lowest foot-vertex height per frame after the shift, metres.
     joint_map: SMPL joint -> source joint (``~`` = attached point).
+    jmap: the joint map itself (source joint indices, rotation sources), for the way back.
+    to_output: (3, 3) rotation from the source's world axes to the output's (z up, levelled);
+    a source point p (metres) lands at ``to_output @ p - drop``. drop: (3,).
     """
 
     motion: Motion
@@ -114,6 +117,9 @@ class RetargetResult:
     sole_height: np.ndarray
     joint_map: dict[str, str]
     direct: np.ndarray
+    jmap: JointMap | None = None
+    to_output: np.ndarray | None = None
+    drop: np.ndarray | None = None
 
     @property
     def mean_error(self) -> float:
@@ -290,6 +296,9 @@ def retarget(
         sole_height=soles.numpy(),
         joint_map=jmap.describe(src.names),
         direct=jmap.direct.copy(),
+        jmap=jmap,
+        to_output=Q.numpy() @ S_world,
+        drop=drop.numpy(),
     )
 
 
@@ -337,16 +346,16 @@ def load_source(
         raise InputError(f"{path}: not a .bvh or .amc file")
     if joint_map:
         src.info["joint_map"] = dict(joint_map)
-    if src.info.get("format") == "bvh":
-        try:
-            jmap = build_joint_map(src)
-        except InputError as exc:
-            raise InputError(f"{path}: {exc}") from None
-        src = stature_unit(upright_rest(src, jmap), jmap)
     if fps is not None and abs(fps - src.fps) > 1e-9:
         src = src.with_fps(fps)
         src.notes.append(f"frame rate {src.info.get('fps_in_file'):g} in the file, {fps:g} used")
     check_fps(src.fps, str(path), swapped="is its Frame Time a frame rate? Pass --source-fps")
+    if src.info.get("format") == "bvh":
+        try:
+            jmap = build_joint_map(src)
+        except InputError:
+            return src  # the retarget says what is missing
+        src = stature_unit(upright_rest(src, jmap), jmap)
     return src
 
 
