@@ -101,7 +101,9 @@ def bvh_text(
 ) -> str:
     """A BVH file from scratch: the root with 6 channels (position, then rotation in
     ``order``), every other joint with 3 rotation channels, an End Site below each joint in
-    ``ends`` (joint -> its offset).  offsets: (J, 3) file units; data: (F, 6 + 3 (J - 1))."""
+    ``ends`` (joint -> its offset).  offsets: (J, 3) file units; data: (F, 3 + 3 J): the root
+    position, then each joint's angles in joint index order (written in the file's
+    depth-first order)."""
     kids: dict[int, list[int]] = {}
     for j, p in enumerate(parents):
         kids.setdefault(p, []).append(j)
@@ -126,4 +128,7 @@ def bvh_text(
 
     block(0, 0)
     lines.append("MOTION")
-    return motion_text("\n".join(lines), data, f"{frame_time:.8g}")
+    order_j = [names.index(line.split()[-1]) for line in lines
+               if line.strip().startswith(("ROOT ", "JOINT "))]  # fmt: skip
+    cols = [0, 1, 2] + [3 + 3 * j + k for j in order_j for k in range(3)]
+    return motion_text("\n".join(lines), data[:, cols], f"{frame_time:.8g}")
