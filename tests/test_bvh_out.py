@@ -194,8 +194,8 @@ def test_noisy_bvh_comes_back_closer(tmp_path, joints):
     noisy[:, rot_cols] += rng.normal(0, 4.0, (noisy.shape[0], len(rot_cols)))
     head = path.read_text().split("MOTION")[0]
     noisy_path = tmp_path / "noisy.bvh"
-    noisy_path.write_text(head + "MOTION\nFrames: 90\nFrame Time: 0.033333\n"
-                          + "\n".join(" ".join(f"{v:.5f}" for v in row) for row in noisy))  # fmt: skip
+    rows = "\n".join(" ".join(f"{v:.5f}" for v in row) for row in noisy)
+    noisy_path.write_text(head + "MOTION\nFrames: 90\nFrame Time: 0.033333\n" + rows)
     out = tmp_path / "out.bvh"
     r = CliRunner().invoke(cli, ["denoise", str(noisy_path), "-o", str(out)])
     assert r.exit_code == 0, r.output
@@ -237,7 +237,8 @@ def test_mixed_folder_each_in_its_own_form(tmp_path, make_motion_file):
     r = CliRunner().invoke(cli, ["denoise", str(folder), "-o", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "out" / "take.bvh").is_file() and (tmp_path / "out" / "walk.npz").is_file()
-    r = CliRunner().invoke(cli, ["denoise", str(folder / "walk.npz"), "-o", str(tmp_path / "w.bvh")])
+    npz_in = str(folder / "walk.npz")
+    r = CliRunner().invoke(cli, ["denoise", npz_in, "-o", str(tmp_path / "w.bvh")])
     assert r.exit_code == 1 and "export-bvh" in r.output
 
 
