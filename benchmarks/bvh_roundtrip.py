@@ -12,7 +12,7 @@ takes; then (a) the npz path: the noisy take imported as SMPL, denoised; (b) the
 distance of the 22 body joints from the clean take's import (mm); the BVH path also on the
 take's own skeleton (every joint, mm).
 
-usage: python benchmarks/bvh_roundtrip.py [--frames N] [--sigma RAD] [--quick]
+usage: python benchmarks/bvh_roundtrip.py [--frames N] [--sigma RAD] [--quick] [--clean-only]
 """
 
 from __future__ import annotations
@@ -94,6 +94,7 @@ def main() -> None:
     ap.add_argument("--sigma", type=float, default=0.05, help="noise per Euler channel, rad")
     ap.add_argument("--cmu", type=int, default=4, help="CMU BVH takes in the noisy table")
     ap.add_argument("--quick", action="store_true", help="3 real files, 2 CMU, 300 frames")
+    ap.add_argument("--clean-only", action="store_true", help="only the clean-take table")
     args = ap.parse_args()
     torch.set_num_threads(1)
     reals = real_files()
@@ -116,23 +117,28 @@ def main() -> None:
         return read_take(path, joints, source=src)
 
     print(f"## Clean takes: change made by the way back ({args.frames} frames at most per take)")
-    print("| file | rig | frames | fps | identity: rot deg / pos mm | denoised: rot deg / pos mm |")
-    print("|---|---|---|---|---|---|")
+    print("| file | rig | frames | fps | identity: rot deg / pos mm | denoised: rot deg / pos mm "
+          "| denoiser's own change (SMPL joints, mm) |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
     summary = []
     for path in reals:
         t0 = time.perf_counter()
         take = read(path)
         same = write_back_data(take.source, take.retarget, take.motion, take.motion, joints)
-        out = write_back_data(take.source, take.retarget, take.motion, clean(take.motion), joints)
+        cleaned = clean(take.motion)
+        out = write_back_data(take.source, take.retarget, take.motion, cleaned, joints)
         r0, p0 = changes(take, same)
         r1, p1 = changes(take, out)
         summary.append((r1, p1))
         print(f"| {path.name.removesuffix('.bvh.gz')} | {path.parent.name} | "
               f"{take.source.num_frames} | {take.source.fps:g} | {r0:.2g} / {p0:.2g} | "
-              f"{r1:.2f} / {p1:.1f} |  <!-- {time.perf_counter() - t0:.1f} s -->")  # fmt: skip
+              f"{r1:.2f} / {p1:.1f} | {body_joints_mm(cleaned, take.motion, joints):.1f} |"
+              f"  <!-- {time.perf_counter() - t0:.1f} s -->")  # fmt: skip
     med = np.median([r for r, _ in summary])
     print(f"\nall files: median of the per-file rotation medians {med:.2f} deg, mean position "
           f"change {np.mean([p for _, p in summary]):.1f} mm\n")  # fmt: skip
+    if args.clean_only:
+        return
 
     print(f"## Noisy takes (sigma {args.sigma} rad per Euler channel)")
     print("| file | noisy | npz path | BVH path (re-imported) | BVH path, own skeleton: "
