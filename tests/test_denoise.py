@@ -280,7 +280,7 @@ def test_cli_denoise_refuses_a_too_short_file_and_goes_on(tmp_path):
     [
         (["missing.npz"], "no such file"),
         (["{bad}"], "not an .npz"),
-        (["{bvh}"], "convert it first with `mdvae import"),  # a studio's BVH: say what to do
+        (["{bvh}"], "no MOTION section"),  # a BVH take is read now: a broken one says why
     ],
 )
 def test_cli_denoise_bad_inputs_write_nothing(tmp_path, args, message):

@@ -162,7 +162,7 @@ def test_bvh_blank_frames_dropped_and_gzip(tmp_path):
         ("    OFFSET 0 5 0\n", "", "expected 'OFFSET'"),
         ("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 1e30 0", "joint Arm holds an angle of 1e+30 degrees"),
         ("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 200000 0", "angles over 100000 degrees are refused"),
-        ("1 2 3 0 0 0 0 0 0", "1e30 2 3 0 0 0 0 0 0", "the root position reaches 5.64e+28 m"),
+        ("1 2 3 0 0 0 0 0 0", "1e30 2 3 0 0 0 0 0 0", "the root position reaches 1e+29 m"),
         ("OFFSET 10 0 0", "OFFSET 1e30 0 0", "a bone reaches 1e+27 m"),
     ],
 )

@@ -12,7 +12,6 @@ from mdvae_cli.cli.batch import (
     FileJob,
     emit_json,
     json_option,
-    plan_jobs,
     print_notes,
     run_batch,
     strip_gz,
@@ -27,6 +26,7 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
+from mdvae_cli.cli.takes import TakeReader, is_take, load_joint_map, plan_take_jobs
 from mdvae_cli.errors import InputError
 
 
@@ -37,7 +37,8 @@ from mdvae_cli.errors import InputError
     "--out",
     required=True,
     type=click.Path(),
-    help="Output .npz (one input file) or folder (inputs mirrored below it).",
+    help="Output file (one input: .npz; a .bvh/.amc take also as .bvh/.bvh.gz/.amc on its own "
+    "skeleton) or folder (inputs mirrored below it, each in its own form).",
 )
 @click.option(
     "--denoiser",
@@ -154,6 +155,18 @@ from mdvae_cli.errors import InputError
     show_default=True,
     help="Frames shared by consecutive windows, cross-faded.",
 )
+@click.option(
+    "--asf",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Skeleton for .amc inputs (default: <subject>.asf or the only .asf next to each).",
+)
+@click.option(
+    "--joint-map",
+    "joint_map_file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them, "
+    'e.g. {"pelvis": "Hips", "left_hip": "LeftUpLeg", "head": "Head"} (SMPL joint -> yours).',
+)
 @body_model_option
 @allow_pickle_option
 @json_option
@@ -177,20 +190,31 @@ def denoise(
     mesh_format,
     window,
     overlap,
+    asf,
+    joint_map_file,
     body_model,
     allow_pickle,
     as_json,
 ) -> None:
     """Remove noise from motion files with the learned Motion-DVAE prior.
 
-    INPUTS are AMASS-style .npz files or folders (any length, any frame rate); outputs keep
-    the input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
-    root orientation and translation. Works out of the box with the shipped weights and the
-    built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X file.
+    INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz) or folders (any length, any
+    frame rate); outputs keep the input's keys, frame rate, frame count, hands and extra
+    arrays, with cleaned body pose, root orientation and translation. Works out of the box with
+    the shipped weights and the built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X
+    file.
+
+    A BVH take comes back as BVH on its own skeleton: same hierarchy, joint names, offsets,
+    channel order, frame time and frame count; fingers, toes and other joints the body does
+    not cover keep their motion. (It is retargeted onto the body at its own frame rate,
+    cleaned there, and each of its joints turns as its body joint did.) -o x.npz instead
+    writes the cleaned body motion. AMC takes (with their .asf) are read and written as .npz.
 
     \b
     Examples:
       mdvae denoise noisy.npz -o clean.npz
+      mdvae denoise take.bvh -o clean.bvh
+      mdvae denoise takes/ -o clean/            (BVH and npz, each in its own form)
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
       mdvae denoise noisy.npz -o clean.npz --no-offset
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
@@ -217,12 +241,20 @@ def denoise(
         raise InputError(f"--mesh-dir {mesh_dir} is a file; give a folder")
     lr = 3e-4 if lr is None else lr
     mesh_format = mesh_format or "ply"
-    jobs = plan_jobs(inputs, out)
+    jobs = plan_take_jobs(inputs, out)
     sources = tuple(job.source for job in jobs)
     loaded: dict[Path, object] = {}
+    joint_map = load_joint_map(joint_map_file)
+    if asf is not None and not Path(asf).is_file():
+        raise InputError(f"no such skeleton file: {asf}")
+    takes = TakeReader(body_model, asf, joint_map) if any(is_take(j.source) for j in jobs) else None
 
     def read(job: FileJob) -> None:
-        motion = load_motion(job.source, allow_pickle=allow_pickle)
+        if is_take(job.source):
+            take = takes(job)
+            motion = take.motion
+        else:
+            motion = load_motion(job.source, allow_pickle=allow_pickle)
         check_length(motion)
         print_notes(job.relpath, motion.notes)
         loaded[job.source] = motion
@@ -293,7 +325,10 @@ def denoise(
             sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
             target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
             export_mesh_sequence(motion, body, target, mesh_format, forbid=sources)
-        save_motion(motion, job.output, forbid=sources)
+        if is_take(job.output):
+            takes.write(job, motion, forbid=sources)
+        else:
+            save_motion(motion, job.output, forbid=sources)
         return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
 
     write_report = run_batch(good, write, "denoise", quiet=True)

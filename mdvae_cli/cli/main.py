@@ -9,6 +9,7 @@ from mdvae_cli.cli import (
     add_noise,
     denoise,
     eval_cmd,
+    export_bvh,
     export_mesh,
     fit_dataset_cmd,
     import_cmd,
@@ -40,7 +41,9 @@ for module in (
     denoise,
     add_noise,
     eval_cmd,
+    export_bvh,
     export_mesh,
+    export_bvh,
     import_cmd,
     sample,
 ):
