@@ -37,8 +37,9 @@ from mdvae_cli.errors import InputError
     "--out",
     required=True,
     type=click.Path(),
-    help="Output file (one input: .npz; a .bvh/.amc take also as .bvh/.bvh.gz/.amc on its own "
-    "skeleton) or folder (inputs mirrored below it, each in its own form).",
+    help="Output file (one input: .npz; a BVH take also as .bvh/.bvh.gz, an AMC take as "
+    ".amc/.amc.gz, on its own skeleton) or folder (inputs mirrored below it, each in its own "
+    "form).",
 )
 @click.option(
     "--denoiser",
@@ -198,23 +199,27 @@ def denoise(
 ) -> None:
     """Remove noise from motion files with the learned Motion-DVAE prior.
 
-    INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz) or folders (any length, any
-    frame rate); outputs keep the input's keys, frame rate, frame count, hands and extra
-    arrays, with cleaned body pose, root orientation and translation. Works out of the box with
-    the shipped weights and the built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X
-    file.
+    INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz), ASF/AMC takes (.amc,
+    .amc.gz, with their .asf) or folders (any length, any frame rate); .npz outputs keep the
+    input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
+    root orientation and translation. Works out of the box with the shipped weights and the
+    built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X file.
 
     A BVH take comes back as BVH on its own skeleton: same hierarchy, joint names, offsets,
     channel order, frame time and frame count; fingers, toes and other joints the body does
     not cover keep their motion. (It is retargeted onto the body at its own frame rate,
-    cleaned there, and each of its joints turns as its body joint did.) -o x.npz instead
-    writes the cleaned body motion. AMC takes (with their .asf) are read and written as .npz.
+    cleaned there, and each of its joints turns as its body joint did.) An AMC take comes back
+    as AMC on its .asf the same way: same header, frame numbers, bones and dofs, angle unit
+    and length unit; a bone with fewer than three rotation dofs (a knee's rx) takes the
+    closest turn its dofs allow. Its .asf is copied next to the output when none is there.
+    -o x.npz instead writes the cleaned body motion.
 
     \b
     Examples:
       mdvae denoise noisy.npz -o clean.npz
       mdvae denoise take.bvh -o clean.bvh
-      mdvae denoise takes/ -o clean/            (BVH and npz, each in its own form)
+      mdvae denoise 07_01.amc -o clean/07_01.amc   (its 07.asf next to it, or --asf)
+      mdvae denoise takes/ -o clean/            (BVH, AMC and npz, each in its own form)
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
       mdvae denoise noisy.npz -o clean.npz --no-offset
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
