@@ -14,7 +14,8 @@ denoised; (b) the AMC path: ``mdvae denoise noisy.amc -o out.amc``, the output i
 scored as the mean distance of the 22 body joints from the clean take's import (mm); the AMC
 path also on the take's own skeleton (every joint, mm).
 
-usage: python benchmarks/amc_roundtrip.py [--frames N] [--sigma RAD] [--takes N] [--quick]
+usage: python benchmarks/amc_roundtrip.py [--frames N] [--sigma RAD] [--takes N] [--hdm05 N]
+       [--quick]
 """
 
 from __future__ import annotations
@@ -144,8 +145,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=600, help="frames read per take")
     ap.add_argument("--sigma", type=float, default=0.05, help="noise per dof value, rad")
-    ap.add_argument("--takes", type=int, default=6, help="CMU takes (first trial per subject)")
-    ap.add_argument("--hdm05", type=int, default=2, help="HDM05 takes in the clean table")
+    ap.add_argument("--takes", type=int, default=8, help="CMU takes (first trial per subject)")
+    ap.add_argument("--hdm05", type=int, default=4, help="HDM05 takes in the clean table")
     ap.add_argument("--quick", action="store_true", help="2 CMU takes, 1 HDM05, 240 frames")
     args = ap.parse_args()
     torch.set_num_threads(1)
