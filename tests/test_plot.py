@@ -169,7 +169,7 @@ def test_figure_draws_every_motion_in_its_colour(tiny_body):
     for color in ("#d9480f", "#1c7ed6", "#2b8a3e"):
         exact = (img == (255 * rgb(color)).round().astype(np.uint8)).all(-1)
         assert exact.sum() > 200, color
-    svg = draw_figure(items, BodyModel(tiny_body), FigureSpec(series="angle"), svg=True)
+    svg = draw_figure(items, BodyModel(tiny_body), FigureSpec(series="bend"), svg=True)
     root = ET.fromstring(svg.to_bytes())
     assert sum(el.tag.endswith("polyline") for el in root) >= 3
 

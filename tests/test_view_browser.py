@@ -94,7 +94,7 @@ def test_controls_change_the_picture_without_errors(page):
     tab.evaluate("window.mdvaeView.seek(50)")
     before = tab.screenshot()
     for call in ("setLayout('overlay')", "setBody('skeleton')", "setBody('mesh')",
-                 "setPlot('angle', 4)", "setPlot('height', 10, 1)", "setPlot('speed', 20)",
+                 "setPlot('bend', 4)", "setPlot('height', 10, 1)", "setPlot('speed', 20)",
                  "setPlot('rotation', 0, 0)", "setLayout('side')", "setBody('both')"):  # fmt: skip
         tab.evaluate(f"window.mdvaeView.{call}")
         assert tab.evaluate("window.mdvaeView.errors") == [], call

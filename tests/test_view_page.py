@@ -314,3 +314,18 @@ def test_denoise_view_writes_a_page_per_file(tmp_path, make_motion_file):
     args[-1] = str(tmp_path / "file")
     result = CliRunner().invoke(cli, args)
     assert result.exit_code == 1 and "is a file" in result.output
+
+
+def test_view_benchmark_builds_a_continuous_long_take_and_its_section():
+    from benchmarks.view_page import SECTION_BEGIN, SECTION_END, concatenate, long_take, markdown
+
+    a, b = make_motion(T=40), make_motion(T=30, fps=60.0, seed=1)
+    take = concatenate([a, b, a], 70)
+    assert take.num_frames == 70 and take.fps == 30.0
+    steps = np.linalg.norm(np.diff(take.trans[:, :2], axis=0), axis=1)
+    assert steps.max() < 0.1  # each take starts where the one before ended
+    walk, source = long_take(500, None)
+    assert walk.num_frames == 500 and "walk" in source
+    rows = [{"page": "noisy + clean", "frames": 500, "mb": 0.1, "build_s": 1.0}]
+    md = markdown(rows, "python benchmarks/view_page.py", 0.3, source, 1)
+    assert md.startswith(SECTION_BEGIN) and SECTION_END in md and "| 2 x 500 | 0.10 |" in md

@@ -123,10 +123,10 @@ def view(inputs, out, mesh, title, asf, body_model, allow_pickle, as_json) -> No
     help="A joint to plot (name or index of the 22 SMPL body joints); repeat for more panels.",
 )  # fmt: skip
 @click.option(
-    "--series", type=click.Choice(["rotation", "angle", "height", "speed"]), default="rotation",
+    "--series", type=click.Choice(["rotation", "bend", "height", "speed"]), default="rotation",
     show_default=True,
-    help="What to plot: the joint's rotation angle from its parent (rotation), the angle between "
-    "its bones (angle), its height (height, m) or speed (speed, m/s).",
+    help="What to plot: the joint angle, its rotation from its parent (rotation); the angle "
+    "between the bones into and out of it (bend); its height (m) or speed (m/s).",
 )  # fmt: skip
 @click.option(
     "--frames", type=click.IntRange(1, 20), default=6, show_default=True,
@@ -151,7 +151,7 @@ def plot(inputs, out, joints, series, frames, width, title, asf, body_model, all
     \b
     Examples:
       mdvae plot noisy.npz clean.npz -o before_after.png
-      mdvae plot noisy.npz clean.npz gt.npz -o fig.svg --joint left_hip --series angle
+      mdvae plot noisy.npz clean.npz gt.npz -o fig.svg --joint left_hip --series bend
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel

@@ -1,7 +1,7 @@
 """``mdvae view``'s page: motions posed in Python, embedded compactly in one self-contained
 HTML file that plays them side by side or overlaid (``viewer_*.js`` draw them on a canvas).
 
-What goes in, per motion (:func:`track_arrays`):
+What goes in, per motion (:func:`encode_track`):
 
 * the root joint's world position, int32 mm (any take fits: it may wander 2,000 km);
 * the pose (:func:`~mdvae_cli.view.pose.rotation_channels`): the root's world quaternion and
@@ -44,6 +44,7 @@ from mdvae_cli.view.pose import (
     BEND_CHILD,
     BODY_JOINT_NAMES,
     BODY_PARENTS,
+    PosedSkeleton,
     pose_skeleton,
     rotation_channels,
 )
@@ -71,22 +72,36 @@ class ViewPage:
         return len(self.html.encode("utf-8"))
 
 
-def track_arrays(motion: Motion, body: BodyModel) -> dict:
-    """The per-frame arrays of one motion, quantised and encoded.
+@dataclass
+class EncodedTrack:
+    """One motion's per-frame arrays as the page gets them, and what they came from.
 
-    -> {"root", "rot", "contacts": :class:`Blob`, "posed": PosedSkeleton,
-    "contacts_bool": (T, 4) bool}
+    root, rot, contacts: the encoded root position (T, 3), rotations (T, 67) and contact bits
+    (T, 1); posed: the posed skeleton; contacts_bool: (T, 4) the contacts as booleans.
     """
+
+    root: Blob
+    rot: Blob
+    contacts: Blob
+    posed: PosedSkeleton
+    contacts_bool: np.ndarray
+
+    def blobs(self) -> dict[str, Blob]:
+        return {"root": self.root, "rot": self.rot, "contacts": self.contacts}
+
+
+def encode_track(motion: Motion, body: BodyModel) -> EncodedTrack:
+    """Pose ``motion`` with ``body``, find its foot contacts, quantise and encode."""
     posed = pose_skeleton(motion, body)
     contacts = foot_contacts(posed.joints, motion.fps)
     bits = (contacts * (1 << np.arange(len(FOOT_JOINTS)))).sum(axis=1).astype(np.uint8)
-    return {
-        "root": encode_array(quantise(posed.joints[:, 0], 1 / POS_SCALE, "int32")),
-        "rot": encode_array(quantise(rotation_channels(motion), 1 / ROT_SCALE, "int16")),
-        "contacts": encode_array(bits[:, None], delta=False),
-        "posed": posed,
-        "contacts_bool": contacts,
-    }
+    return EncodedTrack(
+        root=encode_array(quantise(posed.joints[:, 0], 1 / POS_SCALE, "int32")),
+        rot=encode_array(quantise(rotation_channels(motion), 1 / ROT_SCALE, "int16")),
+        contacts=encode_array(bits[:, None], delta=False),
+        posed=posed,
+        contacts_bool=contacts,
+    )
 
 
 def sole_offsets(body: BodyModel) -> np.ndarray:
@@ -124,17 +139,16 @@ def build_view_page(
     """
     if not items:
         raise InputError("nothing to view: give at least one motion file")
-    tracks = [track_arrays(m, body) for _, m in items]
+    tracks = [encode_track(m, body) for _, m in items]
     skin = (skin or decimate_body(body.data)) if mesh else None
     offsets = sole_offsets(body)
-    floor = floor_height([t["posed"].joints for t in tracks], offsets)
+    floor = floor_height([t.posed.joints for t in tracks], offsets)
 
     blobs: list[tuple[str, Blob]] = []
     motions_meta = []
     for i, ((name, motion), track) in enumerate(zip(items, tracks, strict=True)):
         described = {}
-        for key in ("root", "rot", "contacts"):
-            blob = track[key]
+        for key, blob in track.blobs().items():
             element = f"m{i}-{key}"
             blobs.append((element, blob))
             described[key] = blob.describe(element)
@@ -145,8 +159,8 @@ def build_view_page(
             "frames": motion.num_frames,
             "duration": motion.duration,
             "data": described,
-            "rest_joints": _round(track["posed"].rest_joints),
-            "contact_fraction": _round(track["contacts_bool"].mean(axis=0), 3),
+            "rest_joints": _round(track.posed.rest_joints),
+            "contact_fraction": _round(track.contacts_bool.mean(axis=0), 3),
         }
         if skin is not None:
             entry["rest_vertices"] = _round(skin.rest_vertices(body.data, motion.betas))

@@ -110,8 +110,8 @@ def rotation_angles(motion: Motion) -> np.ndarray:
 
 #: the series a plot can show: name -> (label, unit)
 SERIES = {
-    "angle": ("bend angle", "deg"),
-    "rotation": ("rotation angle", "deg"),
+    "bend": ("bend angle", "deg"),
+    "rotation": ("joint angle", "deg"),
     "height": ("height", "m"),
     "speed": ("speed", "m/s"),
 }
@@ -121,7 +121,7 @@ def joint_series(kind: str, posed: PosedSkeleton, motion: Motion) -> np.ndarray:
     """One of SERIES for all 22 joints.  -> (T, 22) (NaN where undefined)"""
     from mdvae_cli.motion.contacts import joint_speeds
 
-    if kind == "angle":
+    if kind == "bend":
         return bend_angles(posed.joints)
     if kind == "rotation":
         return rotation_angles(motion)

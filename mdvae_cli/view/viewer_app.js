@@ -137,6 +137,7 @@ Object.assign(view, {
   setLayout(v) { state.layout = v; $("layout").value = v; render(); },
   setBody(v) { state.body = meta.mesh ? v : "skeleton"; $("body").value = state.body; render(); },
   setPlot(kind, joint, seconds) {
+    if (!SERIES[kind] || !(joint >= 0 && joint < NJ)) throw new Error(`no series ${kind} of joint ${joint}`);
     state.kind = kind; state.joint = joint; plotCache = null;
     if (seconds !== undefined) { state.window = seconds; $("window").value = String(seconds); }
     render();

@@ -11,7 +11,7 @@ const PARENTS = meta.parents;
 const FOOT = meta.foot_joints;
 const UP = 0.9; // camera aim above the floor, metres
 const SERIES = {
-  rotation: ["joint angle", "\u00b0"], angle: ["bend angle", "\u00b0"],
+  rotation: ["joint angle", "\u00b0"], bend: ["bend angle", "\u00b0"],
   height: ["height", " m"], speed: ["speed", " m/s"],
 };
 
@@ -174,7 +174,7 @@ class Track {
     const T = this.T, out = new Float64Array(T).fill(NaN), child = meta.bend_child[String(j)];
     if (kind === "rotation") for (let f = 0; f < T; f++) out[f] = this.rotationAngle(f, j);
     else if (kind === "height") for (let f = 0; f < T; f++) out[f] = this.pose(f)[j * 3 + 2];
-    else if (kind === "angle" && child !== undefined) {
+    else if (kind === "bend" && child !== undefined) {
       const p = PARENTS[j];
       for (let f = 0; f < T; f++) {
         const P = this.pose(f);

@@ -8,7 +8,7 @@ function niceStep(span, count) {
 }
 
 function plotLayout(W, H) {
-  const strip = 6, rows = tracks.length * 2;
+  const strip = 7, rows = tracks.length * 2;
   const bottom = 22 + rows * strip + 8;
   return { left: 58, right: 12, top: 10, bottom, strip, W, H, ph: H - 10 - bottom, pw: W - 70 };
 }
@@ -87,7 +87,7 @@ function drawPlotBody(ctx, L, t0, t1) {
   ctx.restore();
   // foot contact strips: per motion, left foot then right foot (ankle or toe joint planted)
   const top = L.top + L.ph + 22;
-  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.font = "8px system-ui, sans-serif";
+  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.font = "7px system-ui, sans-serif";
   tracks.forEach((tr, i) => {
     const a0 = clamp(Math.floor(t0 * tr.fps), 0, tr.T - 1), a1 = clamp(Math.ceil(t1 * tr.fps), 0, tr.T - 1);
     for (let side = 0; side < 2; side++) {
