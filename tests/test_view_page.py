@@ -293,6 +293,14 @@ def test_view_reads_bvh(tmp_path):
     assert result.exit_code == 0, result.output
     meta, _ = page_arrays(out.read_text())
     assert meta["motions"][0]["frames"] == 30 and meta["motions"][0]["fps"] == 30.0
+    # denoise --view on a BVH take: the page shows the take and the BVH written back
+    pages = tmp_path / "pages"
+    args = ["denoise", str(tmp_path / "dab.bvh"), "-o", str(tmp_path / "clean.bvh")]
+    result = CliRunner().invoke(cli, [*args, "--view", str(pages)])
+    assert result.exit_code == 0, result.output
+    meta, _ = page_arrays((pages / "dab.html").read_text())
+    assert [m["name"] for m in meta["motions"]] == ["dab.bvh (input)", "clean.bvh (cleaned)"]
+    assert [m["frames"] for m in meta["motions"]] == [30, 30]
 
 
 def test_denoise_view_writes_a_page_per_file(tmp_path, make_motion_file):

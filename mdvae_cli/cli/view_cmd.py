@@ -23,12 +23,18 @@ def motion_labels(paths: list[Path]) -> list[str]:
     return [f"{i + 1}: {p.name}" for i, p in enumerate(paths)]
 
 
-def read_motions(inputs, body_data, asf, allow_pickle):
+def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle):
     """(label, Motion) for each input file, read by :func:`load_any_motion`."""
+    from mdvae_cli.cli.takes import load_joint_map
     from mdvae_cli.motion.any_file import ReadOptions, load_any_motion
 
+    if asf is not None and not Path(asf).is_file():
+        raise InputError(f"no such skeleton file: {asf}")
     options = ReadOptions(
-        allow_pickle=allow_pickle, body=body_data, skeleton=None if asf is None else Path(asf)
+        allow_pickle=allow_pickle,
+        body=body_data,
+        skeleton=None if asf is None else Path(asf),
+        joint_map=load_joint_map(joint_map_file),
     )
     items = []
     for path, label in zip(inputs, motion_labels(list(inputs)), strict=True):
@@ -50,7 +56,15 @@ def inputs_argument(fn):
     return click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))(fn)
 
 
-def asf_option(fn):
+def take_options(fn):
+    """``--asf`` and ``--joint-map``: how BVH / AMC takes are read (as ``mdvae denoise``)."""
+    fn = click.option(
+        "--joint-map",
+        "joint_map_file",
+        type=click.Path(path_type=Path, dir_okay=False),
+        help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them "
+        '(SMPL joint -> yours, e.g. {"left_hip": "LeftUpLeg"}).',
+    )(fn)
     return click.option(
         "--asf",
         type=click.Path(path_type=Path, dir_okay=False),
@@ -70,12 +84,12 @@ def asf_option(fn):
     help="Embed a skinned low-poly body mesh as well as the skeleton (a few kB).",
 )  # fmt: skip
 @click.option("--title", default=None, help="The page's title (default: the file names).")
-@asf_option
+@take_options
 @body_model_option
 @allow_pickle_option
 @json_option
 @handle_errors
-def view(inputs, out, mesh, title, asf, body_model, allow_pickle, as_json) -> None:
+def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle, as_json):
     """Write one self-contained HTML page that plays motions side by side or overlaid.
 
     INPUTS are motion files in any format mdvae reads (.npz, .bvh, .amc; .gz too), e.g. a
@@ -97,7 +111,7 @@ def view(inputs, out, mesh, title, asf, body_model, allow_pickle, as_json) -> No
     out = Path(out)
     check_output(out, (".html", ".htm"), inputs)
     body_data = load_body_model(body_model)
-    items = read_motions(inputs, body_data, asf, allow_pickle)
+    items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle)
     page = build_view_page(items, BodyModel(body_data), mesh=mesh, title=title)
     write_view_page(page, out, forbid=tuple(inputs))
     summary = {"output": str(out), "bytes": page.num_bytes, "mesh": page.mesh,
@@ -137,11 +151,14 @@ def view(inputs, out, mesh, title, asf, body_model, allow_pickle, as_json) -> No
     help="Figure width in pixels.",
 )  # fmt: skip
 @click.option("--title", default=None, help="The figure's title (default: the file names).")
-@asf_option
+@take_options
 @body_model_option
 @allow_pickle_option
 @handle_errors
-def plot(inputs, out, joints, series, frames, width, title, asf, body_model, allow_pickle):
+def plot(
+    inputs, out, joints, series, frames, width, title, asf, joint_map_file, body_model,
+    allow_pickle,
+):  # fmt: skip
     """Draw a static before/after figure: joint curves over time, foot contacts and a
     filmstrip of a few frames for every motion (for reports).
 
@@ -165,7 +182,7 @@ def plot(inputs, out, joints, series, frames, width, title, asf, body_model, all
         width=width, title=title,
     ).validate()  # fmt: skip
     body_data = load_body_model(body_model)
-    items = read_motions(inputs, body_data, asf, allow_pickle)
+    items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle)
     canvas = draw_figure(items, BodyModel(body_data), spec, svg=out.suffix.lower() == ".svg")
     data = canvas.to_bytes()
     write_atomic(out, lambda tmp: tmp.write_bytes(data), forbid=tuple(inputs))

@@ -1,8 +1,8 @@
 """Read any motion file mdvae understands into a :class:`Motion`: one function, one table.
 
 :func:`load_any_motion` picks a reader by the file's suffix (``.gz`` ignored) from READERS:
-AMASS-style ``.npz`` directly, BVH and ASF/AMC through the importer (retargeted onto the body
-model, as ``mdvae import`` does). A new format is one more entry::
+AMASS-style ``.npz`` directly, BVH and ASF/AMC retargeted onto the body model at their own rate
+(as ``mdvae denoise`` reads takes). A new format is one more entry::
 
     READERS[".pkl"] = read_my_pickle  # (path, ReadOptions) -> Motion
 
@@ -22,9 +22,6 @@ from mdvae_cli.motion import cmu
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import load_motion
 
-#: the rate BVH / AMC takes are resampled to on reading (that of ``mdvae import``)
-IMPORT_FPS = 30.0
-
 
 @dataclass(frozen=True)
 class ReadOptions:
@@ -33,13 +30,16 @@ class ReadOptions:
     allow_pickle: read .npz files that hold pickled objects (only trusted files).
     body: the body model mocap (BVH, AMC) is retargeted onto; None = the built-in body.
     skeleton: the .asf an .amc motion needs; None = look next to the file (:func:`find_asf`).
-    import_fps: the rate BVH / AMC motions are resampled to; None keeps the file's rate.
+    joint_map: SMPL joint -> the take's joint names its names do not reveal (``--joint-map``).
+    fps: the rate BVH / AMC motions are resampled to; None keeps the take's own rate (one
+        frame per file frame, as ``mdvae denoise`` reads takes).
     """
 
     allow_pickle: bool = False
     body: BodyModelData | None = None
     skeleton: Path | None = None
-    import_fps: float | None = IMPORT_FPS
+    joint_map: dict[str, str] | None = None
+    fps: float | None = None
 
 
 Reader = Callable[[Path, ReadOptions], Motion]
@@ -69,10 +69,13 @@ def read_npz(path: Path, options: ReadOptions) -> Motion:
 
 
 def read_mocap(path: Path, options: ReadOptions) -> Motion:
-    """A BVH or AMC take, retargeted onto the body as ``mdvae import`` does (torch needed)."""
+    """A BVH or AMC take, retargeted onto the body at its own frame rate as ``mdvae denoise``
+    reads takes (:func:`~mdvae_cli.motion.take.read_take`; torch needed)."""
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.motion.asf import load_asf
-    from mdvae_cli.motion.retarget import BodyJoints, fit_betas, import_motion, load_source
+    from mdvae_cli.motion.fit_shape import BodyJoints
+    from mdvae_cli.motion.resample import resample_motion
+    from mdvae_cli.motion.take import read_take
 
     skeleton = None
     if _suffix(path) == ".amc":
@@ -80,14 +83,14 @@ def read_mocap(path: Path, options: ReadOptions) -> Motion:
         if found is None:
             raise InputError(f"{path}: no .asf skeleton found next to it; pass --asf FILE")
         skeleton = load_asf(found)
-    src = load_source(path, skeleton)
     body = BodyJoints(options.body if options.body is not None else load_body_model(None))
-    result = import_motion(src, body, options.import_fps, fit_betas(src, body))
-    result.motion.notes.append(
+    take = read_take(path, body, skeleton=skeleton, joint_map=options.joint_map)
+    motion = take.motion
+    motion.notes.append(
         f"retargeted from {_suffix(path)[1:].upper()} onto the body "
-        f"(mean joint error {1000 * result.mean_error:.1f} mm)"
+        f"(mean joint error {1000 * take.retarget.mean_error:.1f} mm)"
     )
-    return result.motion
+    return motion if options.fps is None else resample_motion(motion, options.fps)
 
 
 #: suffix -> reader; extend it to read more formats everywhere load_any_motion is used
