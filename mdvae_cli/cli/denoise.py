@@ -143,6 +143,13 @@ from mdvae_cli.errors import InputError
     help="Mesh file format for --mesh-dir [default: ply].",
 )
 @click.option(
+    "--view",
+    "view_dir",
+    type=click.Path(path_type=Path),
+    help="Also write a before/after page per file here (<name>.html, folders mirrored): the "
+    "input and the cleaned motion playing side by side in any browser (see mdvae view).",
+)
+@click.option(
     "--window",
     type=click.IntRange(min=8),
     default=60,
@@ -189,6 +196,7 @@ def denoise(
     mirror,
     mesh_dir,
     mesh_format,
+    view_dir,
     window,
     overlap,
     asf,
@@ -225,6 +233,7 @@ def denoise(
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
       mdvae denoise spiky.npz -o clean.npz --refine 50 --outliers
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
+      mdvae denoise takes/ -o clean/ --view pages/
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
@@ -244,6 +253,8 @@ def denoise(
         raise InputError("--mesh-format only applies with --mesh-dir DIR")
     if mesh_dir is not None and Path(mesh_dir).exists() and not Path(mesh_dir).is_dir():
         raise InputError(f"--mesh-dir {mesh_dir} is a file; give a folder")
+    if view_dir is not None and Path(view_dir).exists() and not Path(view_dir).is_dir():
+        raise InputError(f"--view {view_dir} is a file; give a folder")
     lr = 3e-4 if lr is None else lr
     mesh_format = mesh_format or "ply"
     jobs = plan_take_jobs(inputs, out)
@@ -334,6 +345,11 @@ def denoise(
             takes.write(job, motion, forbid=sources)
         else:
             save_motion(motion, job.output, forbid=sources)
+        if view_dir is not None:
+            from mdvae_cli.view.page import write_before_after
+
+            page = Path(view_dir) / strip_gz(job.relpath).with_suffix(".html")
+            write_before_after(loaded[job.source], motion, job, page, body, forbid=sources)
         return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
 
     write_report = run_batch(good, write, "denoise", quiet=True)
