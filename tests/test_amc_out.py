@@ -369,9 +369,10 @@ def test_every_denoise_option_on_an_amc_take(tmp_path):
     out = tmp_path / "out.amc"
     r = CliRunner().invoke(cli, ["denoise", str(path), "-o", str(out), "--asf", str(elsewhere),
                                  "--refine", "2", "--mirror", "--outliers", "--optimize", "1",
-                                 "--json"])  # fmt: skip
+                                 "--view", str(tmp_path / "pages"), "--json"])  # fmt: skip
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["files"][0]["result"]["frames"] == 160
+    assert (tmp_path / "pages" / "gen_01.html").stat().st_size > 1000
     assert not (tmp_path / "gen.asf").exists()  # given with --asf: not copied
     assert len(out.read_text().splitlines()) == len(path.read_text().splitlines())
 
