@@ -116,6 +116,15 @@ from mdvae_cli.errors import InputError
     "already.",
 )
 @click.option(
+    "--guard/--no-guard",
+    default=True,
+    show_default=True,
+    help="Where a denoised stretch moved further from the input than the input's own noise "
+    "explains (likely worse than the input: a kind of motion the prior never saw, or a take of "
+    "a few frames), use the input smoothed instead and say so (notes, --json "
+    '"fallbacks"). Not with --no-offset, which is the paper\'s regression mode untouched.',
+)
+@click.option(
     "--outliers",
     is_flag=True,
     help="With --refine: model the noise as heavy-tailed (Student-t, 10 degrees of freedom) per "
@@ -194,6 +203,7 @@ def denoise(
     offset,
     outliers,
     mirror,
+    guard,
     mesh_dir,
     mesh_format,
     view_dir,
@@ -292,6 +302,8 @@ def denoise(
         )
     results: dict[Path, object] = {}
     timings: dict[Path, float] = {}
+    fallbacks: dict[Path, list[list[float]]] = {}
+    guarding = guard and refine is not None
 
     def run(group: list[FileJob]) -> None:
         model = copy.deepcopy(denoiser) if optimize_steps else denoiser
@@ -323,6 +335,10 @@ def denoise(
                 progress=tick,
                 refine=refine,
                 mirror=mirror,
+                guard=guarding,
+                on_fallback=lambda i, a, b, group=group: fallbacks.setdefault(
+                    group[i].source, []
+                ).append([round(a, 3), round(b, 3)]),
             )
         seconds = time.perf_counter() - start
         frames = sum(loaded[j.source].num_frames for j in group)
@@ -350,7 +366,12 @@ def denoise(
 
             page = Path(view_dir) / strip_gz(job.relpath).with_suffix(".html")
             write_before_after(loaded[job.source], motion, job, page, body, forbid=sources)
-        return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
+        print_notes(job.relpath, [n for n in motion.notes if "input smoothed instead" in n])
+        return {
+            "frames": motion.num_frames,
+            "seconds": round(timings[job.source], 4),
+            "fallbacks": fallbacks.get(job.source, []),
+        }
 
     write_report = run_batch(good, write, "denoise", quiet=True)
     write_report.outcomes = report.failed + write_report.outcomes
@@ -365,6 +386,7 @@ def denoise(
                 "refine_steps": refine_steps,
                 "refine": refine.to_dict() if refine else None,
                 "mirror": mirror,
+                "guard": guarding,
             }
         )
     elif write_report.succeeded:

@@ -83,6 +83,20 @@ def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> torch.Tenso
     return (x_hat[..., GROUP_COLUMNS] - obs[..., GROUP_COLUMNS]).unflatten(-1, (NUM_GROUPS, 3))
 
 
+#: the window length (frames at 30 Hz) ``RefineConfig.offset_terms`` is set for
+FULL_WINDOW = 61
+
+
+def offset_terms_for(num_frames: int, terms: int) -> int:
+    """How many cosines a window of ``num_frames`` gets: ``terms`` for a full window, fewer
+    for a shorter one so that the fastest cosine keeps the same frequency in Hz (the offset
+    models *slow* discrepancy; ten cosines over 16 frames would follow the noise). At least
+    one (a constant offset)."""
+    if num_frames >= FULL_WINDOW:
+        return terms
+    return max(1, min(terms, round(terms * num_frames / FULL_WINDOW)))
+
+
 def cosine_basis(num_frames: int, terms: int, like: torch.Tensor) -> torch.Tensor:
     """The first ``terms`` DCT-II cosines over a window -> (num_frames, terms); column 0 is 1."""
     t = (torch.arange(num_frames, dtype=like.dtype, device=like.device) + 0.5) / num_frames
@@ -179,8 +193,9 @@ class ClosedFormFactors:
         self.mask = group_weights(joint_weight)  # (N, T, 23): 1 = observed; None = all
         self.weights = self.mask  # what the solvers read: the mask, x Student-t weights
         self.units = per_group(cfg.rot_unit, cfg.trans_unit, obs)  # (23,)
-        self.basis = cosine_basis(T, cfg.offset_terms, obs)
-        k = torch.arange(cfg.offset_terms, dtype=obs.dtype, device=obs.device)
+        terms = offset_terms_for(T, cfg.offset_terms)
+        self.basis = cosine_basis(T, terms, obs)
+        k = torch.arange(terms, dtype=obs.dtype, device=obs.device)
         self.relative = cfg.offset_decay ** (-2.0 * k)  # prior precision of cosine k, relative
         self.offset = torch.zeros_like(obs)
         self.started = False
