@@ -8,7 +8,6 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from benchmarks.common import slice_motion
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
@@ -31,6 +30,7 @@ from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.motion.motion import slice_frames
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.state import POSE, ROOT, TRANS, finite_difference
@@ -450,12 +450,12 @@ def test_motions_too_short_to_denoise_are_refused_by_name(tiny_prior):  # noqa: 
     for kw in ({}, {"optimize_steps": 1}, {"refine": RefineConfig(steps=2)}, {"mirror": True}):
         for n in (1, 5):
             with pytest.raises(InputError, match=r"motion 1: too short to denoise: .* at least 6"):
-                denoise_motions([clip, slice_motion(clip, 0, n)], copy.deepcopy(den), body, **kw)
-    six = slice_motion(clip, 0, 6)
+                denoise_motions([clip, slice_frames(clip, 0, n)], copy.deepcopy(den), body, **kw)
+    six = slice_frames(clip, 0, 6)
     (out,) = denoise_motions([six], den, body, refine=RefineConfig(steps=2))
     assert out.num_frames == 6 and np.isfinite(out.pose_body).all()
     # the limit is on the duration: 6 frames at 120 Hz are 2 frames at 30 Hz
-    fast = slice_motion(clip, 0, 6)
+    fast = slice_frames(clip, 0, 6)
     fast.fps = 120.0
     with pytest.raises(InputError, match=r"2 frame\(s\) at 30 Hz"):
         denoise_motions([fast], den, body)

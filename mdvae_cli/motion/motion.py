@@ -113,3 +113,25 @@ class Motion:
             pose_extra=poses[:, 66:].copy(),
             **kwargs,
         )
+
+
+def slice_frames(motion: Motion, start: int, stop: int) -> Motion:
+    """Frames [start, stop) of a motion as a new Motion; per-frame extra arrays (first dim T,
+    numeric) are sliced too, the others kept; notes are not carried."""
+    T = motion.num_frames
+    sl = slice(start, stop)
+    extras = {
+        k: (v[sl].copy() if v.ndim >= 1 and v.shape[0] == T and v.dtype.kind in "biuf" else v)
+        for k, v in motion.extras.items()
+    }
+    return replace(
+        motion,
+        root_orient=motion.root_orient[sl].copy(),
+        pose_body=motion.pose_body[sl].copy(),
+        trans=motion.trans[sl].copy(),
+        pose_extra=motion.pose_extra[sl].copy(),
+        joint_mask=None if motion.joint_mask is None else motion.joint_mask[sl].copy(),
+        extras=extras,
+        layout=dict(motion.layout),
+        notes=[],
+    )
