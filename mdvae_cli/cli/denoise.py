@@ -37,8 +37,9 @@ from mdvae_cli.errors import InputError
     "--out",
     required=True,
     type=click.Path(),
-    help="Output file (one input: .npz; a .bvh/.amc take also as .bvh/.bvh.gz/.amc on its own "
-    "skeleton) or folder (inputs mirrored below it, each in its own form).",
+    help="Output file (one input: .npz; a BVH take also as .bvh/.bvh.gz, an AMC take as "
+    ".amc/.amc.gz, on its own skeleton) or folder (inputs mirrored below it, each in its own "
+    "form).",
 )
 @click.option(
     "--denoiser",
@@ -142,6 +143,13 @@ from mdvae_cli.errors import InputError
     help="Mesh file format for --mesh-dir [default: ply].",
 )
 @click.option(
+    "--view",
+    "view_dir",
+    type=click.Path(path_type=Path),
+    help="Also write a before/after page per file here (<name>.html, folders mirrored): the "
+    "input and the cleaned motion playing side by side in any browser (see mdvae view).",
+)
+@click.option(
     "--window",
     type=click.IntRange(min=8),
     default=60,
@@ -188,6 +196,7 @@ def denoise(
     mirror,
     mesh_dir,
     mesh_format,
+    view_dir,
     window,
     overlap,
     asf,
@@ -198,28 +207,33 @@ def denoise(
 ) -> None:
     """Remove noise from motion files with the learned Motion-DVAE prior.
 
-    INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz) or folders (any length, any
-    frame rate); outputs keep the input's keys, frame rate, frame count, hands and extra
-    arrays, with cleaned body pose, root orientation and translation. Works out of the box with
-    the shipped weights and the built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X
-    file.
+    INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz), ASF/AMC takes (.amc,
+    .amc.gz, with their .asf) or folders (any length, any frame rate); .npz outputs keep the
+    input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
+    root orientation and translation. Works out of the box with the shipped weights and the
+    built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X file.
 
     A BVH take comes back as BVH on its own skeleton: same hierarchy, joint names, offsets,
     channel order, frame time and frame count; fingers, toes and other joints the body does
     not cover keep their motion. (It is retargeted onto the body at its own frame rate,
-    cleaned there, and each of its joints turns as its body joint did.) -o x.npz instead
-    writes the cleaned body motion. AMC takes (with their .asf) are read and written as .npz.
+    cleaned there, and each of its joints turns as its body joint did.) An AMC take comes back
+    as AMC on its .asf the same way: same header, frame numbers, bones and dofs, angle unit
+    and length unit; a bone with fewer than three rotation dofs (a knee's rx) takes the
+    closest turn its dofs allow. Its .asf is copied next to the output when none is there.
+    -o x.npz instead writes the cleaned body motion.
 
     \b
     Examples:
       mdvae denoise noisy.npz -o clean.npz
       mdvae denoise take.bvh -o clean.bvh
-      mdvae denoise takes/ -o clean/            (BVH and npz, each in its own form)
+      mdvae denoise 07_01.amc -o clean/07_01.amc   (its 07.asf next to it, or --asf)
+      mdvae denoise takes/ -o clean/            (BVH, AMC and npz, each in its own form)
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
       mdvae denoise noisy.npz -o clean.npz --no-offset
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
       mdvae denoise spiky.npz -o clean.npz --refine 50 --outliers
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
+      mdvae denoise takes/ -o clean/ --view pages/
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
@@ -239,6 +253,8 @@ def denoise(
         raise InputError("--mesh-format only applies with --mesh-dir DIR")
     if mesh_dir is not None and Path(mesh_dir).exists() and not Path(mesh_dir).is_dir():
         raise InputError(f"--mesh-dir {mesh_dir} is a file; give a folder")
+    if view_dir is not None and Path(view_dir).exists() and not Path(view_dir).is_dir():
+        raise InputError(f"--view {view_dir} is a file; give a folder")
     lr = 3e-4 if lr is None else lr
     mesh_format = mesh_format or "ply"
     jobs = plan_take_jobs(inputs, out)
@@ -329,6 +345,11 @@ def denoise(
             takes.write(job, motion, forbid=sources)
         else:
             save_motion(motion, job.output, forbid=sources)
+        if view_dir is not None:
+            from mdvae_cli.view.page import write_before_after
+
+            page = Path(view_dir) / strip_gz(job.relpath).with_suffix(".html")
+            write_before_after(loaded[job.source], motion, job, page, body, forbid=sources)
         return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
 
     write_report = run_batch(good, write, "denoise", quiet=True)

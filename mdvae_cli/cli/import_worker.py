@@ -12,6 +12,7 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, is_kind
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion import cmu
+from mdvae_cli.motion.any_file import find_asf
 from mdvae_cli.motion.asf import AsfSkeleton, load_asf
 from mdvae_cli.motion.corpus_plan import CorpusItem
 from mdvae_cli.motion.npz_io import save_motion
@@ -23,17 +24,6 @@ from mdvae_cli.motion.retarget import (
     skeleton_key,
     walking_speed,
 )
-
-
-def find_asf(path: Path) -> Path | None:
-    """The skeleton next to an AMC file: ``<subject>.asf``, else the folder's only .asf."""
-    ids = cmu.trial_of(path)
-    if ids is not None:
-        for name in (f"{ids[0]}.asf", f"{ids[0]}.asf.gz"):
-            if (path.parent / name).is_file():
-                return path.parent / name
-    found = [p for p in sorted(path.parent.iterdir()) if is_kind(p, ".asf")]
-    return found[0] if len(found) == 1 else None
 
 
 class FileImporter:

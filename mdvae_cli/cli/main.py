@@ -15,6 +15,7 @@ from mdvae_cli.cli import (
     import_cmd,
     sample,
     train,
+    view_cmd,
 )
 
 
@@ -46,6 +47,7 @@ for module in (
     export_bvh,
     import_cmd,
     sample,
+    view_cmd,
 ):
     for command in module.COMMANDS:
         cli.add_command(command)

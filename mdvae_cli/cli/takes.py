@@ -5,16 +5,18 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 
 from mdvae_cli.cli.batch import FileJob, is_kind, no_clashes, plan_jobs, refuse_gz, strip_gz
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import write_atomic
 
 #: what ``mdvae denoise`` reads
 DENOISE_SUFFIXES = (".npz", ".bvh", ".amc")
 
-#: the output form of each input form (AMC takes come back as .npz)
-_FORM = {".npz": ".npz", ".bvh": ".bvh", ".amc": ".npz"}
+#: the output form of each input form: each comes back in its own
+_FORM = {".npz": ".npz", ".bvh": ".bvh", ".amc": ".amc"}
 
 
 def is_take(path: Path | None) -> bool:
@@ -32,25 +34,31 @@ def output_name(relpath: Path) -> Path:
     return plain.with_suffix(_FORM[_form(relpath)])
 
 
+def _wrong_form(src: Path, form: str, wants: str) -> str:
+    """Why ``src`` (of ``form``) cannot be written as ``wants`` (.bvh or .amc), in one line."""
+    what = {".bvh": "a BVH", ".amc": "an AMC", ".npz": "an .npz"}
+    forms = ".npz" if form == ".npz" else f"{form} or .npz"
+    hint = " (mdvae export-bvh turns an .npz into BVH on the SMPL skeleton)"
+    return (f"{src} is {what[form]} file, not {what[wants]} take: write it as {forms}"
+            + (hint if wants == ".bvh" and form == ".npz" else ""))  # fmt: skip
+
+
 def plan_take_jobs(inputs, out) -> list[FileJob]:
     """:func:`plan_jobs` for inputs of several forms: one input file may be written to a named
-    ``.npz`` (any input) or ``.bvh``/``.bvh.gz`` (a BVH input); folders mirror each input in
-    its own form. InputError for a form the input cannot take."""
+    ``.npz`` (any input), ``.bvh``/``.bvh.gz`` (a BVH input) or ``.amc``/``.amc.gz`` (an AMC
+    input); folders mirror each input in its own form. InputError for a form the input cannot
+    take."""
     as_folder = str(out).endswith(("/", os.sep))
     out = Path(out)
     if len(inputs) == 1 and Path(inputs[0]).is_file() and not as_folder and not out.is_dir():
         src = Path(inputs[0])
         name = out.name.lower()
-        wants = next((s for s in (".bvh.gz", ".bvh", ".amc", ".npz") if name.endswith(s)), None)
-        if wants is not None and any(is_kind(src, s) for s in DENOISE_SUFFIXES):
+        ends = (".bvh.gz", ".bvh", ".amc.gz", ".amc", ".npz")
+        wants = next((s for s in ends if name.endswith(s)), "").removesuffix(".gz")
+        if wants and any(is_kind(src, s) for s in DENOISE_SUFFIXES):
             form = _form(src)
-            if wants in (".bvh", ".bvh.gz") and form != ".bvh":
-                raise InputError(
-                    f"{src} is not a BVH take: write it as .npz (mdvae export-bvh turns an "
-                    ".npz into BVH on the SMPL skeleton)"
-                )
-            if wants == ".amc":
-                raise InputError(f"{out}: AMC takes are written back as .npz (-o NAME.npz)")
+            if wants != ".npz" and wants != form:
+                raise InputError(_wrong_form(src, form, wants))
             return no_clashes([FileJob(Path(src.name), src, out)])
         if name.endswith(".gz"):
             refuse_gz(out)
@@ -83,6 +91,7 @@ class TakeReader:
         self.skeletons: dict = {}
         self.betas: dict = {}
         self.takes: dict = {}
+        self.found_asf: dict = {}  # AMC input -> the skeleton found next to it
 
     @property
     def body(self):
@@ -106,6 +115,8 @@ class TakeReader:
             skeleton = self.asf or find_asf(job.source)
             if skeleton is None:
                 raise InputError(f"{job.source}: no skeleton found next to it; pass --asf FILE")
+            if self.asf is None:
+                self.found_asf[job.source] = skeleton
             if skeleton not in self.skeletons:
                 self.skeletons[skeleton] = load_asf(skeleton)
             skeleton = self.skeletons[skeleton]
@@ -121,7 +132,14 @@ class TakeReader:
         return take
 
     def write(self, job: FileJob, cleaned, forbid: tuple = ()) -> None:
-        """Write the cleaned SMPL motion of ``job``'s take back on its own skeleton."""
+        """Write the cleaned SMPL motion of ``job``'s take back on its own skeleton. An AMC
+        take whose skeleton was found next to it gets a copy of that ``.asf`` next to its
+        output when none of that name is there, so the output reads on its own."""
         from mdvae_cli.motion.take import write_take
 
         write_take(self.takes[job.source], cleaned, job.output, self.body, forbid=forbid)
+        asf = self.found_asf.get(job.source)
+        if asf is not None and is_kind(job.output, ".amc"):
+            copy = Path(job.output).parent / Path(asf).name
+            if not copy.exists():
+                write_atomic(copy, lambda tmp: shutil.copyfile(asf, tmp), forbid=forbid)

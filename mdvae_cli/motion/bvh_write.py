@@ -69,17 +69,19 @@ def motion_text(header: str, data: np.ndarray, frame_time: str) -> str:
 
 
 def write_text(path: Path | str, text: str, forbid: tuple[Path, ...] = ()) -> None:
-    """Write ``text`` atomically; a name ending in ``.gz`` is gzip-compressed."""
+    """Write ``text`` atomically as UTF-8 (bytes a reader kept with "surrogateescape" as they
+    were), newlines as given; a name ending in ``.gz`` is gzip-compressed."""
     path = Path(path)
+    raw = text.encode("utf-8", errors="surrogateescape")
 
     def write(tmp: Path) -> None:
         if path.suffix.lower() == ".gz":
             import gzip
 
-            with gzip.open(tmp, "wt", encoding="utf-8", compresslevel=6) as fh:
-                fh.write(text)
+            with gzip.open(tmp, "wb", compresslevel=6) as fh:
+                fh.write(raw)
         else:
-            tmp.write_text(text, encoding="utf-8")
+            tmp.write_bytes(raw)
 
     write_atomic(path, write, forbid=forbid)
 

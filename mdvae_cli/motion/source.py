@@ -138,8 +138,10 @@ def euler_to_rotmat(angles: np.ndarray, axes: str) -> np.ndarray:
     return out
 
 
-def read_text(path: Path | str) -> str:
-    """A text file's contents, gunzipped when it ends in ``.gz``; InputError when unreadable."""
+def read_text(path: Path | str, errors: str = "replace") -> str:
+    """A text file's contents, gunzipped when it ends in ``.gz``; InputError when unreadable.
+    errors: how bytes that are not UTF-8 are decoded ("surrogateescape" keeps them, so that
+    text written back with the same setting has the file's bytes)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"no such file: {path}")
@@ -157,7 +159,7 @@ def read_text(path: Path | str) -> str:
         raise InputError(f"{path}: {what} ({exc})") from None
     if b"\0" in raw[:4096]:
         raise InputError(f"{path}: binary data, not a text mocap file")
-    return raw.decode("utf-8", errors="replace")
+    return raw.decode("utf-8", errors=errors)
 
 
 def guess_length_unit(

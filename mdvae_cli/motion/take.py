@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.motion.amc_write import write_amc
 from mdvae_cli.motion.asf import AsfSkeleton
 from mdvae_cli.motion.bvh_write import write_bvh
 from mdvae_cli.motion.fit_shape import BodyJoints, fit_betas
@@ -21,8 +22,9 @@ from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.retarget import RetargetResult, import_motion, load_source
 from mdvae_cli.motion.source import SourceMotion
 from mdvae_cli.motion.way_back import write_back_data
+from mdvae_cli.motion.way_back_amc import write_back_amc
 
-#: take suffixes (``.gz`` variants too) and the output forms each can be written in
+#: take suffixes (``.gz`` variants too); each is written back in its own form
 TAKE_SUFFIXES = (".bvh", ".amc")
 
 
@@ -77,16 +79,22 @@ def read_take(
 def write_take(
     take: Take, cleaned: Motion, out: Path | str, body: BodyJoints, forbid: tuple = ()
 ) -> None:
-    """Write ``cleaned`` (the take's SMPL motion after cleaning) on the take's own skeleton:
-    a BVH take as BVH (``.bvh`` or ``.bvh.gz``)."""
+    """Write ``cleaned`` (the take's SMPL motion after cleaning) on the take's own skeleton,
+    in the take's own form: a BVH take as BVH (``.bvh`` or ``.bvh.gz``), an AMC take as AMC
+    (``.amc`` or ``.amc.gz``; its ASF is unchanged)."""
     out = Path(out)
     name = out.name.lower().removesuffix(".gz")
-    if take.source.info.get("format") != "bvh" or not name.endswith(".bvh"):
-        raise InputError(
-            f"{out}: a {take.source.info.get('format')} take is written back as "
-            f".{take.source.info.get('format')}, or as .npz"
-        )
-    data = write_back_data(take.source, take.retarget, take.motion, cleaned, body)
-    if not np.isfinite(data).all():
-        raise InputError(f"{take.path}: the way back gave non-finite values; nothing written")
-    write_bvh(take.source.layout, data, out, forbid=forbid)
+    form = take.source.info.get("format")
+    if form not in ("bvh", "amc") or not name.endswith(f".{form}"):
+        raise InputError(f"{out}: a {form} take is written back as .{form}, or as .npz")
+    if form == "bvh":
+        data = write_back_data(take.source, take.retarget, take.motion, cleaned, body)
+        if not np.isfinite(data).all():
+            raise InputError(f"{take.path}: the way back gave non-finite values; nothing written")
+        write_bvh(take.source.layout, data, out, forbid=forbid)
+        return
+    try:
+        values = write_back_amc(take.source, take.retarget, take.motion, cleaned, body)
+    except InputError as exc:
+        raise InputError(f"{take.path}: {exc}; nothing written") from None
+    write_amc(take.source.layout, values, out, forbid=forbid)

@@ -69,6 +69,27 @@ def drivers(jmap: JointMap, num_joints: int) -> np.ndarray:
     return out
 
 
+def smpl_change(rt, original: Motion, cleaned: Motion, body: BodyJoints, scale: float):
+    """What cleaning did to the SMPL body, in the source file's axes: each body joint's
+    world-space turn ``D_j = M^T G_clean_j G_orig_j^T M`` (T, 22, 3, 3) and the pelvis's move
+    (T, 3) in file units (``scale``: metres per file unit). rt: the take's RetargetResult
+    (``M = rt.to_output``: source world -> SMPL output world)."""
+    M = np.asarray(rt.to_output)
+    Go, Po = smpl_globals(original, body)
+    Gc, Pc = smpl_globals(cleaned, body)
+    D = np.einsum("ab,tjbc,tjdc,de->tjae", M.T, Gc, Go, M)
+    return D, (Pc[:, 0] - Po[:, 0]) @ M / scale
+
+
+def pelvis_point(rt, D: np.ndarray, shift: np.ndarray, anchor: np.ndarray, scale: float):
+    """Where the source pelvis joint goes (T, 3; file units and axes): the point the SMPL
+    pelvis was fitted to moves by the pelvis's ``shift`` and turns with it (``D[:, 0]``), and
+    the source pelvis joint (at ``anchor`` (T, 3) before) keeps its place relative to it."""
+    target = ((rt.targets[:, 0] + rt.drop) @ np.asarray(rt.to_output)) / scale
+    arm = target - anchor
+    return target + shift - (D[:, 0] @ arm[..., None])[..., 0]
+
+
 def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray):
     """Local rotations (T, J, 3, 3), translations (T, J, 3; the root's is its position) and
     world rotations and positions of the file's own frames ``data`` (T, C), in file units."""
@@ -131,11 +152,7 @@ def write_back_data(
     if original.num_frames != T or cleaned.num_frames != T:
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     scale = layout.metres_per_unit
-    M = np.asarray(rt.to_output)  # source world -> output world (rotation)
-    Go, Po = smpl_globals(original, body)
-    Gc, Pc = smpl_globals(cleaned, body)
-    D = np.einsum("ab,tjbc,tjdc,de->tjae", M.T, Gc, Go, M)  # M^T Gc Go^T M, source axes
-    shift = (Pc[:, 0] - Po[:, 0]) @ M / scale  # pelvis move, file units and axes
+    D, shift = smpl_change(rt, original, cleaned, body, scale)
 
     L, t, G, P = file_pose(src, layout, data)
     drive = drivers(rt.jmap, src.num_joints)
@@ -152,9 +169,7 @@ def write_back_data(
     # the pelvis point (the SMPL pelvis's target) moves by the SMPL pelvis's change and turns
     # with the pelvis; the channels that carry the source pelvis take up the difference
     a = int(rt.jmap.anchor["pelvis"])
-    target = ((rt.targets[:, 0] + rt.drop) @ M) / scale  # (T, 3) file units
-    arm = target - P[:, a]
-    new_a = target + shift - (D[:, 0] @ arm[..., None])[..., 0]
+    new_a = pelvis_point(rt, D, shift, P[:, a], scale)
     c = _carrier(src, layout, a)
     t2 = t.copy()
     Gp = np.broadcast_to(np.eye(3), (T, 3, 3)) if c == 0 else G2[:, src.parents[c]]

@@ -73,107 +73,84 @@ class Case:
 
 # --- the commands, per reader --------------------------------------------------------------------
 
+# fmt: off
 COMMANDS: dict[str, list[Command]] = {
     # a motion .npz, wherever a command takes one
     "npz": [
         Command("add-noise", lambda b, g, o: ["add-noise", b, "-o", o / "noisy.npz"]),
         Command("denoise", lambda b, g, o: ["denoise", b, "-o", o / "clean.npz"]),
-        Command(
-            "sample", lambda b, g, o: ["sample", "--from", b, "--frames", 4, "-o", o / "sample.npz"]
-        ),  # fmt: skip
+        Command("sample", lambda b, g, o: ["sample", "--from", b, "--frames", 4,
+                                           "-o", o / "sample.npz"]),
         Command("export-mesh", lambda b, g, o: ["export-mesh", b, "-o", o / "meshes"]),
         Command("export-bvh", lambda b, g, o: ["export-bvh", b, "-o", o / "take.bvh"]),
         Command("eval-gt", lambda b, g, o: ["eval", "--gt", b, "--pred", g["npz"]], ("npz",)),
         Command("eval-pred", lambda b, g, o: ["eval", "--gt", g["npz"], "--pred", b], ("npz",)),
+        Command("view", lambda b, g, o: ["view", b, "-o", o / "page.html"]),
+        Command("plot", lambda b, g, o: ["plot", b, "-o", o / "figure.png"]),
     ],
+    # a BVH take
     "bvh": [
         Command("import", lambda b, g, o: ["import", b, "-o", o / "take.npz"]),
         Command("denoise", lambda b, g, o: ["denoise", b, "-o", o / "take.bvh"]),
+        Command("view", lambda b, g, o: ["view", b, "-o", o / "page.html"]),
+        Command("plot", lambda b, g, o: ["plot", b, "-o", o / "figure.png"]),
     ],
+    # an AMC take on a good skeleton
     "amc": [
-        Command(
-            "import", lambda b, g, o: ["import", b, "--asf", g["asf"], "-o", o / "t.npz"], ("asf",)
-        ),  # fmt: skip
-        Command(
-            "denoise",
-            lambda b, g, o: ["denoise", b, "--asf", g["asf"], "-o", o / "t.npz"],
-            ("asf",),
-        ),  # fmt: skip
+        Command("import", lambda b, g, o: ["import", b, "--asf", g["asf"], "-o", o / "t.npz"],
+                ("asf",)),
+        Command("denoise", lambda b, g, o: ["denoise", b, "--asf", g["asf"], "-o", o / "t.npz"],
+                ("asf",)),
+        Command("view", lambda b, g, o: ["view", b, "--asf", g["asf"], "-o", o / "page.html"],
+                ("asf",)),
     ],
+    # an ASF skeleton under a good AMC take
     "asf": [
-        Command(
-            "import", lambda b, g, o: ["import", g["amc"], "--asf", b, "-o", o / "t.npz"], ("amc",)
-        ),  # fmt: skip
-        Command(
-            "denoise",
-            lambda b, g, o: ["denoise", g["amc"], "--asf", b, "-o", o / "t.npz"],
-            ("amc",),
-        ),  # fmt: skip
+        Command("import", lambda b, g, o: ["import", g["amc"], "--asf", b, "-o", o / "t.npz"],
+                ("amc",)),
+        Command("denoise", lambda b, g, o: ["denoise", g["amc"], "--asf", b, "-o", o / "t.npz"],
+                ("amc",)),
+        Command("plot", lambda b, g, o: ["plot", g["amc"], "--asf", b, "-o", o / "figure.png"],
+                ("amc",)),
     ],
     # a body model, given with --body-model to every command that takes one
     "body": [
-        Command(
-            "export-mesh",
-            lambda b, g, o: ["export-mesh", g["npz"], "--body-model", b, "-o", o / "meshes"],
-            ("npz",),
-        ),  # fmt: skip
-        Command(
-            "import",
-            lambda b, g, o: ["import", g["bvh"], "--body-model", b, "-o", o / "take.npz"],
-            ("bvh",),
-        ),  # fmt: skip
-        Command(
-            "export-bvh",
-            lambda b, g, o: ["export-bvh", g["npz"], "--body-model", b, "-o", o / "take.bvh"],
-            ("npz",),
-        ),  # fmt: skip
-        Command(
-            "eval",
-            lambda b, g, o: ["eval", "--gt", g["npz"], "--pred", g["npz"], "--body-model", b],
-            ("npz",),
-        ),  # fmt: skip
-        Command(
-            "sample",
-            lambda b, g, o: [
-                "sample",
-                "--from",
-                g["npz"],
-                "--frames",
-                4,
-                "--body-model",
-                b,
-                "-o",
-                o / "s.npz",
-            ],
-            ("npz",),
-        ),
-        Command(
-            "denoise",
-            lambda b, g, o: ["denoise", g["npz"], "--body-model", b, "-o", o / "clean.npz"],
-            ("npz",),
-        ),  # fmt: skip
+        Command("export-mesh", lambda b, g, o: ["export-mesh", g["npz"], "--body-model", b,
+                                                "-o", o / "meshes"], ("npz",)),
+        Command("import", lambda b, g, o: ["import", g["bvh"], "--body-model", b,
+                                           "-o", o / "take.npz"], ("bvh",)),
+        Command("export-bvh", lambda b, g, o: ["export-bvh", g["npz"], "--body-model", b,
+                                               "-o", o / "take.bvh"], ("npz",)),
+        Command("eval", lambda b, g, o: ["eval", "--gt", g["npz"], "--pred", g["npz"],
+                                         "--body-model", b], ("npz",)),
+        Command("sample", lambda b, g, o: ["sample", "--from", g["npz"], "--frames", 4,
+                                           "--body-model", b, "-o", o / "s.npz"], ("npz",)),
+        Command("denoise", lambda b, g, o: ["denoise", g["npz"], "--body-model", b,
+                                            "-o", o / "clean.npz"], ("npz",)),
+        Command("view", lambda b, g, o: ["view", g["npz"], "--body-model", b,
+                                         "-o", o / "page.html"], ("npz",)),
+        Command("plot", lambda b, g, o: ["plot", g["npz"], "--body-model", b,
+                                         "-o", o / "figure.png"], ("npz",)),
     ],
     # a model checkpoint (.npz of weights and its .json beside it)
     "checkpoint": [
-        Command(
-            "denoise",
-            lambda b, g, o: ["denoise", g["npz"], "--denoiser", b, "-o", o / "clean.npz"],
-            ("npz",),
-        ),  # fmt: skip
-        Command(
-            "sample",
-            lambda b, g, o: ["sample", "--from", g["npz"], "--prior", b, "-o", o / "s.npz"],
-            ("npz",),
-        ),  # fmt: skip
+        Command("denoise", lambda b, g, o: ["denoise", g["npz"], "--denoiser", b,
+                                            "-o", o / "clean.npz"], ("npz",)),
+        Command("sample", lambda b, g, o: ["sample", "--from", g["npz"], "--prior", b,
+                                           "-o", o / "s.npz"], ("npz",)),
     ],
 }
-#: the readers whose files are .npz/.pkl/.bvh/...: a bad body model is "body-npz" or "body-pkl"
+# fmt: on
+
+#: the reader of each kind of bad file -> its command group (both body-model kinds: "body")
 READER_COMMANDS = {"npz": "npz", "bvh": "bvh", "amc": "amc", "asf": "asf", "body-npz": "body",
                    "body-pkl": "body", "checkpoint": "checkpoint"}  # fmt: skip
 SUFFIXES = {"npz": ".npz", "bvh": ".bvh", "amc": ".amc", "asf": ".asf", "body-npz": ".npz",
             "body-pkl": ".pkl", "checkpoint": ".npz"}  # fmt: skip
 #: what every defect of a reader goes through; the rest get the defects marked ``ALL``
-CORE = {"npz": ("add-noise", "denoise", "sample"), "body": ("export-mesh", "import")}
+CORE = {"npz": ("add-noise", "denoise", "sample"), "bvh": ("import", "denoise"),
+        "amc": ("import", "denoise"), "asf": ("import", "denoise"),
+        "body": ("export-mesh", "import")}  # fmt: skip
 ALL = ("*",)
 
 
