@@ -137,6 +137,7 @@ def sample(
     if "mocap_time_length" in result.extras:  # AMASS's duration (s), of the sample now
         kept = result.extras["mocap_time_length"]
         result.extras["mocap_time_length"] = np.array(frames / result.fps, dtype=kept.dtype)
+    print_notes(Path(out.name), result.notes)
     save_motion(result, out, forbid=(start,))
     console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
 

@@ -194,10 +194,12 @@ def _extras() -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("command", ["add-noise", "denoise", "sample"])
 def test_extra_keys_are_carried_or_renamed_with_a_warning(tmp_path: Path, command: str):
     """``file`` and ``allow_pickle`` (np.savez's parameters) are written back as they are;
-    keys that are paths are renamed, one ``warning:`` line each; none is dropped."""
+    keys that are paths are renamed, one ``warning:`` line each; none is dropped silently
+    (``sample`` makes a new motion: it says which per-frame keys it leaves out)."""
     src = tmp_path / "take.npz"
     members = F.motion_members()
     members.update({f"{k}.npy": v for k, v in _extras().items()})
+    members["dmpls.npy"] = np.arange(F.FRAMES * 8.0).reshape(F.FRAMES, 8)
     src.write_bytes(F.npz_bytes(members))
     out = tmp_path / "out.npz"
     args = {"add-noise": ["add-noise", src, "-o", out], "denoise": ["denoise", src, "-o", out],
@@ -217,6 +219,9 @@ def test_extra_keys_are_carried_or_renamed_with_a_warning(tmp_path: Path, comman
                 "/abs/olute": "abs_olute", "back\\slash": "back_slash"}  # fmt: skip
     for old, new in expected.items():
         np.testing.assert_array_equal(written[new], _extras()[old])
+    left_out = "per-frame keys of the start file are not carried into the sample: dmpls"
+    assert ("dmpls" in written) == (command != "sample")
+    assert (left_out in result.output) == (command == "sample"), result.output
 
 
 def test_the_npz_writer_takes_any_safe_key_and_refuses_paths():
