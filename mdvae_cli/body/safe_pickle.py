@@ -128,11 +128,14 @@ def read_pickle(path: Path) -> dict[str, Any]:
             data = _RestrictedUnpickler(f, name).load()
     except InputError:
         raise
-    except Exception as e:  # noqa: BLE001 - any unpickling failure is a bad file
+    except MemoryError:
         raise InputError(
-            f"body model {name}: not a readable body-model pickle "
-            f"({type(e).__name__}: {one_line(e)})"
-        ) from e
+            f"body model {name}: the pickle asks for an array too large for memory"
+        ) from None
+    except Exception as e:  # noqa: BLE001 - any unpickling failure is a bad file
+        truncated = isinstance(e, EOFError) or "truncated" in str(e)
+        why = "it is truncated" if truncated else one_line(e).rstrip(".")
+        raise InputError(f"body model {name}: not a readable body-model pickle ({why})") from None
     if not isinstance(data, dict):
         raise InputError(
             f"body model {name}: pickle holds a {type(data).__name__}, expected a dict"
@@ -144,12 +147,10 @@ def plain_value(value: Any, label: str, key: str) -> Any:
     """Turn a pickled value into numpy: chumpy nodes evaluated, sparse matrices densified."""
     try:
         return _evaluate(value, depth=0)
-    except InputError:
-        raise
+    except MemoryError:
+        raise InputError(f"body model {label}: {key!r} is too large for memory") from None
     except Exception as e:  # noqa: BLE001 - malformed state of a stand-in object
-        raise InputError(
-            f"body model {label}: cannot rebuild {key!r} ({type(e).__name__}: {one_line(e)})"
-        ) from e
+        raise InputError(f"body model {label}: cannot rebuild {key!r} ({one_line(e)})") from None
 
 
 def _evaluate(value: Any, depth: int) -> Any:
@@ -179,7 +180,7 @@ def _evaluate(value: Any, depth: int) -> Any:
         return np.concatenate([arg(t) for t in s["dterms"]], axis=s.get("axis", 0))
     if "x" in s and (kind in ("Ch", "ChHandle") or not {"a", "b"} & set(s)):
         return arg("x")
-    raise InputError(f"cannot evaluate chumpy object {value.qualname}")
+    raise ValueError(f"cannot evaluate chumpy object {value.qualname}")
 
 
 def _densify(matrix: _SparseMatrix) -> np.ndarray:
@@ -213,6 +214,8 @@ def _densify(matrix: _SparseMatrix) -> np.ndarray:
 
 
 def one_line(e: BaseException) -> str:
-    """The first line of an exception's message (its type name if the message is empty)."""
+    """The first line of an exception's message, in words (no exception class names)."""
+    if isinstance(e, KeyError) and e.args:
+        return f"no {e.args[0]!r} in it"
     lines = str(e).strip().splitlines()
-    return lines[0] if lines else type(e).__name__
+    return lines[0] if lines else "no details"

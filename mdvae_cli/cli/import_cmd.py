@@ -254,7 +254,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
         _write_json(out / "summary.json", summary)
     if as_json:
         emit_json(summary)
-    else:
+    elif len(jobs) > 1 or report.succeeded or corpus:  # one file that failed: its error says it
         _print_summary(summary)
     report.exit()
 

@@ -125,11 +125,12 @@ def _read_amc_values(text: str, layout: dict[str, int], path: str):
     while k < len(tokens) and not _is_int(tokens[k]):
         bone = tokens[k]
         if bone not in layout:
-            raise InputError(f"{path}: AMC names bone {bone!r}, which the skeleton lacks")
+            order = []  # a value where a bone was expected: the line reader says where
+            break
         order.append(bone)
         k += 1 + layout[bone]
     block = 1 + sum(1 + layout[b] for b in order)
-    fast, notes = _fast_amc(tokens, order, layout, block), []
+    fast, notes = (_fast_amc(tokens, order, layout, block) if order else None), []
     if fast is None:
         values, notes, kept = _slow_amc(lines[start:], layout, path)
     else:

@@ -42,6 +42,11 @@ _CHANNELS = {
 _CMUCONVERT_SIGNATURE = {"LHipJoint", "RHipJoint", "LowerBack", "LeftFingerBase"}
 
 
+#: joints deeper than this below the root: not a motion-capture skeleton (a finger tip of a
+#: full-body rig is ~10 deep)
+MAX_DEPTH = 1000
+
+
 class _Tokens:
     def __init__(self, text: str, path: Path):
         self.items = re.sub(r"([{}])", r" \1 ", text).split()
@@ -50,7 +55,7 @@ class _Tokens:
 
     def next(self, what: str) -> str:
         if self.pos >= len(self.items):
-            raise InputError(f"{self.path}: unexpected end of file (expected {what})")
+            raise InputError(f"{self.path}: unexpected end of the hierarchy (expected {what})")
         tok = self.items[self.pos]
         self.pos += 1
         return tok
@@ -63,20 +68,30 @@ class _Tokens:
     def number(self, what: str) -> float:
         tok = self.next(what)
         try:
-            return float(tok)
+            value = float(tok)
         except ValueError:
             raise InputError(f"{self.path}: expected a number for {what}, got {tok!r}") from None
+        if not math.isfinite(value):
+            raise InputError(f"{self.path}: {what} is not finite ({tok})")
+        return value
 
 
 def _parse_hierarchy(tok: _Tokens):
-    """-> names, parents, offsets (file units), channels [(joint, kind, axis)], end_site flags."""
+    """-> names, parents, offsets (file units), channels [(joint, kind, axis)], end_site flags.
+
+    Read without recursion (a hierarchy's depth is the file's to choose); one deeper than
+    MAX_DEPTH is refused."""
     names: list[str] = []
     parents: list[int] = []
     offsets: list[tuple[float, float, float]] = []
     end_site: list[bool] = []
     channels: list[tuple[int, str, str]] = []
+    open_joints: list[int] = []  # the joints whose '}' is still to come, root first
 
-    def joint(parent: int, name: str, is_end: bool) -> None:
+    def begin(parent: int, name: str, is_end: bool) -> None:
+        if len(open_joints) >= MAX_DEPTH:
+            raise InputError(f"{tok.path}: the joint hierarchy is more than {MAX_DEPTH} joints "
+                             "deep; not a motion-capture skeleton")  # fmt: skip
         index = len(names)
         names.append(name)
         parents.append(parent)
@@ -86,34 +101,43 @@ def _parse_hierarchy(tok: _Tokens):
         offsets.append(tuple(tok.number(f"the OFFSET of {name}") for _ in range(3)))
         if not is_end:
             tok.expect("CHANNELS")
-            count = tok.number(f"the channel count of {name}")
-            if count != int(count) or not 0 <= count <= 6:
-                raise InputError(f"{tok.path}: joint {name} has a bad channel count {count:g}")
+            word = tok.next(f"the channel count of {name}")
+            try:
+                count = float(word)
+            except ValueError:
+                count = -1.0
+            if not (0 <= count <= 6 and count == int(count)):
+                raise InputError(f"{tok.path}: joint {name} has a bad channel count {word}")
             for _ in range(int(count)):
                 ch = tok.next(f"a channel of {name}")
                 if ch.lower() not in _CHANNELS:
                     raise InputError(f"{tok.path}: joint {name} has an unknown channel {ch!r}")
                 channels.append((index, *_CHANNELS[ch.lower()]))
-        while True:
-            word = tok.next(f"'}}' closing {name}")
-            if word == "}":
-                return
-            if is_end:
-                raise InputError(f"{tok.path}: End Site of {names[parent]} has extra content")
-            if word.upper() == "JOINT":
-                joint(index, tok.next("a joint name"), False)
-            elif word.upper() == "END":
-                tok.expect("Site")
-                joint(index, f"{name}_end", True)
-            else:
-                raise InputError(f"{tok.path}: unexpected {word!r} inside joint {name}")
+        open_joints.append(index)
 
     tok.expect("HIERARCHY")
     tok.expect("ROOT")
-    joint(-1, tok.next("the root joint name"), False)
-    if len(set(names)) != len(names):
-        dup = next(n for n in names if names.count(n) > 1)
-        raise InputError(f"{tok.path}: joint name {dup!r} appears twice")
+    begin(-1, tok.next("the root joint name"), False)
+    while open_joints:
+        index = open_joints[-1]
+        name = names[index]
+        word = tok.next(f"'}}' closing {name}")
+        if word == "}":
+            open_joints.pop()
+        elif end_site[index]:
+            raise InputError(f"{tok.path}: End Site of {names[parents[index]]} has extra content")
+        elif word.upper() == "JOINT":
+            begin(index, tok.next("a joint name"), False)
+        elif word.upper() == "END":
+            tok.expect("Site")
+            begin(index, f"{name}_end", True)
+        else:
+            raise InputError(f"{tok.path}: unexpected {word!r} inside joint {name}")
+    seen: set[str] = set()
+    for n in names:
+        if n in seen:
+            raise InputError(f"{tok.path}: joint name {n!r} appears twice")
+        seen.add(n)
     return names, parents, np.array(offsets, dtype=np.float64), channels, end_site
 
 
@@ -257,6 +281,8 @@ def load_bvh(
     rows = layout.rows
     if drop_first:
         data, rows = data[1:], rows[1:]
+    if data.shape[0] == 0:
+        raise InputError(f"{path}: no motion frames")
     blank = ~np.any(data != 0.0, axis=1)  # every channel exactly 0: an exporter's empty frame
     if blank.all():
         raise InputError(f"{path}: every frame is blank (all channels 0)")

@@ -11,6 +11,11 @@ from mdvae_cli.errors import InputError
 
 #: AMASS ``poses`` widths we read, and the layout name of each.
 POSE_WIDTHS = {156: "smplh", 165: "smplx", 72: "smpl", 66: "body"}
+#: no file holds an angle this large (degrees), a root this far from the origin or a bone this
+#: long (metres), or a body shape coefficient this large: a value past one is corrupt
+MAX_ANGLE_DEG = 1e5
+MAX_DISTANCE_M = 1e4
+MAX_BETA = 1e3
 #: the frame rates (Hz) a motion may have: outside is a mistake (e.g. a frame time stored as the
 #: rate, 1/120), and resampling it to 30 Hz would make hours of frames, or none
 FPS_RANGE = (1.0, 10_000.0)
@@ -47,7 +52,8 @@ class Motion:
         joint_mask: (T, 22) bool, True where a body joint was observed; None = all observed.
         extras: other keys of the source file, written back unchanged.
         layout: how the source stored things (fps key, gender as bytes), to write the same way.
-        notes: remarks made while reading (padded betas, missing keys) for the user.
+        notes: remarks made while reading (padded betas, missing keys) for the user; one that
+            starts with ``warning: `` says the output will differ from the file (a renamed key).
     """
 
     root_orient: np.ndarray

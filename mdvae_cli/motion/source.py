@@ -15,6 +15,7 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotmat, rotmat_to_quat
+from mdvae_cli.motion.motion import MAX_ANGLE_DEG, MAX_DISTANCE_M
 
 #: metres per CMU length unit (inches / 0.45); ASF ``:units length 0.45`` and cmuconvert BVH
 CMU_UNIT = 0.0254 / 0.45
@@ -25,14 +26,6 @@ _UNIT_GUESSES = (("m", 1.0), ("cm", 0.01), ("mm", 0.001), ("in", 0.0254), ("cmu"
 
 #: BVH files also come in decimetres (MakeHuman)
 BVH_UNIT_GUESSES = (*_UNIT_GUESSES, ("dm", 0.1))
-
-
-#: no exporter writes an angle this large (degrees): a file that does is corrupt
-MAX_ANGLE_DEG = 1e5
-
-
-#: a root this far from the origin, or a bone this long (metres), is not mocap of a person
-MAX_DISTANCE_M = 1e4
 
 
 def check_angles(radians: np.ndarray, what: str, path) -> None:
@@ -161,7 +154,9 @@ def read_text(path: Path | str, errors: str = "replace") -> str:
         else:
             raw = path.read_bytes()
     except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"{path}: cannot read ({exc})") from None
+        gz = path.suffix == ".gz" and not isinstance(exc, PermissionError)
+        what = "not a readable .gz file" if gz else "cannot read"
+        raise InputError(f"{path}: {what} ({exc})") from None
     if b"\0" in raw[:4096]:
         raise InputError(f"{path}: binary data, not a text mocap file")
     return raw.decode("utf-8", errors=errors)
