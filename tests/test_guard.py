@@ -128,3 +128,36 @@ def test_cli_reports_fallbacks_in_json(tmp_path, flag, expected):
     assert isinstance(row["result"]["fallbacks"], list)
     res = CliRunner().invoke(cli, [*args, "--no-offset"])
     assert json.loads(res.stdout)["guard"] is False
+
+
+def test_a_loop_is_detected_and_denoised_as_a_cycle(tiny_prior):  # noqa: F811
+    """A cycle cut from a periodic motion is detected (a take cut mid-stride is not); tiling
+    moves the root on by the cycle's displacement; the denoised cycle's seam (last frame ->
+    first) is no larger a step than its other frame-to-frame steps."""
+    from mdvae_cli.infer.loop import displacement, looks_like_loop, tile, untile
+
+    T = 30
+    t = np.arange(T) / 30.0
+    phase = 2 * np.pi * t  # exactly one period over 30 frames: frame 30 would equal frame 0
+    walk = load_motion(REPO / "examples/walk.npz")
+    cyc = slice_frames(walk, 0, T)
+    pose = 0.4 * np.sin(phase[:, None, None] + np.arange(21)[None, :, None] * 0.3)
+    cyc = cyc.with_body(root_orient=np.tile([[1.2, 1.2, 1.2]], (T, 1)) * 0.0 + [0.0, 0.0, 1.0],
+                        pose_body=np.broadcast_to(pose, (T, 21, 3)).copy(),
+                        trans=np.stack([1.0 * t, 0 * t, 0.9 + 0.02 * np.cos(2 * phase)], 1))  # fmt: skip
+    assert looks_like_loop(cyc)
+    assert not looks_like_loop(slice_frames(cyc, 0, 20))
+    tiled = tile(cyc)
+    assert tiled.num_frames == 3 * T
+    np.testing.assert_allclose(tiled.trans[T] - tiled.trans[0], displacement(cyc))
+    np.testing.assert_allclose(untile(tiled, cyc).pose_body, cyc.pose_body, atol=1e-9)
+
+    prior, _ = load_prior(tiny_prior / "run")
+    den = Denoiser(prior, DenoiserConfig(hidden_dim=16)).eval()
+    body = BodyModel(builtin_body_model())
+    noisy = add_pose_noise(cyc, 0.05, np.random.default_rng(1))
+    out = denoise_motions([noisy], den, body, refine=RefineConfig(steps=0), loops=[True])[0]
+    assert out.num_frames == T and out.fps == cyc.fps
+    step = np.abs(np.diff(out.pose_body, axis=0)).mean(axis=(1, 2))
+    seam = np.abs(out.pose_body[0] - out.pose_body[-1]).mean()
+    assert seam <= 1.5 * np.percentile(step, 90), (seam, step)

@@ -116,6 +116,14 @@ from mdvae_cli.errors import InputError
     "already.",
 )
 @click.option(
+    "--loop/--no-loop",
+    default=None,
+    help="Denoise every take as a cycle (a game loop whose last frame leads into its first): "
+    "its ends get context from each other and the seam stays continuous when it plays on "
+    "repeat. Default: a take whose last pose is within two frame steps of its first is "
+    "treated as a loop, and said so; --no-loop never.",
+)
+@click.option(
     "--guard/--no-guard",
     default=True,
     show_default=True,
@@ -204,6 +212,7 @@ def denoise(
     outliers,
     mirror,
     guard,
+    loop,
     mesh_dir,
     mesh_format,
     view_dir,
@@ -304,6 +313,14 @@ def denoise(
     timings: dict[Path, float] = {}
     fallbacks: dict[Path, list[list[float]]] = {}
     guarding = guard and refine is not None
+    cycles: dict[Path, bool] = {}
+    if good:
+        from mdvae_cli.infer.loop import looks_like_loop
+
+        for j in good:
+            cycles[j.source] = loop if loop is not None else looks_like_loop(loaded[j.source])
+            if loop is None and cycles[j.source]:
+                print_notes(j.relpath, [LOOP_NOTE])
 
     def run(group: list[FileJob]) -> None:
         model = copy.deepcopy(denoiser) if optimize_steps else denoiser
@@ -336,6 +353,7 @@ def denoise(
                 refine=refine,
                 mirror=mirror,
                 guard=guarding,
+                loops=[cycles[j.source] for j in group],
                 on_fallback=lambda i, a, b, group=group: fallbacks.setdefault(
                     group[i].source, []
                 ).append([round(a, 3), round(b, 3)]),
@@ -371,6 +389,7 @@ def denoise(
             "frames": motion.num_frames,
             "seconds": round(timings[job.source], 4),
             "fallbacks": fallbacks.get(job.source, []),
+            "loop": cycles.get(job.source, False),
         }
 
     write_report = run_batch(good, write, "denoise", quiet=True)
@@ -398,5 +417,10 @@ def denoise(
         )
     write_report.exit()
 
+
+LOOP_NOTE = (
+    "looks like a loop (its last frame meets its first): denoised as a cycle; --no-loop to "
+    "treat it as a take"
+)
 
 COMMANDS = [denoise]

@@ -10,7 +10,7 @@ keys and the file layout are carried through untouched.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import contextmanager, nullcontext
 
 import numpy as np
@@ -253,6 +253,7 @@ def denoise_motions(
     mirror: bool = False,
     guard: bool = False,
     on_fallback: Callable[[int, float, float], None] | None = None,
+    loops: Sequence[bool] | None = None,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -271,7 +272,14 @@ def denoise_motions(
     its input than the input's noise explains falls back to the smoothed input
     (``infer.guard``); each such window is said in its motion's notes and passed to
     ``on_fallback(motion index, start s, end s)`` (times in the motion's own clock).
+    ``loops``: per motion, whether it is a cycle to denoise as one (``infer.loop``: tiled three
+    times, the middle copy kept and closed at the seam).
     """
+    if loops is not None and any(loops):
+        return _denoise_cycles(
+            motions, list(loops), denoiser, body, window, stride, optimize_steps, lr,
+            batch_size, seed, progress, refine, mirror, guard, on_fallback=on_fallback,
+        )  # fmt: skip
     for i, m in enumerate(motions):
         try:
             check_length(m)
@@ -328,6 +336,29 @@ def denoise_motions(
         if on_fallback is not None:
             on_fallback(mi, a, b)
     return out
+
+
+def _denoise_cycles(motions, loops, denoiser, body, *args, on_fallback=None) -> list[Motion]:
+    """:func:`denoise_motions` with the motions flagged in ``loops`` tiled and closed as
+    cycles; fallbacks inside a cycle's middle copy are reported on its own clock."""
+    from mdvae_cli.infer.loop import COPIES, tile, untile
+
+    tiled = [tile(m) if lp else m for m, lp in zip(motions, loops, strict=True)]
+
+    def tell(i: int, a: float, b: float) -> None:
+        if on_fallback is None:
+            return
+        if not loops[i]:
+            on_fallback(i, a, b)
+            return
+        period = motions[i].num_frames / motions[i].fps
+        start = (COPIES // 2) * period
+        if b > start and a < start + period:
+            on_fallback(i, max(a - start, 0.0), min(b - start, period))
+
+    *head, guard = args
+    out = denoise_motions(tiled, denoiser, body, *head, guard=guard, on_fallback=tell)
+    return [untile(o, m) if lp else o for o, m, lp in zip(out, motions, loops, strict=True)]
 
 
 def _staged(progress, stage: str, offset: int, total: int):
