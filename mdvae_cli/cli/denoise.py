@@ -27,7 +27,19 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
+from mdvae_cli.cli.motion_input import (
+    INPUT_SUFFIXES,
+    motion_input_options,
+    outputs_of,
+    read_input,
+    track_output,
+)
 from mdvae_cli.errors import InputError
+
+
+def _output_name(relpath: Path) -> Path:
+    """``take.pkl`` / ``take.npz.gz`` in a folder -> ``take.npz`` in the output folder."""
+    return strip_gz(relpath).with_suffix(".npz")
 
 
 @click.command("denoise")
@@ -88,19 +100,19 @@ from mdvae_cli.errors import InputError
 @click.option(
     "--refine-offset",
     type=NON_NEGATIVE,
-    default=0.03,
-    show_default=True,
+    default=None,
     help="The scale (rad) each joint's slow rotation offset (--offset, --refine) starts from "
-    "in every window, then estimated from the file. 0 = no offset.",
+    "in every window, then estimated from the file. 0 = no offset. [default: 0.03, or the "
+    "input kind's setting]",
 )
 @click.option(
     "--trans-offset",
     type=NON_NEGATIVE,
-    default=0.03,
-    show_default=True,
+    default=None,
     help="The scale (m) the root translation's slow offset (--offset) starts from in every "
     "window: it keeps the file's path, from which the decoded one drifts by ~4 cm. 0 = no "
-    "translation offset. (--refine fits the translation itself.)",
+    "translation offset. (--refine fits the translation itself.) [default: 0.03, or the "
+    "input kind's setting]",
 )
 @click.option(
     "--offset/--no-offset",
@@ -116,10 +128,27 @@ from mdvae_cli.errors import InputError
 @click.option(
     "--outliers",
     is_flag=True,
-    help="With --refine: model the noise as heavy-tailed (Student-t, 10 degrees of freedom) per "
+    help="Model the noise as heavy-tailed (Student-t, 10 degrees of freedom, = --lam 10) per "
     "frame and joint, so spikes (a swapped marker, a solver flip) are down-weighted where they "
-    "happen instead of raising the whole joint's noise level: about 40 % lower error on takes "
-    "with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py).",
+    "happen instead of raising the whole joint's noise level: with --refine, about 40 % lower "
+    "error on takes with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py).",
+)
+@click.option(
+    "--lam",
+    type=NON_NEGATIVE,
+    default=None,
+    help="The paper's lambda: degrees of freedom of the Student-t noise per frame and joint "
+    "that the offset and --refine assume (smaller: heavier tails, flips and spikes count "
+    "less); 0 = Gaussian. [default: 0 for mocap files; the video setting for video-pipeline "
+    "outputs (docs/model.md)]",
+)
+@click.option(
+    "--input-kind",
+    type=click.Choice(["auto", "mocap", "video"]),
+    default="auto",
+    show_default=True,
+    help="Which settings row to start from: 'video' for a video pipeline's estimates (chosen "
+    "automatically for their files), 'mocap' otherwise; options override either.",
 )
 @click.option(
     "--mirror",
@@ -154,6 +183,7 @@ from mdvae_cli.errors import InputError
     show_default=True,
     help="Frames shared by consecutive windows, cross-faded.",
 )
+@motion_input_options
 @body_model_option
 @allow_pickle_option
 @json_option
@@ -172,21 +202,30 @@ def denoise(
     trans_offset,
     offset,
     outliers,
+    lam,
+    input_kind,
     mirror,
     mesh_dir,
     mesh_format,
     window,
     overlap,
+    input_format,
+    input_fps,
+    track,
     body_model,
     allow_pickle,
     as_json,
 ) -> None:
     """Remove noise from motion files with the learned Motion-DVAE prior.
 
-    INPUTS are AMASS-style .npz files or folders (any length, any frame rate); outputs keep
+    INPUTS are AMASS-style .npz files, the output files of video pose pipelines (WHAM,
+    GVHMR, TRAM, 4D-Humans/PHALP, VIBE, PARE, HybrIK, ROMP/BEV, SLAHMR: upright, z up, one
+    output per person track) or folders of them (any length, any frame rate); outputs keep
     the input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
-    root orientation and translation. Works out of the box with the shipped weights and the
-    built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X file.
+    root orientation and translation. A video pipeline's file gets the settings chosen for
+    video estimates (Student-t noise, see --lam); options override them. Works out of the box
+    with the shipped weights and the built-in body; pass --body-model for a real
+    SMPL/SMPL-H/SMPL-X file.
 
     \b
     Examples:
@@ -195,20 +234,27 @@ def denoise(
       mdvae denoise noisy.npz -o clean.npz --no-offset
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
       mdvae denoise spiky.npz -o clean.npz --refine 50 --outliers
+      mdvae denoise wham_output.pkl -o clean.npz
+      mdvae denoise hmr4d_results.pt -o clean.npz --fps 25 --refine 50
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.infer.denoise import check_finite, check_length, denoise_motions
-    from mdvae_cli.infer.settings import OUTLIER_DOF, RefineConfig
+    from mdvae_cli.infer.input_kinds import refine_config
+    from mdvae_cli.infer.settings import OUTLIER_DOF
     from mdvae_cli.model.denoiser import load_denoiser
-    from mdvae_cli.motion.npz_io import load_motion, save_motion
+    from mdvae_cli.motion.npz_io import save_motion
 
     if overlap >= window:
         raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
-    if outliers and not refine_steps:
-        raise InputError("--outliers re-weights frames while refining: use it with --refine N")
+    if outliers and lam is not None and lam != OUTLIER_DOF:
+        raise InputError(f"--outliers is --lam {OUTLIER_DOF:g}; give one of them")
+    lam = OUTLIER_DOF if outliers else lam
+    if lam and not (refine_steps or offset):
+        raise InputError("--outliers / --lam weigh frames in the offset or --refine; "
+                         "drop --no-offset or add --refine N")  # fmt: skip
     if not optimize_steps and (per_file or lr is not None):
         raise InputError(f"{'--per-file' if per_file else '--lr'} only applies with --optimize N")
     if mesh_format is not None and mesh_dir is None:
@@ -217,36 +263,56 @@ def denoise(
         raise InputError(f"--mesh-dir {mesh_dir} is a file; give a folder")
     lr = 3e-4 if lr is None else lr
     mesh_format = mesh_format or "ply"
-    jobs = plan_jobs(inputs, out)
+    jobs = plan_jobs(inputs, out, suffixes=INPUT_SUFFIXES, rename=_output_name)
     sources = tuple(job.source for job in jobs)
-    loaded: dict[Path, object] = {}
+    body_data = load_body_model(body_model)
+    loaded: dict[Path, list] = {}  # source -> [(track label, motion, output)]
+    kinds: dict[Path, str] = {}
+    formats: dict[Path, str] = {}
 
     def read(job: FileJob) -> None:
-        motion = load_motion(job.source, allow_pickle=allow_pickle)
-        check_length(motion)
-        print_notes(job.relpath, motion.notes)
-        loaded[job.source] = motion
+        f = read_input(job.source, job.relpath, input_format, input_fps, track,
+                       allow_pickle, body_data)  # fmt: skip
+        items, short = [], []
+        for label, motion, output in outputs_of(f, job.output):
+            try:
+                check_length(motion)
+            except InputError as exc:
+                if len(f.tracks) == 1:
+                    raise
+                short.append(f"track {label}: {exc}")
+                continue
+            items.append((label, motion, output))
+        if not items:
+            raise InputError(f"every track is too short to denoise ({'; '.join(short)})")
+        print_notes(job.relpath, [f"{s}; skipped" for s in short])
+        kinds[job.source] = f.kind if input_kind == "auto" else input_kind
+        formats[job.source] = f.format
+        loaded[job.source] = items
 
     report = run_batch(jobs, read, "reading", quiet=True)
     good = [o.job for o in report.succeeded]
     if good:
         denoiser, _ = load_denoiser(denoiser_path)
-        body = BodyModel(load_body_model(body_model))
+        body = BodyModel(body_data)
     stride = window - overlap
-    refine = None
-    if refine_steps or offset:
-        refine = RefineConfig(
-            steps=refine_steps,
-            lr=refine_lr,
-            offset_std=refine_offset,
-            trans_offset_std=trans_offset,
-            outlier_dof=OUTLIER_DOF if outliers else 0.0,
-        )
-    results: dict[Path, object] = {}
+    chosen: dict[str, tuple] = {}
+    for kind in sorted({kinds[j.source] for j in good}):
+        chosen[kind] = refine_config(
+            kind, steps=refine_steps, lr=refine_lr, offset=offset, lam=lam,
+            offset_std=refine_offset, trans_offset_std=trans_offset,
+        )  # fmt: skip
+    for kind, (_, c) in chosen.items():
+        if kind != "mocap" and not as_json:
+            console.print(f"[dim]note: {kind} input: λ = {c['lam']:g}, offset scales "
+                          f"{c['offset_std']:g} rad / {c['trans_offset_std']:g} m[/]")  # fmt: skip
+    results: dict[tuple[Path, int], object] = {}
     timings: dict[Path, float] = {}
 
-    def run(group: list[FileJob]) -> None:
+    def run(group: list[FileJob], refine) -> None:
         model = copy.deepcopy(denoiser) if optimize_steps else denoiser
+        items = [(j, i) for j in group for i in range(len(loaded[j.source]))]
+        motions = [loaded[j.source][i][1] for j, i in items]
         start = time.perf_counter()
         with progress_bar(transient=True) as progress:
             tasks = {
@@ -264,7 +330,7 @@ def denoise(
                 )
 
             cleaned = denoise_motions(
-                [loaded[j.source] for j in group],
+                motions,
                 model,
                 body,
                 window,
@@ -277,37 +343,52 @@ def denoise(
                 mirror=mirror,
             )
         seconds = time.perf_counter() - start
-        frames = sum(loaded[j.source].num_frames for j in group)
-        for j, m in zip(group, cleaned, strict=True):
-            results[j.source] = m
-            timings[j.source] = seconds * loaded[j.source].num_frames / max(frames, 1)
+        frames = sum(m.num_frames for m in motions)
+        for (j, i), m, src in zip(items, cleaned, motions, strict=True):
+            results[(j.source, i)] = m
+            timings[j.source] = timings.get(j.source, 0.0) + seconds * src.num_frames / max(
+                frames, 1
+            )
 
-    if good:
-        for group in [[j] for j in good] if per_file and optimize_steps else [good]:
-            run(group)
+    for kind, (refine, _) in chosen.items():
+        of_kind = [j for j in good if kinds[j.source] == kind]
+        for group in [[j] for j in of_kind] if per_file and optimize_steps else [of_kind]:
+            run(group, refine)
 
     def write(job: FileJob) -> dict:
-        motion = results[job.source]
-        check_finite(motion)
-        if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
-            sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
-            target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
-            export_mesh_sequence(motion, body, target, mesh_format, forbid=sources)
-        save_motion(motion, job.output, forbid=sources)
-        return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
+        tracks = []
+        for i, (label, _, output) in enumerate(loaded[job.source]):
+            motion = results[(job.source, i)]
+            check_finite(motion)
+            if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
+                sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
+                target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
+                export_mesh_sequence(motion, body, track_output(target, label), mesh_format,
+                                     forbid=sources)  # fmt: skip
+            save_motion(motion, output, forbid=sources)
+            tracks.append({"track": label, "output": str(output), "frames": motion.num_frames})
+        return {
+            "frames": sum(t["frames"] for t in tracks),
+            "seconds": round(timings[job.source], 4),
+            "format": formats[job.source],
+            "input_kind": kinds[job.source],
+            "tracks": tracks,
+        }
 
     write_report = run_batch(good, write, "denoise", quiet=True)
     write_report.outcomes = report.failed + write_report.outcomes
     if len(jobs) > 1:
         write_report.print_summary("denoise")
     if as_json:
+        first = next(iter(chosen.values()), (None, None))
         emit_json(
             {
                 **write_report.to_dict(),
                 "mode": "optimization" if optimize_steps else "regression",
                 "optimize_steps": optimize_steps,
                 "refine_steps": refine_steps,
-                "refine": refine.to_dict() if refine else None,
+                "refine": first[0].to_dict() if first[0] else None,
+                "settings": {kind: c[1] for kind, c in chosen.items()},
                 "mirror": mirror,
             }
         )
