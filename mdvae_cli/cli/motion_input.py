@@ -29,26 +29,42 @@ from mdvae_cli.motion.motion import Motion
 INPUT_SUFFIXES = MOTION_FILE_SUFFIXES
 
 
+FORMATS_HELP = (
+    "amass (AMASS-style .npz), a video pipeline's output (wham, gvhmr, tram, phalp, vibe/pare, "
+    "hybrik, romp/bev, slahmr) or aistpp (docs/formats.md)."
+)
+
+
+def format_choice() -> click.Choice:
+    """The ``--format`` values: every format name and alias, any case."""
+    return click.Choice(sorted({*FORMATS, *ALIASES}), case_sensitive=False)
+
+
 def motion_input_options(fn: Callable) -> Callable:
     """``--format``, ``--fps`` and ``--track``: how to read the input files."""
-    names = sorted({*FORMATS, *ALIASES})
     fn = click.option(
-        "--track", default=None, metavar="ID",
+        "--track",
+        default=None,
+        metavar="ID",
         help="Files of several people: keep only this track (its id in the file). Default: "
         "every track, each written to <output>.track<ID>.npz.",
-    )(fn)  # fmt: skip
+    )(fn)
     fn = click.option(
-        "--fps", "input_fps", type=POSITIVE, default=None,
+        "--fps",
+        "input_fps",
+        type=POSITIVE,
+        default=None,
         help="Frame rate of the inputs. Video-pipeline outputs store none: 30 is assumed "
         "unless given; for other files it replaces the file's rate.",
-    )(fn)  # fmt: skip
+    )(fn)
     return click.option(
-        "--format", "input_format", type=click.Choice(names, case_sensitive=False),
+        "--format",
+        "input_format",
+        type=format_choice(),
         default=None,
         help="Input format, when the file does not tell (default: from the extension and "
-        "contents): amass (AMASS-style .npz), a video pipeline's output (wham, gvhmr, tram, "
-        "phalp, vibe/pare, hybrik, romp/bev, slahmr) or aistpp (docs/formats.md).",
-    )(fn)  # fmt: skip
+        "contents): " + FORMATS_HELP,
+    )(fn)
 
 
 def read_input(

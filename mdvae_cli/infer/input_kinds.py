@@ -74,8 +74,14 @@ def refine_config(
     lam = row.lam if lam is None else float(lam)
     offset_std = row.offset_std if offset_std is None else float(offset_std)
     trans = row.trans_offset_std if trans_offset_std is None else float(trans_offset_std)
-    chosen = {"input_kind": kind, "lam": lam, "offset": offset, "offset_std": offset_std,
-              "trans_offset_std": trans, "offset_terms": row.offset_terms}  # fmt: skip
+    chosen = {
+        "input_kind": kind,
+        "lam": lam,
+        "offset": offset,
+        "offset_std": offset_std,
+        "trans_offset_std": trans,
+        "offset_terms": row.offset_terms,
+    }
     if not (steps or offset):
         return None, chosen
     cfg = RefineConfig(

@@ -33,8 +33,15 @@ from mdvae_cli.motion.npz_io import load_motion
 #: of ``motion.video_formats``, imported when needed: they need torch, listing them does not)
 FORMATS = ("amass", "wham", "gvhmr", "tram", "phalp", "vibe", "hybrik", "romp", "slahmr", "aistpp")
 #: other names ``--format`` accepts
-ALIASES = {"pare": "vibe", "4dhumans": "phalp", "4d-humans": "phalp", "hmr2": "phalp",
-           "bev": "romp", "hybrik-x": "hybrik", "aist++": "aistpp"}  # fmt: skip
+ALIASES = {
+    "pare": "vibe",
+    "4dhumans": "phalp",
+    "4d-humans": "phalp",
+    "hmr2": "phalp",
+    "bev": "romp",
+    "hybrik-x": "hybrik",
+    "aist++": "aistpp",
+}
 #: file names a folder is searched for (``.gz`` versions too)
 MOTION_FILE_SUFFIXES = (".npz", ".pkl", ".pk", ".pt", ".pth", ".npy", ".pickle", ".joblib")
 #: formats whose files come from a video pipeline (denoise picks its settings for video)
@@ -191,7 +198,7 @@ def _load_video(path, name, data, fps, track, body) -> LoadedFile:
         rate = fps if fps is not None else (raw.fps or VIDEO_FPS)
         motion = track_to_motion(raw, rate, body, str(path))
         if fps is None and raw.fps is None:
-            motion.notes.append(f"no frame rate in the file: {VIDEO_FPS:g} fps (set --fps)")
+            motion.notes.append(f"no frame rate in the file: {VIDEO_FPS:g} fps assumed")
         motion.extras.setdefault("source_format", np.array(name))
         label = raw.label if len(raws) > 1 else None
         out.append((label, motion))

@@ -103,11 +103,21 @@ def read_wham(data: dict, label: str) -> list[RawTrack]:
         notes = [] if world else ["no world frame in the file: camera frame, level camera"]
         if "verts" in d:
             notes.append("'verts' not carried (recomputed from the pose by any SMPL tool)")
-        tracks.append(RawTrack(
-            root=root, body=body, transl=transl.reshape(T, 3), betas=_arr(d, "betas", where),
-            up=Y_UP if world else CAMERA_UP, model="smpl", label=tid, pose_extra=hands,
-            frame_ids=d.get("frame_ids"), extras=extras, notes=notes,
-        ))  # fmt: skip
+        tracks.append(
+            RawTrack(
+                root=root,
+                body=body,
+                transl=transl.reshape(T, 3),
+                betas=_arr(d, "betas", where),
+                up=Y_UP if world else CAMERA_UP,
+                model="smpl",
+                label=tid,
+                pose_extra=hands,
+                frame_ids=d.get("frame_ids"),
+                extras=extras,
+                notes=notes,
+            )
+        )
     return tracks
 
 
@@ -138,16 +148,28 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
             f"camera 'orig_cam' assuming a {fov:g} degree field of view"
         ]
         if "orig_cam" in d:
-            pelvis = _weak_perspective_pelvis(_frames(_arr(d, "orig_cam", where), T, "orig_cam",
-                                                      where).reshape(T, -1))  # fmt: skip
+            pelvis = _weak_perspective_pelvis(
+                _frames(_arr(d, "orig_cam", where), T, "orig_cam", where).reshape(T, -1)
+            )
         else:
             pelvis, notes = np.zeros((T, 3)), ["no translation in the file: the pelvis stays put"]
         extras = {k: np.asarray(d[k], np.float32) for k in ("orig_cam", "bboxes") if k in d}
-        tracks.append(RawTrack(
-            root=root, body=body, transl=pelvis, betas=_arr(d, "betas", where), up=CAMERA_UP,
-            model="smpl", label=tid, transl_is_pelvis=True, pose_extra=hands,
-            frame_ids=d.get("frame_ids"), extras=extras, notes=notes,
-        ))  # fmt: skip
+        tracks.append(
+            RawTrack(
+                root=root,
+                body=body,
+                transl=pelvis,
+                betas=_arr(d, "betas", where),
+                up=CAMERA_UP,
+                model="smpl",
+                label=tid,
+                transl_is_pelvis=True,
+                pose_extra=hands,
+                frame_ids=d.get("frame_ids"),
+                extras=extras,
+                notes=notes,
+            )
+        )
     return tracks
 
 
@@ -161,8 +183,10 @@ def read_hybrik(data: dict, label: str) -> list[RawTrack]:
     thetas = _arr(data, "pred_thetas", label)
     joints = thetas[0].size // 9
     if joints not in (24, 55) or thetas[0].size != joints * 9:
-        raise InputError(f"{label}: 'pred_thetas' has shape {thetas.shape}, expected (T, 216) "
-                         "(SMPL) or (T, 495) (SMPL-X)")  # fmt: skip
+        raise InputError(
+            f"{label}: 'pred_thetas' has shape {thetas.shape}, expected (T, 216) "
+            "(SMPL) or (T, 495) (SMPL-X)"
+        )
     root, body, rest = _smpl_matrices(thetas, joints, "pred_thetas", label)
     T = len(root)
     key = "transl" if "transl" in data else "pred_cam_root"
@@ -171,12 +195,20 @@ def read_hybrik(data: dict, label: str) -> list[RawTrack]:
     for k in ("img_path", "bbox"):
         if k in data and np.shape(data[k])[:1] == (T,):
             extras[k] = np.asarray(data[k])
-    return [RawTrack(
-        root=root, body=body, transl=transl, betas=_arr(data, "pred_betas", label),
-        up=CAMERA_UP, model="smpl" if joints == 24 else "smplx", transl_is_pelvis=True,
-        pose_extra=rest, extras=extras,
-        notes=["no world frame in the file: camera frame, level camera"],
-    )]  # fmt: skip
+    return [
+        RawTrack(
+            root=root,
+            body=body,
+            transl=transl,
+            betas=_arr(data, "pred_betas", label),
+            up=CAMERA_UP,
+            model="smpl" if joints == 24 else "smplx",
+            transl_is_pelvis=True,
+            pose_extra=rest,
+            extras=extras,
+            notes=["no world frame in the file: camera frame, level camera"],
+        )
+    ]
 
 
 def read_gvhmr(data: dict, label: str) -> list[RawTrack]:
@@ -191,32 +223,41 @@ def read_gvhmr(data: dict, label: str) -> list[RawTrack]:
     where = f"{label} smpl_params_{'global' if world else 'incam'}"
     root = to_rotmat(rotvecs(_arr(params, "global_orient", where), 1, "global_orient", where)[:, 0])
     T = len(root)
-    body = _frames(rotvecs(_arr(params, "body_pose", where), 21, "body_pose", where), T,
-                   "body_pose", where)  # fmt: skip
+    body = _frames(
+        rotvecs(_arr(params, "body_pose", where), 21, "body_pose", where), T, "body_pose", where
+    )
     transl = _frames(_arr(params, "transl", where), T, "transl", where).reshape(T, 3)
     extras: dict[str, np.ndarray] = {"surface_model_type": np.array("smplx")}
     incam = data.get("smpl_params_incam")
     if world and isinstance(incam, dict) and "global_orient" in incam and "transl" in incam:
-        cam_root = to_rotmat(rotvecs(_arr(incam, "global_orient", label), 1, "global_orient",
-                                   label)[:, 0])  # fmt: skip
+        cam_root = to_rotmat(
+            rotvecs(_arr(incam, "global_orient", label), 1, "global_orient", label)[:, 0]
+        )
         extras.update(_cam_extras(cam_root, np.asarray(incam["transl"]).reshape(-1, 3)))
     if "K_fullimg" in data and np.shape(data["K_fullimg"])[:1] == (T,):
         extras["cam_K"] = np.asarray(data["K_fullimg"], np.float32)
     notes = ["SMPL-X body (no hands in the file): poses holds the root and 21 body joints"]
     if "net_outputs" in data:
         notes.append("'net_outputs' (network internals) not carried")
-    return [RawTrack(
-        root=root, body=body, transl=transl, betas=_arr(params, "betas", where),
-        up=Y_UP if world else CAMERA_UP, model="body", extras=extras, notes=notes,
-    )]  # fmt: skip
+    return [
+        RawTrack(
+            root=root,
+            body=body,
+            transl=transl,
+            betas=_arr(params, "betas", where),
+            up=Y_UP if world else CAMERA_UP,
+            model="body",
+            extras=extras,
+            notes=notes,
+        )
+    ]
 
 
 def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack]:
     """TRAM ``hps/hps_track_<k>.npy``: pred_rotmat (T, 24, 3, 3), pred_shape, pred_trans
     (T, 1, 3) camera frame, frame (T,); with ``../camera.npy`` (world_cam_R, world_cam_T per
     video frame) the body is put in TRAM's gravity-aligned world (y up)."""
-    root, body, hands = _smpl_matrices(_arr(data, "pred_rotmat", label), 24, "pred_rotmat",
-                                       label)  # fmt: skip
+    root, body, hands = _smpl_matrices(_arr(data, "pred_rotmat", label), 24, "pred_rotmat", label)
     T = len(root)
     transl = _frames(_arr(data, "pred_trans", label), T, "pred_trans", label).reshape(T, 3)
     frames = np.asarray(data["frame"]).astype(np.int64).reshape(-1) if "frame" in data else None
@@ -235,11 +276,21 @@ def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack
             notes.append(f"world frame from {camera.name} (world_cam_R, world_cam_T)")
     if world is None:
         notes.append("no camera.npy beside hps/: camera frame, level camera")
-    return [RawTrack(
-        root=root, body=body, transl=transl, betas=_arr(data, "pred_shape", label),
-        up=Y_UP if world is not None else CAMERA_UP, model="smpl", pose_extra=hands,
-        frame_ids=frames, extras=_cam_extras(root, transl), world=world, notes=notes,
-    )]  # fmt: skip
+    return [
+        RawTrack(
+            root=root,
+            body=body,
+            transl=transl,
+            betas=_arr(data, "pred_shape", label),
+            up=Y_UP if world is not None else CAMERA_UP,
+            model="smpl",
+            pose_extra=hands,
+            frame_ids=frames,
+            extras=_cam_extras(root, transl),
+            world=world,
+            notes=notes,
+        )
+    ]
 
 
 def read_aistpp(data: dict, label: str) -> list[RawTrack]:
@@ -251,12 +302,20 @@ def read_aistpp(data: dict, label: str) -> list[RawTrack]:
     if not scale > 0:
         raise InputError(f"{label}: 'smpl_scaling' must be > 0, got {scale:g}")
     trans = _frames(_arr(data, "smpl_trans", label), T, "smpl_trans", label) / scale
-    return [RawTrack(
-        root=root, body=body, transl=trans.reshape(T, 3), betas=np.zeros(10), up=Y_UP,
-        model="smpl", pose_extra=hands, fps=60.0,
-        extras={"smpl_scaling": np.asarray(data.get("smpl_scaling", [1.0]), np.float32)},
-        notes=["no betas in AIST++: the mean shape"],
-    )]  # fmt: skip
+    return [
+        RawTrack(
+            root=root,
+            body=body,
+            transl=trans.reshape(T, 3),
+            betas=np.zeros(10),
+            up=Y_UP,
+            model="smpl",
+            pose_extra=hands,
+            fps=60.0,
+            extras={"smpl_scaling": np.asarray(data.get("smpl_scaling", [1.0]), np.float32)},
+            notes=["no betas in AIST++: the mean shape"],
+        )
+    ]
 
 
 # --------------------------------------------------------------------------------------------
@@ -277,8 +336,9 @@ def read_phalp(data: dict, label: str) -> list[RawTrack]:
             cams = f.get("camera", [])
             if not isinstance(smpl, dict) or i >= len(cams):
                 continue
-            t = per.setdefault(str(tid), {"root": [], "body": [], "betas": [], "cam": [],
-                                          "frame": []})  # fmt: skip
+            t = per.setdefault(
+                str(tid), {"root": [], "body": [], "betas": [], "cam": [], "frame": []}
+            )
             t["root"].append(np.asarray(smpl["global_orient"]).reshape(3, 3))
             t["body"].append(np.asarray(smpl["body_pose"]).reshape(23, 3, 3))
             t["betas"].append(np.asarray(smpl["betas"]).reshape(-1))
@@ -292,12 +352,21 @@ def read_phalp(data: dict, label: str) -> list[RawTrack]:
         mats = np.concatenate([np.stack(t["root"])[:, None], np.stack(t["body"])], axis=1)
         root, body, hands = _smpl_matrices(mats, 24, "smpl", f"{label} track {tid}")
         cam = np.stack(t["cam"])
-        tracks.append(RawTrack(
-            root=root, body=body, transl=cam, betas=np.stack(t["betas"]), up=CAMERA_UP,
-            model="smpl", label=tid, pose_extra=hands, frame_ids=np.asarray(t["frame"]),
-            extras=_cam_extras(root, cam),
-            notes=["no world frame in the file: camera frame, level camera"],
-        ))  # fmt: skip
+        tracks.append(
+            RawTrack(
+                root=root,
+                body=body,
+                transl=cam,
+                betas=np.stack(t["betas"]),
+                up=CAMERA_UP,
+                model="smpl",
+                label=tid,
+                pose_extra=hands,
+                frame_ids=np.asarray(t["frame"]),
+                extras=_cam_extras(root, cam),
+                notes=["no world frame in the file: camera frame, level camera"],
+            )
+        )
     return tracks
 
 
@@ -315,24 +384,38 @@ def read_romp(data: dict, label: str) -> list[RawTrack]:
     seq = data.get("sequence_results")
     seq = seq.item() if isinstance(seq, np.ndarray) and seq.dtype.hasobject else seq
     if not isinstance(seq, dict) or not seq:
-        raise InputError(f"{label}: no tracks in 'sequence_results' (a per-frame ROMP result "
-                         "holds one frame: use the video_results.npz of a video run)")  # fmt: skip
+        raise InputError(
+            f"{label}: no tracks in 'sequence_results' (a per-frame ROMP result "
+            "holds one frame: use the video_results.npz of a video run)"
+        )
     tracks = []
     for tid, d in _track_items(seq):
         where = f"{label} track {tid}"
-        pose = np.concatenate([np.stack(d["global_orient"]).reshape(-1, 3),
-                               np.stack(d["body_pose"]).reshape(-1, 69)], axis=1)  # fmt: skip
+        pose = np.concatenate(
+            [np.stack(d["global_orient"]).reshape(-1, 3), np.stack(d["body_pose"]).reshape(-1, 69)],
+            axis=1,
+        )
         root, body, hands = _smpl_axis_angle(pose, "body_pose", where)
         T = len(root)
-        cam = _frames(np.stack(d["cam_trans"]).reshape(-1, 3).astype(np.float64), T,
-                      "cam_trans", where)  # fmt: skip
+        cam = _frames(
+            np.stack(d["cam_trans"]).reshape(-1, 3).astype(np.float64), T, "cam_trans", where
+        )
         betas = np.stack(d["smpl_betas"]).reshape(T, -1)[:, :10]
-        tracks.append(RawTrack(
-            root=root, body=body, transl=cam, betas=betas, up=CAMERA_UP, model="smpl",
-            label=tid, pose_extra=hands, frame_ids=np.asarray(d.get("frame_id", np.arange(T))),
-            extras=_cam_extras(root, cam),
-            notes=["no world frame in the file: camera frame, level camera"],
-        ))  # fmt: skip
+        tracks.append(
+            RawTrack(
+                root=root,
+                body=body,
+                transl=cam,
+                betas=betas,
+                up=CAMERA_UP,
+                model="smpl",
+                label=tid,
+                pose_extra=hands,
+                frame_ids=np.asarray(d.get("frame_id", np.arange(T))),
+                extras=_cam_extras(root, cam),
+                notes=["no world frame in the file: camera frame, level camera"],
+            )
+        )
     return tracks
 
 
@@ -355,12 +438,19 @@ def read_slahmr(data: dict, label: str) -> list[RawTrack]:
         observed = None
         if "track_mask" in data:
             observed = np.asarray(data["track_mask"][b]).astype(bool).reshape(T)
-        tracks.append(RawTrack(
-            root=to_rotmat(ro[b].astype(np.float64)), body=body,
-            transl=_arr(data, "trans", label)[b].reshape(T, 3), betas=_arr(data, "betas",
-            label)[b], up=up, model="smplh" if extra is not None and extra.shape[1] == 90
-            else "body", label=str(b), pose_extra=extra, observed=observed,
-        ))  # fmt: skip
+        tracks.append(
+            RawTrack(
+                root=to_rotmat(ro[b].astype(np.float64)),
+                body=body,
+                transl=_arr(data, "trans", label)[b].reshape(T, 3),
+                betas=_arr(data, "betas", label)[b],
+                up=up,
+                model="smplh" if extra is not None and extra.shape[1] == 90 else "body",
+                label=str(b),
+                pose_extra=extra,
+                observed=observed,
+            )
+        )
     return tracks
 
 

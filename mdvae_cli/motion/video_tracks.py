@@ -176,8 +176,10 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
     mask = None
     if raw.observed is not None and not np.asarray(raw.observed).all():
         mask = np.repeat(np.asarray(raw.observed, dtype=bool).reshape(T, 1), 22, axis=1)
-        notes.append(f"{int((~mask[:, 0]).sum())} frame(s) the pipeline filled in itself "
-                     "marked unobserved in joint_mask")  # fmt: skip
+        notes.append(
+            f"{int((~mask[:, 0]).sum())} frame(s) the pipeline filled in itself "
+            "marked unobserved in joint_mask"
+        )
     if raw.frame_ids is not None:
         root, pose_body, trans, extra, extras, gaps, ids = _fill_gaps(
             raw.frame_ids, root, pose_body, trans, extra, extras, source, raw.label
@@ -186,11 +188,12 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         extras["frame_ids"] = ids
         if gaps is not None:
             missing = int((~mask[:, 0]).sum())
-            notes.append(f"{missing} missing frame(s) filled by interpolation and marked "
-                         "unobserved in joint_mask")  # fmt: skip
+            notes.append(
+                f"{missing} missing frame(s) filled by interpolation and marked "
+                "unobserved in joint_mask"
+            )
     if _mean_up(root) < 0:
-        notes.append("the body is upside down in this frame: is the file's frame (--format) "
-                     "right?")  # fmt: skip
+        notes.append("the body is upside down in this frame: is the file's frame (--format) right?")
     layout = {
         "fps_key": "mocap_framerate",
         "poses_dtype": "float32",
@@ -198,10 +201,18 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         "key_order": ["poses", "trans", "betas", "mocap_framerate", "gender"],
     }
     return Motion(
-        root_orient=root, pose_body=pose_body, trans=trans, betas=betas, fps=float(fps),
-        pose_extra=extra, gender=GENDER, joint_mask=mask, extras=extras, layout=layout,
+        root_orient=root,
+        pose_body=pose_body,
+        trans=trans,
+        betas=betas,
+        fps=float(fps),
+        pose_extra=extra,
+        gender=GENDER,
+        joint_mask=mask,
+        extras=extras,
+        layout=layout,
         notes=notes,
-    )  # fmt: skip
+    )
 
 
 def _mean_up(root_orient: np.ndarray) -> float:
@@ -223,8 +234,9 @@ def _fill_gaps(ids, root, pose_body, trans, extra, extras, source, label):
     if len(keep) == T and len(full) == T and np.all(keep == np.arange(T)):
         return root, pose_body, trans, extra, extras, None, ids
     if len(full) > 20 * len(ids) + 1000:
-        raise InputError(f"{source}: track {label}: frame ids {ids[0]}..{ids[-1]} for "
-                         f"{len(ids)} frames")  # fmt: skip
+        raise InputError(
+            f"{source}: track {label}: frame ids {ids[0]}..{ids[-1]} for {len(ids)} frames"
+        )
     pos = np.interp(full, ids, np.arange(len(ids)))
     observed = np.isin(full, ids)
 
@@ -241,8 +253,11 @@ def _fill_gaps(ids, root, pose_body, trans, extra, extras, source, label):
     out = {}
     for k, v in extras.items():
         if v.ndim >= 1 and v.shape[0] == T and np.issubdtype(v.dtype, np.number):
-            out[k] = fill_lin(v).astype(v.dtype) if v.dtype.kind == "f" else v[keep][
-                np.clip(np.searchsorted(ids, full, side="right") - 1, 0, len(ids) - 1)]  # fmt: skip
+            out[k] = (
+                fill_lin(v).astype(v.dtype)
+                if v.dtype.kind == "f"
+                else v[keep][np.clip(np.searchsorted(ids, full, side="right") - 1, 0, len(ids) - 1)]
+            )
         else:
             out[k] = v
     mask = np.repeat(observed[:, None], 22, axis=1)
