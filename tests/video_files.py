@@ -28,9 +28,12 @@ BODY = builtin_body_model()
 
 
 def clip(T: int = 40, seed: int = 0, fps: float = 30.0) -> Motion:
+    """A smooth upright clip (``conftest.motion_arrays`` stood up: z up), SMPL layout."""
     from conftest import motion_arrays
 
     arrays = motion_arrays(T=T, width=72, fps=fps, seed=seed, num_betas=10)
+    upright = _mat([np.pi / 2, 0.0, 0.0]) @ _mat(arrays["poses"][:, :3])  # stand on z = 0
+    arrays["poses"][:, :3] = _vec(upright)
     return motion_from_arrays(arrays)
 
 

@@ -158,7 +158,7 @@ class VideoNoise:
     pose_slow: float = 0.10
     root_white: float = 0.005
     root_slow: float = 0.05
-    depth_white: float = 0.005
+    depth_white: float = 0.04
     depth_slow: float = 0.05
     lateral_white: float = 0.002
     lateral_slow: float = 0.01
@@ -241,7 +241,9 @@ def add_video_noise(motion: Motion, noise: VideoNoise, rng: np.random.Generator)
 
     root_noise = root_rng.normal(0.0, noise.root_white, (T, 3))
     root_noise += slow_noise(root_rng, (T, 3), noise.root_slow, a)
-    root = _compose(root_noise, motion.root_orient)
+    root = motion.root_orient.copy()
+    if noise.root_white or noise.root_slow:
+        root = _compose(root_noise, root)
     turned = _events(turn_rng, T, noise.turn_rate, fps, int(noise.swap_frames))
     root[turned] = _compose(np.array([0.0, 0.0, math.pi]), root[turned])
 
