@@ -131,7 +131,8 @@ def _output_name(relpath: Path) -> Path:
     help="Model the noise as heavy-tailed (Student-t, 10 degrees of freedom, = --lam 10) per "
     "frame and joint, so spikes (a swapped marker, a solver flip) are down-weighted where they "
     "happen instead of raising the whole joint's noise level: with --refine, about 40 % lower "
-    "error on takes with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py).",
+    "error on takes with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py); "
+    "without --refine (the video setting) smoother, but worse on spiky mocap takes.",
 )
 @click.option(
     "--lam",
