@@ -37,6 +37,7 @@ except ModuleNotFoundError:  # run as a file
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.export import pose_motion_chunks
 from mdvae_cli.filters import gaussian_filter_motion, one_euro_filter_motion, savgol_filter_motion
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.input_kinds import INPUT_KINDS, refine_config
@@ -51,7 +52,9 @@ SECTION_BEGIN = "<!-- video_table:begin (written by benchmarks/video_table.py) -
 SECTION_END = "<!-- video_table:end -->"
 GAUSSIAN_GRID = (1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0)
 SAVGOL_GRID = tuple((w, p) for w in (7, 11, 15, 21, 31) for p in (1, 2, 3) if p < w - 1)
-ONE_EURO_GRID = tuple((c, b) for c in (0.5, 1.0, 1.5, 2.0, 3.0, 5.0) for b in (0.0, 0.3, 1.0, 3.0))
+ONE_EURO_GRID = tuple(
+    (c, b) for c in (0.5, 1.0, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0) for b in (0.0, 0.3, 1.0, 3.0, 10.0)
+)
 FEET = (7, 8, 10, 11)
 Process = Callable[[list[Motion]], list[Motion]]
 
@@ -89,7 +92,9 @@ def foot_skate(gt: np.ndarray, pred: np.ndarray, fps: float) -> tuple[float, int
 
 
 def joints(motion: Motion, body: BodyModel, betas: np.ndarray) -> np.ndarray:
-    return common._pose(motion, body, betas).joints.numpy()
+    """The 22 body joints of ``motion`` posed with ``betas``.  -> (T, 22, 3)"""
+    chunks = pose_motion_chunks(motion, body, vertices=False, betas=betas)
+    return np.concatenate([o.joints.double().numpy() for _, o in chunks])
 
 
 def evaluate(gt: Sequence[Motion], sets: dict[str, Sequence[Motion]], body: BodyModel) -> dict:

@@ -120,8 +120,12 @@ def test_tram_track_and_camera(tmp_path, with_camera):
     assert loaded.format == "tram"
     got = loaded.single()
     same_body(got, m, tol=1e-3)
-    assert any(("world frame from camera.npy" if with_camera else "no camera.npy") in n
-               for n in got.notes)  # fmt: skip
+    assert any(
+        ("world frame from camera.npy" if with_camera else "no camera.npy") in n for n in got.notes
+    )
+    if with_camera:
+        with pytest.raises(InputError, match="TRAM's camera file"):
+            load_any(path.parent.parent / "camera.npy")  # fmt: skip
 
 
 def test_phalp_compressed_joblib_grouped_by_track(tmp_path):

@@ -131,6 +131,12 @@ def load_any(
 
     data = load_data(path)
     name = name or detect(data)
+    inner = data.item() if isinstance(data, np.ndarray) and data.dtype.hasobject else data
+    if name is None and isinstance(inner, dict) and "world_cam_R" in inner:
+        raise InputError(
+            f"{path}: TRAM's camera file, not a motion: give the hps/hps_track_<k>.npy files "
+            "(they read it from two folders up)"
+        )
     if name is None:
         raise InputError(
             f"{path}: not a motion layout this tool knows (give --format: {', '.join(FORMATS)})"
