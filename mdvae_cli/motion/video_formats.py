@@ -18,12 +18,19 @@ from typing import Any
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.motion.video_layout import (
+    array,
+    cam_extras,
+    frames_of,
+    smpl_axis_angle,
+    smpl_matrices,
+    track_items,
+)
+from mdvae_cli.motion.video_people import read_phalp, read_romp, read_slahmr
 from mdvae_cli.motion.video_tracks import (
     CAMERA_UP,
     Y_UP,
     RawTrack,
-    matrices_to_rotvecs,
-    rotmats,
     rotvecs,
     to_rotmat,
 )
@@ -35,52 +42,6 @@ VIDEO_FPS = 30.0
 WEAK_PERSPECTIVE_FOV = 60.0
 
 
-def _arr(d: dict, key: str, label: str) -> np.ndarray:
-    if key not in d:
-        raise InputError(f"{label}: no '{key}' array")
-    a = np.asarray(d[key])
-    if not np.issubdtype(a.dtype, np.number):
-        raise InputError(f"{label}: '{key}' is not numeric (dtype {a.dtype})")
-    return a
-
-
-def _frames(a: np.ndarray, T: int, key: str, label: str) -> np.ndarray:
-    if a.shape[0] != T:
-        raise InputError(f"{label}: '{key}' has {a.shape[0]} frames, the pose {T}")
-    return a
-
-
-def _smpl_axis_angle(pose: np.ndarray, key: str, label: str) -> tuple:
-    """(T, 72) SMPL axis-angles -> root (T, 3, 3), body (T, 21, 3), hands (T, 6)."""
-    aa = rotvecs(pose, 24, key, label)
-    return to_rotmat(aa[:, 0]), aa[:, 1:22], aa[:, 22:].reshape(len(aa), 6)
-
-
-def _smpl_matrices(mats: np.ndarray, joints: int, key: str, label: str) -> tuple:
-    """(T, J, 3, 3) rotation matrices, root first -> root (T, 3, 3), body (T, 21, 3), the
-    remaining joints as axis-angles (T, 3 (J - 22))."""
-    m = rotmats(mats, joints, key, label)
-    aa = matrices_to_rotvecs(m[:, 1:])
-    return m[:, 0], aa[:, :21], aa[:, 21:].reshape(len(m), -1)
-
-
-def _cam_extras(root: np.ndarray, transl: np.ndarray) -> dict[str, np.ndarray]:
-    """The camera-frame root and translation as the pipeline estimated them (carried)."""
-    return {
-        "cam_root_orient": matrices_to_rotvecs(root).astype(np.float32),
-        "cam_trans": np.asarray(transl, dtype=np.float32),
-    }
-
-
-def _track_items(data: dict) -> list[tuple[str, dict]]:
-    """(label, per-track dict) of a dict keyed by track id, sorted by id."""
-
-    def order(k):
-        return (0, int(k), "") if np.issubdtype(type(k), np.integer) else (1, 0, str(k))
-
-    return [(str(k), v) for k, v in sorted(data.items(), key=lambda kv: order(kv[0]))]
-
-
 # --------------------------------------------------------------------------------------------
 # per-person dicts keyed by track id: WHAM, VIBE, PARE
 
@@ -89,17 +50,17 @@ def read_wham(data: dict, label: str) -> list[RawTrack]:
     """WHAM ``wham_output.pkl``: {track id: {pose, trans, pose_world, trans_world, betas,
     verts, frame_ids}}; the world frame (y up) when the track has it, else the camera's."""
     tracks = []
-    for tid, d in _track_items(data):
+    for tid, d in track_items(data):
         where = f"{label} track {tid}"
         world = "pose_world" in d and "trans_world" in d
-        pose = _arr(d, "pose_world" if world else "pose", where)
-        root, body, hands = _smpl_axis_angle(pose, "pose", where)
+        pose = array(d, "pose_world" if world else "pose", where)
+        root, body, hands = smpl_axis_angle(pose, "pose", where)
         T = len(root)
-        transl = _frames(_arr(d, "trans_world" if world else "trans", where), T, "trans", where)
+        transl = frames_of(array(d, "trans_world" if world else "trans", where), T, "trans", where)
         extras = {}
         if world and "pose" in d and "trans" in d:
-            cam_root, _, _ = _smpl_axis_angle(_arr(d, "pose", where), "pose", where)
-            extras = _cam_extras(cam_root, _frames(_arr(d, "trans", where), T, "trans", where))
+            cam_root, _, _ = smpl_axis_angle(array(d, "pose", where), "pose", where)
+            extras = cam_extras(cam_root, frames_of(array(d, "trans", where), T, "trans", where))
         notes = [] if world else ["no world frame in the file: camera frame, level camera"]
         if "verts" in d:
             notes.append("'verts' not carried (recomputed from the pose by any SMPL tool)")
@@ -108,7 +69,7 @@ def read_wham(data: dict, label: str) -> list[RawTrack]:
                 root=root,
                 body=body,
                 transl=transl.reshape(T, 3),
-                betas=_arr(d, "betas", where),
+                betas=array(d, "betas", where),
                 up=Y_UP if world else CAMERA_UP,
                 model="smpl",
                 label=tid,
@@ -134,13 +95,13 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
     (T, 24, 3, 3) matrices (PARE), betas, orig_cam, frame_ids, ...}}, camera frame, no
     translation (placed from the weak-perspective camera)."""
     tracks = []
-    for tid, d in _track_items(data):
+    for tid, d in track_items(data):
         where = f"{label} track {tid}"
-        pose = _arr(d, "pose", where)
+        pose = array(d, "pose", where)
         if pose[0].size == 72:
-            root, body, hands = _smpl_axis_angle(pose, "pose", where)
+            root, body, hands = smpl_axis_angle(pose, "pose", where)
         else:
-            root, body, hands = _smpl_matrices(pose, 24, "pose", where)
+            root, body, hands = smpl_matrices(pose, 24, "pose", where)
         T = len(root)
         fov = WEAK_PERSPECTIVE_FOV
         notes = [
@@ -149,7 +110,7 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
         ]
         if "orig_cam" in d:
             pelvis = _weak_perspective_pelvis(
-                _frames(_arr(d, "orig_cam", where), T, "orig_cam", where).reshape(T, -1)
+                frames_of(array(d, "orig_cam", where), T, "orig_cam", where).reshape(T, -1)
             )
         else:
             pelvis, notes = np.zeros((T, 3)), ["no translation in the file: the pelvis stays put"]
@@ -159,7 +120,7 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
                 root=root,
                 body=body,
                 transl=pelvis,
-                betas=_arr(d, "betas", where),
+                betas=array(d, "betas", where),
                 up=CAMERA_UP,
                 model="smpl",
                 label=tid,
@@ -180,18 +141,18 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
 def read_hybrik(data: dict, label: str) -> list[RawTrack]:
     """HybrIK ``res.pk``: pred_thetas (T, 24*9) rotation matrices (HybrIK-X: 55 SMPL-X joints),
     pred_betas, transl = the pelvis in the camera frame (metres)."""
-    thetas = _arr(data, "pred_thetas", label)
+    thetas = array(data, "pred_thetas", label)
     joints = thetas[0].size // 9
     if joints not in (24, 55) or thetas[0].size != joints * 9:
         raise InputError(
             f"{label}: 'pred_thetas' has shape {thetas.shape}, expected (T, 216) "
             "(SMPL) or (T, 495) (SMPL-X)"
         )
-    root, body, rest = _smpl_matrices(thetas, joints, "pred_thetas", label)
+    root, body, rest = smpl_matrices(thetas, joints, "pred_thetas", label)
     T = len(root)
     key = "transl" if "transl" in data else "pred_cam_root"
-    transl = _frames(_arr(data, key, label), T, key, label).reshape(T, 3)
-    extras = _cam_extras(root, transl)
+    transl = frames_of(array(data, key, label), T, key, label).reshape(T, 3)
+    extras = cam_extras(root, transl)
     for k in ("img_path", "bbox"):
         if k in data and np.shape(data[k])[:1] == (T,):
             extras[k] = np.asarray(data[k])
@@ -200,7 +161,7 @@ def read_hybrik(data: dict, label: str) -> list[RawTrack]:
             root=root,
             body=body,
             transl=transl,
-            betas=_arr(data, "pred_betas", label),
+            betas=array(data, "pred_betas", label),
             up=CAMERA_UP,
             model="smpl" if joints == 24 else "smplx",
             transl_is_pelvis=True,
@@ -221,19 +182,21 @@ def read_gvhmr(data: dict, label: str) -> list[RawTrack]:
     if not isinstance(params, dict):
         raise InputError(f"{label}: no 'smpl_params_global' or 'smpl_params_incam'")
     where = f"{label} smpl_params_{'global' if world else 'incam'}"
-    root = to_rotmat(rotvecs(_arr(params, "global_orient", where), 1, "global_orient", where)[:, 0])
-    T = len(root)
-    body = _frames(
-        rotvecs(_arr(params, "body_pose", where), 21, "body_pose", where), T, "body_pose", where
+    root = to_rotmat(
+        rotvecs(array(params, "global_orient", where), 1, "global_orient", where)[:, 0]
     )
-    transl = _frames(_arr(params, "transl", where), T, "transl", where).reshape(T, 3)
+    T = len(root)
+    body = frames_of(
+        rotvecs(array(params, "body_pose", where), 21, "body_pose", where), T, "body_pose", where
+    )
+    transl = frames_of(array(params, "transl", where), T, "transl", where).reshape(T, 3)
     extras: dict[str, np.ndarray] = {"surface_model_type": np.array("smplx")}
     incam = data.get("smpl_params_incam")
     if world and isinstance(incam, dict) and "global_orient" in incam and "transl" in incam:
         cam_root = to_rotmat(
-            rotvecs(_arr(incam, "global_orient", label), 1, "global_orient", label)[:, 0]
+            rotvecs(array(incam, "global_orient", label), 1, "global_orient", label)[:, 0]
         )
-        extras.update(_cam_extras(cam_root, np.asarray(incam["transl"]).reshape(-1, 3)))
+        extras.update(cam_extras(cam_root, np.asarray(incam["transl"]).reshape(-1, 3)))
     if "K_fullimg" in data and np.shape(data["K_fullimg"])[:1] == (T,):
         extras["cam_K"] = np.asarray(data["K_fullimg"], np.float32)
     notes = ["SMPL-X body (no hands in the file): poses holds the root and 21 body joints"]
@@ -244,7 +207,7 @@ def read_gvhmr(data: dict, label: str) -> list[RawTrack]:
             root=root,
             body=body,
             transl=transl,
-            betas=_arr(params, "betas", where),
+            betas=array(params, "betas", where),
             up=Y_UP if world else CAMERA_UP,
             model="body",
             extras=extras,
@@ -257,9 +220,9 @@ def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack
     """TRAM ``hps/hps_track_<k>.npy``: pred_rotmat (T, 24, 3, 3), pred_shape, pred_trans
     (T, 1, 3) camera frame, frame (T,); with ``../camera.npy`` (world_cam_R, world_cam_T per
     video frame) the body is put in TRAM's gravity-aligned world (y up)."""
-    root, body, hands = _smpl_matrices(_arr(data, "pred_rotmat", label), 24, "pred_rotmat", label)
+    root, body, hands = smpl_matrices(array(data, "pred_rotmat", label), 24, "pred_rotmat", label)
     T = len(root)
-    transl = _frames(_arr(data, "pred_trans", label), T, "pred_trans", label).reshape(T, 3)
+    transl = frames_of(array(data, "pred_trans", label), T, "pred_trans", label).reshape(T, 3)
     frames = np.asarray(data["frame"]).astype(np.int64).reshape(-1) if "frame" in data else None
     world, notes = None, []
     camera = None if path is None else path.parent.parent / "camera.npy"
@@ -281,12 +244,12 @@ def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack
             root=root,
             body=body,
             transl=transl,
-            betas=_arr(data, "pred_shape", label),
+            betas=array(data, "pred_shape", label),
             up=Y_UP if world is not None else CAMERA_UP,
             model="smpl",
             pose_extra=hands,
             frame_ids=frames,
-            extras=_cam_extras(root, transl),
+            extras=cam_extras(root, transl),
             world=world,
             notes=notes,
         )
@@ -296,12 +259,12 @@ def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack
 def read_aistpp(data: dict, label: str) -> list[RawTrack]:
     """AIST++ motion pickle: smpl_poses (T, 72), smpl_trans (T, 3) scaled by smpl_scaling, y up,
     exactly 60 fps."""
-    root, body, hands = _smpl_axis_angle(_arr(data, "smpl_poses", label), "smpl_poses", label)
+    root, body, hands = smpl_axis_angle(array(data, "smpl_poses", label), "smpl_poses", label)
     T = len(root)
     scale = float(np.asarray(data.get("smpl_scaling", 1.0)).reshape(-1)[0])
     if not scale > 0:
         raise InputError(f"{label}: 'smpl_scaling' must be > 0, got {scale:g}")
-    trans = _frames(_arr(data, "smpl_trans", label), T, "smpl_trans", label) / scale
+    trans = frames_of(array(data, "smpl_trans", label), T, "smpl_trans", label) / scale
     return [
         RawTrack(
             root=root,
@@ -316,150 +279,6 @@ def read_aistpp(data: dict, label: str) -> list[RawTrack]:
             notes=["no betas in AIST++: the mean shape"],
         )
     ]
-
-
-# --------------------------------------------------------------------------------------------
-# per-frame lists: 4D-Humans / PHALP, ROMP / BEV; batched tracks: SLAHMR
-
-
-def read_phalp(data: dict, label: str) -> list[RawTrack]:
-    """4D-Humans / PHALP ``demo_<video>.pkl``: {frame name: {time, tid, smpl [{global_orient
-    (1, 3, 3), body_pose (23, 3, 3), betas}], camera [(3,)], ...}}, camera frame; frames are
-    grouped into tracks by ``tid``."""
-    frames = sorted(data.items(), key=lambda kv: (_time(kv[1]), str(kv[0])))
-    per: dict[str, dict[str, list]] = {}
-    for index, (_, f) in enumerate(frames):
-        if not isinstance(f, dict):
-            continue
-        for i, tid in enumerate(f.get("tid", [])):
-            smpl = f.get("smpl", [None] * (i + 1))[i]
-            cams = f.get("camera", [])
-            if not isinstance(smpl, dict) or i >= len(cams):
-                continue
-            t = per.setdefault(
-                str(tid), {"root": [], "body": [], "betas": [], "cam": [], "frame": []}
-            )
-            t["root"].append(np.asarray(smpl["global_orient"]).reshape(3, 3))
-            t["body"].append(np.asarray(smpl["body_pose"]).reshape(23, 3, 3))
-            t["betas"].append(np.asarray(smpl["betas"]).reshape(-1))
-            t["cam"].append(np.asarray(cams[i]).reshape(3))
-            t["frame"].append(_time(f) if _time(f) >= 0 else index)
-    if not per:
-        raise InputError(f"{label}: no tracked person with SMPL parameters in the file")
-    tracks = []
-    for tid in sorted(per, key=lambda s: (len(s), s)):
-        t = per[tid]
-        mats = np.concatenate([np.stack(t["root"])[:, None], np.stack(t["body"])], axis=1)
-        root, body, hands = _smpl_matrices(mats, 24, "smpl", f"{label} track {tid}")
-        cam = np.stack(t["cam"])
-        tracks.append(
-            RawTrack(
-                root=root,
-                body=body,
-                transl=cam,
-                betas=np.stack(t["betas"]),
-                up=CAMERA_UP,
-                model="smpl",
-                label=tid,
-                pose_extra=hands,
-                frame_ids=np.asarray(t["frame"]),
-                extras=_cam_extras(root, cam),
-                notes=["no world frame in the file: camera frame, level camera"],
-            )
-        )
-    return tracks
-
-
-def _time(frame: Any) -> int:
-    t = frame.get("time", -1) if isinstance(frame, dict) else -1
-    try:
-        return int(t)
-    except (TypeError, ValueError):
-        return -1
-
-
-def read_romp(data: dict, label: str) -> list[RawTrack]:
-    """ROMP / BEV ``video_results.npz``: sequence_results {track id: {frame_id, global_orient
-    (3,), body_pose (69,), smpl_betas (10 or 11,), cam_trans (3,), ...} per frame}."""
-    seq = data.get("sequence_results")
-    seq = seq.item() if isinstance(seq, np.ndarray) and seq.dtype.hasobject else seq
-    if not isinstance(seq, dict) or not seq:
-        raise InputError(
-            f"{label}: no tracks in 'sequence_results' (a per-frame ROMP result "
-            "holds one frame: use the video_results.npz of a video run)"
-        )
-    tracks = []
-    for tid, d in _track_items(seq):
-        where = f"{label} track {tid}"
-        pose = np.concatenate(
-            [np.stack(d["global_orient"]).reshape(-1, 3), np.stack(d["body_pose"]).reshape(-1, 69)],
-            axis=1,
-        )
-        root, body, hands = _smpl_axis_angle(pose, "body_pose", where)
-        T = len(root)
-        cam = _frames(
-            np.stack(d["cam_trans"]).reshape(-1, 3).astype(np.float64), T, "cam_trans", where
-        )
-        betas = np.stack(d["smpl_betas"]).reshape(T, -1)[:, :10]
-        tracks.append(
-            RawTrack(
-                root=root,
-                body=body,
-                transl=cam,
-                betas=betas,
-                up=CAMERA_UP,
-                model="smpl",
-                label=tid,
-                pose_extra=hands,
-                frame_ids=np.asarray(d.get("frame_id", np.arange(T))),
-                extras=_cam_extras(root, cam),
-                notes=["no world frame in the file: camera frame, level camera"],
-            )
-        )
-    return tracks
-
-
-def read_slahmr(data: dict, label: str) -> list[RawTrack]:
-    """SLAHMR ``*_world_results.npz``: trans, root_orient (B, T, 3), pose_body (B, T, 63),
-    betas (B, 16), pose_hand (B, T, 90) optional, track_mask (B, T), floor_plane; the SLAM
-    world, whose up is the floor's normal (signed by the bodies)."""
-    ro = _arr(data, "root_orient", label)
-    if ro.ndim == 2:  # a single track without the batch axis
-        data = {k: (np.asarray(v)[None] if np.ndim(v) >= 1 else v) for k, v in data.items()}
-        ro = ro[None]
-    B, T = ro.shape[:2]
-    up = _floor_up(data, ro)
-    hands = data.get("pose_hand", data.get("hand_pose"))
-    tracks = []
-    for b in range(B):
-        where = f"{label} track {b}"
-        body = rotvecs(_arr(data, "pose_body", label)[b], 21, "pose_body", where)
-        extra = None if hands is None else np.asarray(hands[b], np.float64).reshape(T, -1)
-        observed = None
-        if "track_mask" in data:
-            observed = np.asarray(data["track_mask"][b]).astype(bool).reshape(T)
-        tracks.append(
-            RawTrack(
-                root=to_rotmat(ro[b].astype(np.float64)),
-                body=body,
-                transl=_arr(data, "trans", label)[b].reshape(T, 3),
-                betas=_arr(data, "betas", label)[b],
-                up=up,
-                model="smplh" if extra is not None and extra.shape[1] == 90 else "body",
-                label=str(b),
-                pose_extra=extra,
-                observed=observed,
-            )
-        )
-    return tracks
-
-
-def _floor_up(data: dict, root_orient: np.ndarray) -> tuple[float, float, float]:
-    """SLAHMR's up: the floor plane's normal, signed to agree with the bodies' mean up."""
-    body_up = to_rotmat(root_orient.reshape(-1, 3).astype(np.float64))[:, :, 1].mean(0)
-    n = np.asarray(data.get("floor_plane", CAMERA_UP), np.float64).reshape(-1, 3)[0]
-    n = n / max(np.linalg.norm(n), 1e-9) if np.linalg.norm(n) > 1e-9 else np.array(CAMERA_UP)
-    return tuple(n if n @ body_up >= 0 else -n)
 
 
 # --------------------------------------------------------------------------------------------
