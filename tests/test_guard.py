@@ -142,9 +142,10 @@ def test_a_loop_is_detected_and_denoised_as_a_cycle(tiny_prior):  # noqa: F811
     walk = load_motion(REPO / "examples/walk.npz")
     cyc = slice_frames(walk, 0, T)
     pose = 0.4 * np.sin(phase[:, None, None] + np.arange(21)[None, :, None] * 0.3)
-    cyc = cyc.with_body(root_orient=np.tile([[1.2, 1.2, 1.2]], (T, 1)) * 0.0 + [0.0, 0.0, 1.0],
-                        pose_body=np.broadcast_to(pose, (T, 21, 3)).copy(),
-                        trans=np.stack([1.0 * t, 0 * t, 0.9 + 0.02 * np.cos(2 * phase)], 1))  # fmt: skip
+    root = np.tile([[0.0, 0.0, 1.0]], (T, 1))
+    trans = np.stack([1.0 * t, 0 * t, 0.9 + 0.02 * np.cos(2 * phase)], 1)
+    cyc = cyc.with_body(root_orient=root, pose_body=np.broadcast_to(pose, (T, 21, 3)).copy(),
+                        trans=trans)  # fmt: skip
     assert looks_like_loop(cyc)
     assert not looks_like_loop(slice_frames(cyc, 0, 20))
     tiled = tile(cyc)

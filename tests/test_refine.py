@@ -398,8 +398,14 @@ def test_cli_denoise_refine(tiny_prior, make_motion_file, tmp_path):  # noqa: F8
     res = CliRunner().invoke(cli, [*args, "--refine", "2", "--outliers", "--json"])
     assert res.exit_code == 0 and json.loads(res.output)["refine"]["outlier_dof"] == 10.0
     out.unlink()
-    res = CliRunner().invoke(cli, [*args, "--outliers"])  # it needs refinement
-    assert res.exit_code != 0 and "use it with --refine N" in res.output and not out.exists()
+    # without refinement it weighs the offset's frames (the video setting) ...
+    res = CliRunner().invoke(cli, [*args, "--outliers", "--json"])
+    assert res.exit_code == 0 and json.loads(res.output)["refine"]["outlier_dof"] == 10.0
+    out.unlink()
+    # ... so it needs the offset or refinement
+    res = CliRunner().invoke(cli, [*args, "--outliers", "--no-offset"])
+    assert res.exit_code != 0 and "drop --no-offset or add --refine N" in res.output
+    assert not out.exists()
     for bad in (["--refine-lr", "0"], ["--refine-offset", "-1"]):
         res = CliRunner().invoke(cli, [*args, "--refine", "3", *bad])
         assert res.exit_code == 2 and not out.exists()

@@ -1,5 +1,7 @@
 """A restricted unpickler for SMPL-family body-model pickles, with no chumpy or scipy needed.
 
+(Data pickles — video-pipeline outputs, torch and joblib files — are read by ``safe_data``.)
+
 The SMPL pickles as distributed hold ``chumpy`` arrays and a ``scipy.sparse`` joint regressor.
 :func:`read_pickle` loads such a file with an unpickler that builds numpy arrays, stands in for
 chumpy and scipy.sparse classes (rebuilt from their pickled state only: no code of either
@@ -50,23 +52,16 @@ class _SparseMatrix(_PickledObject):
 _SPARSE_NAMES = ("csc_matrix", "csc_array", "csr_matrix", "csr_array", "coo_matrix", "coo_array")
 
 
-def _allowed_globals() -> dict[tuple[str, str], Any]:
-    """The only plain callables a body-model pickle may name: what numpy and copyreg need.
+def numpy_globals() -> dict[tuple[str, str], Any]:
+    """What pickled numpy arrays, dtypes and scalars (and bytes at protocol < 3) name: both
+    spellings of numpy's core module (``numpy.core``, numpy >= 2's ``numpy._core``).
 
-    Python-level functions are fresh wrappers per load, so a pickle that sets attributes on
+    Python-level functions are fresh wrappers per call, so a pickle that sets attributes on
     what it loaded (BUILD) cannot alter the real ones.
     """
-    import copyreg
-
     reconstruct = np.zeros(1).__reduce__()[0]  # built-in numpy functions: no settable state
     scalar = np.float64(0).__reduce__()[0]
     frombuffer = np.zeros(1).__reduce_ex__(5)[0]
-
-    def rebuild(cls: type, base: type, state: Any) -> Any:
-        return copyreg._reconstructor(cls, base, state)
-
-    def newobj(cls: type, *args: Any) -> Any:
-        return cls.__new__(cls, *args)
 
     def from_buffer(*args: Any) -> np.ndarray:
         return frombuffer(*args)
@@ -83,6 +78,20 @@ def _allowed_globals() -> dict[tuple[str, str], Any]:
         allowed[(f"{core}.numeric", "_frombuffer")] = from_buffer
     allowed[("numpy", "ndarray")] = np.ndarray
     allowed[("numpy", "dtype")] = np.dtype
+    return allowed
+
+
+def _allowed_globals() -> dict[tuple[str, str], Any]:
+    """The only plain callables a body-model pickle may name: what numpy and copyreg need."""
+    import copyreg
+
+    def rebuild(cls: type, base: type, state: Any) -> Any:
+        return copyreg._reconstructor(cls, base, state)
+
+    def newobj(cls: type, *args: Any) -> Any:
+        return cls.__new__(cls, *args)
+
+    allowed = numpy_globals()
     for mod in ("copy_reg", "copyreg"):
         allowed[(mod, "_reconstructor")] = rebuild
         allowed[(mod, "__newobj__")] = newobj

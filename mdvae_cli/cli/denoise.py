@@ -11,6 +11,7 @@ import click
 from mdvae_cli.cli.batch import (
     FileJob,
     emit_json,
+    is_kind,
     json_option,
     print_notes,
     run_batch,
@@ -25,6 +26,12 @@ from mdvae_cli.cli.common import (
     console,
     handle_errors,
     progress_bar,
+)
+from mdvae_cli.cli.motion_input import (
+    motion_input_options,
+    outputs_of,
+    read_input,
+    track_output,
 )
 from mdvae_cli.cli.takes import TakeReader, is_take, load_joint_map, plan_take_jobs
 from mdvae_cli.errors import InputError
@@ -90,19 +97,19 @@ from mdvae_cli.errors import InputError
 @click.option(
     "--refine-offset",
     type=NON_NEGATIVE,
-    default=0.03,
-    show_default=True,
+    default=None,
     help="The scale (rad) each joint's slow rotation offset (--offset, --refine) starts from "
-    "in every window, then estimated from the file. 0 = no offset.",
+    "in every window, then estimated from the file. 0 = no offset. [default: 0.03, or the "
+    "input kind's setting]",
 )
 @click.option(
     "--trans-offset",
     type=NON_NEGATIVE,
-    default=0.03,
-    show_default=True,
+    default=None,
     help="The scale (m) the root translation's slow offset (--offset) starts from in every "
     "window: it keeps the file's path, from which the decoded one drifts by ~4 cm. 0 = no "
-    "translation offset. (--refine fits the translation itself.)",
+    "translation offset. (--refine fits the translation itself.) [default: 0.03, or the "
+    "input kind's setting]",
 )
 @click.option(
     "--offset/--no-offset",
@@ -135,10 +142,28 @@ from mdvae_cli.errors import InputError
 @click.option(
     "--outliers",
     is_flag=True,
-    help="With --refine: model the noise as heavy-tailed (Student-t, 10 degrees of freedom) per "
+    help="Model the noise as heavy-tailed (Student-t, 10 degrees of freedom, = --lam 10) per "
     "frame and joint, so spikes (a swapped marker, a solver flip) are down-weighted where they "
-    "happen instead of raising the whole joint's noise level: about 40 % lower error on takes "
-    "with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py).",
+    "happen instead of raising the whole joint's noise level: with --refine, about 40 % lower "
+    "error on takes with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py); "
+    "without --refine (the video setting) smoother, but worse on spiky mocap takes.",
+)
+@click.option(
+    "--lam",
+    type=NON_NEGATIVE,
+    default=None,
+    help="The paper's lambda: degrees of freedom of the Student-t noise per frame and joint "
+    "that the offset and --refine assume (smaller: heavier tails, flips and spikes count "
+    "less); 0 = Gaussian. [default: 0 for mocap files; the video setting for video-pipeline "
+    "outputs (docs/model.md)]",
+)
+@click.option(
+    "--input-kind",
+    type=click.Choice(["auto", "mocap", "video"]),
+    default="auto",
+    show_default=True,
+    help="Which settings row to start from: 'video' for a video pipeline's estimates (chosen "
+    "automatically for their files), 'mocap' otherwise; options override either.",
 )
 @click.option(
     "--mirror",
@@ -192,6 +217,7 @@ from mdvae_cli.errors import InputError
     help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them, "
     'e.g. {"pelvis": "Hips", "left_hip": "LeftUpLeg", "head": "Head"} (SMPL joint -> yours).',
 )
+@motion_input_options
 @body_model_option
 @allow_pickle_option
 @json_option
@@ -210,6 +236,8 @@ def denoise(
     trans_offset,
     offset,
     outliers,
+    lam,
+    input_kind,
     mirror,
     guard,
     loop,
@@ -220,6 +248,9 @@ def denoise(
     overlap,
     asf,
     joint_map_file,
+    input_format,
+    input_fps,
+    track,
     body_model,
     allow_pickle,
     as_json,
@@ -227,10 +258,14 @@ def denoise(
     """Remove noise from motion files with the learned Motion-DVAE prior.
 
     INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz), ASF/AMC takes (.amc,
-    .amc.gz, with their .asf) or folders (any length, any frame rate); .npz outputs keep the
+    .amc.gz, with their .asf), the output files of video pose pipelines (WHAM, GVHMR, TRAM,
+    4D-Humans/PHALP, VIBE, PARE, HybrIK, ROMP/BEV, SLAHMR: upright, z up, one output per
+    person track) or folders of them (any length, any frame rate); .npz outputs keep the
     input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
-    root orientation and translation. Works out of the box with the shipped weights and the
-    built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X file.
+    root orientation and translation. A video pipeline's file gets the settings chosen for
+    video estimates (Student-t noise, see --lam); options override them. Works out of the box
+    with the shipped weights and the built-in body; pass --body-model for a real
+    SMPL/SMPL-H/SMPL-X file.
 
     A BVH take comes back as BVH on its own skeleton: same hierarchy, joint names, offsets,
     channel order, frame time and frame count; fingers, toes and other joints the body does
@@ -251,6 +286,8 @@ def denoise(
       mdvae denoise noisy.npz -o clean.npz --no-offset
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
       mdvae denoise spiky.npz -o clean.npz --refine 50 --outliers
+      mdvae denoise wham_output.pkl -o clean.npz
+      mdvae denoise hmr4d_results.pt -o clean.npz --fps 25 --refine 50
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
       mdvae denoise takes/ -o clean/ --view pages/
     """
@@ -258,14 +295,19 @@ def denoise(
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.infer.denoise import check_finite, check_length, denoise_motions
-    from mdvae_cli.infer.settings import OUTLIER_DOF, RefineConfig
+    from mdvae_cli.infer.input_kinds import refine_config
+    from mdvae_cli.infer.settings import OUTLIER_DOF
     from mdvae_cli.model.denoiser import load_denoiser
-    from mdvae_cli.motion.npz_io import load_motion, save_motion
+    from mdvae_cli.motion.npz_io import save_motion
 
     if overlap >= window:
         raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
-    if outliers and not refine_steps:
-        raise InputError("--outliers re-weights frames while refining: use it with --refine N")
+    if outliers and lam is not None and lam != OUTLIER_DOF:
+        raise InputError(f"--outliers is --lam {OUTLIER_DOF:g}; give one of them")
+    lam = OUTLIER_DOF if outliers else lam
+    if lam and not (refine_steps or offset):
+        raise InputError("--outliers / --lam weigh frames in the offset or --refine; "
+                         "drop --no-offset or add --refine N")  # fmt: skip
     if not optimize_steps and (per_file or lr is not None):
         raise InputError(f"{'--per-file' if per_file else '--lr'} only applies with --optimize N")
     if mesh_format is not None and mesh_dir is None:
@@ -278,7 +320,10 @@ def denoise(
     mesh_format = mesh_format or "ply"
     jobs = plan_take_jobs(inputs, out)
     sources = tuple(job.source for job in jobs)
-    loaded: dict[Path, object] = {}
+    body_data = load_body_model(body_model)
+    loaded: dict[Path, list] = {}  # source -> [(track label, motion, output)]
+    kinds: dict[Path, str] = {}
+    formats: dict[Path, str] = {}
     joint_map = load_joint_map(joint_map_file)
     if asf is not None and not Path(asf).is_file():
         raise InputError(f"no such skeleton file: {asf}")
@@ -286,44 +331,68 @@ def denoise(
 
     def read(job: FileJob) -> None:
         if is_take(job.source):
-            take = takes(job)
-            motion = take.motion
-        else:
-            motion = load_motion(job.source, allow_pickle=allow_pickle)
-        check_length(motion)
-        print_notes(job.relpath, motion.notes)
-        loaded[job.source] = motion
+            motion = takes(job).motion
+            check_length(motion)
+            print_notes(job.relpath, motion.notes)
+            kinds[job.source] = "mocap" if input_kind == "auto" else input_kind
+            formats[job.source] = "bvh" if is_kind(job.source, ".bvh") else "amc"
+            loaded[job.source] = [(None, motion, job.output)]
+            return
+        f = read_input(job.source, job.relpath, input_format, input_fps, track,
+                       allow_pickle, body_data)  # fmt: skip
+        items, short = [], []
+        for label, motion, output in outputs_of(f, job.output):
+            try:
+                check_length(motion)
+            except InputError as exc:
+                if len(f.tracks) == 1:
+                    raise
+                short.append(f"track {label}: {exc}")
+                continue
+            items.append((label, motion, output))
+        if not items:
+            raise InputError(f"every track is too short to denoise ({'; '.join(short)})")
+        print_notes(job.relpath, [f"{s}; skipped" for s in short])
+        kinds[job.source] = f.kind if input_kind == "auto" else input_kind
+        formats[job.source] = f.format
+        loaded[job.source] = items
 
     report = run_batch(jobs, read, "reading", quiet=True)
     good = [o.job for o in report.succeeded]
     if good:
         denoiser, _ = load_denoiser(denoiser_path)
-        body = BodyModel(load_body_model(body_model))
+        body = BodyModel(body_data)
     stride = window - overlap
-    refine = None
-    if refine_steps or offset:
-        refine = RefineConfig(
-            steps=refine_steps,
-            lr=refine_lr,
-            offset_std=refine_offset,
-            trans_offset_std=trans_offset,
-            outlier_dof=OUTLIER_DOF if outliers else 0.0,
-        )
-    results: dict[Path, object] = {}
+    chosen: dict[str, tuple] = {}
+    for kind in sorted({kinds[j.source] for j in good}):
+        chosen[kind] = refine_config(
+            kind, steps=refine_steps, lr=refine_lr, offset=offset, lam=lam,
+            offset_std=refine_offset, trans_offset_std=trans_offset,
+        )  # fmt: skip
+    for kind, (_, c) in chosen.items():
+        if kind != "mocap" and not as_json:
+            console.print(f"[dim]note: {kind} input: λ = {c['lam']:g}, offset scales "
+                          f"{c['offset_std']:g} rad / {c['trans_offset_std']:g} m[/]")  # fmt: skip
+    results: dict[tuple[Path, int], object] = {}
     timings: dict[Path, float] = {}
-    fallbacks: dict[Path, list[list[float]]] = {}
-    guarding = guard and refine is not None
-    cycles: dict[Path, bool] = {}
+    fallbacks: dict[tuple[Path, int], list[list[float]]] = {}
+    # the guard goes with the offset or refinement (--no-offset is the paper's mode untouched)
+    guarding = {kind: guard and r is not None for kind, (r, _) in chosen.items()}
+    cycles: dict[tuple[Path, int], bool] = {}
     if good:
         from mdvae_cli.infer.loop import looks_like_loop
 
         for j in good:
-            cycles[j.source] = loop if loop is not None else looks_like_loop(loaded[j.source])
-            if loop is None and cycles[j.source]:
-                print_notes(j.relpath, [LOOP_NOTE])
+            for i, (_, motion, _) in enumerate(loaded[j.source]):
+                cycles[(j.source, i)] = loop if loop is not None else looks_like_loop(motion)
+                if loop is None and cycles[(j.source, i)]:
+                    print_notes(j.relpath, [LOOP_NOTE])
 
-    def run(group: list[FileJob]) -> None:
+    def run(group: list[FileJob], refine, guard_on: bool) -> None:
         model = copy.deepcopy(denoiser) if optimize_steps else denoiser
+        items = [(j, i) for j in group for i in range(len(loaded[j.source]))]
+        keys = [(j.source, i) for j, i in items]
+        motions = [loaded[j.source][i][1] for j, i in items]
         start = time.perf_counter()
         with progress_bar(transient=True) as progress:
             tasks = {
@@ -341,7 +410,7 @@ def denoise(
                 )
 
             cleaned = denoise_motions(
-                [loaded[j.source] for j in group],
+                motions,
                 model,
                 body,
                 window,
@@ -352,44 +421,57 @@ def denoise(
                 progress=tick,
                 refine=refine,
                 mirror=mirror,
-                guard=guarding,
-                loops=[cycles[j.source] for j in group],
-                on_fallback=lambda i, a, b, group=group: fallbacks.setdefault(
-                    group[i].source, []
-                ).append([round(a, 3), round(b, 3)]),
+                guard=guard_on,
+                loops=[cycles[item] for item in keys],
+                on_fallback=lambda k, a, b: fallbacks.setdefault(keys[k], []).append(
+                    [round(a, 3), round(b, 3)]
+                ),
             )
         seconds = time.perf_counter() - start
-        frames = sum(loaded[j.source].num_frames for j in group)
-        for j, m in zip(group, cleaned, strict=True):
-            results[j.source] = m
-            timings[j.source] = seconds * loaded[j.source].num_frames / max(frames, 1)
+        frames = sum(m.num_frames for m in motions)
+        for (j, i), m, src in zip(items, cleaned, motions, strict=True):
+            results[(j.source, i)] = m
+            timings[j.source] = timings.get(j.source, 0.0) + seconds * src.num_frames / max(
+                frames, 1
+            )
 
-    if good:
-        for group in [[j] for j in good] if per_file and optimize_steps else [good]:
-            run(group)
+    for kind, (refine, _) in chosen.items():
+        of_kind = [j for j in good if kinds[j.source] == kind]
+        for group in [[j] for j in of_kind] if per_file and optimize_steps else [of_kind]:
+            run(group, refine, guarding[kind])
 
     def write(job: FileJob) -> dict:
-        motion = results[job.source]
-        check_finite(motion)
-        if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
-            sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
-            target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
-            export_mesh_sequence(motion, body, target, mesh_format, forbid=sources)
-        if is_take(job.output):
-            takes.write(job, motion, forbid=sources)
-        else:
-            save_motion(motion, job.output, forbid=sources)
-        if view_dir is not None:
-            from mdvae_cli.view.page import write_before_after
+        tracks = []
+        for i, (label, source_motion, output) in enumerate(loaded[job.source]):
+            motion = results[(job.source, i)]
+            check_finite(motion)
+            if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
+                sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
+                target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
+                export_mesh_sequence(motion, body, track_output(target, label), mesh_format,
+                                     forbid=sources)  # fmt: skip
+            if is_take(output):
+                takes.write(job, motion, forbid=sources)
+            else:
+                save_motion(motion, output, forbid=sources)
+            if view_dir is not None:
+                from mdvae_cli.view.page import write_before_after
 
-            page = Path(view_dir) / strip_gz(job.relpath).with_suffix(".html")
-            write_before_after(loaded[job.source], motion, job, page, body, forbid=sources)
-        print_notes(job.relpath, [n for n in motion.notes if "input smoothed instead" in n])
+                page = track_output(Path(view_dir) / strip_gz(job.relpath).with_suffix(".html"),
+                                    label)  # fmt: skip
+                write_before_after(source_motion, motion, job, page, body, forbid=sources)
+            print_notes(job.relpath, [n for n in motion.notes if "input smoothed instead" in n])
+            tracks.append({"track": label, "output": str(output), "frames": motion.num_frames,
+                           "fallbacks": fallbacks.get((job.source, i), []),
+                           "loop": cycles.get((job.source, i), False)})  # fmt: skip
         return {
-            "frames": motion.num_frames,
+            "frames": sum(t["frames"] for t in tracks),
             "seconds": round(timings[job.source], 4),
-            "fallbacks": fallbacks.get(job.source, []),
-            "loop": cycles.get(job.source, False),
+            "format": formats[job.source],
+            "input_kind": kinds[job.source],
+            "fallbacks": [f for t in tracks for f in t["fallbacks"]],
+            "loop": any(t["loop"] for t in tracks),
+            "tracks": tracks,
         }
 
     write_report = run_batch(good, write, "denoise", quiet=True)
@@ -397,15 +479,17 @@ def denoise(
     if len(jobs) > 1:
         write_report.print_summary("denoise")
     if as_json:
+        first = next(iter(chosen.values()), (None, None))
         emit_json(
             {
                 **write_report.to_dict(),
                 "mode": "optimization" if optimize_steps else "regression",
                 "optimize_steps": optimize_steps,
                 "refine_steps": refine_steps,
-                "refine": refine.to_dict() if refine else None,
+                "refine": first[0].to_dict() if first[0] else None,
+                "settings": {kind: c[1] for kind, c in chosen.items()},
                 "mirror": mirror,
-                "guard": guarding,
+                "guard": any(guarding.values()),
             }
         )
     elif write_report.succeeded:

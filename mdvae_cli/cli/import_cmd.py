@@ -22,12 +22,15 @@ from mdvae_cli.cli.batch import (
     strip_gz,
 )
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, console, handle_errors
+from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.motion import cmu, corpus_plan, hdm05
 from mdvae_cli.motion.motion import check_fps
 
-SUFFIXES = (".bvh", ".amc")
+#: what folders are searched for: mocap to retarget, and video pipelines' outputs (files given
+#: by name may be of any format ``motion.load_any`` reads, AMASS .npz included)
+SUFFIXES = (".bvh", ".amc", ".pkl", ".pk", ".pt", ".pth", ".npy")
 
 
 def plan_corpora(folders: list[Path], spec: corpus_plan.SplitSpec) -> list:
@@ -145,6 +148,15 @@ def _print_summary(summary: dict) -> None:
     "val 06 35, test 02 07 09).",
 )  # fmt: skip
 @click.option(
+    "--format", "input_format", type=format_choice(), default=None,
+    help="Format of estimate files, when the file does not tell: " + FORMATS_HELP,
+)  # fmt: skip
+@click.option(
+    "--track", default=None, metavar="ID",
+    help="Files of several people: keep only this track (default: every track, each written "
+    "to <output>.track<ID>.npz).",
+)  # fmt: skip
+@click.option(
     "-j", "--jobs", "jobs_n", type=click.IntRange(min=1), default=1, show_default=True,
     help="Worker processes (one CPU core each).",
 )  # fmt: skip
@@ -152,22 +164,27 @@ def _print_summary(summary: dict) -> None:
 @json_option
 @handle_errors
 def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, split_file,
-                   jobs_n, body_model, as_json) -> None:  # fmt: skip
-    """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton.
+                   input_format, track, jobs_n, body_model, as_json) -> None:  # fmt: skip
+    """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton,
+    and the output files of video pose pipelines (WHAM, GVHMR, TRAM, 4D-Humans/PHALP, VIBE,
+    PARE, HybrIK, ROMP/BEV, SLAHMR) or AIST++ pickles as AMASS-style .npz.
 
-    Each motion is retargeted onto the body model (the built-in body by default): its shape is
-    fitted once per skeleton to the source's bone lengths, then the root and the 21 body joints
-    are solved per frame to match the source's joint positions. Output: z-up, floor at z=0,
-    gender "neutral", resampled to --fps, with a 'source' record (JSON) of where it came from.
-    The mean joint position error of the retarget is printed per file.
+    Each mocap motion is retargeted onto the body model (the built-in body by default): its
+    shape is fitted once per skeleton to the source's bone lengths, then the root and the 21
+    body joints are solved per frame to match the source's joint positions. Output: z-up,
+    floor at z=0, gender "neutral", resampled to --fps, with a 'source' record (JSON) of where
+    it came from. The mean joint position error of the retarget is printed per file. A video
+    pipeline's SMPL-family estimates need no retarget: they are made upright (z up), resampled
+    and put on the floor, one output per person track (docs/formats.md); --source-fps gives
+    their frame rate (they store none: 30 is assumed).
 
     \b
     Examples:
       mdvae import walk.bvh -o walk.npz
       mdvae import 07.asf 07_01.amc.gz 07_02.amc.gz -o out/
-      mdvae import ../shared/data/cmu -o data/cmu_amass --corpus --jobs 2
       mdvae import ../shared/data/cmu ../shared/data/hdm05 -o data/corpus --corpus \\
           --split weights_recipe/cmu_split.json --jobs 2
+      mdvae import wham_output.pkl -o take.npz --source-fps 25
     """
     started = time.perf_counter()
     out_arg, out = out, Path(out)  # as typed: a trailing slash makes it a folder (plan_jobs)
@@ -218,7 +235,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     from mdvae_cli.motion.retarget import RetargetSettings
 
     settings = RetargetSettings(floor=floor).validate()
-    args = (body_model, out, out_fps, settings, source_fps, scale, asf)
+    args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track)
     pool = None
     if jobs_n > 1 and len(jobs) > 1:
         pool = ProcessPoolExecutor(min(jobs_n, len(jobs)), mp_context=get_context("spawn"),
@@ -232,9 +249,10 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
 
     def show(outcome) -> None:
         r = outcome.result
+        what = (f"{r['tracks']} track(s), no retarget" if "tracks" in r
+                else f"joint error {r['retarget_error_mm']:.1f} mm")  # fmt: skip
         console.print(f"{escape(outcome.job.relpath.as_posix())}: {r['frames']} frames at "
-                      f"{r['fps']:g} fps, joint error {r['retarget_error_mm']:.1f} mm",
-                      soft_wrap=True, highlight=False)  # fmt: skip
+                      f"{r['fps']:g} fps, {what}", soft_wrap=True, highlight=False)  # fmt: skip
 
     try:
         report = run_batch(jobs, process, "import", quiet=True, on_success=show)

@@ -11,12 +11,13 @@ from pathlib import Path
 from mdvae_cli.cli.batch import FileJob, is_kind, no_clashes, plan_jobs, refuse_gz, strip_gz
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
+from mdvae_cli.motion.load_any import MOTION_FILE_SUFFIXES
 
-#: what ``mdvae denoise`` reads
-DENOISE_SUFFIXES = (".npz", ".bvh", ".amc")
+#: what ``mdvae denoise`` reads: AMASS-style .npz, mocap takes, video pipelines' outputs
+DENOISE_SUFFIXES = (*MOTION_FILE_SUFFIXES, ".bvh", ".amc")
 
-#: the output form of each input form: each comes back in its own
-_FORM = {".npz": ".npz", ".bvh": ".bvh", ".amc": ".amc"}
+#: the output form of each input form: takes come back in their own, everything else as .npz
+_FORM = {**{s: ".npz" for s in MOTION_FILE_SUFFIXES}, ".bvh": ".bvh", ".amc": ".amc"}
 
 
 def is_take(path: Path | None) -> bool:
@@ -56,7 +57,7 @@ def plan_take_jobs(inputs, out) -> list[FileJob]:
         ends = (".bvh.gz", ".bvh", ".amc.gz", ".amc", ".npz")
         wants = next((s for s in ends if name.endswith(s)), "").removesuffix(".gz")
         if wants and any(is_kind(src, s) for s in DENOISE_SUFFIXES):
-            form = _form(src)
+            form = _FORM[_form(src)]
             if wants != ".npz" and wants != form:
                 raise InputError(_wrong_form(src, form, wants))
             return no_clashes([FileJob(Path(src.name), src, out)])
