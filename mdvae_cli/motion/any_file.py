@@ -20,7 +20,6 @@ from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion import cmu
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.npz_io import load_motion
 
 
 @dataclass(frozen=True)
@@ -64,8 +63,29 @@ def find_asf(path: Path) -> Path | None:
 
 
 def read_npz(path: Path, options: ReadOptions) -> Motion:
-    """An AMASS-style .npz (:func:`~mdvae_cli.motion.npz_io.load_motion`)."""
-    return load_motion(path, allow_pickle=options.allow_pickle)
+    """An AMASS-style .npz (:func:`~mdvae_cli.motion.npz_io.load_motion`), or a video
+    pipeline's .npz (``motion.load_any`` tells them apart)."""
+    return read_estimates(path, options)
+
+
+def read_estimates(path: Path, options: ReadOptions) -> Motion:
+    """Any file ``motion.load_any`` reads (AMASS .npz, video pipelines' pickles and torch
+    files, AIST++): its one motion, or its first person track (said in the notes)."""
+    from mdvae_cli.motion.load_any import load_any
+
+    loaded = load_any(path, allow_pickle=options.allow_pickle)
+    label, motion = loaded.tracks[0]
+    notes = [*loaded.notes]
+    if len(loaded.tracks) > 1:
+        notes.append(f"{len(loaded.tracks)} people tracked: showing track {label}")
+    motion.notes = [*motion.notes, *notes]
+    return motion if options.fps is None else _resampled(motion, options.fps)
+
+
+def _resampled(motion: Motion, fps: float) -> Motion:
+    from mdvae_cli.motion.resample import resample_motion
+
+    return resample_motion(motion, fps)
 
 
 def read_mocap(path: Path, options: ReadOptions) -> Motion:
@@ -94,7 +114,12 @@ def read_mocap(path: Path, options: ReadOptions) -> Motion:
 
 
 #: suffix -> reader; extend it to read more formats everywhere load_any_motion is used
-READERS: dict[str, Reader] = {".npz": read_npz, ".bvh": read_mocap, ".amc": read_mocap}
+READERS: dict[str, Reader] = {
+    ".npz": read_npz,
+    ".bvh": read_mocap,
+    ".amc": read_mocap,
+    **{s: read_estimates for s in (".pkl", ".pk", ".pt", ".pth", ".npy", ".pickle", ".joblib")},
+}
 
 
 def readable_suffixes() -> tuple[str, ...]:
