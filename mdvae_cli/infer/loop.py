@@ -95,7 +95,8 @@ def untile(denoised: Motion, motion: Motion, copies: int = COPIES) -> Motion:
     seq = rotvec_unwrap(torch.as_tensor(rot[mid : mid + T + 1], dtype=torch.float64)).numpy()
     ramp = (np.arange(T) / T)[:, None, None]
     rot_out = seq[:T] - ramp * (seq[T] - seq[0])[None]
-    trans = denoised.trans[mid : mid + T + 1]
-    jump = trans[T] - trans[0] - displacement(motion)
+    step = displacement(motion)
+    trans = denoised.trans[mid : mid + T + 1] - (copies // 2) * step  # back to the first copy
+    jump = trans[T] - trans[0] - step
     trans_out = trans[:T] - (np.arange(T) / T)[:, None] * jump[None]
     return motion.with_body(root_orient=rot_out[:, 0], pose_body=rot_out[:, 1:], trans=trans_out)
