@@ -37,7 +37,7 @@ def mesh(body: BodyModel, x: torch.Tensor, betas: torch.Tensor, ids: torch.Tenso
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--prior", default=None, help="prior checkpoint/run (default: shipped)")
-    ap.add_argument("--corpus", default="data/cmu_amass")
+    ap.add_argument("--corpus", default="data/corpus")
     ap.add_argument("--split", default="test")
     ap.add_argument("--max-files", type=int, default=34)
     ap.add_argument("--every", type=int, default=2, help="keep every n-th window")

@@ -198,9 +198,12 @@ def build_table(
             _denoise(denoiser, body, s, 0, s.refine_steps, mirror=True),
         ),
     }
+    if s.rows is not None:
+        methods = {k: v for k, v in methods.items() if k in s.rows or k in FILTER_ROWS}
     rows = {ROW_GT: RowResult(ROW_GT), ROW_OBS: RowResult(ROW_OBS)}
     rows.update({name: RowResult(name, params) for name, (params, _) in methods.items()})
-    extra_steps = [n for n in s.curve_steps if n not in (0, s.optimize_steps)]
+    curve_steps = s.curve_steps if ROW_OPTIMIZATION in methods else ()
+    extra_steps = [n for n in curve_steps if n not in (0, s.optimize_steps)]
     extra: dict[int, tuple[EvalResult, common.Timing]] = {}
     gt = [c.motion for c in test_clips]
 
@@ -226,6 +229,8 @@ def build_table(
                 ROW_REGRESSION_MIRROR,
                 ROW_OFFSET,
             ):
+                if name not in methods:
+                    continue
                 out = folder / "one"
                 rows[name].one_clip_s = common.warm_median_seconds(
                     lambda p=methods[name][1], out=out, one=files[:1]: common.file_to_file(
@@ -250,7 +255,7 @@ def build_table(
 
     ref = s.reference_sigma
     curve = []
-    for n in s.curve_steps:
+    for n in curve_steps:
         if n in extra:
             result, timing = extra[n]
         else:
@@ -265,11 +270,12 @@ def build_table(
         ROW_REGRESSION_MIRROR,
         ROW_REFINE_MIRROR,
     ):
-        r = rows[name]
-        curve.append(CurvePoint(name, None, r.speed.s_per_frame, r.v2v(ref)))
+        if name in rows:
+            r = rows[name]
+            curve.append(CurvePoint(name, None, r.speed.s_per_frame, r.v2v(ref)))
     return TableResult(
         settings=s,
-        rows=[rows[n] for n in ROWS],
+        rows=[rows[n] for n in ROWS if n in rows],
         tuning=tuning,
         curve=curve,
         num_clips=len(test_clips),

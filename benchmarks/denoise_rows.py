@@ -86,6 +86,9 @@ class TableSettings:
     refine_lr: float = 0.1
     refine_offset: float = RefineConfig.offset_std
     single_clip_repeats: int = 5
+    #: the method rows to run (None = all of ROWS; the filters, ground truth and observations
+    #: always run)
+    rows: tuple[str, ...] | None = None
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """Motion-DVAE paper Table 1 and Figure 1 on held-out CMU subjects.
 
-    python benchmarks/denoise_table.py [--corpus data/cmu_amass] [--out docs/benchmarks.md]
+    python benchmarks/denoise_table.py [--corpus data/corpus] [--out docs/benchmarks.md]
                                        [--max-clips N] [--quick]
 
 Protocol. The test-split files (resampled to 30 Hz) are cut into non-overlapping 60-frame
@@ -114,6 +114,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="clip lengths of the short-take table (benchmarks/short_takes.py); empty = none",
     )
     p.add_argument("--short-split", default="unseen_test", help="split of the short takes")
+    p.add_argument(
+        "--rows",
+        help="comma-separated method rows to run (names as in the table, e.g. 'Regression "
+        "mode,Regression + offset (default)'); default all",
+    )
     p.add_argument("--short-clips", type=int, default=64, help="short clips per length")
     p.add_argument("--split", type=Path, help="split file (default: CORPUS/split.json)")
     p.add_argument(
@@ -157,6 +162,7 @@ def settings_from_args(args: argparse.Namespace, window: int) -> TableSettings:
         seed=args.seed,
         refine_steps=args.refine_steps,
         refine_offset=args.refine_offset,
+        rows=tuple(r.strip() for r in args.rows.split(",")) if args.rows else None,
     )
     if args.quick:
         s.refine_steps = min(s.refine_steps, 10)

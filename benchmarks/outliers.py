@@ -7,7 +7,7 @@ the tuned Savitzky-Golay filter (11 / 1, from ``denoise_table.py``), ``mdvae den
 offset), ``--no-offset`` (the paper's regression mode), ``--refine 50`` and ``--refine 50
 --outliers`` (Student-t noise per frame and joint, ``docs/model.md``, "Outliers").
 
-    python benchmarks/outliers.py [--corpus data/cmu_amass] [--split test] [--max-clips 32]
+    python benchmarks/outliers.py [--corpus data/corpus] [--split test] [--max-clips 32]
         [--out docs/benchmarks.md]
 """
 
@@ -138,7 +138,7 @@ def markdown(result: dict[str, dict[str, tuple[float, float]]], header: str) -> 
 
 def main(argv: Sequence[str] | None = None) -> str:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--corpus", type=Path, default=REPO / "data" / "cmu_amass")
+    p.add_argument("--corpus", type=Path, default=REPO / "data" / "corpus")
     p.add_argument("--split", default="test")
     p.add_argument("--max-clips", type=int, default=32)
     p.add_argument("--steps", type=int, default=RefineConfig.steps, help="refinement steps")

@@ -10,7 +10,7 @@ Prints a markdown table:
   joint speed (exploding joints); raw prior samples, and (``--floor-particles``) samples
   conditioned on the real motion's floor as ``mdvae sample`` draws them by default.
 
-    python benchmarks/prior.py [--prior PATH] [--corpus data/cmu_amass] [--split test]
+    python benchmarks/prior.py [--prior PATH] [--corpus data/corpus] [--split test]
 """
 
 from __future__ import annotations
@@ -146,7 +146,7 @@ def joints(body, motion) -> np.ndarray:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--prior", default=None, help="prior checkpoint/run (default: shipped)")
-    ap.add_argument("--corpus", default="data/cmu_amass")
+    ap.add_argument("--corpus", default="data/corpus")
     ap.add_argument("--split", default="test")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--max-files", type=int, default=40)

@@ -1,6 +1,6 @@
 """Benchmark: denoising video-pipeline-like estimates (``mdvae add-noise --preset video``).
 
-    python benchmarks/video_table.py [--corpus data/cmu_amass] [--max-clips 64] [--val-clips 32]
+    python benchmarks/video_table.py [--corpus data/corpus] [--max-clips 64] [--val-clips 32]
                                      [--out docs/benchmarks.md] [--tune] [--quick]
 
 Protocol. Test-split files (30 Hz) are cut into 60-frame clips; every clip gets the video-like
@@ -286,7 +286,7 @@ def markdown(result: dict, speed: dict, best: dict, header: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> str:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--corpus", type=Path, default=REPO / "data" / "cmu_amass")
+    p.add_argument("--corpus", type=Path, default=REPO / "data" / "corpus")
     p.add_argument("--max-clips", type=int, default=64)
     p.add_argument("--val-clips", type=int, default=32)
     p.add_argument("--steps", type=int, default=50)

@@ -1,7 +1,7 @@
-"""Noisy training data for the shipped denoiser: every train-split file of the CMU corpus with
+"""Noisy training data for the shipped denoiser: every train-split file of the corpus with
 Pose-NDF noise of a std drawn per file uniformly in [0.10, 0.20] rad (seeded by the path).
 
-    python weights_recipe/make_noisy_train.py data/cmu_amass data/cmu_noisy_train --seed 0
+    python weights_recipe/make_noisy_train.py data/corpus data/corpus_noisy_train --seed 0
 """
 
 from __future__ import annotations
