@@ -20,6 +20,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.infer.closed_form import add_offset
+from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
@@ -229,6 +230,7 @@ def denoise_motions(
     progress: Callable[[dict], None] | None = None,
     refine: RefineConfig | None = None,
     mirror: bool = False,
+    feet: FootLockConfig | None = None,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -242,6 +244,8 @@ def denoise_motions(
     in optimisation mode, adapted to as well) and the result is the midpoint of the two
     estimates, mirrored back: the learned prior is not exactly mirror-symmetric, so the two
     differ, and their average is a prior made symmetric. Twice the work.
+    With ``feet``, the results' feet are then held still on the floor where they are down
+    (``infer.feet.lock_feet``).
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
     """
     for i, m in enumerate(motions):
@@ -249,6 +253,12 @@ def denoise_motions(
             check_length(m)
         except InputError as exc:
             raise InputError(f"motion {i}: {exc}") from None
+    if feet is not None:
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror,
+        )  # fmt: skip
+        return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
     if mirror:
         flipped = [mirror_motion(m, body) for m in motions]
         both = denoise_motions(
