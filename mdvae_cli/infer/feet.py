@@ -235,10 +235,10 @@ def feet_of(pos: np.ndarray) -> np.ndarray:
     return pos[:, :, 2:].transpose(0, 2, 1, 3).reshape(-1, 4, 3)
 
 
-def input_trust(source: Motion, body: BodyModel, cfg: FootLockConfig) -> tuple[float, np.ndarray]:
+def input_trust(source: Motion, model: LegModel, cfg: FootLockConfig) -> tuple[float, np.ndarray]:
     """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed.
-    -> (trust, (T, 4, 3))"""
-    src = feet_of(pose_legs(source, LegModel.build(body, source.betas))[0])
+    model: the legs of the input's shape.  -> (trust, (T, 4, 3))"""
+    src = feet_of(pose_legs(source, model)[0])
     span = cfg.distrust_above - cfg.trust_below
     trust = float(np.clip((cfg.distrust_above - input_jitter(src)) / span, 0.0, 1.0))
     if len(src) > 1:
@@ -271,7 +271,12 @@ def lock_feet(
     anchors = run_means(feet[..., :2], contacts)
     goals = feet.copy()
     goals[..., :2] = anchors + cfg.keep * (feet[..., :2] - anchors)
-    trust, reference = input_trust(source, body, cfg) if source is not None else (0.0, feet)
+    trust, reference = 0.0, feet
+    if source is not None:
+        same = np.array_equal(source.betas, motion.betas)
+        trust, reference = input_trust(
+            source, model if same else LegModel.build(body, source.betas), cfg
+        )
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
     under = (soles < floor)[:, list(FOOT_SIDE)]  # a foot under the floor: both its joints
     held = contacts | (weights.sum(-1) > 0) | under

@@ -14,11 +14,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec
 from mdvae_cli.motion.contacts import foot_vertex_ids
 from mdvae_cli.motion.motion import Motion
 
@@ -51,6 +49,41 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
 
 
+def rotmat_to_rotvec_np(R: np.ndarray) -> np.ndarray:
+    """Rotation matrices to axis-angles with angles in [0, pi], in numpy, through the
+    quaternion (the largest of the four pivots, as ``geometry.rotations.rotmat_to_quat``).
+    (..., 3, 3) -> (..., 3)"""
+    m = R
+    pivots = np.stack(
+        [
+            1 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2],
+            1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+            1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+            1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
+        ],
+        axis=-1,
+    )
+    a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    d, e, f = m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]
+    cand = np.stack(
+        [
+            np.stack([pivots[..., 0], a, b, c], -1),
+            np.stack([a, pivots[..., 1], d, e], -1),
+            np.stack([b, d, pivots[..., 2], f], -1),
+            np.stack([c, e, f, pivots[..., 3]], -1),
+        ],
+        axis=-2,
+    )  # row k is 4 q_k q
+    best = pivots.argmax(-1)
+    q = np.take_along_axis(cand, best[..., None, None], -2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = np.where(q[..., :1] < 0, -q, q)
+    s = np.linalg.norm(q[..., 1:], axis=-1)
+    angle = 2 * np.arctan2(s, q[..., 0])
+    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0)
+    return q[..., 1:] * scale[..., None]
+
+
 @dataclass(frozen=True)
 class LegModel:
     """Rest geometry of the legs of one body shape.
@@ -70,12 +103,15 @@ class LegModel:
     @staticmethod
     def build(body: BodyModel, betas: np.ndarray) -> LegModel:
         """The legs of ``body`` with shape ``betas`` (any length, padded or cut)."""
-        b = body.fit_betas(torch.as_tensor(np.asarray(betas), dtype=body.J_template.dtype)[None])
-        b = b[0].double().numpy()
-        J = body.J_template.double().numpy() + body.J_shapedirs.double().numpy() @ b
+        S = body.num_betas
+        b = np.zeros(S)
+        given = np.asarray(betas, dtype=np.float64).reshape(-1)[:S]
+        b[: len(given)] = given  # padded or cut, as the body model does
+        data = body.data
+        # the body model's joint regressor applied to the template and shape directions
+        J = body.J_template.numpy().astype(np.float64) + body.J_shapedirs.numpy() @ b
         chains = np.asarray(LEGS)
         parents = np.asarray(body.parents[:NUM_BODY_JOINTS])
-        data = body.data
         soles, weights = [], []
         for leg, ids in enumerate(foot_vertex_ids(data.weights)):
             ids = ids[data.v_template[ids, 1] <= data.v_template[ids, 1].min() + SOLE_BAND]
@@ -219,7 +255,7 @@ def two_bone_ik(
 def to_rotvecs(rotmats: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Axis-angles of ``rotmats`` on the branch nearest ``reference`` (angle t or t - 2 pi about
     the same axis), so a track keeps its convention.  (..., 3, 3), (..., 3) -> (..., 3)"""
-    rotvec = rotmat_to_rotvec(torch.as_tensor(rotmats)).numpy()
+    rotvec = rotmat_to_rotvec_np(rotmats)
     angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
     other = rotvec * (1.0 - 2 * math.pi / np.maximum(angle, 1e-12))
     far = np.linalg.norm(other - reference, axis=-1) < np.linalg.norm(rotvec - reference, axis=-1)
