@@ -143,10 +143,10 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
       MPJPE     error of the 22 body joints in world coordinates, cm
       acc       mean joint |x[t-1] - 2x[t] + x[t+1]| * fps^2, m/s^2 (GT, pred)
       acc err   mean norm of the difference of accelerations, m/s^2
-    Feet, where the ground truth has a foot down (its ankle or ball joint under
-    5 cm above its lowest level in the take and slower than 0.3 m/s), against
-    the ground truth's floor (the median height of its lowest sole points
-    there); prediction (ground truth):
+    Feet, where the ground truth has a foot down (its ankle or ball joint less
+    than 5 cm above its planted level, the take's 5th percentile of ankle or
+    ball heights, and slower than 0.3 m/s), against the ground truth's floor
+    (the median height of its lowest sole points there); prediction (GT):
       skate     mean horizontal speed of contacting foot joints, cm/s
       slide %   share of them faster than 0.6 m/s (2 cm per frame at 30 Hz)
       penetr.   mean depth of each foot's lowest point under the floor, cm
