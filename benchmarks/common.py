@@ -10,7 +10,7 @@ import os
 import platform
 import time
 from collections.abc import Callable, Hashable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -29,7 +29,7 @@ from mdvae_cli.metrics import (
     v2v,
 )
 from mdvae_cli.motion.contacts import foot_vertex_ids, lowest_sole_points
-from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
 from mdvae_cli.motion.npz_io import load_motion, save_motion
 from mdvae_cli.motion.resample import resample_motion
@@ -61,35 +61,13 @@ def prior_and_windows(prior_path, corpus: Path, split: str, max_files: int):
     return prior, meta, body, files, load_windows(files, body, 60, 60)
 
 
-def slice_motion(motion: Motion, start: int, stop: int) -> Motion:
-    """Frames [start, stop) of a motion as a new Motion; per-frame extra arrays (first dim T,
-    numeric) are sliced too, the others kept."""
-    T = motion.num_frames
-    sl = slice(start, stop)
-    extras = {
-        k: (v[sl].copy() if v.ndim >= 1 and v.shape[0] == T and v.dtype.kind in "biuf" else v)
-        for k, v in motion.extras.items()
-    }
-    return replace(
-        motion,
-        root_orient=motion.root_orient[sl].copy(),
-        pose_body=motion.pose_body[sl].copy(),
-        trans=motion.trans[sl].copy(),
-        pose_extra=motion.pose_extra[sl].copy(),
-        joint_mask=None if motion.joint_mask is None else motion.joint_mask[sl].copy(),
-        extras=extras,
-        layout=dict(motion.layout),
-        notes=[],
-    )
-
-
 def cut_clips(motion: Motion, length: int, name: str) -> list[Clip]:
     """Non-overlapping clips of exactly ``length`` frames from the start; the remainder (fewer
     than ``length`` frames) is dropped."""
     if length < 3:
         raise ValueError(f"clips need at least 3 frames (for accelerations), got {length}")
     starts = range(0, motion.num_frames - length + 1, length)
-    return [Clip(f"{name}#{s}", slice_motion(motion, s, s + length)) for s in starts]
+    return [Clip(f"{name}#{s}", slice_frames(motion, s, s + length)) for s in starts]
 
 
 def pick_evenly(items: Sequence, n: int | None) -> list:
@@ -251,12 +229,21 @@ def evaluate_clips(
     truth clip is posed once for all sets. Every sequence in ``predictions`` lines up with ``gt``
     (and may compute its items lazily, see :class:`LazyMap`).
     """
+    return {k: mean_result(v) for k, v in evaluate_per_clip(gt, predictions, body).items()}
+
+
+def evaluate_per_clip(
+    gt: Sequence[Motion],
+    predictions: Mapping[Hashable, Sequence[Motion]],
+    body: BodyModel,
+) -> dict[Hashable, list[EvalResult]]:
+    """As :func:`evaluate_clips`, but every clip's own metrics (not their mean)."""
     per_key: dict[Hashable, list[EvalResult]] = {k: [] for k in predictions}
     for i, g in enumerate(gt):
         posed_gt = _pose(g, body, g.betas)
         for key, preds in predictions.items():
             per_key[key].append(_compare(posed_gt, _pose(preds[i], body, g.betas), g.fps))
-    return {k: mean_result(v) for k, v in per_key.items()}
+    return per_key
 
 
 class LazyMap(Sequence):

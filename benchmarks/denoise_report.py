@@ -14,21 +14,19 @@ try:
     from benchmarks.denoise_rows import (
         ROW_GT,
         ROW_OBS,
-        SECTION_BEGIN,
-        SECTION_END,
         FilterTuning,
         TableResult,
         TableSettings,
+        section_markers,
     )
 except ModuleNotFoundError:  # run as a file
     from denoise_rows import (  # type: ignore[no-redef]
         ROW_GT,
         ROW_OBS,
-        SECTION_BEGIN,
-        SECTION_END,
         FilterTuning,
         TableResult,
         TableSettings,
+        section_markers,
     )
 
 
@@ -123,11 +121,17 @@ def report_markdown(
     s, t = result.settings, result.tuning
     ref = f"{s.reference_sigma:.2f}"
     gw, (sw, sp) = t.gaussian_sigma, t.savgol
+    begin, end = section_markers(result.split)
+    title = {
+        "test": "## Denoising noisy mocap (paper Table 1 and Figure 1)",
+        "unseen_test": "## Denoising kinds of motion the prior never saw (unseen_test split)",
+    }.get(result.split, f"## Denoising noisy mocap ({result.split} split)")
     lines = [
-        SECTION_BEGIN,
-        "## Denoising noisy mocap (paper Table 1 and Figure 1)",
+        begin,
+        title,
         "",
-        f"{result.num_clips} clips of {result.clip_frames} frames (30 Hz) from the test split, "
+        f"{result.num_clips} clips of {result.clip_frames} frames (30 Hz) from the "
+        f"{result.split} split, "
         f"Pose-NDF noise σ = {', '.join(f'{x:.2f}' for x in s.sigmas)} rad on the body joints "
         f"(seed {s.seed}). V2V is root-relative (cm), as in the paper; the absolute V2V "
         "keeps the root translation in (the noise leaves it clean: a method that moves it "
@@ -142,11 +146,12 @@ def report_markdown(
         "",
         common.markdown_table(table_columns(s), table_rows(result)),
         "",
-        f"Filters tuned on {t.clips} val clips at σ = {t.noise_sigma:.2f} (lowest V2V; "
+        f"Filters tuned on {t.clips} {result.tuned_on} clips at σ = {t.noise_sigma:.2f} "
+        "(lowest V2V; "
         f"observations {t.observations_v2v:.2f} cm): Gaussian σ = {gw:g} frames, "
         f"Savitzky-Golay window {sw} / order {sp}.",
         "",
-        "<details><summary>Filter grid on the val split (V2V, cm)</summary>",
+        f"<details><summary>Filter grid on the {result.tuned_on} clips (V2V, cm)</summary>",
         "",
         tuning_markdown(t),
         "",
@@ -163,7 +168,7 @@ def report_markdown(
     lines += [f"Optimisation steps (σ = {ref}): {curve}.", "", "Setup:", ""]
     lines += [f"- {k}: {v}" for k, v in context.items()]
     lines += [f"- {k}: {v}" for k, v in machine.items()]
-    lines += ["", SECTION_END]
+    lines += ["", end]
     return "\n".join(lines) + "\n"
 
 

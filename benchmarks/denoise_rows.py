@@ -45,6 +45,18 @@ FILTER_ROWS = (ROW_GAUSSIAN, ROW_SAVGOL)
 SECTION_BEGIN = "<!-- denoise_table:begin (written by benchmarks/denoise_table.py) -->"
 SECTION_END = "<!-- denoise_table:end -->"
 
+
+def section_markers(split: str) -> tuple[str, str]:
+    """The markers of a split's section in docs/benchmarks.md (the test split's are the
+    original ones)."""
+    if split == "test":
+        return SECTION_BEGIN, SECTION_END
+    return (
+        f"<!-- denoise_table:begin split={split} (written by benchmarks/denoise_table.py) -->",
+        f"<!-- denoise_table:end split={split} -->",
+    )
+
+
 Process = Callable[[list[Motion]], list[Motion]]
 
 
@@ -123,12 +135,17 @@ class CurvePoint:
 
 @dataclass
 class TableResult:
+    """split: the corpus split the clips come from; tuned_on: where the filters were tuned
+    ("val" clips, or "the same clips")."""
+
     settings: TableSettings
     rows: list[RowResult]
     tuning: FilterTuning
     curve: list[CurvePoint]
     num_clips: int
     clip_frames: int
+    split: str = "test"
+    tuned_on: str = "val"
 
     def row(self, name: str) -> RowResult:
         return next(r for r in self.rows if r.name == name)
@@ -143,6 +160,8 @@ class TableResult:
             return {f"{s:g}": e.to_dict() for s, e in r.results.items()}
 
         return {
+            "split": self.split,
+            "tuned_on": self.tuned_on,
             "settings": asdict(self.settings),
             "num_clips": self.num_clips,
             "clip_frames": self.clip_frames,

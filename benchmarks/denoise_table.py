@@ -31,15 +31,13 @@ works. Its numbers mean little, and it writes ``--out`` only when that is given 
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import os
-import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import replace
+from collections.abc import Sequence
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import torch
@@ -51,56 +49,31 @@ except ModuleNotFoundError:  # run as a file: python benchmarks/denoise_table.py
 try:
     from benchmarks.denoise_rows import (
         CURVE_STEPS,
-        FILTER_ROWS,
         REPO,
-        ROW_GAUSSIAN,
-        ROW_GT,
-        ROW_OBS,
-        ROW_OFFSET,
-        ROW_OFFSET_FEET,
-        ROW_OPTIMIZATION,
-        ROW_OPTIMIZATION_OFFSET,
-        ROW_REFINE,
-        ROW_REFINE_MIRROR,
-        ROW_REGRESSION,
-        ROW_REGRESSION_MIRROR,
-        ROW_SAVGOL,
-        ROWS,
-        SECTION_BEGIN,
-        SECTION_END,
-        CurvePoint,
-        FilterTuning,
-        Process,
-        RowResult,
-        TableResult,
         TableSettings,
+        section_markers,
     )
 except ModuleNotFoundError:  # run as a file
     from denoise_rows import (  # type: ignore[no-redef]
         CURVE_STEPS,
-        FILTER_ROWS,
         REPO,
-        ROW_GAUSSIAN,
-        ROW_GT,
-        ROW_OBS,
-        ROW_OFFSET,
-        ROW_OFFSET_FEET,
-        ROW_OPTIMIZATION,
-        ROW_OPTIMIZATION_OFFSET,
-        ROW_REFINE,
-        ROW_REFINE_MIRROR,
-        ROW_REGRESSION,
-        ROW_REGRESSION_MIRROR,
-        ROW_SAVGOL,
-        ROWS,
-        SECTION_BEGIN,
-        SECTION_END,
-        CurvePoint,
-        FilterTuning,
-        Process,
-        RowResult,
-        TableResult,
         TableSettings,
+    )
+try:
+    from benchmarks.denoise_methods import build_table
+except ModuleNotFoundError:  # run as a file
+    from denoise_methods import build_table  # type: ignore[no-redef]
+try:
+    from benchmarks.short_takes import SECTION_BEGIN as SHORT_BEGIN
+    from benchmarks.short_takes import SECTION_END as SHORT_END
+    from benchmarks.short_takes import load_short_clips, short_take_rows, short_takes_markdown
+except ModuleNotFoundError:  # run as a file
+    from short_takes import SECTION_BEGIN as SHORT_BEGIN  # type: ignore[no-redef]
+    from short_takes import SECTION_END as SHORT_END  # type: ignore[no-redef]
+    from short_takes import (  # type: ignore[no-redef]
+        load_short_clips,
+        short_take_rows,
+        short_takes_markdown,
     )
 try:
     from benchmarks.denoise_report import (
@@ -118,227 +91,7 @@ except ModuleNotFoundError:  # run as a file
     )
 
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
-from mdvae_cli.infer.denoise import denoise_motions
-from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.settings import RefineConfig
-from mdvae_cli.metrics import EvalResult
-from mdvae_cli.model.denoiser import Denoiser
-from mdvae_cli.motion.motion import Motion
-
-# --------------------------------------------------------------------------------------------
-# computing the table
-
-
-def _no_log(message: str) -> None:
-    pass
-
-
-def tune_filters(
-    val_clips: Sequence[common.Clip], body: BodyModel, settings: TableSettings, log=_no_log
-) -> FilterTuning:
-    """Grid-search the filters on noisy val clips (reference sigma) for the lowest V2V."""
-    gt = [c.motion for c in val_clips]
-    noisy = common.add_noise(val_clips, settings.reference_sigma, settings.seed)
-    candidates: dict = {"obs": noisy}
-    for s in settings.gaussian_grid:
-        candidates[("gaussian", s)] = common.LazyMap(
-            lambda m, s=s: gaussian_filter_motion(m, s), noisy
-        )
-    for w, p in settings.savgol_grid:
-        candidates[("savgol", (w, p))] = common.LazyMap(
-            lambda m, w=w, p=p: savgol_filter_motion(m, w, p), noisy
-        )
-    log(f"tuning filters: {len(candidates) - 1} settings on {len(val_clips)} val clips")
-    scores = {k: r.v2v_cm for k, r in common.evaluate_clips(gt, candidates, body).items()}
-    return FilterTuning(
-        noise_sigma=settings.reference_sigma,
-        clips=len(val_clips),
-        gaussian_scores={k[1]: v for k, v in scores.items() if k[0] == "gaussian"},
-        savgol_scores={k[1]: v for k, v in scores.items() if k[0] == "savgol"},
-        observations_v2v=scores["obs"],
-    )
-
-
-def _per_clip(fn: Callable[[Motion], Motion]) -> Process:
-    return lambda motions: [fn(m) for m in motions]
-
-
-def _denoise(
-    denoiser: Denoiser,
-    body: BodyModel,
-    s: TableSettings,
-    steps: int,
-    refine: int | None = None,
-    mirror: bool = False,
-    feet: bool = False,
-) -> Process:
-    """Regression (steps 0) or optimisation mode; ``refine``: None = no refinement, 0 = the
-    closed-form offset alone, N = N refinement steps (with the offset); ``mirror``: average
-    with the mirror image's result (``mdvae denoise --mirror``); ``feet``: then lock the feet
-    (``mdvae denoise --feet lock``)."""
-    cfg = None
-    if refine is not None:
-        cfg = RefineConfig(steps=refine, lr=s.refine_lr, offset_std=s.refine_offset)
-
-    def process(motions: list[Motion]) -> list[Motion]:
-        # optimisation mode fine-tunes the networks it is given: always a fresh copy
-        model = copy.deepcopy(denoiser) if steps else denoiser
-        return denoise_motions(
-            motions, model, body, s.window, s.stride, steps, s.lr, s.batch_size, s.seed,
-            refine=cfg, mirror=mirror, feet=FootLockConfig() if feet else None,
-        )  # fmt: skip
-
-    return process
-
-
-def build_table(
-    test_clips: Sequence[common.Clip],
-    val_clips: Sequence[common.Clip],
-    denoiser: Denoiser,
-    body: BodyModel,
-    settings: TableSettings,
-    workdir: Path,
-    log: Callable[[str], None] = _no_log,
-) -> TableResult:
-    """Run every method on every noise level and collect the table and the curve.
-
-    test_clips, val_clips: clips at 30 Hz, all of the same length; workdir: an empty folder for
-    the noisy and denoised files (emptied again as it goes).
-    """
-    if not test_clips or not val_clips:
-        raise ValueError("need at least one test clip and one val clip")
-    if settings.reference_sigma not in settings.sigmas:
-        raise ValueError(f"reference sigma {settings.reference_sigma:g} is not among the sigmas")
-    s = settings
-    tuning = tune_filters(val_clips, body, s, log)
-    g_sigma, (sg_w, sg_p) = tuning.gaussian_sigma, tuning.savgol
-    log(f"tuned: Gaussian sigma {g_sigma:g} frames; Savitzky-Golay window {sg_w}, order {sg_p}")
-    methods: dict[str, tuple[str, Process]] = {
-        ROW_GAUSSIAN: (
-            f"σ = {g_sigma:g} frames",
-            _per_clip(lambda m: gaussian_filter_motion(m, g_sigma)),
-        ),
-        ROW_SAVGOL: (
-            f"window {sg_w}, order {sg_p}",
-            _per_clip(lambda m: savgol_filter_motion(m, sg_w, sg_p)),
-        ),
-        ROW_REGRESSION: (
-            "one forward pass (the paper's; `--no-offset`)",
-            _denoise(denoiser, body, s, 0),
-        ),
-        ROW_REGRESSION_MIRROR: (
-            "one forward pass on the clip and on its mirror image, averaged",
-            _denoise(denoiser, body, s, 0, mirror=True),
-        ),
-        ROW_OFFSET: (
-            f"one forward pass + closed-form slow offsets {s.refine_offset:g} rad, "
-            f"{RefineConfig.trans_offset_std:g} m on the root (`mdvae denoise`)",
-            _denoise(denoiser, body, s, 0, 0),
-        ),
-        ROW_OFFSET_FEET: (
-            "the above, then feet held still on the floor where they are down (`--feet lock`)",
-            _denoise(denoiser, body, s, 0, 0, feet=True),
-        ),
-        ROW_OPTIMIZATION: (
-            f"{s.optimize_steps} steps on each sigma's set, lr {s.lr:g}, batch {s.batch_size}",
-            _denoise(denoiser, body, s, s.optimize_steps),
-        ),
-        ROW_OPTIMIZATION_OFFSET: (
-            f"optimization mode, then the slow offset (`--optimize {s.optimize_steps}`)",
-            _denoise(denoiser, body, s, s.optimize_steps, 0),
-        ),
-        ROW_REFINE: (
-            f"regression + {s.refine_steps} steps per window, lr {s.refine_lr:g}, "
-            f"slow offset {s.refine_offset:g} rad",
-            _denoise(denoiser, body, s, 0, s.refine_steps),
-        ),
-        ROW_REFINE_MIRROR: (
-            "latent refinement on the clip and on its mirror image, averaged",
-            _denoise(denoiser, body, s, 0, s.refine_steps, mirror=True),
-        ),
-    }
-    rows = {ROW_GT: RowResult(ROW_GT), ROW_OBS: RowResult(ROW_OBS)}
-    rows.update({name: RowResult(name, params) for name, (params, _) in methods.items()})
-    extra_steps = [n for n in s.curve_steps if n not in (0, s.optimize_steps)]
-    extra: dict[int, tuple[EvalResult, common.Timing]] = {}
-    gt = [c.motion for c in test_clips]
-
-    for sigma in s.sigmas:
-        noisy = common.add_noise(test_clips, sigma, s.seed)
-        folder = workdir / f"sigma_{sigma:g}"
-        files = common.write_motions(noisy, folder / "noisy")
-        predictions: dict = {ROW_OBS: noisy}
-        timings: dict = {}
-        runs: list[tuple[object, Process]] = [(n, p) for n, (_, p) in methods.items()]
-        if sigma == s.reference_sigma:
-            runs += [(n, _denoise(denoiser, body, s, n)) for n in extra_steps]
-        for key, process in runs:
-            log(f"sigma {sigma:g}: {key if isinstance(key, str) else f'{key} steps'}")
-            outs, timings[key] = common.file_to_file(files, folder / "out", process)
-            predictions[key] = [common.compact(o, g) for o, g in zip(outs, gt, strict=True)]
-            shutil.rmtree(folder / "out")
-        if sigma == s.reference_sigma:
-            for name in (
-                ROW_GAUSSIAN,
-                ROW_SAVGOL,
-                ROW_REGRESSION,
-                ROW_REGRESSION_MIRROR,
-                ROW_OFFSET,
-                ROW_OFFSET_FEET,
-            ):
-                out = folder / "one"
-                rows[name].one_clip_s = common.warm_median_seconds(
-                    lambda p=methods[name][1], out=out, one=files[:1]: common.file_to_file(
-                        one, out, p
-                    ),
-                    s.single_clip_repeats,
-                )
-        log(f"sigma {sigma:g}: evaluating {len(predictions)} sets of {len(gt)} clips")
-        evaluated = common.evaluate_clips(gt, predictions, body)
-        obs = evaluated[ROW_OBS]
-        rows[ROW_GT].results[sigma] = replace(
-            obs, v2v_cm=0.0, v2v_abs_cm=0.0, mpjpe_cm=0.0, accel_pred=obs.accel_gt, accel_error=0.0,
-            foot_skate_pred=obs.foot_skate_gt, foot_slide_pred=obs.foot_slide_gt,
-            penetration_pred=obs.penetration_gt, float_pred=obs.float_gt,
-        )  # fmt: skip
-        for key, result in evaluated.items():
-            if isinstance(key, int):
-                extra[key] = (result, timings[key])
-            else:
-                rows[key].results[sigma] = result
-                if sigma == s.reference_sigma and key in timings:
-                    rows[key].speed = timings[key]
-        shutil.rmtree(folder)
-
-    ref = s.reference_sigma
-    curve = []
-    for n in s.curve_steps:
-        if n in extra:
-            result, timing = extra[n]
-        else:
-            row = rows[ROW_REGRESSION if n == 0 else ROW_OPTIMIZATION]
-            result, timing = row.results[ref], row.speed
-        curve.append(CurvePoint(f"{n} steps", n, timing.s_per_frame, result.v2v_cm))
-    for name in (
-        *FILTER_ROWS,
-        ROW_OFFSET,
-        ROW_OPTIMIZATION_OFFSET,
-        ROW_REFINE,
-        ROW_REGRESSION_MIRROR,
-        ROW_REFINE_MIRROR,
-    ):
-        r = rows[name]
-        curve.append(CurvePoint(name, None, r.speed.s_per_frame, r.v2v(ref)))
-    return TableResult(
-        settings=s,
-        rows=[rows[n] for n in ROWS],
-        tuning=tuning,
-        curve=curve,
-        num_clips=len(test_clips),
-        clip_frames=test_clips[0].motion.num_frames,
-    )
-
 
 # --------------------------------------------------------------------------------------------
 # command line
@@ -348,7 +101,20 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    p.add_argument("--corpus", type=Path, default=REPO / "data" / "cmu_amass")
+    p.add_argument("--corpus", type=Path, default=REPO / "data" / "corpus")
+    p.add_argument(
+        "--splits",
+        default="test,unseen_test",
+        help="corpus splits to tabulate: test (filters tuned on val clips) and unseen_test "
+        "(filters tuned on the very clips, as the issue's table did)",
+    )
+    p.add_argument(
+        "--short-lengths",
+        default="6,10,16,30,60",
+        help="clip lengths of the short-take table (benchmarks/short_takes.py); empty = none",
+    )
+    p.add_argument("--short-split", default="unseen_test", help="split of the short takes")
+    p.add_argument("--short-clips", type=int, default=64, help="short clips per length")
     p.add_argument("--split", type=Path, help="split file (default: CORPUS/split.json)")
     p.add_argument(
         "--out",
@@ -423,6 +189,7 @@ def _run(args: argparse.Namespace, command: list[str]) -> int:
         args.max_files = args.max_files or 6
         args.max_clips = args.max_clips or 24
         args.tune_clips = min(args.tune_clips, 12)
+        args.short_clips = min(args.short_clips, 4)
     start = time.perf_counter()
 
     def log(message: str) -> None:
@@ -433,58 +200,97 @@ def _run(args: argparse.Namespace, command: list[str]) -> int:
         if not split_file.is_file():
             raise MdvaeError(f"no split file at {split_file} (is the corpus built?)")
         split = read_split(split_file)
-        missing = [k for k in ("test", "val") if not split.get(k)]
+        splits = [x for x in args.splits.split(",") if x.strip()]
+        tune_split = {"test": "val"}  # other splits tune the filters on their very clips
+        needed = {*splits, *(tune_split[x] for x in splits if x in tune_split)}
+        missing = [k for k in sorted(needed) if not split.get(k)]
         if missing:
             raise MdvaeError(f"{split_file}: no files in split(s) {', '.join(missing)}")
         denoiser, meta = load_denoiser(args.denoiser)
         window = int(meta.get("fit_config", {}).get("window", 60))
         body = BodyModel(load_body_model(args.body_model))
         root = split_file.parent
-        test_files = common.pick_evenly(split["test"], args.max_files)
-        val_files = common.pick_evenly(split["val"], args.max_files)
-        log(f"loading {len(test_files)} test and {len(val_files)} val files")
-        test = common.load_clips(test_files, root, args.clip_frames, max_clips=args.max_clips)
-        val = common.load_clips(val_files, root, args.clip_frames, max_clips=args.tune_clips)
-        if not test or not val:
-            raise MdvaeError(f"no clip of {args.clip_frames} frames in the test or val files")
         settings = settings_from_args(args, window)
-        with tempfile.TemporaryDirectory(prefix="mdvae-bench-") as tmp:
-            work = args.workdir or Path(tmp)
-            work.mkdir(parents=True, exist_ok=True)
-            result = build_table(test, val, denoiser, body, settings, work, log)
+        results, used = [], {}
+        for name in splits:
+            test_files = common.pick_evenly(split[name], args.max_files)
+            log(f"loading {len(test_files)} {name} files")
+            test = common.load_clips(test_files, root, args.clip_frames, max_clips=args.max_clips)
+            if name in tune_split:
+                val_files = common.pick_evenly(split[tune_split[name]], args.max_files)
+                val = common.load_clips(val_files, root, args.clip_frames,
+                                        max_clips=args.tune_clips)  # fmt: skip
+                tuned_on = tune_split[name]
+            else:
+                val_files, val, tuned_on = test_files, test, "the same"
+            if not test or not val:
+                raise MdvaeError(f"no clip of {args.clip_frames} frames in the {name} files")
+            used[name] = (len(test_files), len(val_files), tuned_on)
+            own = settings if name == "test" else replace(
+                settings, curve_steps=tuple(n for n in settings.curve_steps
+                                            if n in (0, settings.optimize_steps)))  # fmt: skip
+            with tempfile.TemporaryDirectory(prefix="mdvae-bench-") as tmp:
+                work = args.workdir or Path(tmp)
+                work.mkdir(parents=True, exist_ok=True)
+                results.append(build_table(test, val, denoiser, body, own, work, log, name,
+                                           tuned_on))  # fmt: skip
+        short_rows = []
+        lengths = [int(x) for x in args.short_lengths.split(",") if x.strip()]
+        if lengths:
+            files = split.get(args.short_split) or []
+            short = load_short_clips(files, root, lengths, args.short_clips)
+            short_rows = short_take_rows(short, denoiser, body, seed=args.seed, log=log)
     except MdvaeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
     out = args.out if (args.out or args.quick) else REPO / "docs" / "benchmarks.md"
-    context = {
-        "corpus": f"{args.corpus} (split {split_file.name}: {len(test_files)} test files, "
-        f"{len(val_files)} val files used)",
-        "denoiser": str(args.denoiser or "shipped weights (mdvae_cli/weights/denoiser.npz)"),
-        "body model": str(args.body_model or "built-in body"),
-        "denoiser windows": f"{settings.window} frames, stride {settings.stride}",
-        "run": "quick subset (--quick): numbers are only a smoke test"
-        if args.quick
-        else ("all test clips" if args.max_clips is None and args.max_files is None else "subset"),
-        "command": " ".join(["python benchmarks/denoise_table.py", *command]),
-        "benchmark time": f"{time.perf_counter() - start:.0f} s",
-    }
     machine = common.machine_description()
-    plot_link = None
-    if out is not None:
-        plot = args.plot or out.parent / "denoise_speed_accuracy.png"
-        if plot_speed_accuracy(result, plot):
-            plot_link = os.path.relpath(plot, out.parent)
-        else:
-            log("matplotlib is not installed: no plot (pip install matplotlib)")
-        common.write_section(
-            out, report_markdown(result, machine, context, plot_link), SECTION_BEGIN, SECTION_END
-        )
-        log(f"wrote {out}" + (f" and {plot}" if plot_link else ""))
+    payload = {"machine": machine, "tables": [], "short_takes": []}
+    for result in results:
+        n_test, n_val, tuned_on = used[result.split]
+        context = {
+            "corpus": f"{args.corpus} (split {split_file.name}: {n_test} {result.split} files"
+            + (f", {n_val} {tuned_on} files" if tuned_on != "the same" else "")
+            + " used)",
+            "denoiser": str(args.denoiser or "shipped weights (mdvae_cli/weights/denoiser.npz)"),
+            "body model": str(args.body_model or "built-in body"),
+            "denoiser windows": f"{settings.window} frames, stride {settings.stride}",
+            "run": "quick subset (--quick): numbers are only a smoke test"
+            if args.quick
+            else ("all clips" if args.max_clips is None and args.max_files is None else "subset"),
+            "command": " ".join(["python benchmarks/denoise_table.py", *command]),
+            "benchmark time (all tables)": f"{time.perf_counter() - start:.0f} s",
+        }
+        plot_link = None
+        if out is not None:
+            if result.split == "test":
+                plot = args.plot or out.parent / "denoise_speed_accuracy.png"
+                if plot_speed_accuracy(result, plot):
+                    plot_link = os.path.relpath(plot, out.parent)
+                else:
+                    log("matplotlib is not installed: no plot (pip install matplotlib)")
+            begin, end = section_markers(result.split)
+            common.write_section(
+                out, report_markdown(result, machine, context, plot_link), begin, end
+            )
+            log(f"wrote the {result.split} table to {out}")
+        payload["tables"].append({**result.to_dict(), "context": context})
+        print(f"\n{result.split} ({result.num_clips} clips):")
+        print(common.markdown_table(table_columns(result.settings), table_rows(result)))
+    if short_rows:
+        context = {
+            "split": f"{args.short_split} of {args.corpus}",
+            "denoiser": str(args.denoiser or "shipped weights"),
+            "command": " ".join(["python benchmarks/denoise_table.py", *command]),
+        }
+        text = short_takes_markdown(short_rows, context)
+        if out is not None:
+            common.write_section(out, text, SHORT_BEGIN, SHORT_END)
+        payload["short_takes"] = [asdict(r) for r in short_rows]
+        print("\n" + text)
     if args.json:
-        payload = {**result.to_dict(), "machine": machine, "context": context}
         args.json.write_text(json.dumps(payload, indent=2) + "\n")
-    print(common.markdown_table(table_columns(settings), table_rows(result)))
     return 0
 
 

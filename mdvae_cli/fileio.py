@@ -17,8 +17,9 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
     ``forbid`` lists input files: writing onto one of them is refused (inputs are never
     overwritten). The temporary keeps ``path``'s suffix so writers that look at it still work;
     ``write`` creates it. Its name is chosen before it exists, so an interrupt (Ctrl-C) at any
-    moment leaves no temporary behind. A file-system failure (read-only folder, disk full) is
-    one InputError naming ``path``.
+    moment leaves no temporary behind; folders made for ``path`` are removed again when the
+    write fails (and they are still empty). A file-system failure (read-only folder, disk
+    full) is one InputError naming ``path``.
     """
     path = Path(path)
     target = path.resolve()
@@ -33,6 +34,7 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
                 raise InputError(f"cannot write {path}: {parent} is a file, not a folder")
             break
     tmp = path.parent / f".{path.stem}.{secrets.token_hex(6)}{path.suffix}"
+    made = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         write(tmp)
@@ -40,6 +42,9 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
     except BaseException as exc:
         with contextlib.suppress(OSError):  # absent, or a read-only folder
             tmp.unlink()
+        for folder in made:  # deepest first: only the folders made for it, if still empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
         if isinstance(exc, OSError):
             raise InputError(f"cannot write {path}: {exc.strerror or exc}") from None
         raise

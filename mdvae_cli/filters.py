@@ -1,6 +1,7 @@
-"""Classical temporal filters a studio would try first: Gaussian and Savitzky-Golay smoothing.
+"""Classical temporal filters a studio would try first: Gaussian and Savitzky-Golay smoothing,
+and the One-Euro filter that video-mocap tools apply.
 
-Both are local polynomial least-squares smoothers applied along time, pure numpy:
+The first two are local polynomial least-squares smoothers applied along time, pure numpy:
 
 * **Savitzky-Golay** (``window`` odd, ``order``): every frame takes the value at that frame of the
   polynomial of degree ``order`` fitted (unweighted least squares) to the ``window`` frames
@@ -15,6 +16,11 @@ Both are local polynomial least-squares smoothers applied along time, pure numpy
   frames left under it. In the interior this is the same as plain convolution, because a
   symmetric kernel fits no slope. At the ends it keeps a constant-velocity drift instead of
   pulling the end frames towards the inside, which reflect- or nearest-padding would do.
+* **One-Euro** (Casiez, Roussel, Vogel, CHI 2012; ``min_cutoff`` Hz, ``beta``, ``d_cutoff`` Hz):
+  a causal first-order low-pass whose cutoff rises with the signal's speed, per component:
+  ``cutoff = min_cutoff + beta * |dx/dt|`` (the speed itself low-passed at ``d_cutoff``), so
+  slow motion is smoothed hard and fast motion lags little. It runs forward only, as in the
+  live tools (ROMP's ``--temporal_optimize``, MediaPipe), and its first frame is the input's.
 
 Rotations are smoothed as quaternions: each joint's axis-angle track is converted to unit
 quaternions, made sign-continuous over time (each quaternion flipped into the hemisphere of its
@@ -155,6 +161,30 @@ def gaussian_smooth(x: np.ndarray, sigma_frames: float) -> np.ndarray:
     )
 
 
+def one_euro_smooth(
+    x: np.ndarray, fps: float, min_cutoff: float, beta: float, d_cutoff: float = 1.0
+) -> np.ndarray:
+    """One-Euro filter along axis 0 (causal), each component on its own.
+    x: (T, ...) -> (T, ...); fps: frames per second; cutoffs in Hz (> 0), beta >= 0."""
+    _check_one_euro(min_cutoff, beta, d_cutoff)
+    x = np.asarray(x, dtype=np.float64)
+    out = np.empty_like(x)
+    if x.shape[0] == 0:
+        return out
+
+    def alpha(cutoff):  # the smoothing factor of a first-order low-pass at ``cutoff`` Hz
+        return 1.0 / (1.0 + fps / (2.0 * np.pi * cutoff))
+
+    a_d = alpha(d_cutoff)
+    out[0] = x[0]
+    speed = np.zeros_like(x[0])
+    for t in range(1, x.shape[0]):
+        speed = speed + a_d * ((x[t] - out[t - 1]) * fps - speed)
+        a = alpha(min_cutoff + beta * np.abs(speed))
+        out[t] = out[t - 1] + a * (x[t] - out[t - 1])
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # rotations
 
@@ -271,8 +301,26 @@ def savgol_filter_motion(motion: Motion, window: int, order: int) -> Motion:
     return filter_motion(motion, lambda x: savgol_smooth(x, window, order))
 
 
+def one_euro_filter_motion(
+    motion: Motion, min_cutoff: float, beta: float, d_cutoff: float = 1.0
+) -> Motion:
+    """One-Euro filtering of body pose, root orientation (quaternions) and translation, at the
+    motion's own frame rate. Same T and fps; hands, betas and extras untouched."""
+    _check_one_euro(min_cutoff, beta, d_cutoff)
+    fps = motion.fps
+    return filter_motion(motion, lambda x: one_euro_smooth(x, fps, min_cutoff, beta, d_cutoff))
+
+
 # --------------------------------------------------------------------------------------------
 # validation
+
+
+def _check_one_euro(min_cutoff: float, beta: float, d_cutoff: float) -> None:
+    for name, value, low in (("min_cutoff", min_cutoff, 0.0), ("d_cutoff", d_cutoff, 0.0)):
+        if not (math.isfinite(value) and value > low):
+            raise InputError(f"One-Euro {name} must be a finite number of Hz > 0, got {value!r}")
+    if not (math.isfinite(beta) and beta >= 0):
+        raise InputError(f"One-Euro beta must be a finite number >= 0, got {beta!r}")
 
 
 def _gaussian_radius(sigma_frames: float) -> int:

@@ -16,17 +16,10 @@ from benchmarks.common import (
     pick_evenly,
     write_section,
 )
-from benchmarks.denoise_table import (
-    ROWS,
-    SECTION_BEGIN,
-    SECTION_END,
-    TableSettings,
-    build_table,
-    main,
-    report_markdown,
-    table_columns,
-    table_rows,
-)
+from benchmarks.denoise_methods import build_table
+from benchmarks.denoise_report import report_markdown, table_columns, table_rows
+from benchmarks.denoise_rows import ROWS, SECTION_BEGIN, SECTION_END, TableSettings
+from benchmarks.denoise_table import main
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.metrics import evaluate_pair, mean_result
@@ -194,9 +187,11 @@ def test_file_to_file_times_load_process_and_save(tmp_path):
 
 
 def test_script_main_end_to_end(tiny_denoiser, tmp_path):
+    """Both splits' tables (test tuned on val, unseen_test on its own clips) and the short-take
+    rows go into their own sections of --out and into --json."""
     corpus = tmp_path / "corpus"
-    split = {"train": [], "val": [], "test": []}
-    for i, part in enumerate(["test", "val"]):
+    split = {"train": [], "val": [], "test": [], "unseen_test": []}
+    for i, part in enumerate(["test", "val", "unseen_test"]):
         arrays = motion_arrays(T=64, width=156, fps=30.0, seed=20 + i)
         arrays["poses"][:, 0] = np.pi / 2
         (corpus / f"s{i}").mkdir(parents=True)
@@ -208,10 +203,22 @@ def test_script_main_end_to_end(tiny_denoiser, tmp_path):
     args = ["--corpus", str(corpus), "--denoiser", str(tmp_path / "den"), "--out", str(out)]
     args += ["--quick", "--clip-frames", "30", "--max-clips", "2", "--tune-clips", "2"]
     args += ["--optimize-steps", "1", "--curve-steps", "0,1", "--threads", "1"]
+    args += ["--short-lengths", "6,16", "--short-clips", "2"]
     args += ["--json", str(tmp_path / "raw.json")]
     assert main(args) == 0
     text = out.read_text()
     assert "| Regression mode |" in text and "quick subset" in text
+    assert text.count("denoise_table:begin") == 2 and "split=unseen_test" in text
+    assert "Filters tuned on 2 the same clips" in text and "## Short takes" in text
     raw = json.loads((tmp_path / "raw.json").read_text())
-    assert raw["num_clips"] == 2 and raw["clip_frames"] == 30
+    test, unseen = raw["tables"]
+    assert (test["split"], test["tuned_on"]) == ("test", "val")
+    assert (unseen["split"], unseen["tuned_on"]) == ("unseen_test", "the same")
+    assert test["num_clips"] == 2 and test["clip_frames"] == 30
+    assert [p["steps"] for p in unseen["curve"] if p["steps"] is not None] == [0, 1]
+    short = raw["short_takes"]
+    assert [(r["length"], r["sigma"]) for r in short] == [
+        (n, s) for n in (6, 16) for s in (0.1, 0.15, 0.2)
+    ]
+    assert all(0 <= r["worse_than_noisy"] <= r["clips"] for r in short)
     assert main(["--corpus", str(tmp_path / "nothing")]) == 2  # a clear error, no traceback

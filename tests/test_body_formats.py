@@ -496,7 +496,7 @@ def test_truncated_files(tmp_path, suffix):
     else:
         np.savez(path, **arrays)
     path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
-    expect_error(path, "not a readable")
+    expect_error(path, "truncated")
 
 
 def test_corrupt_npz_member(tmp_path):
@@ -530,7 +530,7 @@ def test_object_array_needs_pickle(tmp_path):
     arrays = synthetic(24)
     arrays["J_regressor"] = np.array(arrays["J_regressor"], dtype=object)
     np.savez(tmp_path / "obj.npz", **arrays)
-    expect_error(tmp_path / "obj.npz", "'J_regressor' is stored as a pickled object array")
+    expect_error(tmp_path / "obj.npz", "'J_regressor' holds pickled Python objects; they are never")
 
 
 @pytest.mark.parametrize(

@@ -280,7 +280,7 @@ def test_cli_denoise_refuses_a_too_short_file_and_goes_on(tmp_path):
     [
         (["missing.npz"], "no such file"),
         (["{bad}"], "not an .npz"),
-        (["{bvh}"], "convert it first with `mdvae import"),  # a studio's BVH: say what to do
+        (["{bvh}"], "no MOTION section"),  # a BVH take is read now: a broken one says why
     ],
 )
 def test_cli_denoise_bad_inputs_write_nothing(tmp_path, args, message):
@@ -444,8 +444,8 @@ def test_x0_predictor_reads_the_whole_window_and_old_configs_keep_their_layout()
 
 
 def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(tiny_prior):
-    from benchmarks.common import slice_motion
     from mdvae_cli.infer.window_groups import make_windows, smooth_inputs
+    from mdvae_cli.motion.motion import slice_frames
     from mdvae_cli.motion.state import POSE
 
     assert DenoiserConfig().input_window == 11
@@ -468,7 +468,7 @@ def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(ti
     dist = lambda y: (y[:, :, :, None] - y[:, :, None]).norm(dim=-1)  # noqa: E731
     assert torch.allclose(dist(g_raw.y3d), dist(g_filt.y3d), atol=1e-5)
     # short motions: the window shrinks to fit; 2 frames or fewer pass through unchanged
-    two, five = slice_motion(noisy, 0, 2), slice_motion(noisy, 0, 5)
+    two, five = slice_frames(noisy, 0, 2), slice_frames(noisy, 0, 5)
     other = add_pose_noise(clean, 0.15, np.random.default_rng(4))
     batch = smooth_inputs([noisy, two, five, other], DenoiserConfig())
     assert batch[1] is two

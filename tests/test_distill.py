@@ -169,3 +169,43 @@ def test_cli_fit_dataset_distill_options(tiny_prior, noisy_dir, tmp_path):  # no
     res = CliRunner().invoke(cli, [*args, "--prior", str(tiny_prior / "run")])
     assert res.exit_code == 1 and "--init-from brings its own prior" in res.output
     assert "Traceback" not in res.output
+
+
+def test_short_takes_join_the_fit_and_the_distillation(
+    tiny_prior,  # noqa: F811
+    noisy_dir,  # noqa: F811
+    tmp_path,
+):
+    """``short_windows``: one group of short clips per length after the full windows, about
+    ``short_share`` x the full windows in all; ELBO and distillation steps count every group,
+    and the targets file keeps each group's tensors (g0/, g1/, ...)."""
+    prior, _ = load_prior(tiny_prior / "run")
+    den = Denoiser(prior, DenoiserConfig(hidden_dim=16)).eval()
+    body = BodyModel(builtin_body_model())
+    files = sorted(noisy_dir.glob("*.npz"))
+    plain = load_noisy_windows(files, den, body, 20, 5)
+    groups = load_noisy_windows(files, den, body, 20, 5, short_windows=(6, 10), short_share=0.5)
+    assert len(groups) == 3 and groups[0].yn.shape == plain[0].yn.shape
+    assert [g.yn.shape[1] for g in groups[1:]] == [6, 10]
+    for g in groups[1:]:
+        assert abs(len(g) - round(0.5 * len(plain[0]) / 2)) <= 1
+    again = load_noisy_windows(files, den, body, 20, 5, short_windows=(6, 10), short_share=0.5)
+    torch.testing.assert_close(again[1].yn, groups[1].yn)  # seeded
+
+    start = write_denoiser(tiny_prior, tmp_path / "start")
+    cfg = FitConfig(
+        data=[str(noisy_dir)], init_from=str(start), window=20, stride=5, batch_size=8,
+        epochs=1, device="cpu", short_windows=[6, 10], short_share=0.5,
+        distill=DistillConfig(epochs=1, batch_size=8, refine_steps=2),
+    )  # fmt: skip
+    summary = fit_dataset(cfg, tmp_path / "den")
+    total = sum(len(g) for g in groups)
+    assert summary.windows == total and summary.steps == -(-total // 8)
+    assert summary.distill_steps == total // 8
+    from mdvae_cli.model.checkpoint import load_checkpoint
+
+    tensors, meta = load_checkpoint(tmp_path / "den" / fd.TARGETS_FILE)
+    assert meta["windows"] == [len(g) for g in groups]
+    assert tensors["g1/z"].shape[:2] == (len(groups[1]), 5)
+    with pytest.raises(InputError, match="--short-windows 30 is not shorter"):
+        FitConfig(window=20, short_windows=[30])

@@ -202,3 +202,45 @@ def test_end_frames_match_a_direct_local_fit_for_any_length():
             idx = np.arange(lo, min(lo + window, T))
             expected = local_poly_coefficients(idx, order, t) @ x[idx]
             np.testing.assert_allclose(out[t], expected, atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# One-Euro
+
+
+def test_one_euro_with_beta_0_is_a_first_order_low_pass():
+    from mdvae_cli.filters import one_euro_smooth
+
+    fps, fc = 30.0, 2.0
+    x = np.r_[np.zeros(5), np.ones(40)]
+    y = one_euro_smooth(x, fps, fc, 0.0)
+    a = 1 / (1 + fps / (2 * np.pi * fc))
+    expected = np.r_[np.zeros(5), 1 - (1 - a) ** np.arange(1, 41)]
+    np.testing.assert_allclose(y, expected, atol=1e-12)
+
+
+def test_one_euro_is_causal_keeps_constants_and_lags_less_with_beta():
+    from mdvae_cli.filters import one_euro_smooth
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(50, 3))
+    y = one_euro_smooth(x, 30.0, 1.0, 0.5)
+    x2 = x.copy()
+    x2[30:] += 5.0
+    np.testing.assert_array_equal(one_euro_smooth(x2, 30.0, 1.0, 0.5)[:30], y[:30])
+    np.testing.assert_allclose(one_euro_smooth(np.full((20, 2), 3.0), 30.0, 1.0, 1.0), 3.0)
+    ramp = np.arange(60.0)[:, None] * 0.1
+    lag = lambda b: float(ramp[-1, 0] - one_euro_smooth(ramp, 30.0, 1.0, b)[-1, 0])  # noqa: E731
+    assert lag(1.0) < lag(0.0)
+
+
+def test_one_euro_motion_filter_and_its_parameter_checks():
+    from mdvae_cli.filters import one_euro_filter_motion
+
+    m = make_motion(T=40)
+    out = one_euro_filter_motion(m, 1.5, 0.3)
+    assert out.num_frames == 40 and out.fps == m.fps
+    np.testing.assert_allclose(out.root_orient[0], m.root_orient[0], atol=1e-9)  # first frame
+    for bad in ((0.0, 0.1), (1.0, -1.0), (float("nan"), 0.0)):
+        with pytest.raises(InputError, match="One-Euro"):
+            one_euro_filter_motion(m, *bad)

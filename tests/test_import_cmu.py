@@ -25,7 +25,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
-from mdvae_cli.motion import cmu
+from mdvae_cli.motion import cmu, corpus_plan
 from mdvae_cli.motion.asf import load_asf, parse_asf
 from mdvae_cli.motion.asfamc import load_amc
 from mdvae_cli.motion.bvh import load_bvh
@@ -162,7 +162,7 @@ def test_bvh_blank_frames_dropped_and_gzip(tmp_path):
         ("    OFFSET 0 5 0\n", "", "expected 'OFFSET'"),
         ("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 1e30 0", "joint Arm holds an angle of 1e+30 degrees"),
         ("1 2 3 0 0 0 0 0 0", "1 2 3 0 0 0 0 200000 0", "angles over 100000 degrees are refused"),
-        ("1 2 3 0 0 0 0 0 0", "1e30 2 3 0 0 0 0 0 0", "the root position reaches 5.64e+28 m"),
+        ("1 2 3 0 0 0 0 0 0", "1e30 2 3 0 0 0 0 0 0", "the root position reaches 1e+29 m"),
         ("OFFSET 10 0 0", "OFFSET 1e30 0 0", "a bone reaches 1e+27 m"),
     ],
 )
@@ -482,6 +482,8 @@ def test_cli_cmu_corpus_split_duplicates_donor_and_60hz(tmp_path):
         "train": ["asfamc/118/118_01.npz", "asfamc/79/79_08.npz", "asfamc_noasf/91/91_06.npz"],
         "val": ["asfamc/02/02_01.npz"],
         "test": ["asfamc/07/07_01.npz", "bvh/07_02.npz"],
+        "unseen_val": [],
+        "unseen_test": [],
     }
     assert split["donor_skeleton"] == ["asfamc_noasf/91/91_06.npz"]
     assert split["subjects"]["test"] == ["07"]
@@ -501,9 +503,65 @@ def test_cli_cmu_corpus_split_duplicates_donor_and_60hz(tmp_path):
     assert summary["retarget_error_mm"] < 12.0 and summary["splits"]["val"]["files"] == 1
 
 
+@needs_cmu
+def test_cli_corpus_of_two_folders_holds_unseen_kinds_and_hdm05_out(tmp_path):
+    """CMU (with a trial stored in two formats) and an HDM05-style folder in one build: unseen
+    splits by subject and actor, HDM05 never in train, each folder mirrored under its name."""
+    root = tmp_path / "cmu"
+    for subject, trial in (("07", "01"), ("02", "01")):
+        folder = CMU / "asfamc" / subject
+        write(root / f"asfamc/{subject}/{subject}.asf", read(folder / f"{subject}.asf"))
+        text = amc_excerpt(folder / f"{subject}_{trial}.amc.gz", 40)
+        write(root / f"asfamc/{subject}/{subject}_{trial}.amc.gz", text)
+    write(root / "bvh/07_02.bvh.gz", bvh_excerpt(CMU / "bvh/07_02.bvh.gz", 40))
+    daz = bvh_excerpt(CMU / "bvh_daz/12_01.bvh.gz", 40)
+    write(root / "bvh_daz/12_01.bvh.gz", daz)
+    write(root / "bvh_daz/07_01.bvh.gz", daz)  # the same trial as asfamc/07/07_01
+    hdm = tmp_path / "hdm05"
+    for actor in ("bd", "dg"):  # CMU's skeleton and motion under HDM05's names
+        write(hdm / f"{actor}/{actor}.asf", read(CMU / "asfamc/02/02.asf"))
+        text = amc_excerpt(CMU / "asfamc/02/02_01.amc.gz", 40)
+        write(hdm / f"{actor}/HDM_{actor}_kickLFront1Reps_001_120.amc.gz", text)
+    spec = write(tmp_path / "split.json", json.dumps({
+        "val_subjects": ["02"], "test_subjects": [], "unseen_val_subjects": ["hdm05:bd"],
+        "unseen_test_subjects": ["12"]}))  # fmt: skip
+    out = tmp_path / "corpus"
+    code, stdout, err = run(root, hdm, "-o", out, "--corpus", "--split", spec, "--json")
+    assert code == 0, err
+    split = json.loads((out / "split.json").read_text())
+    assert split["splits"] == {
+        "train": ["cmu/asfamc/07/07_01.npz", "cmu/bvh/07_02.npz"],
+        "val": ["cmu/asfamc/02/02_01.npz"],
+        "test": [],
+        "unseen_val": ["hdm05/bd/HDM_bd_kickLFront1Reps_001_120.npz"],
+        "unseen_test": ["cmu/bvh_daz/12_01.npz"],
+    }
+    assert split["subjects"]["unseen_val"] == ["hdm05:bd"]
+    assert split["unseen_test_subjects"] == ["12"]
+    summary = json.loads(stdout)
+    reasons = {s["file"]: s["reason"] for s in summary["skipped"]}
+    assert reasons["cmu/bvh_daz/07_01.bvh.gz"] == (
+        "trial 07_01 already taken from asfamc/07/07_01.amc.gz"
+    )
+    assert "test data only" in reasons["hdm05/dg/HDM_dg_kickLFront1Reps_001_120.amc.gz"]
+    assert summary["splits"]["unseen_val"]["minutes"] == round(10 / 30 / 60, 2)
+    rows = {f["file"]: f["result"] for f in summary["files"]}
+    assert rows["cmu/bvh_daz/12_01.bvh.gz"]["retarget_error_mm"] < 15.0
+
+
+def test_split_files_refuse_a_subject_in_two_splits(tmp_path):
+    spec = {"val_subjects": ["06"], "test_subjects": ["02"], "unseen_test_subjects": ["06"]}
+    path = write(tmp_path / "s.json", json.dumps(spec))
+    with pytest.raises(InputError, match="subject 06 is in both val and unseen_test"):
+        corpus_plan.load_split_spec(path)
+    path.write_text(json.dumps({"val_subjects": [], "test_subjects": [], "unseen_val_subjects": 5}))
+    with pytest.raises(InputError, match="unseen_val_subjects must be a list of strings"):
+        corpus_plan.load_split_spec(path)
+
+
 def test_cli_rejects_bad_options(tmp_path):
     code, out, err = run(tmp_path, "-o", tmp_path / "o", "--split", tmp_path / "s.json")
-    assert code == 1 and "error: --split only goes with --cmu-corpus" in err
+    assert code == 1 and "error: --split only goes with --corpus" in err
     for bad, why in ((-1, "-1 is not >= 0"), ("inf", "'inf' is not a finite number")):
         code, out, err = run(tmp_path, "-o", tmp_path / "o", "--fps", bad)
         assert code == 2 and f"Invalid value for '--fps': {why}" in out + err
@@ -517,7 +575,7 @@ def test_cli_rejects_bad_options(tmp_path):
 
 
 def test_split_file_matches_code_and_holds_out_walkers():
-    spec = cmu.load_split_spec(REPO / "weights_recipe/cmu_split.json")
+    spec = corpus_plan.load_split_spec(REPO / "weights_recipe/cmu_split.json")
     assert spec.val == cmu.VAL_SUBJECTS and spec.test == cmu.TEST_SUBJECTS
     assert not set(spec.val) & set(spec.test)
     if not (CMU / "manifest.csv").is_file():

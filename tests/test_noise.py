@@ -167,3 +167,114 @@ def test_file_rng_depends_on_seed_and_path_only():
     assert np.allclose(file_rng(0, "clip.npz").normal(size=3), expected, atol=1e-7)
     with pytest.raises(InputError):
         file_rng(-1, "x.npz")
+
+
+# --------------------------------------------------------------------------------------------
+# video-like noise (--preset video)
+
+
+def _video_clip(T=300, fps=30.0):
+    from conftest import motion_arrays
+
+    from mdvae_cli.motion.npz_io import motion_from_arrays
+
+    return motion_from_arrays(motion_arrays(T=T, width=72, fps=fps, seed=5, num_betas=10))
+
+
+def _only(**kept):
+    from mdvae_cli.motion.noise import VideoNoise
+
+    zero = {k: 0.0 for k in vars(VideoNoise()) if k not in ("swap_frames", "slow_time")}
+    return VideoNoise().with_overrides({**zero, **kept})
+
+
+def test_video_noise_white_and_slow_parts_have_their_std():
+    from mdvae_cli.motion.noise import add_video_noise
+
+    m = _video_clip(T=3000)
+    white = add_video_noise(m, _only(pose_white=0.05), np.random.default_rng(0))
+    d = white.pose_body - m.pose_body
+    assert abs(d.std() - 0.05) < 0.002 and abs(np.corrcoef(d[1:, 0, 0], d[:-1, 0, 0])[0, 1]) < 0.1
+    slow = add_video_noise(m, _only(pose_slow=0.1), np.random.default_rng(0))
+    d = slow.pose_body - m.pose_body
+    assert abs(d.std() - 0.1) < 0.02  # 300 slow time scales: a loose bound
+    assert np.corrcoef(d[1:, 3, 1], d[:-1, 3, 1])[0, 1] > 0.98  # smooth over frames
+    np.testing.assert_array_equal(slow.root_orient, m.root_orient)
+    np.testing.assert_array_equal(slow.trans, m.trans)
+
+
+def test_video_noise_depth_jitter_is_horizontal_and_mostly_along_one_axis():
+    from mdvae_cli.motion.noise import add_video_noise
+
+    m = _video_clip(T=3000)
+    d = add_video_noise(m, _only(depth_white=0.05), np.random.default_rng(1)).trans - m.trans
+    assert np.abs(d[:, 2]).max() < 1e-12
+    s = np.linalg.svd(d - d.mean(0), compute_uv=False)
+    assert s[1] < 1e-6 * s[0] and abs(np.linalg.norm(d, axis=1).std() - 0.05 * 0.6) < 0.02
+
+
+def test_video_noise_leg_swaps_exchange_and_mirror_the_legs():
+    from mdvae_cli.motion.noise import add_video_noise
+
+    m = _video_clip(T=600)
+    noisy = add_video_noise(m, _only(swap_rate=2.0), np.random.default_rng(2))
+    changed = np.flatnonzero(np.abs(noisy.pose_body - m.pose_body).max(axis=(1, 2)) > 0)
+    assert 0 < len(changed) < 600
+    t = changed[0]
+    flip = np.array([1.0, -1.0, -1.0])
+    np.testing.assert_allclose(noisy.pose_body[t, 0], m.pose_body[t, 1] * flip)  # hips
+    np.testing.assert_allclose(noisy.pose_body[t, 10], m.pose_body[t, 9] * flip)  # feet
+    np.testing.assert_array_equal(noisy.pose_body[t, 2], m.pose_body[t, 2])  # spine kept
+
+
+def test_video_noise_turns_the_root_half_a_turn_about_the_vertical():
+    import torch
+
+    from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+    from mdvae_cli.motion.noise import add_video_noise
+
+    m = _video_clip(T=600)
+    noisy = add_video_noise(m, _only(turn_rate=1.0), np.random.default_rng(3))
+    rel = rotvec_to_rotmat(torch.tensor(noisy.root_orient)) @ rotvec_to_rotmat(
+        torch.tensor(m.root_orient)
+    ).transpose(1, 2)
+    turned = (rel - torch.eye(3)).abs().amax(dim=(1, 2)) > 1e-6
+    assert 0 < int(turned.sum()) < 600
+    np.testing.assert_allclose(rel[turned].numpy(), np.tile(np.diag([-1.0, -1.0, 1.0]),
+                               (int(turned.sum()), 1, 1)), atol=1e-9)  # fmt: skip
+
+
+def test_video_noise_is_seeded_and_its_streams_independent():
+    from mdvae_cli.motion.noise import PRESETS, add_video_noise
+
+    m = _video_clip(T=120)
+    a = add_video_noise(m, PRESETS["video"], np.random.default_rng(7))
+    b = add_video_noise(m, PRESETS["video"], np.random.default_rng(7))
+    np.testing.assert_array_equal(a.pose_body, b.pose_body)
+    no_spikes = PRESETS["video"].with_overrides({"spike_frac": 0, "swap_rate": 0})
+    c = add_video_noise(m, no_spikes, np.random.default_rng(7))
+    np.testing.assert_array_equal(a.trans, c.trans)  # translation draws unchanged
+    np.testing.assert_array_equal(m.pose_body, _video_clip(T=120).pose_body)  # input untouched
+
+
+def test_video_noise_on_clean_clips_matches_its_calibration():
+    """The preset's documented calibration (docs/model.md): on a smooth clip, the root-relative
+    joint error is of the order of a frame-wise estimator's (tens of mm) and the white part's
+    acceleration error is ~20 m/s^2 at 30 fps."""
+    from mdvae_cli.body.builtin import builtin_body_model
+    from mdvae_cli.export import pose_motion_chunks
+    from mdvae_cli.motion.noise import PRESETS, add_video_noise
+
+    m = _video_clip(T=300)
+    quiet = PRESETS["video"].with_overrides({"swap_rate": 0, "turn_rate": 0, "spike_frac": 0})
+    noisy = add_video_noise(m, quiet, np.random.default_rng(0))
+    body = builtin_body_model()
+
+    def joints(x):
+        return np.concatenate([o.joints.double().numpy() for _, o in pose_motion_chunks(x, body)])
+
+    jg, jn = joints(m), joints(noisy)
+    rel = np.linalg.norm((jn - jn[:, :1]) - (jg - jg[:, :1]), axis=-1).mean()
+    acc = lambda j: j[2:] - 2 * j[1:-1] + j[:-2]  # noqa: E731
+    accel = np.linalg.norm(acc(jn) - acc(jg), axis=-1).mean() * 30**2
+    assert 0.04 < rel < 0.10 and 40 < accel < 110

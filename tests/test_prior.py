@@ -374,3 +374,50 @@ def test_mirror_augment_adds_each_motions_mirror_image(tmp_path, tiny_body):
     train_files = select_files([data], None, "train")
     summary = train_prior(tiny_config(data, mirror_augment=True), tmp_path / "run", max_steps=1)
     assert summary.train_windows == 2 * len(load_windows(train_files, body, 20, 5))
+
+
+def test_time_warp_plays_the_same_path_at_another_speed(make_motion_file):
+    """A motion at 1.25x covers the same path in 1/1.25 of the time: frame k of the warped
+    motion is the original at time 1.25 k / fps; the root's mean speed scales by 1.25."""
+    from mdvae_cli.motion.npz_io import load_motion
+    from mdvae_cli.motion.resample import resample_motion, time_warp
+
+    motion = resample_motion(load_motion(make_motion_file(T=121, fps=60.0)), 30.0)
+    fast = time_warp(motion, 1.25, 30.0)
+    slow = time_warp(motion, 0.8, 30.0)
+    assert fast.fps == slow.fps == 30.0
+    assert fast.num_frames == 49 and slow.num_frames == 76  # 2 s -> 1.6 s and 2.5 s
+    np.testing.assert_allclose(fast.trans[4], motion.trans[5], atol=1e-9)  # t = 5/30 s
+    np.testing.assert_allclose(slow.pose_body[5], motion.pose_body[4], atol=1e-9)
+    speed = lambda m: np.linalg.norm(np.diff(m.trans, axis=0), axis=1).mean() * m.fps  # noqa: E731
+    assert speed(fast) == pytest.approx(1.25 * speed(motion), rel=0.02)
+    with pytest.raises(ValueError):
+        time_warp(motion, 0.0, 30.0)
+
+
+def test_speeds_and_data_fraction_reach_the_training_windows(tmp_path, tiny_body):
+    """``load_windows(speeds=...)`` adds every motion played at each speed (the captured
+    windows first, untouched); ``fraction`` keeps a seeded, nested subset of whole files."""
+    from mdvae_cli.train.corpus import load_windows, select_files
+
+    data = write_corpus(tmp_path / "data", n=4, T=90)
+    files = sorted(data.glob("*.npz"))
+    body = BodyModel(tiny_body)
+    plain = load_windows(files, body, 20, 5)
+    warped = load_windows(files, body, 20, 5, speeds=(1.0, 0.8, 1.25))
+    per_file = {s: len(range(0, round(89 / s) + 1 - 20, 5)) for s in (0.8, 1.25)}
+    assert len(warped) == len(plain) + 4 * (per_file[0.8] + per_file[1.25])
+    torch.testing.assert_close(warped.x[: len(plain)], plain.x)
+    half = load_windows(files, body, 20, 5, fraction=0.5, fraction_seed=3)
+    quarter = load_windows(files, body, 20, 5, fraction=0.25, fraction_seed=3)
+    assert len(quarter) < len(half) < len(plain) and len(half) == len(plain) // 2
+    train_files = select_files([data], None, "train")  # 3 of the 4 equal files
+    cfg = tiny_config(data, speeds=[1.0, 1.25], data_fraction=0.5)
+    summary = train_prior(cfg, tmp_path / "run", max_steps=1)
+    kept = 2  # whole files until half the frames: 2 of 3
+    assert summary.train_windows == kept * (len(plain) // 4 + per_file[1.25])
+    assert len(train_files) == 3
+    with pytest.raises(InputError, match="--speeds"):
+        tiny_config(data, speeds=[0.1])
+    with pytest.raises(InputError, match="--data-fraction"):
+        tiny_config(data, data_fraction=0.0)

@@ -8,7 +8,6 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from benchmarks.common import slice_motion
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
@@ -31,6 +30,7 @@ from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.motion.motion import slice_frames
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.state import POSE, ROOT, TRANS, finite_difference
@@ -398,8 +398,14 @@ def test_cli_denoise_refine(tiny_prior, make_motion_file, tmp_path):  # noqa: F8
     res = CliRunner().invoke(cli, [*args, "--refine", "2", "--outliers", "--json"])
     assert res.exit_code == 0 and json.loads(res.output)["refine"]["outlier_dof"] == 10.0
     out.unlink()
-    res = CliRunner().invoke(cli, [*args, "--outliers"])  # it needs refinement
-    assert res.exit_code != 0 and "use it with --refine N" in res.output and not out.exists()
+    # without refinement it weighs the offset's frames (the video setting) ...
+    res = CliRunner().invoke(cli, [*args, "--outliers", "--json"])
+    assert res.exit_code == 0 and json.loads(res.output)["refine"]["outlier_dof"] == 10.0
+    out.unlink()
+    # ... so it needs the offset or refinement
+    res = CliRunner().invoke(cli, [*args, "--outliers", "--no-offset"])
+    assert res.exit_code != 0 and "drop --no-offset or add --refine N" in res.output
+    assert not out.exists()
     for bad in (["--refine-lr", "0"], ["--refine-offset", "-1"]):
         res = CliRunner().invoke(cli, [*args, "--refine", "3", *bad])
         assert res.exit_code == 2 and not out.exists()
@@ -450,12 +456,12 @@ def test_motions_too_short_to_denoise_are_refused_by_name(tiny_prior):  # noqa: 
     for kw in ({}, {"optimize_steps": 1}, {"refine": RefineConfig(steps=2)}, {"mirror": True}):
         for n in (1, 5):
             with pytest.raises(InputError, match=r"motion 1: too short to denoise: .* at least 6"):
-                denoise_motions([clip, slice_motion(clip, 0, n)], copy.deepcopy(den), body, **kw)
-    six = slice_motion(clip, 0, 6)
+                denoise_motions([clip, slice_frames(clip, 0, n)], copy.deepcopy(den), body, **kw)
+    six = slice_frames(clip, 0, 6)
     (out,) = denoise_motions([six], den, body, refine=RefineConfig(steps=2))
     assert out.num_frames == 6 and np.isfinite(out.pose_body).all()
     # the limit is on the duration: 6 frames at 120 Hz are 2 frames at 30 Hz
-    fast = slice_motion(clip, 0, 6)
+    fast = slice_frames(clip, 0, 6)
     fast.fps = 120.0
     with pytest.raises(InputError, match=r"2 frame\(s\) at 30 Hz"):
         denoise_motions([fast], den, body)

@@ -543,16 +543,16 @@ def test_a_truncated_checkpoint_is_one_plain_error(corpus, tiny_prior, tmp_path)
 
     run = _copy_run(tiny_prior, tmp_path / "run")
     (run / "last.npz").write_bytes((tiny_prior / "last.npz").read_bytes()[:1000])
-    with pytest.raises(InputError, match="checkpoint .*last.npz is unreadable"):
+    with pytest.raises(InputError, match="checkpoint .*last.npz: truncated or corrupt .npz"):
         load_checkpoint(run / "last.npz")
     res = CliRunner().invoke(cli, ["train-prior", str(corpus), "-o", str(run), "--resume"])
     assert res.exit_code == 1, res.output
-    assert "error: checkpoint" in res.output and "is unreadable" in res.output
+    assert "error: checkpoint" in res.output and "truncated or corrupt" in res.output
     assert "Traceback" not in res.output and "BadZipFile" not in res.output
     start = str(next(corpus.glob("*.npz")))
     args = ["sample", "--from", start, "--prior", str(run / "last.npz"), "-o", str(tmp_path / "s")]
     res = CliRunner().invoke(cli, args)
-    assert res.exit_code == 1 and "is unreadable" in res.output, res.output
+    assert res.exit_code == 1 and "truncated or corrupt" in res.output, res.output
 
 
 def test_a_last_checkpoint_without_optimizer_state_cannot_be_resumed(corpus, tiny_prior, tmp_path):

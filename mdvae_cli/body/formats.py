@@ -11,8 +11,6 @@ never from its name. Every failure is an :class:`InputError` with a one-line mes
 
 from __future__ import annotations
 
-import zipfile
-import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -25,8 +23,9 @@ from mdvae_cli.body.data import (
     SMPL_MARKER_VERTEX_IDS,
     BodyModelData,
 )
-from mdvae_cli.body.safe_pickle import one_line, plain_value, read_pickle
+from mdvae_cli.body.safe_pickle import plain_value, read_pickle
 from mdvae_cli.errors import InputError
+from mdvae_cli.npz_archive import NpzArchive
 
 REQUIRED_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights",
                  "kintree_table", "f")  # fmt: skip
@@ -93,29 +92,9 @@ def load_body_model(path: Path | str | None = None) -> BodyModelData:
 
 
 def _load_npz(path: Path) -> BodyModelData:
-    name = path.name
-    try:
-        archive = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise InputError(f"body model {name}: not a readable npz archive ({one_line(e)})") from e
-
-    def fetch(key: str) -> np.ndarray:
-        try:
-            return archive[key]
-        except ValueError as e:
-            if "allow_pickle" in str(e):
-                raise InputError(
-                    f"body model {name}: {key!r} is stored as a pickled object "
-                    "array; re-save it as a plain numeric array"
-                ) from e
-            raise InputError(f"body model {name}: cannot read {key!r} ({one_line(e)})") from e
-        except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:
-            raise InputError(
-                f"body model {name}: truncated or corrupt entry {key!r} ({one_line(e)})"
-            ) from e
-
-    with archive:
-        return _assemble(name, set(archive.files), fetch)
+    """Only the arrays the model needs are read, each checked before it is allocated."""
+    with NpzArchive(path, f"body model {path.name}") as archive:
+        return _assemble(path.name, set(archive.keys), archive.read)
 
 
 # ---------------------------------------------------------------------------------------------

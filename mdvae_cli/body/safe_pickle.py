@@ -1,5 +1,7 @@
 """A restricted unpickler for SMPL-family body-model pickles, with no chumpy or scipy needed.
 
+(Data pickles — video-pipeline outputs, torch and joblib files — are read by ``safe_data``.)
+
 The SMPL pickles as distributed hold ``chumpy`` arrays and a ``scipy.sparse`` joint regressor.
 :func:`read_pickle` loads such a file with an unpickler that builds numpy arrays, stands in for
 chumpy and scipy.sparse classes (rebuilt from their pickled state only: no code of either
@@ -50,23 +52,16 @@ class _SparseMatrix(_PickledObject):
 _SPARSE_NAMES = ("csc_matrix", "csc_array", "csr_matrix", "csr_array", "coo_matrix", "coo_array")
 
 
-def _allowed_globals() -> dict[tuple[str, str], Any]:
-    """The only plain callables a body-model pickle may name: what numpy and copyreg need.
+def numpy_globals() -> dict[tuple[str, str], Any]:
+    """What pickled numpy arrays, dtypes and scalars (and bytes at protocol < 3) name: both
+    spellings of numpy's core module (``numpy.core``, numpy >= 2's ``numpy._core``).
 
-    Python-level functions are fresh wrappers per load, so a pickle that sets attributes on
+    Python-level functions are fresh wrappers per call, so a pickle that sets attributes on
     what it loaded (BUILD) cannot alter the real ones.
     """
-    import copyreg
-
     reconstruct = np.zeros(1).__reduce__()[0]  # built-in numpy functions: no settable state
     scalar = np.float64(0).__reduce__()[0]
     frombuffer = np.zeros(1).__reduce_ex__(5)[0]
-
-    def rebuild(cls: type, base: type, state: Any) -> Any:
-        return copyreg._reconstructor(cls, base, state)
-
-    def newobj(cls: type, *args: Any) -> Any:
-        return cls.__new__(cls, *args)
 
     def from_buffer(*args: Any) -> np.ndarray:
         return frombuffer(*args)
@@ -83,6 +78,20 @@ def _allowed_globals() -> dict[tuple[str, str], Any]:
         allowed[(f"{core}.numeric", "_frombuffer")] = from_buffer
     allowed[("numpy", "ndarray")] = np.ndarray
     allowed[("numpy", "dtype")] = np.dtype
+    return allowed
+
+
+def _allowed_globals() -> dict[tuple[str, str], Any]:
+    """The only plain callables a body-model pickle may name: what numpy and copyreg need."""
+    import copyreg
+
+    def rebuild(cls: type, base: type, state: Any) -> Any:
+        return copyreg._reconstructor(cls, base, state)
+
+    def newobj(cls: type, *args: Any) -> Any:
+        return cls.__new__(cls, *args)
+
+    allowed = numpy_globals()
     for mod in ("copy_reg", "copyreg"):
         allowed[(mod, "_reconstructor")] = rebuild
         allowed[(mod, "__newobj__")] = newobj
@@ -128,11 +137,14 @@ def read_pickle(path: Path) -> dict[str, Any]:
             data = _RestrictedUnpickler(f, name).load()
     except InputError:
         raise
-    except Exception as e:  # noqa: BLE001 - any unpickling failure is a bad file
+    except MemoryError:
         raise InputError(
-            f"body model {name}: not a readable body-model pickle "
-            f"({type(e).__name__}: {one_line(e)})"
-        ) from e
+            f"body model {name}: the pickle asks for an array too large for memory"
+        ) from None
+    except Exception as e:  # noqa: BLE001 - any unpickling failure is a bad file
+        truncated = isinstance(e, EOFError) or "truncated" in str(e)
+        why = "it is truncated" if truncated else one_line(e).rstrip(".")
+        raise InputError(f"body model {name}: not a readable body-model pickle ({why})") from None
     if not isinstance(data, dict):
         raise InputError(
             f"body model {name}: pickle holds a {type(data).__name__}, expected a dict"
@@ -144,12 +156,10 @@ def plain_value(value: Any, label: str, key: str) -> Any:
     """Turn a pickled value into numpy: chumpy nodes evaluated, sparse matrices densified."""
     try:
         return _evaluate(value, depth=0)
-    except InputError:
-        raise
+    except MemoryError:
+        raise InputError(f"body model {label}: {key!r} is too large for memory") from None
     except Exception as e:  # noqa: BLE001 - malformed state of a stand-in object
-        raise InputError(
-            f"body model {label}: cannot rebuild {key!r} ({type(e).__name__}: {one_line(e)})"
-        ) from e
+        raise InputError(f"body model {label}: cannot rebuild {key!r} ({one_line(e)})") from None
 
 
 def _evaluate(value: Any, depth: int) -> Any:
@@ -179,7 +189,7 @@ def _evaluate(value: Any, depth: int) -> Any:
         return np.concatenate([arg(t) for t in s["dterms"]], axis=s.get("axis", 0))
     if "x" in s and (kind in ("Ch", "ChHandle") or not {"a", "b"} & set(s)):
         return arg("x")
-    raise InputError(f"cannot evaluate chumpy object {value.qualname}")
+    raise ValueError(f"cannot evaluate chumpy object {value.qualname}")
 
 
 def _densify(matrix: _SparseMatrix) -> np.ndarray:
@@ -213,6 +223,8 @@ def _densify(matrix: _SparseMatrix) -> np.ndarray:
 
 
 def one_line(e: BaseException) -> str:
-    """The first line of an exception's message (its type name if the message is empty)."""
+    """The first line of an exception's message, in words (no exception class names)."""
+    if isinstance(e, KeyError) and e.args:
+        return f"no {e.args[0]!r} in it"
     lines = str(e).strip().splitlines()
-    return lines[0] if lines else type(e).__name__
+    return lines[0] if lines else "no details"

@@ -1,4 +1,5 @@
-"""``mdvae add-noise``: make noisy test data with the Pose-NDF protocol."""
+"""``mdvae add-noise``: make noisy test data with the Pose-NDF protocol, or with the errors of a
+video pose estimator (``--preset video``)."""
 
 from __future__ import annotations
 
@@ -11,12 +12,39 @@ from mdvae_cli.cli.batch import (
     emit_json,
     json_option,
     plan_jobs,
-    print_notes,
     run_batch,
+    strip_gz,
 )
 from mdvae_cli.cli.common import FRACTION, NON_NEGATIVE, SEED, allow_pickle_option, handle_errors
-from mdvae_cli.motion.noise import NoiseSettings, add_pose_noise, file_rng
-from mdvae_cli.motion.npz_io import load_motion, save_motion
+from mdvae_cli.cli.motion_input import (
+    INPUT_SUFFIXES,
+    motion_input_options,
+    outputs_of,
+    read_input,
+)
+from mdvae_cli.errors import InputError
+from mdvae_cli.motion.noise import (
+    PRESETS,
+    NoiseSettings,
+    add_pose_noise,
+    add_video_noise,
+    file_rng,
+)
+from mdvae_cli.motion.npz_io import save_motion
+
+
+def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
+    """``--set name=value`` options -> {name: value}; InputError for a malformed one."""
+    out = {}
+    for item in values:
+        name, eq, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            eq = ""
+        if not eq or not name.strip():
+            raise InputError(f"--set takes NAME=NUMBER, got {item!r}")
+    return out
 
 
 @click.command("add-noise")
@@ -26,9 +54,22 @@ from mdvae_cli.motion.npz_io import load_motion, save_motion
     help="Output .npz (one input file) or folder (inputs mirrored below it).",
 )  # fmt: skip
 @click.option(
-    "--sigma", type=NON_NEGATIVE, default=0.15, show_default=True,
+    "--preset", type=click.Choice(sorted(PRESETS)), default=None,
+    help="Noise of a kind instead of the Pose-NDF protocol: 'video' = what monocular video "
+    "pose estimators get wrong (slow per-joint bias, jitter, left/right leg swaps, turned "
+    "roots, spikes, depth jitter; docs/model.md). Change its parameters with --set.",
+)  # fmt: skip
+@click.option(
+    "--set", "sets", multiple=True, metavar="NAME=VALUE",
+    help="With --preset: set one of its parameters, e.g. --set pose_slow=0.05 --set "
+    "swap_rate=0 (names: pose_white, pose_slow, root_white, root_slow, depth_white, "
+    "depth_slow, lateral_white, lateral_slow, swap_rate, turn_rate, swap_frames, spike_frac, "
+    "spike_rad, slow_time).",
+)  # fmt: skip
+@click.option(
+    "--sigma", type=NON_NEGATIVE, default=None,
     help="Std of the Gaussian noise on the body joints' axis-angles, radians "
-    "(>= 0; the paper uses 0.1, 0.15, 0.2).",
+    "(>= 0; the paper uses 0.1, 0.15, 0.2). [default: 0.15]",
 )  # fmt: skip
 @click.option(
     "--seed", type=SEED, default=0, show_default=True,
@@ -54,41 +95,65 @@ from mdvae_cli.motion.npz_io import load_motion, save_motion
     "--spike-rad", type=NON_NEGATIVE, default=1.0, show_default=True, metavar="RADIANS",
     help="Std of a spike per axis-angle component (with --spike-frac).",
 )  # fmt: skip
+@motion_input_options
 @allow_pickle_option
 @json_option
 @handle_errors
 def add_noise(
-    inputs, out, sigma, seed, joint_noise, drop_frac, spike_frac, spike_rad, allow_pickle, as_json
-) -> None:
+    inputs, out, preset, sets, sigma, seed, joint_noise, drop_frac, spike_frac, spike_rad,
+    input_format, input_fps, track, allow_pickle, as_json,
+) -> None:  # fmt: skip
     """Add Pose-NDF-style noise to motion files.
 
     Adds zero-mean Gaussian noise of std --sigma (radians) to the axis-angle of the 21 body
     joints only; root orientation, translation (unless --joint-noise) and hands are left as
-    they are. INPUTS are .npz files or folders; folders are mirrored under --out.
+    they are. With --preset video, the errors of a video pose estimator instead. INPUTS are
+    motion files (AMASS .npz, video-pipeline outputs) or folders; folders are mirrored under
+    --out.
 
     \b
     Examples:
       mdvae add-noise --sigma 0.1 clean.npz -o noisy.npz
       mdvae add-noise --sigma 0.2 --seed 3 amass_test/ -o noisy_test/
       mdvae add-noise --sigma 0.05 --spike-frac 0.02 --spike-rad 1 clean.npz -o spiky.npz
+      mdvae add-noise --preset video clean.npz -o video_like.npz
+      mdvae add-noise --preset video --set swap_rate=0 clean_dir/ -o noisy_dir/
     """
+    video = None
+    if preset is not None:
+        options = {"--sigma": sigma, "--joint-noise": joint_noise, "--drop-frac": drop_frac,
+                   "--spike-frac": spike_frac}  # fmt: skip
+        given = [name for name, value in options.items() if value]
+        if given:
+            raise InputError(f"--preset {preset} sets every noise itself; change its "
+                             f"parameters with --set instead of {', '.join(given)}")  # fmt: skip
+        video = PRESETS[preset].with_overrides(_parse_sets(sets))
+    elif sets:
+        raise InputError("--set changes the parameters of a --preset; give --preset too")
+    sigma = 0.15 if sigma is None else sigma
     settings = NoiseSettings(sigma, joint_noise, drop_frac, spike_frac, spike_rad).validate()
-    jobs = plan_jobs(inputs, out)
+    jobs = plan_jobs(inputs, out, suffixes=INPUT_SUFFIXES,
+                     rename=lambda rel: strip_gz(rel).with_suffix(".npz"))  # fmt: skip
     sources = tuple(job.source for job in jobs)
 
     def process(job: FileJob) -> None:
-        motion = load_motion(job.source, allow_pickle=allow_pickle)
-        print_notes(job.relpath, motion.notes)
-        noisy = add_pose_noise(
-            motion,
-            settings.sigma,
-            file_rng(seed, job.relpath),
-            trans_sigma=settings.trans_sigma,
-            drop_frac=settings.drop_frac,
-            spike_frac=settings.spike_frac,
-            spike_rad=settings.spike_rad,
-        )
-        save_motion(noisy, job.output, forbid=sources)
+        loaded = read_input(job.source, job.relpath, input_format, input_fps, track, allow_pickle)
+        for label, motion, output in outputs_of(loaded, job.output):
+            name = job.relpath if label is None else f"{job.relpath.as_posix()}#track{label}"
+            rng = file_rng(seed, name)
+            if video is not None:
+                noisy = add_video_noise(motion, video, rng)
+            else:
+                noisy = add_pose_noise(
+                    motion,
+                    settings.sigma,
+                    rng,
+                    trans_sigma=settings.trans_sigma,
+                    drop_frac=settings.drop_frac,
+                    spike_frac=settings.spike_frac,
+                    spike_rad=settings.spike_rad,
+                )
+            save_motion(noisy, output, forbid=sources)
 
     report = run_batch(jobs, process, "add-noise")
     if as_json:

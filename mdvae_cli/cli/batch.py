@@ -251,9 +251,16 @@ def run_batch(
 
 
 def print_notes(relpath: Path, notes: Iterable[str]) -> None:
-    """Show remarks made while reading a file (e.g. padded betas) as dim ``note:`` lines."""
+    """Show remarks made while reading a file (e.g. padded betas) as dim ``note:`` lines; a
+    remark that starts with ``warning: `` (the output will differ from the file) as a
+    ``warning:`` line."""
     for note in notes:
-        console.print(f"[dim]note: {escape(relpath.as_posix())}: {escape(note)}[/]", soft_wrap=True)
+        where = escape(relpath.as_posix())
+        if note.startswith("warning: "):
+            text = escape(note.removeprefix("warning: "))
+            console.print(f"[yellow]warning:[/] {where}: {text}", soft_wrap=True)
+        else:
+            console.print(f"[dim]note: {where}: {escape(note)}[/]", soft_wrap=True)
 
 
 def emit_json(data: Any) -> None:

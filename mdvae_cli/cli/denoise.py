@@ -11,160 +11,34 @@ import click
 from mdvae_cli.cli.batch import (
     FileJob,
     emit_json,
+    is_kind,
     json_option,
-    plan_jobs,
     print_notes,
     run_batch,
     strip_gz,
 )
 from mdvae_cli.cli.common import (
-    NON_NEGATIVE,
-    POSITIVE,
-    SEED,
     allow_pickle_option,
     body_model_option,
     console,
     handle_errors,
     progress_bar,
 )
+from mdvae_cli.cli.denoise_options import denoise_options
+from mdvae_cli.cli.motion_input import (
+    motion_input_options,
+    outputs_of,
+    read_input,
+    track_output,
+)
+from mdvae_cli.cli.takes import TakeReader, is_take, load_joint_map, plan_take_jobs
 from mdvae_cli.errors import InputError
 
 
 @click.command("denoise")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option(
-    "-o",
-    "--out",
-    required=True,
-    type=click.Path(),
-    help="Output .npz (one input file) or folder (inputs mirrored below it).",
-)
-@click.option(
-    "--denoiser",
-    "denoiser_path",
-    type=click.Path(path_type=Path),
-    help="Denoiser checkpoint or fit-dataset folder (default: the shipped one).",
-)
-@click.option(
-    "--optimize",
-    "optimize_steps",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Optimisation mode: first fine-tune the inference networks on these files "
-    "for N steps (the paper uses 50); 0 = regression mode, one forward pass.",
-)
-@click.option(
-    "--per-file",
-    is_flag=True,
-    help="With --optimize: adapt once per file instead of once to the whole set.",
-)
-@click.option(
-    "--lr",
-    type=POSITIVE,
-    default=None,
-    help="With --optimize: its learning rate (> 0) [default: 3e-4].",
-)
-@click.option(
-    "--seed", type=SEED, default=0, show_default=True, help="With --optimize: its random seed."
-)
-@click.option(
-    "--refine",
-    "refine_steps",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Then refine every window's latents for N gradient steps on its own ELBO, scoring "
-    "the file's noisy joint rotations with a noise level estimated per joint (50 is a good "
-    "value: markedly cleaner, about 15x slower than the default); 0 = off.",
-)
-@click.option(
-    "--refine-lr",
-    type=POSITIVE,
-    default=0.1,
-    show_default=True,
-    help="Step size of --refine (> 0).",
-)
-@click.option(
-    "--refine-offset",
-    type=NON_NEGATIVE,
-    default=0.03,
-    show_default=True,
-    help="The scale (rad) each joint's slow rotation offset (--offset, --refine) starts from "
-    "in every window, then estimated from the file. 0 = no offset.",
-)
-@click.option(
-    "--trans-offset",
-    type=NON_NEGATIVE,
-    default=0.03,
-    show_default=True,
-    help="The scale (m) the root translation's slow offset (--offset) starts from in every "
-    "window: it keeps the file's path, from which the decoded one drifts by ~4 cm. 0 = no "
-    "translation offset. (--refine fits the translation itself.)",
-)
-@click.option(
-    "--offset/--no-offset",
-    default=True,
-    show_default=True,
-    help="After the forward pass, fit a slow rotation offset per joint, and one for the root "
-    "translation, to the file in closed form (no gradient steps): it follows slow motion the "
-    "learned prior cannot express, so clean parts of a take come back almost unchanged, the "
-    "body keeps the file's path, and the result is more accurate than a tuned filter, at "
-    "~1.3x the time. --no-offset is the paper's plain regression mode. Part of --refine "
-    "already.",
-)
-@click.option(
-    "--outliers",
-    is_flag=True,
-    help="With --refine: model the noise as heavy-tailed (Student-t, 10 degrees of freedom) per "
-    "frame and joint, so spikes (a swapped marker, a solver flip) are down-weighted where they "
-    "happen instead of raising the whole joint's noise level: about 40 % lower error on takes "
-    "with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py).",
-)
-@click.option(
-    "--mirror",
-    is_flag=True,
-    help="Also denoise each file's left-right mirror image and average the two results (the "
-    "learned prior is not exactly mirror-symmetric): about 10 % lower error in regression "
-    "mode without the offset, 1 % with it, 3 % with --refine, at about twice the time.",
-)
-@click.option(
-    "--feet",
-    type=click.Choice(["lock", "off"]),
-    default="lock",
-    show_default=True,
-    help="lock: where a foot is down (a foot joint low and slow), hold it still on the floor "
-    "with a small turn of the hip, knee and ankle, and lift a foot that dips under the floor; "
-    "frames away from contacts are left exactly as denoised. On noisy test clips it cuts foot "
-    "skate 4-5x and floor penetration by half at the same vertex error (docs/benchmarks.md). "
-    "off: the feet as denoised.",
-)
-@click.option(
-    "--mesh-dir",
-    type=click.Path(path_type=Path),
-    help="Also write the cleaned mesh sequence here (one input: into the folder itself; "
-    "several: a subfolder per file).",
-)
-@click.option(
-    "--mesh-format",
-    type=click.Choice(["obj", "ply"]),
-    default=None,
-    help="Mesh file format for --mesh-dir [default: ply].",
-)
-@click.option(
-    "--window",
-    type=click.IntRange(min=8),
-    default=60,
-    show_default=True,
-    help="Frames per window at 30 Hz (as trained).",
-)
-@click.option(
-    "--overlap",
-    type=click.IntRange(min=1),
-    default=15,
-    show_default=True,
-    help="Frames shared by consecutive windows, cross-faded.",
-)
+@denoise_options
+@motion_input_options
 @body_model_option
 @allow_pickle_option
 @json_option
@@ -183,84 +57,166 @@ def denoise(
     trans_offset,
     offset,
     outliers,
+    lam,
+    input_kind,
     mirror,
     feet,
+    guard,
+    loop,
     mesh_dir,
     mesh_format,
+    view_dir,
     window,
     overlap,
+    asf,
+    joint_map_file,
+    input_format,
+    input_fps,
+    track,
     body_model,
     allow_pickle,
     as_json,
 ) -> None:
     """Remove noise from motion files with the learned Motion-DVAE prior.
 
-    INPUTS are AMASS-style .npz files or folders (any length, any frame rate); outputs keep
-    the input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
-    root orientation and translation. Works out of the box with the shipped weights and the
-    built-in body; pass --body-model for a real SMPL/SMPL-H/SMPL-X file.
+    INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz), ASF/AMC takes (.amc,
+    .amc.gz, with their .asf), the output files of video pose pipelines (WHAM, GVHMR, TRAM,
+    4D-Humans/PHALP, VIBE, PARE, HybrIK, ROMP/BEV, SLAHMR: upright, z up, one output per
+    person track) or folders of them (any length, any frame rate); .npz outputs keep the
+    input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
+    root orientation and translation. A video pipeline's file gets the settings chosen for
+    video estimates (Student-t noise, see --lam); options override them. Works out of the box
+    with the shipped weights and the built-in body; pass --body-model for a real
+    SMPL/SMPL-H/SMPL-X file.
+
+    A BVH take comes back as BVH on its own skeleton: same hierarchy, joint names, offsets,
+    channel order, frame time and frame count; fingers, toes and other joints the body does
+    not cover keep their motion. (It is retargeted onto the body at its own frame rate,
+    cleaned there, and each of its joints turns as its body joint did.) An AMC take comes back
+    as AMC on its .asf the same way: same header, frame numbers, bones and dofs, angle unit
+    and length unit; a bone with fewer than three rotation dofs (a knee's rx) takes the
+    closest turn its dofs allow. Its .asf is copied next to the output when none is there.
+    -o x.npz instead writes the cleaned body motion.
 
     \b
     Examples:
       mdvae denoise noisy.npz -o clean.npz
+      mdvae denoise take.bvh -o clean.bvh
+      mdvae denoise 07_01.amc -o clean/07_01.amc   (its 07.asf next to it, or --asf)
+      mdvae denoise takes/ -o clean/            (BVH, AMC and npz, each in its own form)
       mdvae denoise noisy_dir/ -o clean_dir/ --optimize 50
       mdvae denoise noisy.npz -o clean.npz --no-offset
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
       mdvae denoise spiky.npz -o clean.npz --refine 50 --outliers
       mdvae denoise take.npz -o clean.npz --feet off
+      mdvae denoise wham_output.pkl -o clean.npz
+      mdvae denoise hmr4d_results.pt -o clean.npz --fps 25 --refine 50
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
+      mdvae denoise takes/ -o clean/ --view pages/
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.infer.denoise import check_finite, check_length, denoise_motions
     from mdvae_cli.infer.feet import FootLockConfig
-    from mdvae_cli.infer.settings import OUTLIER_DOF, RefineConfig
+    from mdvae_cli.infer.input_kinds import refine_config
+    from mdvae_cli.infer.settings import OUTLIER_DOF
     from mdvae_cli.model.denoiser import load_denoiser
-    from mdvae_cli.motion.npz_io import load_motion, save_motion
+    from mdvae_cli.motion.npz_io import save_motion
 
     if overlap >= window:
         raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
-    if outliers and not refine_steps:
-        raise InputError("--outliers re-weights frames while refining: use it with --refine N")
+    if outliers and lam is not None and lam != OUTLIER_DOF:
+        raise InputError(f"--outliers is --lam {OUTLIER_DOF:g}; give one of them")
+    lam = OUTLIER_DOF if outliers else lam
+    if lam and not (refine_steps or offset):
+        raise InputError("--outliers / --lam weigh frames in the offset or --refine; "
+                         "drop --no-offset or add --refine N")  # fmt: skip
     if not optimize_steps and (per_file or lr is not None):
         raise InputError(f"{'--per-file' if per_file else '--lr'} only applies with --optimize N")
     if mesh_format is not None and mesh_dir is None:
         raise InputError("--mesh-format only applies with --mesh-dir DIR")
     if mesh_dir is not None and Path(mesh_dir).exists() and not Path(mesh_dir).is_dir():
         raise InputError(f"--mesh-dir {mesh_dir} is a file; give a folder")
+    if view_dir is not None and Path(view_dir).exists() and not Path(view_dir).is_dir():
+        raise InputError(f"--view {view_dir} is a file; give a folder")
     lr = 3e-4 if lr is None else lr
     mesh_format = mesh_format or "ply"
-    jobs = plan_jobs(inputs, out)
+    jobs = plan_take_jobs(inputs, out)
     sources = tuple(job.source for job in jobs)
-    loaded: dict[Path, object] = {}
+    body_data = load_body_model(body_model)
+    loaded: dict[Path, list] = {}  # source -> [(track label, motion, output)]
+    kinds: dict[Path, str] = {}
+    formats: dict[Path, str] = {}
+    joint_map = load_joint_map(joint_map_file)
+    if asf is not None and not Path(asf).is_file():
+        raise InputError(f"no such skeleton file: {asf}")
+    takes = TakeReader(body_model, asf, joint_map) if any(is_take(j.source) for j in jobs) else None
 
     def read(job: FileJob) -> None:
-        motion = load_motion(job.source, allow_pickle=allow_pickle)
-        check_length(motion)
-        print_notes(job.relpath, motion.notes)
-        loaded[job.source] = motion
+        if is_take(job.source):
+            motion = takes(job).motion
+            check_length(motion)
+            print_notes(job.relpath, motion.notes)
+            kinds[job.source] = "mocap" if input_kind == "auto" else input_kind
+            formats[job.source] = "bvh" if is_kind(job.source, ".bvh") else "amc"
+            loaded[job.source] = [(None, motion, job.output)]
+            return
+        f = read_input(job.source, job.relpath, input_format, input_fps, track,
+                       allow_pickle, body_data)  # fmt: skip
+        items, short = [], []
+        for label, motion, output in outputs_of(f, job.output):
+            try:
+                check_length(motion)
+            except InputError as exc:
+                if len(f.tracks) == 1:
+                    raise
+                short.append(f"track {label}: {exc}")
+                continue
+            items.append((label, motion, output))
+        if not items:
+            raise InputError(f"every track is too short to denoise ({'; '.join(short)})")
+        print_notes(job.relpath, [f"{s}; skipped" for s in short])
+        kinds[job.source] = f.kind if input_kind == "auto" else input_kind
+        formats[job.source] = f.format
+        loaded[job.source] = items
 
     report = run_batch(jobs, read, "reading", quiet=True)
     good = [o.job for o in report.succeeded]
     if good:
         denoiser, _ = load_denoiser(denoiser_path)
-        body = BodyModel(load_body_model(body_model))
+        body = BodyModel(body_data)
     stride = window - overlap
-    refine = None
-    if refine_steps or offset:
-        refine = RefineConfig(
-            steps=refine_steps,
-            lr=refine_lr,
-            offset_std=refine_offset,
-            trans_offset_std=trans_offset,
-            outlier_dof=OUTLIER_DOF if outliers else 0.0,
-        )
-    results: dict[Path, object] = {}
+    chosen: dict[str, tuple] = {}
+    for kind in sorted({kinds[j.source] for j in good}):
+        chosen[kind] = refine_config(
+            kind, steps=refine_steps, lr=refine_lr, offset=offset, lam=lam,
+            offset_std=refine_offset, trans_offset_std=trans_offset,
+        )  # fmt: skip
+    for kind, (_, c) in chosen.items():
+        if kind != "mocap" and not as_json:
+            console.print(f"[dim]note: {kind} input: λ = {c['lam']:g}, offset scales "
+                          f"{c['offset_std']:g} rad / {c['trans_offset_std']:g} m[/]")  # fmt: skip
+    results: dict[tuple[Path, int], object] = {}
     timings: dict[Path, float] = {}
+    fallbacks: dict[tuple[Path, int], list[list[float]]] = {}
+    # the guard goes with the offset or refinement (--no-offset is the paper's mode untouched)
+    guarding = {kind: guard and r is not None for kind, (r, _) in chosen.items()}
+    cycles: dict[tuple[Path, int], bool] = {}
+    if good:
+        from mdvae_cli.infer.loop import looks_like_loop
 
-    def run(group: list[FileJob]) -> None:
+        for j in good:
+            for i, (_, motion, _) in enumerate(loaded[j.source]):
+                cycles[(j.source, i)] = loop if loop is not None else looks_like_loop(motion)
+                if loop is None and cycles[(j.source, i)]:
+                    print_notes(j.relpath, [LOOP_NOTE])
+
+    def run(group: list[FileJob], refine, guard_on: bool) -> None:
         model = copy.deepcopy(denoiser) if optimize_steps else denoiser
+        items = [(j, i) for j in group for i in range(len(loaded[j.source]))]
+        keys = [(j.source, i) for j, i in items]
+        motions = [loaded[j.source][i][1] for j, i in items]
         start = time.perf_counter()
         with progress_bar(transient=True) as progress:
             tasks = {
@@ -278,7 +234,7 @@ def denoise(
                 )
 
             cleaned = denoise_motions(
-                [loaded[j.source] for j in group],
+                motions,
                 model,
                 body,
                 window,
@@ -290,41 +246,76 @@ def denoise(
                 refine=refine,
                 mirror=mirror,
                 feet=FootLockConfig() if feet == "lock" else None,
+                guard=guard_on,
+                loops=[cycles[item] for item in keys],
+                on_fallback=lambda k, a, b: fallbacks.setdefault(keys[k], []).append(
+                    [round(a, 3), round(b, 3)]
+                ),
             )
         seconds = time.perf_counter() - start
-        frames = sum(loaded[j.source].num_frames for j in group)
-        for j, m in zip(group, cleaned, strict=True):
-            results[j.source] = m
-            timings[j.source] = seconds * loaded[j.source].num_frames / max(frames, 1)
+        frames = sum(m.num_frames for m in motions)
+        for (j, i), m, src in zip(items, cleaned, motions, strict=True):
+            results[(j.source, i)] = m
+            timings[j.source] = timings.get(j.source, 0.0) + seconds * src.num_frames / max(
+                frames, 1
+            )
 
-    if good:
-        for group in [[j] for j in good] if per_file and optimize_steps else [good]:
-            run(group)
+    for kind, (refine, _) in chosen.items():
+        of_kind = [j for j in good if kinds[j.source] == kind]
+        for group in [[j] for j in of_kind] if per_file and optimize_steps else [of_kind]:
+            run(group, refine, guarding[kind])
 
     def write(job: FileJob) -> dict:
-        motion = results[job.source]
-        check_finite(motion)
-        if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
-            sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
-            target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
-            export_mesh_sequence(motion, body, target, mesh_format, forbid=sources)
-        save_motion(motion, job.output, forbid=sources)
-        return {"frames": motion.num_frames, "seconds": round(timings[job.source], 4)}
+        tracks = []
+        for i, (label, source_motion, output) in enumerate(loaded[job.source]):
+            motion = results[(job.source, i)]
+            check_finite(motion)
+            if mesh_dir is not None:  # first: a file whose meshes fail gets no .npz either
+                sub = strip_gz(job.relpath).with_suffix("")  # as export-mesh names it
+                target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
+                export_mesh_sequence(motion, body, track_output(target, label), mesh_format,
+                                     forbid=sources)  # fmt: skip
+            if is_take(output):
+                takes.write(job, motion, forbid=sources)
+            else:
+                save_motion(motion, output, forbid=sources)
+            if view_dir is not None:
+                from mdvae_cli.view.page import write_before_after
+
+                page = track_output(Path(view_dir) / strip_gz(job.relpath).with_suffix(".html"),
+                                    label)  # fmt: skip
+                write_before_after(source_motion, motion, job, page, body, forbid=sources)
+            print_notes(job.relpath, [n for n in motion.notes if "input smoothed instead" in n])
+            tracks.append({"track": label, "output": str(output), "frames": motion.num_frames,
+                           "fallbacks": fallbacks.get((job.source, i), []),
+                           "loop": cycles.get((job.source, i), False)})  # fmt: skip
+        return {
+            "frames": sum(t["frames"] for t in tracks),
+            "seconds": round(timings[job.source], 4),
+            "format": formats[job.source],
+            "input_kind": kinds[job.source],
+            "fallbacks": [f for t in tracks for f in t["fallbacks"]],
+            "loop": any(t["loop"] for t in tracks),
+            "tracks": tracks,
+        }
 
     write_report = run_batch(good, write, "denoise", quiet=True)
     write_report.outcomes = report.failed + write_report.outcomes
     if len(jobs) > 1:
         write_report.print_summary("denoise")
     if as_json:
+        first = next(iter(chosen.values()), (None, None))
         emit_json(
             {
                 **write_report.to_dict(),
                 "mode": "optimization" if optimize_steps else "regression",
                 "optimize_steps": optimize_steps,
                 "refine_steps": refine_steps,
-                "refine": refine.to_dict() if refine else None,
+                "refine": first[0].to_dict() if first[0] else None,
+                "settings": {kind: c[1] for kind, c in chosen.items()},
                 "mirror": mirror,
                 "feet": feet,
+                "guard": any(guarding.values()),
             }
         )
     elif write_report.succeeded:
@@ -336,5 +327,10 @@ def denoise(
         )
     write_report.exit()
 
+
+LOOP_NOTE = (
+    "looks like a loop (its last frame meets its first): denoised as a cycle; --no-loop to "
+    "treat it as a take"
+)
 
 COMMANDS = [denoise]

@@ -20,7 +20,7 @@ from mdvae_cli.cli.common import (
 )
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.motion.load_any import load_one
 
 if TYPE_CHECKING:  # the metrics pose meshes with torch: imported when the command runs
     from mdvae_cli.metrics import EvalResult
@@ -119,7 +119,8 @@ def results_table(rows: list[tuple[str, EvalResult]], mean: EvalResult | None) -
 @click.command("eval")
 @click.option(
     "--gt", "gt", type=click.Path(path_type=Path), required=True,
-    help="Ground-truth .npz file or folder.",
+    help="Ground-truth .npz file or folder (a file may also be any motion file `mdvae "
+    "denoise` reads).",
 )  # fmt: skip
 @click.option(
     "--pred", "pred", type=click.Path(path_type=Path), required=True,
@@ -169,8 +170,8 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
     def process(job: FileJob) -> EvalResult:
         if not Path(job.data).exists():
             raise InputError(f"{job.source}: no prediction {job.data}")
-        truth = load_motion(job.source, allow_pickle=allow_pickle)
-        guess = load_motion(job.data, allow_pickle=allow_pickle)
+        truth = load_one(job.source, allow_pickle=allow_pickle, body=body.data)
+        guess = load_one(job.data, allow_pickle=allow_pickle, body=body.data)
         try:
             return evaluate_pair(truth, guess, body, chunk_frames=chunk_frames)
         except InputError as exc:

@@ -102,6 +102,18 @@ from mdvae_cli.errors import InputError
     "(still no clean data) [default: off].",
 )
 @click.option(
+    "--short-windows",
+    metavar="LIST",
+    help="Also fit to short takes: clips of these lengths (frames at 30 Hz, comma-separated, "
+    "e.g. 6,10,16,30) cut from the noisy files, --short-share as many in all as full windows "
+    "[default: none].",
+)
+@click.option(
+    "--short-share",
+    type=click.FloatRange(min=0.0, max=4.0, min_open=True),
+    help="How many short takes, as a share of the full windows [default: 0.25].",
+)
+@click.option(
     "--resume",
     is_flag=True,
     help="Continue the -o run from its denoiser.npz (saved every 200 ELBO steps). The ELBO "
@@ -160,6 +172,8 @@ def fit_dataset(
             cfg.init_from = str(init_from)
         if body_model is not None:
             cfg.body_model = str(body_model)
+    if overrides.get("short_windows") is not None:
+        overrides["short_windows"] = parse_lengths(overrides["short_windows"])
     apply_overrides(
         cfg,
         overrides,
@@ -224,6 +238,18 @@ def fit_dataset(
             f"amortised refinement: {summary.distill_steps} steps, loss "
             f"{summary.distill_first_loss:.3f} -> {summary.distill_last_loss:.3f}"
         )
+
+
+def parse_lengths(text: str) -> list[int]:
+    """``--short-windows 6,10,16`` -> [6, 10, 16]; InputError naming the option otherwise."""
+    try:
+        lengths = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        lengths = []
+    if not lengths:
+        raise InputError(f"--short-windows must be comma-separated frame counts such as 6,10,16, "
+                         f"got {text!r}")  # fmt: skip
+    return lengths
 
 
 COMMANDS = [fit_dataset]

@@ -22,12 +22,33 @@ from mdvae_cli.cli.batch import (
     strip_gz,
 )
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, console, handle_errors
+from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
-from mdvae_cli.motion import cmu
+from mdvae_cli.motion import cmu, corpus_plan, hdm05
 from mdvae_cli.motion.motion import check_fps
 
-SUFFIXES = (".bvh", ".amc")
+#: what folders are searched for: mocap to retarget, and video pipelines' outputs (files given
+#: by name may be of any format ``motion.load_any`` reads, AMASS .npz included)
+SUFFIXES = (".bvh", ".amc", ".pkl", ".pk", ".pt", ".pth", ".npy")
+
+
+def plan_corpora(folders: list[Path], spec: corpus_plan.SplitSpec) -> list:
+    """The import plan of every corpus folder (CMU or HDM05), each mirrored under its own name
+    when there are several. InputError for a folder of neither kind."""
+    items = []
+    for folder in folders:
+        if cmu.is_cmu_corpus(folder):
+            planned = cmu.plan_corpus(folder, spec)
+        elif hdm05.is_hdm05_corpus(folder):
+            planned = hdm05.plan_hdm05(folder, spec)
+        else:
+            raise InputError(f"{folder}: not a CMU or HDM05 corpus folder")
+        if len(folders) > 1:
+            for item in planned:
+                item.relpath = Path(folder.resolve().name) / item.relpath
+        items += planned
+    return items
 
 
 def _output_name(relpath: Path) -> Path:
@@ -70,8 +91,9 @@ def _print_summary(summary: dict) -> None:
                       f"{summary['retarget_error_mm']} mm", style="bold")  # fmt: skip
         console.print(table)
     for name, s in summary.get("splits", {}).items():
-        console.print(f"{name}: {s['files']} files, {s['frames']} frames, "
-                      f"subjects {' '.join(s['subjects'])}")  # fmt: skip
+        if s["files"]:
+            console.print(f"{name}: {s['files']} files, {s['frames']} frames ({s['minutes']} "
+                          f"min), subjects {' '.join(s['subjects'])}")  # fmt: skip
     walk = summary.get("walking")
     if walk and walk["files"]:
         speed = walk["speed_mps"]
@@ -113,14 +135,26 @@ def _print_summary(summary: dict) -> None:
     "(plane), only shift heights (flat), or keep the source's heights (none).",
 )  # fmt: skip
 @click.option(
-    "--cmu-corpus", is_flag=True,
-    help="INPUTS is one CMU corpus folder (asfamc/, bvh/, asfamc_noasf/): apply its 60 Hz "
-    "subjects, donor skeleton and duplicates, and write split.json and summary.json.",
+    "--corpus", "--cmu-corpus", "corpus", is_flag=True,
+    help="INPUTS are mocap corpus folders: CMU (asfamc/, bvh/, bvh_daz/, asfamc_noasf/: its "
+    "60 Hz subjects, donor skeleton and duplicates are applied) and/or HDM05 (<actor>/ folders; "
+    "held-out test data only). Writes split.json and summary.json; with several folders each "
+    "is mirrored under its own name.",
 )  # fmt: skip
 @click.option(
     "--split", "split_file", type=click.Path(path_type=Path, dir_okay=False),
-    help="With --cmu-corpus: JSON {val_subjects, test_subjects} (default: the subjects of "
-    "weights_recipe/cmu_split.json).",
+    help="With --corpus: JSON {val_subjects, test_subjects, unseen_val_subjects, "
+    "unseen_test_subjects} (CMU numbers such as \"07\", HDM05 actors as \"hdm05:bd\"; default: "
+    "val 06 35, test 02 07 09).",
+)  # fmt: skip
+@click.option(
+    "--format", "input_format", type=format_choice(), default=None,
+    help="Format of estimate files, when the file does not tell: " + FORMATS_HELP,
+)  # fmt: skip
+@click.option(
+    "--track", default=None, metavar="ID",
+    help="Files of several people: keep only this track (default: every track, each written "
+    "to <output>.track<ID>.npz).",
 )  # fmt: skip
 @click.option(
     "-j", "--jobs", "jobs_n", type=click.IntRange(min=1), default=1, show_default=True,
@@ -129,21 +163,28 @@ def _print_summary(summary: dict) -> None:
 @body_model_option
 @json_option
 @handle_errors
-def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, split_file,
-                   jobs_n, body_model, as_json) -> None:  # fmt: skip
-    """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton.
+def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, split_file,
+                   input_format, track, jobs_n, body_model, as_json) -> None:  # fmt: skip
+    """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton,
+    and the output files of video pose pipelines (WHAM, GVHMR, TRAM, 4D-Humans/PHALP, VIBE,
+    PARE, HybrIK, ROMP/BEV, SLAHMR) or AIST++ pickles as AMASS-style .npz.
 
-    Each motion is retargeted onto the body model (the built-in body by default): its shape is
-    fitted once per skeleton to the source's bone lengths, then the root and the 21 body joints
-    are solved per frame to match the source's joint positions. Output: z-up, floor at z=0,
-    gender "neutral", resampled to --fps, with a 'source' record (JSON) of where it came from.
-    The mean joint position error of the retarget is printed per file.
+    Each mocap motion is retargeted onto the body model (the built-in body by default): its
+    shape is fitted once per skeleton to the source's bone lengths, then the root and the 21
+    body joints are solved per frame to match the source's joint positions. Output: z-up,
+    floor at z=0, gender "neutral", resampled to --fps, with a 'source' record (JSON) of where
+    it came from. The mean joint position error of the retarget is printed per file. A video
+    pipeline's SMPL-family estimates need no retarget: they are made upright (z up), resampled
+    and put on the floor, one output per person track (docs/formats.md); --source-fps gives
+    their frame rate (they store none: 30 is assumed).
 
     \b
     Examples:
       mdvae import walk.bvh -o walk.npz
       mdvae import 07.asf 07_01.amc.gz 07_02.amc.gz -o out/
-      mdvae import ../shared/data/cmu -o data/cmu_amass --cmu-corpus --jobs 2
+      mdvae import ../shared/data/cmu ../shared/data/hdm05 -o data/corpus --corpus \\
+          --split weights_recipe/cmu_split.json --jobs 2
+      mdvae import wham_output.pkl -o take.npz --source-fps 25
     """
     started = time.perf_counter()
     out_arg, out = out, Path(out)  # as typed: a trailing slash makes it a folder (plan_jobs)
@@ -163,17 +204,19 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
         raise InputError(f"{asf_inputs[0]} is a skeleton only: give the .amc motions too")
 
     skipped: list[dict] = []
-    if cmu_corpus:
-        if len(inputs) != 1 or not inputs[0].is_dir():
-            raise InputError("--cmu-corpus takes exactly one corpus folder")
+    if corpus:
+        if not inputs or not all(p.is_dir() for p in inputs):
+            raise InputError("--corpus takes corpus folders (CMU and/or HDM05)")
         if asf is not None or source_fps is not None:
-            raise InputError("--cmu-corpus sets skeletons and frame rates itself: drop --asf, "
+            raise InputError("--corpus sets skeletons and frame rates itself: drop --asf, "
                              "--source-fps")  # fmt: skip
-        if out.exists() and out.resolve() == inputs[0].resolve():
-            raise InputError("the output folder is the corpus folder; choose another")
-        spec = cmu.load_split_spec(split_file)
+        if any(out.exists() and out.resolve() == p.resolve() for p in inputs):
+            raise InputError("the output folder is a corpus folder; choose another")
+        if len({p.resolve().name for p in inputs}) != len(inputs):
+            raise InputError("two corpus folders have the same name; give each once")
+        spec = corpus_plan.load_split_spec(split_file, cmu.default_split())
         jobs = []
-        for item in cmu.plan_corpus(inputs[0], spec):
+        for item in plan_corpora(inputs, spec):
             if item.skip:
                 skipped.append({"file": item.relpath.as_posix(), "reason": item.skip})
             else:
@@ -181,7 +224,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
                                     data=item))  # fmt: skip
     else:
         if split_file is not None:
-            raise InputError("--split only goes with --cmu-corpus")
+            raise InputError("--split only goes with --corpus")
         jobs = plan_jobs(inputs, out_arg, suffixes=SUFFIXES, rename=_output_name)
     outputs = [j.output for j in jobs]
     if len(set(outputs)) != len(outputs):
@@ -192,7 +235,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
     from mdvae_cli.motion.retarget import RetargetSettings
 
     settings = RetargetSettings(floor=floor).validate()
-    args = (body_model, out, out_fps, settings, source_fps, scale, asf)
+    args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track)
     pool = None
     if jobs_n > 1 and len(jobs) > 1:
         pool = ProcessPoolExecutor(min(jobs_n, len(jobs)), mp_context=get_context("spawn"),
@@ -206,9 +249,10 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
 
     def show(outcome) -> None:
         r = outcome.result
+        what = (f"{r['tracks']} track(s), no retarget" if "tracks" in r
+                else f"joint error {r['retarget_error_mm']:.1f} mm")  # fmt: skip
         console.print(f"{escape(outcome.job.relpath.as_posix())}: {r['frames']} frames at "
-                      f"{r['fps']:g} fps, joint error {r['retarget_error_mm']:.1f} mm",
-                      soft_wrap=True, highlight=False)  # fmt: skip
+                      f"{r['fps']:g} fps, {what}", soft_wrap=True, highlight=False)  # fmt: skip
 
     try:
         report = run_batch(jobs, process, "import", quiet=True, on_success=show)
@@ -216,16 +260,19 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, cmu_corpus, 
         if pool is not None:
             pool.shutdown(cancel_futures=True)
     rows = [o.result for o in report.succeeded]
-    summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps, **cmu.error_summary(rows)}
-    if cmu_corpus:
-        summary.update(cmu.corpus_summary(rows))
+    summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps,
+               **corpus_plan.error_summary(rows)}  # fmt: skip
+    if corpus:
+        summary["splits"] = corpus_plan.split_summary(rows, out_fps)
+        summary["walking"] = cmu.walking_summary(rows)
+        summary["acknowledgement"] = cmu.ACKNOWLEDGEMENT
     summary["elapsed_s"] = round(time.perf_counter() - started, 1)
-    if cmu_corpus:
-        _write_json(out / "split.json", cmu.split_document(rows, spec, out_fps))
+    if corpus:
+        _write_json(out / "split.json", corpus_plan.split_document(rows, spec, out_fps))
         _write_json(out / "summary.json", summary)
     if as_json:
         emit_json(summary)
-    else:
+    elif len(jobs) > 1 or report.succeeded or corpus:  # one file that failed: its error says it
         _print_summary(summary)
     report.exit()
 

@@ -12,7 +12,10 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, is_kind
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion import cmu
+from mdvae_cli.motion.any_file import find_asf
 from mdvae_cli.motion.asf import AsfSkeleton, load_asf
+from mdvae_cli.motion.corpus_plan import CorpusItem
+from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import save_motion
 from mdvae_cli.motion.retarget import (
     BodyJoints,
@@ -24,31 +27,24 @@ from mdvae_cli.motion.retarget import (
 )
 
 
-def find_asf(path: Path) -> Path | None:
-    """The skeleton next to an AMC file: ``<subject>.asf``, else the folder's only .asf."""
-    ids = cmu.trial_of(path)
-    if ids is not None:
-        for name in (f"{ids[0]}.asf", f"{ids[0]}.asf.gz"):
-            if (path.parent / name).is_file():
-                return path.parent / name
-    found = [p for p in sorted(path.parent.iterdir()) if is_kind(p, ".asf")]
-    return found[0] if len(found) == 1 else None
-
-
 class FileImporter:
     """Imports one file; keeps the body, parsed skeletons and betas fitted once per skeleton.
     Built once per process (each ``--jobs`` worker builds its own)."""
 
-    def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf):
+    def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf,
+                 input_format=None, track=None):  # fmt: skip
         torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
         self.body = BodyJoints(load_body_model(body_model))
+        self.format, self.track = input_format, track
         self.out, self.fps, self.settings = out, fps, settings
         self.source_fps, self.scale, self.asf = source_fps, scale, asf
         self.skeletons: dict[Path, AsfSkeleton] = {}
         self.betas: dict[str, np.ndarray] = {}
 
     def __call__(self, job: FileJob) -> dict:
-        item: cmu.CorpusItem | None = job.data
+        if job.data is None and not (is_kind(job.source, ".bvh") or is_kind(job.source, ".amc")):
+            return self.import_estimates(job)
+        item: CorpusItem | None = job.data
         skeleton, fps = (item.skeleton, item.fps) if item else (None, self.source_fps)
         if item is None and is_kind(job.source, ".amc"):
             skeleton = self.asf or find_asf(job.source)
@@ -96,3 +92,46 @@ class FileImporter:
             row.update({k: meta[k] for k in ("subject", "trial", "split", "description")},
                        donor_skeleton=item.donor)  # fmt: skip
         return row
+
+    def import_estimates(self, job: FileJob) -> dict:
+        """A motion file that needs no retarget (a video pipeline's output, an AMASS-style
+        file): read upright (``motion.load_any``), resampled to the output rate, floor at
+        z = 0 (``--floor none`` keeps the file's heights), one output per track."""
+        from mdvae_cli.cli.motion_input import outputs_of, read_input
+        from mdvae_cli.motion.resample import resample_motion
+
+        loaded = read_input(job.source, job.relpath, self.format, self.source_fps, self.track,
+                            body=self.body.data)  # fmt: skip
+        frames, fps, outputs = 0, None, []
+        for _, motion, output in outputs_of(loaded, job.output):
+            source_fps = motion.fps
+            motion = resample_motion(motion, self.fps) if self.fps else motion
+            if self.settings.floor != "none":
+                motion = motion.with_body(trans=motion.trans - [0.0, 0.0, self.floor(motion)])
+            save_motion(motion, output, forbid=(job.source,))
+            frames, fps = frames + motion.num_frames, motion.fps
+            outputs.append(output.as_posix())
+        return {
+            "output": outputs[0] if len(outputs) == 1 else outputs,
+            "format": loaded.format,
+            "frames": frames,
+            "fps": fps,
+            "source_fps": source_fps,
+            "retarget_error_mm": 0.0,
+            "retarget_error_direct_mm": 0.0,
+            "tracks": len(outputs),
+        }
+
+    def floor(self, motion: Motion) -> float:
+        """The height of the ground under the motion's soles (the lower envelope of each
+        frame's lowest foot vertex, ``retarget.fit_ground`` without tilt), metres."""
+        from mdvae_cli.export import pose_motion_chunks
+        from mdvae_cli.motion.retarget import fit_ground
+
+        lowest = []
+        for _, out in pose_motion_chunks(motion, self.body.data, vertices=True):
+            v = out.vertices[:, self.body.foot_ids].double().numpy()
+            i = v[..., 2].argmin(axis=1)
+            lowest.append(v[np.arange(len(v)), i])
+        p = np.concatenate(lowest)
+        return float(fit_ground(p[:, [0, 2, 1]], self.settings.max_tilt, tilt=False)[0])

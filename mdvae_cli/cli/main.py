@@ -9,11 +9,13 @@ from mdvae_cli.cli import (
     add_noise,
     denoise,
     eval_cmd,
+    export_bvh,
     export_mesh,
     fit_dataset_cmd,
     import_cmd,
     sample,
     train,
+    view_cmd,
 )
 
 
@@ -40,9 +42,12 @@ for module in (
     denoise,
     add_noise,
     eval_cmd,
+    export_bvh,
     export_mesh,
+    export_bvh,
     import_cmd,
     sample,
+    view_cmd,
 ):
     for command in module.COMMANDS:
         cli.add_command(command)

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from mdvae_cli.cli.batch import refuse_gz
+from mdvae_cli.cli.batch import print_notes, refuse_gz
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     SEED,
@@ -115,6 +115,7 @@ def sample(
     if Path(start).is_file() and out.resolve() == Path(start).resolve():
         raise InputError(f"refusing to overwrite the input file {out}: choose another -o")
     motion = load_motion(start, allow_pickle=allow_pickle)
+    print_notes(Path(start.name), motion.notes)
     prior, _ = load_prior(prior_path if prior_path is not None else default_weights("prior"))
     body = BodyModel(load_body_model(body_model))
     with progress_bar(transient=True) as progress:
@@ -136,6 +137,7 @@ def sample(
     if "mocap_time_length" in result.extras:  # AMASS's duration (s), of the sample now
         kept = result.extras["mocap_time_length"]
         result.extras["mocap_time_length"] = np.array(frames / result.fps, dtype=kept.dtype)
+    print_notes(Path(out.name), result.notes)
     save_motion(result, out, forbid=(start,))
     console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
 

@@ -232,6 +232,26 @@ def run_options(fn: Callable) -> Callable:
     "windows, a body prior closer to symmetric (validation stays unmirrored) [default: off].",
 )
 @click.option(
+    "--speeds",
+    type=str,
+    metavar="LIST",
+    help="Time-warp augmentation: also train on every motion played at these speeds, "
+    "comma-separated (e.g. 0.8,1,1.25; each in 0.25-4; 1 = as captured) [default: 1].",
+)
+@click.option(
+    "--data-fraction",
+    type=click.FloatRange(min=0.0, max=1.0, min_open=True),
+    help="Train on a seeded subset of whole training files holding this share of the "
+    "frames (data-scaling runs) [default: 1].",
+)
+@click.option(
+    "--val-split",
+    "val_splits",
+    multiple=True,
+    help="Split-file list whose windows choose the best checkpoint; repeat for several "
+    "(e.g. --val-split val --val-split unseen_val) [default: val].",
+)
+@click.option(
     "--resume",
     is_flag=True,
     help="Continue the run in the -o folder from its last.npz (the end of its last finished "
@@ -280,6 +300,9 @@ def train_prior(
             cfg.body_model = str(body_model)
     if overrides.get("init_from") is not None:
         overrides["init_from"] = str(overrides["init_from"])
+    if overrides.get("speeds") is not None:
+        overrides["speeds"] = parse_speeds(overrides["speeds"])
+    overrides["val_splits"] = list(overrides["val_splits"]) or None
     apply_overrides(
         cfg,
         overrides,
@@ -306,6 +329,19 @@ def train_prior(
         f"trained {summary.steps} steps in {summary.seconds:.0f} s on {summary.train_windows} "
         f"windows; best val loss {best_text}; run in {summary.run_dir}"
     )
+
+
+def parse_speeds(text: str) -> list[float]:
+    """``--speeds 0.8,1,1.25`` -> [0.8, 1.0, 1.25]; InputError naming the option otherwise."""
+    try:
+        speeds = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        speeds = []
+    if not speeds:
+        raise InputError(
+            f"--speeds must be comma-separated numbers such as 0.8,1,1.25, got {text!r}"
+        )
+    return speeds
 
 
 COMMANDS = [train_prior]

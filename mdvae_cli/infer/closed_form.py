@@ -83,6 +83,20 @@ def observation_residuals(x_hat: torch.Tensor, obs: torch.Tensor) -> torch.Tenso
     return (x_hat[..., GROUP_COLUMNS] - obs[..., GROUP_COLUMNS]).unflatten(-1, (NUM_GROUPS, 3))
 
 
+#: the window length (frames at 30 Hz) ``RefineConfig.offset_terms`` is set for
+FULL_WINDOW = 61
+
+
+def offset_terms_for(num_frames: int, terms: int) -> int:
+    """How many cosines a window of ``num_frames`` gets: ``terms`` for a full window, fewer
+    for a shorter one so that the fastest cosine keeps the same frequency in Hz (the offset
+    models *slow* discrepancy; ten cosines over 16 frames would follow the noise). At least
+    one (a constant offset)."""
+    if num_frames >= FULL_WINDOW:
+        return terms
+    return max(1, min(terms, round(terms * num_frames / FULL_WINDOW)))
+
+
 def cosine_basis(num_frames: int, terms: int, like: torch.Tensor) -> torch.Tensor:
     """The first ``terms`` DCT-II cosines over a window -> (num_frames, terms); column 0 is 1."""
     t = (torch.arange(num_frames, dtype=like.dtype, device=like.device) + 0.5) / num_frames
@@ -111,11 +125,15 @@ def offset_coefficients(
         diag = precision[..., None] * (basis**2).sum(0) + prior_precision  # (N, G, K)
         rhs = -torch.einsum("tk,ntgc->ngck", basis, residual) * precision[..., None, None]
         return rhs / diag[:, :, None], 1.0 / diag
-    gram = torch.einsum("ntg,tk,tl->ngkl", weight, basis, basis) * precision[..., None, None]
+    T, K = basis.shape
+    # two-operand products (a 3-operand einsum here took 10x as long on the CPU)
+    outer = (basis[:, :, None] * basis[:, None, :]).reshape(T, K * K)
+    gram = (weight.transpose(1, 2) @ outer).unflatten(-1, (K, K)) * precision[..., None, None]
     if not torch.is_tensor(prior_precision):
         prior_precision = gram.new_full(gram.shape[:-1], prior_precision)
     gram = gram + torch.diag_embed(prior_precision)
-    rhs = -torch.einsum("ntg,tk,ntgc->ngkc", weight, basis, residual) * precision[..., None, None]
+    weighted = weight[..., None] * residual
+    rhs = -torch.einsum("tk,ntgc->ngkc", basis, weighted) * precision[..., None, None]
     chol = torch.linalg.cholesky(gram)  # (N, G, K, K)
     mean = torch.cholesky_solve(rhs, chol).transpose(-1, -2)  # (N, G, 3, K)
     var = torch.cholesky_inverse(chol).diagonal(dim1=-2, dim2=-1)
@@ -179,8 +197,9 @@ class ClosedFormFactors:
         self.mask = group_weights(joint_weight)  # (N, T, 23): 1 = observed; None = all
         self.weights = self.mask  # what the solvers read: the mask, x Student-t weights
         self.units = per_group(cfg.rot_unit, cfg.trans_unit, obs)  # (23,)
-        self.basis = cosine_basis(T, cfg.offset_terms, obs)
-        k = torch.arange(cfg.offset_terms, dtype=obs.dtype, device=obs.device)
+        terms = offset_terms_for(T, cfg.offset_terms)
+        self.basis = cosine_basis(T, terms, obs)
+        k = torch.arange(terms, dtype=obs.dtype, device=obs.device)
         self.relative = cfg.offset_decay ** (-2.0 * k)  # prior precision of cosine k, relative
         self.offset = torch.zeros_like(obs)
         self.started = False

@@ -10,7 +10,7 @@ keys and the file layout are carried through untouched.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import contextmanager, nullcontext
 
 import numpy as np
@@ -21,6 +21,7 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
+from mdvae_cli.infer.guard import guard
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
@@ -83,9 +84,16 @@ def threads_for(num_windows: int, small: int = SMALL_BATCH):
 
 
 @torch.no_grad()
-def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 1024) -> BodyParams:
+def predict_windows(
+    denoiser: Denoiser,
+    group: WindowGroup,
+    batch_size: int = 1024,
+    fallbacks: list[tuple[int, int]] | None = None,
+) -> BodyParams:
     """Regression mode on a group: posterior means, back in world coordinates. A handful of
-    windows go through the numpy path (same numbers, a third of the time).
+    windows go through the numpy path (same numbers, a third of the time). With
+    ``fallbacks`` (a list) and the group's raw states, windows past the guard
+    (``infer.guard``) fall back to the smoothed input and their owners are appended to it.
 
     -> BodyParams with (N, L, ...) tensors
     """
@@ -95,7 +103,7 @@ def predict_windows(denoiser: Denoiser, group: WindowGroup, batch_size: int = 10
         for i in range(0, len(group), batch_size):
             idx = torch.arange(i, min(i + batch_size, len(group)))
             g = group.batch(idx, with_y3d=False)
-            x_hat = regress(g.yn)
+            x_hat = _guarded(regress(g.yn), g, fallbacks)
             outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
@@ -113,11 +121,24 @@ def regressor(denoiser: Denoiser, num_windows: int) -> Callable[[torch.Tensor], 
     return lambda yn: denoiser.infer(yn, with_prior=False)["x_hat"]
 
 
+def _guarded(
+    x_hat: torch.Tensor, g: WindowGroup, fallbacks: list[tuple[int, int]] | None
+) -> torch.Tensor:
+    """``x_hat`` (N, T, 138) with the windows past the guard replaced (their owners appended
+    to ``fallbacks``); unchanged when ``fallbacks`` is None or the raw states are missing."""
+    if fallbacks is None or g.obs is None or not g.moves:
+        return x_hat
+    x_hat, bad = guard(x_hat, g.obs)
+    fallbacks += [g.owners[i] for i in torch.nonzero(bad).flatten().tolist()]
+    return x_hat
+
+
 def refine_windows(
     denoiser: Denoiser,
     group: WindowGroup,
     cfg: RefineConfig,
     progress: Callable[[dict], None] | None = None,
+    fallbacks: list[tuple[int, int]] | None = None,
 ) -> BodyParams:
     """Latent refinement on a group (see ``infer.refine``), back in world coordinates.
 
@@ -129,7 +150,7 @@ def refine_windows(
         raise ValueError("refinement needs the raw states: make_windows(observations=True)")
     starts = refine_batches(group, cfg)
     if not starts:  # one-frame windows: x0 alone, nothing to refine
-        return predict_windows(denoiser, group)
+        return predict_windows(denoiser, group, fallbacks=fallbacks)
     if denoiser.training:
         denoiser.eval()
     outs = []
@@ -143,6 +164,7 @@ def refine_windows(
         else:
             tell = _staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
             x_hat = refine_latents(denoiser, g.yn, g.obs, joints, cfg, tell)
+        x_hat = _guarded(x_hat.detach(), g, fallbacks)
         outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
@@ -230,6 +252,9 @@ def denoise_motions(
     progress: Callable[[dict], None] | None = None,
     refine: RefineConfig | None = None,
     mirror: bool = False,
+    guard: bool = False,
+    on_fallback: Callable[[int, float, float], None] | None = None,
+    loops: Sequence[bool] | None = None,
     feet: FootLockConfig | None = None,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
@@ -244,28 +269,40 @@ def denoise_motions(
     in optimisation mode, adapted to as well) and the result is the midpoint of the two
     estimates, mirrored back: the learned prior is not exactly mirror-symmetric, so the two
     differ, and their average is a prior made symmetric. Twice the work.
-    With ``feet``, the results' feet are then held still on the floor where they are down
-    (``infer.feet.lock_feet``).
     ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
+    With ``guard`` (``mdvae denoise``'s default), a window whose output moved further from
+    its input than the input's noise explains falls back to the smoothed input
+    (``infer.guard``); each such window is said in its motion's notes and passed to
+    ``on_fallback(motion index, start s, end s)`` (times in the motion's own clock).
+    ``loops``: per motion, whether it is a cycle to denoise as one (``infer.loop``: tiled three
+    times, the middle copy kept and closed at the seam).
+    With ``feet``, the results' feet are then held still on the floor where they are down
+    (``infer.feet.lock_feet``, each input as its source).
     """
+    if feet is not None:
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror, guard, on_fallback, loops,
+        )  # fmt: skip
+        return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
+    if loops is not None and any(loops):
+        return _denoise_cycles(
+            motions, list(loops), denoiser, body, window, stride, optimize_steps, lr,
+            batch_size, seed, progress, refine, mirror, guard, on_fallback=on_fallback,
+        )  # fmt: skip
     for i, m in enumerate(motions):
         try:
             check_length(m)
         except InputError as exc:
             raise InputError(f"motion {i}: {exc}") from None
-    if feet is not None:
-        cleaned = denoise_motions(
-            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            progress, refine, mirror,
-        )  # fmt: skip
-        return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
     if mirror:
         flipped = [mirror_motion(m, body) for m in motions]
+        n = len(motions)
+        tell = None if on_fallback is None else lambda i, a, b: on_fallback(i % n, a, b)
         both = denoise_motions(
             [*motions, *flipped], denoiser, body, window, stride, optimize_steps, lr,
-            batch_size, seed, progress, refine,
+            batch_size, seed, progress, refine, guard=guard, on_fallback=tell,
         )  # fmt: skip
-        n = len(motions)
         return [
             average_bodies(a, mirror_motion(b, body))
             for a, b in zip(both[:n], both[n:], strict=True)
@@ -273,7 +310,8 @@ def denoise_motions(
     refining = refine is not None and refine.active
     motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
-    observed = optimize_steps > 0 or refining
+    observed = optimize_steps > 0 or refining or guard
+    fallbacks: list[tuple[int, int]] | None = [] if guard else None
     with threads_for(num_windows) if optimize_steps == 0 else nullcontext():
         groups = make_windows(
             motions30, denoiser, body, window, stride, observed, points=optimize_steps > 0
@@ -288,14 +326,49 @@ def denoise_motions(
                 sample_generator=draws,
             )  # fmt: skip
         if not refining:
-            preds = [predict_windows(denoiser, g) for g in groups]
-            return assemble(motions, motions30, groups, preds)
-        steps = [len(refine_batches(g, refine)) * refine.steps for g in groups]
-        preds = [
-            refine_windows(denoiser, g, refine, _staged(progress, "refine", done, sum(steps)))
-            for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
+            preds = [predict_windows(denoiser, g, fallbacks=fallbacks) for g in groups]
+        else:
+            steps = [len(refine_batches(g, refine)) * refine.steps for g in groups]
+            preds = [
+                refine_windows(denoiser, g, refine,
+                               _staged(progress, "refine", done, sum(steps)), fallbacks)
+                for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
+            ]  # fmt: skip
+        out = assemble(motions, motions30, groups, preds)
+    for mi, start in sorted(fallbacks or []):
+        n = min(window + 1, motions30[mi].num_frames)
+        a, b = start / MODEL_FPS, (start + n - 1) / MODEL_FPS
+        out[mi].notes = [  # a new list: the input's is not to change
+            *out[mi].notes,
+            f"{a:.2f}-{b:.2f} s: the denoised motion moved further from the input than its "
+            "noise explains; that stretch is the input smoothed instead",
         ]
-        return assemble(motions, motions30, groups, preds)
+        if on_fallback is not None:
+            on_fallback(mi, a, b)
+    return out
+
+
+def _denoise_cycles(motions, loops, denoiser, body, *args, on_fallback=None) -> list[Motion]:
+    """:func:`denoise_motions` with the motions flagged in ``loops`` tiled and closed as
+    cycles; fallbacks inside a cycle's middle copy are reported on its own clock."""
+    from mdvae_cli.infer.loop import COPIES, tile, untile
+
+    tiled = [tile(m) if lp else m for m, lp in zip(motions, loops, strict=True)]
+
+    def tell(i: int, a: float, b: float) -> None:
+        if on_fallback is None:
+            return
+        if not loops[i]:
+            on_fallback(i, a, b)
+            return
+        period = motions[i].num_frames / motions[i].fps
+        start = (COPIES // 2) * period
+        if b > start and a < start + period:
+            on_fallback(i, max(a - start, 0.0), min(b - start, period))
+
+    *head, guard = args
+    out = denoise_motions(tiled, denoiser, body, *head, guard=guard, on_fallback=tell)
+    return [untile(o, m) if lp else o for o, m, lp in zip(out, motions, loops, strict=True)]
 
 
 def _staged(progress, stage: str, offset: int, total: int):

@@ -143,7 +143,7 @@ def detect_contacts(feet: np.ndarray, fps: float, cfg: FootLockConfig) -> np.nda
     """Where the feet are down, robust to sliding and to noise.  feet: (T, 4, 3) the foot
     joints (``FOOT_JOINTS`` order) -> (T, 4) bool"""
     smooth = gaussian_smooth(feet, cfg.smooth_s * fps) if len(feet) > 1 else feet
-    contacts = contacts_of_feet(smooth, fps, height_tol=cfg.height_tol, speed_tol=cfg.speed_tol)
+    contacts = contacts_of_feet(smooth, fps, height_tol=cfg.height_tol, speed_max=cfg.speed_tol)
     return clean_contacts(
         contacts,
         math.ceil(cfg.min_contact_s * fps - 1e-9),

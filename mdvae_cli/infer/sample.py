@@ -136,9 +136,10 @@ def sample_motion(
             )
     cat = lambda k: torch.cat([getattr(q, k)[0] for q in pieces]).double().numpy()  # noqa: E731
     T = num_frames
-    extras = {
-        k: v for k, v in start.extras.items() if not (v.ndim and v.shape[0] == start.num_frames)
-    }
+    per_frame = [k for k, v in start.extras.items() if v.ndim and v.shape[0] == start.num_frames]
+    extras = {k: v for k, v in start.extras.items() if k not in per_frame}
+    notes = [f"per-frame keys of the start file are not carried into the sample: "
+             f"{', '.join(per_frame)}"] if per_frame else []  # fmt: skip
     return Motion(
         root_orient=cat("root_orient"),
         pose_body=cat("pose_body"),
@@ -149,4 +150,5 @@ def sample_motion(
         gender=start.gender,
         extras=extras,
         layout=dict(start.layout),
+        notes=notes,
     )

@@ -6,7 +6,6 @@ import contextlib
 import json
 import signal
 import threading
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,7 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
+from mdvae_cli.npz_archive import read_npz
 
 
 def save_checkpoint(path: Path, tensors: dict[str, torch.Tensor], meta: dict) -> None:
@@ -64,10 +64,30 @@ def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
         raise InputError(
             f"{path} is not an mdvae checkpoint: its metadata {meta_path.name} is not beside it"
         )
+    tensors = {k: torch.from_numpy(a) for k, a in read_npz(path, f"checkpoint {path}").items()}
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            tensors = {k: torch.from_numpy(npz[k].copy()) for k in npz.files}
-        meta = json.loads(meta_path.read_text())
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:  # truncated, corrupt
-        raise InputError(f"checkpoint {path} is unreadable ({exc})") from None
+        meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"checkpoint {path}: cannot read its metadata {meta_path.name} "
+                         f"({exc.strerror or exc})") from None  # fmt: skip
+    except json.JSONDecodeError as exc:
+        raise InputError(f"checkpoint {path}: its metadata {meta_path.name} is not valid JSON "
+                         f"({exc.msg}, line {exc.lineno})") from None  # fmt: skip
+    if not isinstance(meta, dict):
+        raise InputError(f"checkpoint {path}: its metadata {meta_path.name} is not a JSON object")
     return tensors, meta
+
+
+def load_weights(module: torch.nn.Module, state: dict[str, torch.Tensor], path: Path) -> None:
+    """Load ``state`` into ``module``; InputError (one line) saying how many weights are
+    missing, unexpected or of the wrong shape when they do not match the module."""
+    own = module.state_dict()
+    missing = [k for k in own if k not in state]
+    unexpected = [k for k in state if k not in own]
+    wrong = [k for k in own if k in state and tuple(state[k].shape) != tuple(own[k].shape)]
+    parts = [f"{len(keys)} {what} (e.g. {keys[0]!r})" for keys, what in
+             ((missing, "missing"), (unexpected, "unexpected"), (wrong, "of the wrong shape"))
+             if keys]  # fmt: skip
+    if parts:
+        raise InputError(f"{path}: weights do not match its config: {', '.join(parts)}")
+    module.load_state_dict(state)

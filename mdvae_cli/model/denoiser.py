@@ -21,7 +21,7 @@ from torch import nn
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
+from mdvae_cli.model.checkpoint import load_checkpoint, load_weights, save_checkpoint
 from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
@@ -289,8 +289,5 @@ def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
         ("noise_predictor/", denoiser.noise_predictor),
     ):
         state = {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
-        try:
-            module.load_state_dict(state)
-        except RuntimeError as exc:
-            raise InputError(f"{path}: weights do not match its config ({exc})") from None
+        load_weights(module, state, path)
     return denoiser.eval(), meta

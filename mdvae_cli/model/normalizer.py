@@ -17,11 +17,21 @@ class Normalizer(nn.Module):
         self.register_buffer("std", torch.ones(dim))
 
     @torch.no_grad()
-    def fit(self, x: torch.Tensor, min_std: float = 1e-2) -> Normalizer:
-        """Set statistics from samples.  x: (..., D)"""
-        flat = x.reshape(-1, x.shape[-1]).double()
-        self.mean.copy_(flat.mean(0).to(self.mean.dtype))
-        self.std.copy_(flat.std(0).clamp_min(min_std).to(self.std.dtype))
+    def fit(self, *parts: torch.Tensor, min_std: float = 1e-2, chunk: int = 1 << 22) -> Normalizer:
+        """Set statistics from samples: every row of every part.  parts: (..., D) each.
+
+        Two passes over rows in chunks of ``chunk`` values, in float64 (mean, then the
+        unbiased variance about it): the memory of one chunk, not of a float64 copy of the
+        training set (98,000 windows would need 6.7 GB)."""
+        D = parts[0].shape[-1]
+        rows = [p.reshape(-1, D) for p in parts]
+        step = max(1, chunk // D)
+        pieces = lambda: (r[i : i + step].double() for r in rows for i in range(0, len(r), step))  # noqa: E731
+        n = sum(len(r) for r in rows)
+        mean = sum(p.sum(0) for p in pieces()) / n
+        var = sum(((p - mean) ** 2).sum(0) for p in pieces()) / max(1, n - 1)
+        self.mean.copy_(mean.to(self.mean.dtype))
+        self.std.copy_(var.sqrt().clamp_min(min_std).to(self.std.dtype))
         return self
 
     @torch.no_grad()

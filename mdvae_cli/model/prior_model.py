@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.model.checkpoint import load_checkpoint
+from mdvae_cli.model.checkpoint import load_checkpoint, load_weights
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.dvae import MotionDVAE
 from mdvae_cli.model.normalizer import Normalizer
@@ -71,10 +71,7 @@ def load_prior(path: Path | str) -> tuple[PriorModel, dict]:
         raise InputError(f"{path} is not a Motion-DVAE prior checkpoint (no model_config)")
     model = PriorModel(ModelConfig.from_dict(meta["model_config"]))
     state = {k[len("model/") :]: v for k, v in tensors.items() if k.startswith("model/")}
-    try:
-        model.load_state_dict(state)
-    except RuntimeError as exc:
-        raise InputError(f"{path}: weights do not match its config ({exc})") from None
+    load_weights(model, state, path)
     return model.eval(), meta
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.motion.motion import MAX_DISTANCE_M
 from mdvae_cli.motion.source import (
     euler_to_rotmat,
     guess_length_unit,
@@ -79,16 +80,15 @@ class AsfSkeleton:
 
     def _height(self) -> float:
         names = ["root", *self.order()]
-        parents = np.array([-1] + [names.index(self._parent(n)) for n in names[1:]])
+        index = {n: i for i, n in enumerate(names)}
+        parent = {kid: p for p, kids in self.children.items() for kid in kids}
+        parents = np.array([-1] + [index[parent[n]] for n in names[1:]])
         offsets = np.zeros((len(names), 3))
         for i, n in enumerate(names[1:], start=1):
-            p = self._parent(n)
+            p = parent[n]
             if p != "root":
                 offsets[i] = self.bones[p].direction * self.bones[p].length
         return skeleton_height(offsets, parents)
-
-    def _parent(self, name: str) -> str:
-        return next(p for p, kids in self.children.items() if name in kids)
 
 
 def _floats(values: list[str], what: str, path: str, count: int | None = None) -> np.ndarray:
@@ -170,6 +170,11 @@ def parse_asf(text: str, path: str = "<asf>") -> AsfSkeleton:
         raise InputError(f"{path}: unterminated bone block in :bonedata")
     if not bones:
         raise InputError(f"{path}: no bones in :bonedata")
+    metres = 0.0254 / length_unit if length_unit else 1.0  # unknown units: taken as metres
+    for bone in bones.values():
+        if bone.length * metres > MAX_DISTANCE_M:
+            raise InputError(f"{path}: bone {bone.name} is {bone.length * metres:.3g} m long; "
+                             "the file is corrupt")  # fmt: skip
 
     children: dict[str, list[str]] = {}
     seen = {"root"}

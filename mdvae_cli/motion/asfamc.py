@@ -8,12 +8,15 @@ Conventions (Acclaim, as CMU writes them):
   local frame: the bone's rotation in world-aligned axes is ``C M C^T``.
 
 :func:`load_amc` returns a :class:`SourceMotion` whose joints are the root, every bone (placed at
-the bone's start) and an ``<bone>_end`` tip for each leaf bone.
+the bone's start) and an ``<bone>_end`` tip for each leaf bone. It keeps the file's
+:class:`AmcLayout` (header, frame numbers, each frame's bones and values as written) so that
+``motion.amc_write`` can write the take again on its own skeleton.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +35,62 @@ from mdvae_cli.motion.source import (
 )
 
 
+@dataclass
+class AmcLayout:
+    """What it takes to write an AMC file again on its own skeleton.
+
+    header: the text before the first frame number, verbatim (``:FULLY-SPECIFIED``,
+    ``:DEGREES``, comments). frames: (F,) frame numbers as written. bones: (F,) the bones each
+    frame lists, in its order. values: bone -> (F, n) every frame as read (a frame that leaves
+    a bone out holds its previous value); tokens: bone -> (F, n) those values as written
+    (object array of str; None where the frame left the bone out). rows: (T,) the frames the
+    SourceMotion holds (a cut-off last frame, or frames past ``max_frames``, are written back
+    unchanged). degrees: the angle unit of the values. skeleton: the ASF. metres_per_unit:
+    the scale the SourceMotion is in.
+    """
+
+    header: str
+    frames: list[str]
+    bones: list[tuple[str, ...]]
+    values: dict[str, np.ndarray]
+    tokens: dict[str, np.ndarray]
+    rows: np.ndarray
+    degrees: bool
+    skeleton: AsfSkeleton
+    metres_per_unit: float
+    newline: str = "\n"
+
+    def dofs(self, name: str) -> tuple[str, ...]:
+        """The AMC channels of ``name`` ("root" or a bone), e.g. ("rx", "rz")."""
+        sk = self.skeleton
+        return sk.root_order if name == "root" else sk.bones[name].dofs
+
+    def frame(self, name: str) -> np.ndarray:
+        """The local frame C of ``name`` (its ``axis``; the root's ``orientation``).  (3, 3)"""
+        sk = self.skeleton
+        if name == "root":
+            return axis_frame(sk.root_orientation, sk.root_axis_order, sk.degrees)
+        bone = sk.bones[name]
+        return axis_frame(bone.axis, bone.axis_order, sk.degrees)
+
+
+def rotation_columns(dofs: tuple[str, ...]) -> list[tuple[int, str]]:
+    """(column, axis) of the rotation channels among ``dofs``, in listed order."""
+    return [(i, d[1]) for i, d in enumerate(dofs) if d.startswith("r")]
+
+
+def dof_rotation(C: np.ndarray, radians: np.ndarray, axes: str) -> np.ndarray:
+    """A bone's rotation in world-aligned axes, ``C M C^T``, with ``M`` the turns about its
+    ``axes`` (listed order, first applied first: ``rx ry rz`` -> ``Rz Ry Rx``).
+    C: (3, 3); radians: (T, k) in listed order -> (T, 3, 3)"""
+    M = euler_to_rotmat(radians[:, ::-1], axes[::-1])
+    return C @ M @ C.T
+
+
 def _read_amc_values(text: str, layout: dict[str, int], path: str):
-    """Frame values per bone: {name: (T, n)}, the angle unit if the header says one, and
-    notes on frames that lacked bones.
+    """Frame values per bone: {name: (T, n)}, the angle unit if the header says one, notes on
+    frames that lacked bones, and the :class:`AmcLayout` fields (header, frames, bones,
+    tokens, frames read).
 
     A fast path handles files whose frames all list the same bones in the same order (CMU);
     other files go through a line-by-line reader.
@@ -57,6 +113,8 @@ def _read_amc_values(text: str, layout: dict[str, int], path: str):
         break
     else:
         raise InputError(f"{path}: no motion frames in the AMC file")
+    newline = "\r\n" if "\r\n" in text[:4096] else "\n"
+    header = "".join(ln + newline for ln in lines[:start])
     body = "\n".join(lines[start:])
     tokens = body.split()
     if not tokens or not _is_int(tokens[0]):
@@ -67,14 +125,17 @@ def _read_amc_values(text: str, layout: dict[str, int], path: str):
     while k < len(tokens) and not _is_int(tokens[k]):
         bone = tokens[k]
         if bone not in layout:
-            raise InputError(f"{path}: AMC names bone {bone!r}, which the skeleton lacks")
+            order = []  # a value where a bone was expected: the line reader says where
+            break
         order.append(bone)
         k += 1 + layout[bone]
     block = 1 + sum(1 + layout[b] for b in order)
-    values, notes = _fast_amc(tokens, order, layout, block), []
-    if values is None:
-        values, notes = _slow_amc(lines[start:], layout, path)
-    return values, degrees, notes
+    fast, notes = (_fast_amc(tokens, order, layout, block) if order else None), []
+    if fast is None:
+        values, notes, kept = _slow_amc(lines[start:], layout, path)
+    else:
+        values, kept = fast
+    return values, degrees, notes, (header, newline, *kept)
 
 
 def _is_int(tok: str) -> bool:
@@ -87,33 +148,41 @@ def _fast_amc(tokens: list[str], order: list[str], layout: dict[str, int], block
     T = len(tokens) // block
     col = 1
     values: dict[str, np.ndarray] = {}
+    written: dict[str, np.ndarray] = {}
     for bone in order:
         if tokens[col::block].count(bone) != T:
             return None
         n = layout[bone]
+        written[bone] = np.empty((T, n), dtype=object)
+        for i in range(n):
+            written[bone][:, i] = tokens[col + 1 + i :: block]
         try:
-            cols = [np.array(tokens[col + 1 + i :: block], dtype=np.float64) for i in range(n)]
+            values[bone] = written[bone].astype(np.float64)
         except ValueError:
             return None
-        values[bone] = np.stack(cols, axis=1) if n else np.zeros((T, 0))
         col += 1 + n
-    if not all(t.isdigit() for t in tokens[0::block]):
+    frames = tokens[0::block]
+    if not all(t.isdigit() for t in frames):
         return None
-    return values
+    return values, (frames, [tuple(order)] * T, written, T)
 
 
-def _slow_amc(
-    lines: list[str], layout: dict[str, int], path: str
-) -> tuple[dict[str, np.ndarray], list[str]]:
+def _slow_amc(lines: list[str], layout: dict[str, int], path: str):
     """Frames read line by line; a bone a frame leaves out holds its previous value, and a last
-    frame that lists fewer bones than the others (a file cut off mid-frame) is dropped."""
+    frame that lists fewer bones than the others (a file cut off mid-frame) is dropped (kept in
+    the layout, to be written back as it was).
+    -> values {bone: (T, n)}, notes, (frame numbers, bones per frame, tokens, T)"""
     frames: list[dict[str, list[float]]] = []
+    numbers: list[str] = []
+    listed: list[dict[str, list[str]]] = []
     for ln in lines:
         words = ln.split()
         if not words or words[0].startswith("#"):
             continue
         if len(words) == 1 and _is_int(words[0]):
             frames.append({})
+            numbers.append(words[0])
+            listed.append({})
             continue
         if not frames:
             raise InputError(f"{path}: AMC data before the first frame number")
@@ -127,24 +196,27 @@ def _slow_amc(
             frames[-1][bone] = [float(v) for v in vals]
         except ValueError:
             raise InputError(f"{path}: non-numeric AMC value in frame {len(frames)}") from None
+        listed[-1][bone] = vals
     notes = []
     seen = set().union(*frames) if frames else set()
-    if len(frames) > 1 and seen - set(frames[-1]):
-        frames.pop()
-        notes.append("the last frame lists fewer bones than the others (a cut-off file?): dropped")
     T = len(frames)
-    out, held = {}, 0
+    if T > 1 and seen - set(frames[-1]):
+        T -= 1
+        notes.append("the last frame lists fewer bones than the others (a cut-off file?): dropped")
+    out, written, held = {}, {}, 0
     for bone, n in layout.items():
-        arr = np.zeros((T, n))
+        arr = np.zeros((len(frames), n))
+        tok = np.full((len(frames), n), None, dtype=object)
         for t, fr in enumerate(frames):
             if bone in fr:
-                arr[t] = fr[bone]
+                arr[t], tok[t] = fr[bone], listed[t][bone]
             elif bone in seen and t > 0:
-                arr[t], held = arr[t - 1], held + 1
-        out[bone] = arr
+                arr[t], held = arr[t - 1], held + (t < T)
+        out[bone], written[bone] = arr, tok
     if held:
         notes.append(f"{held} bone entries missing from their frames: the previous frame's held")
-    return out, notes
+    bones = [tuple(fr) for fr in listed]
+    return out, notes, (numbers, bones, written, T)
 
 
 def load_amc(
@@ -163,17 +235,17 @@ def load_amc(
     path = str(path)
     if not isinstance(skeleton, AsfSkeleton):
         skeleton = load_asf(skeleton)
-    text = read_text(path)
+    text = read_text(path, errors="surrogateescape")  # the header is written back as it was
     if text.lstrip().startswith(":version") or ":bonedata" in text[:20000]:
         raise InputError(f"{path}: this is an ASF skeleton, not an AMC motion")
     layout = {"root": len(skeleton.root_order)}
     layout.update({name: len(b.dofs) for name, b in skeleton.bones.items()})
-    values, amc_degrees, amc_notes = _read_amc_values(text, layout, path)
+    file_values, amc_degrees, amc_notes, kept = _read_amc_values(text, layout, path)
     degrees = skeleton.degrees if amc_degrees is None else amc_degrees
-    T = T_file = next(iter(values.values())).shape[0]
+    T = T_file = kept[-1]
     if max_frames is not None:
         T = min(T, max_frames)
-        values = {k: v[:T] for k, v in values.items()}
+    values = {k: v[:T] for k, v in file_values.items()}
     if T < 1:
         raise InputError(f"{path}: no motion frames")
     for bone, v in values.items():
@@ -200,10 +272,9 @@ def load_amc(
     for axis, i in t_cols.items():
         root_pos[:, "xyz".index(axis)] += root_vals[:, i]
     C0 = axis_frame(skeleton.root_orientation, skeleton.root_axis_order, skeleton.degrees)
-    root_angles = root_vals[:, [i for i, _ in r_cols[::-1]]] * to_rad
+    root_angles = root_vals[:, [i for i, _ in r_cols]] * to_rad
     check_angles(root_angles, "the root", path)
-    M0 = euler_to_rotmat(root_angles, "".join(a for _, a in r_cols[::-1]))
-    rotations.append(C0 @ M0 @ C0.T)
+    rotations.append(dof_rotation(C0, root_angles, "".join(a for _, a in r_cols)))
 
     for name in bone_order:
         bone = skeleton.bones[name]
@@ -214,13 +285,12 @@ def load_amc(
         index[name] = len(names) - 1
         pb = skeleton.bones.get(parent)
         offsets.append(np.zeros(3) if pb is None else pb.direction * pb.length)
-        r = [(i, d[1]) for i, d in enumerate(bone.dofs) if d.startswith("r")]
+        r = rotation_columns(bone.dofs)
         if r:
             C = axis_frame(bone.axis, bone.axis_order, skeleton.degrees)
-            vals = values[name][:, [i for i, _ in r[::-1]]] * to_rad
+            vals = values[name][:, [i for i, _ in r]] * to_rad
             check_angles(vals, f"bone {name}", path)
-            M = euler_to_rotmat(vals, "".join(a for _, a in r[::-1]))
-            rotations.append(C @ M @ C.T)
+            rotations.append(dof_rotation(C, vals, "".join(a for _, a in r)))
         else:
             rotations.append(np.broadcast_to(np.eye(3), (T, 3, 3)))
         if not skeleton.children.get(name):
@@ -234,7 +304,11 @@ def load_amc(
         notes.append("translation/length dofs on bones are ignored")
     info = {"format": "amc", "skeleton": Path(skeleton.path).name, "unit": unit,
             "metres_per_unit": float(metres), "fps_in_file": float(fps),
-            "frames_in_file": int(T_file)}  # fmt: skip
+            "frames_in_file": int(T_file), "degrees": bool(degrees)}  # fmt: skip
+    header, newline, frames, listed, tokens, _ = kept
+    amc = AmcLayout(header=header, frames=list(frames), bones=listed, values=file_values,
+                    tokens=tokens, rows=np.arange(T), degrees=bool(degrees), skeleton=skeleton,
+                    metres_per_unit=float(metres), newline=newline)  # fmt: skip
     return SourceMotion(
         names=tuple(names),
         parents=np.array(parents, dtype=np.int64),
@@ -245,4 +319,5 @@ def load_amc(
         end_site=np.array(end_site, dtype=bool),
         info=info,
         notes=notes,
+        layout=amc,
     ).check_distances(path)

@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion.source import (
+    BVH_UNIT_GUESSES,
     CMU_UNIT,
     SourceMotion,
     check_angles,
@@ -40,6 +42,11 @@ _CHANNELS = {
 _CMUCONVERT_SIGNATURE = {"LHipJoint", "RHipJoint", "LowerBack", "LeftFingerBase"}
 
 
+#: joints deeper than this below the root: not a motion-capture skeleton (a finger tip of a
+#: full-body rig is ~10 deep)
+MAX_DEPTH = 1000
+
+
 class _Tokens:
     def __init__(self, text: str, path: Path):
         self.items = re.sub(r"([{}])", r" \1 ", text).split()
@@ -48,7 +55,7 @@ class _Tokens:
 
     def next(self, what: str) -> str:
         if self.pos >= len(self.items):
-            raise InputError(f"{self.path}: unexpected end of file (expected {what})")
+            raise InputError(f"{self.path}: unexpected end of the hierarchy (expected {what})")
         tok = self.items[self.pos]
         self.pos += 1
         return tok
@@ -61,20 +68,30 @@ class _Tokens:
     def number(self, what: str) -> float:
         tok = self.next(what)
         try:
-            return float(tok)
+            value = float(tok)
         except ValueError:
             raise InputError(f"{self.path}: expected a number for {what}, got {tok!r}") from None
+        if not math.isfinite(value):
+            raise InputError(f"{self.path}: {what} is not finite ({tok})")
+        return value
 
 
 def _parse_hierarchy(tok: _Tokens):
-    """-> names, parents, offsets (file units), channels [(joint, kind, axis)], end_site flags."""
+    """-> names, parents, offsets (file units), channels [(joint, kind, axis)], end_site flags.
+
+    Read without recursion (a hierarchy's depth is the file's to choose); one deeper than
+    MAX_DEPTH is refused."""
     names: list[str] = []
     parents: list[int] = []
     offsets: list[tuple[float, float, float]] = []
     end_site: list[bool] = []
     channels: list[tuple[int, str, str]] = []
+    open_joints: list[int] = []  # the joints whose '}' is still to come, root first
 
-    def joint(parent: int, name: str, is_end: bool) -> None:
+    def begin(parent: int, name: str, is_end: bool) -> None:
+        if len(open_joints) >= MAX_DEPTH:
+            raise InputError(f"{tok.path}: the joint hierarchy is more than {MAX_DEPTH} joints "
+                             "deep; not a motion-capture skeleton")  # fmt: skip
         index = len(names)
         names.append(name)
         parents.append(parent)
@@ -84,35 +101,116 @@ def _parse_hierarchy(tok: _Tokens):
         offsets.append(tuple(tok.number(f"the OFFSET of {name}") for _ in range(3)))
         if not is_end:
             tok.expect("CHANNELS")
-            count = tok.number(f"the channel count of {name}")
-            if count != int(count) or not 0 <= count <= 6:
-                raise InputError(f"{tok.path}: joint {name} has a bad channel count {count:g}")
+            word = tok.next(f"the channel count of {name}")
+            try:
+                count = float(word)
+            except ValueError:
+                count = -1.0
+            if not (0 <= count <= 6 and count == int(count)):
+                raise InputError(f"{tok.path}: joint {name} has a bad channel count {word}")
             for _ in range(int(count)):
                 ch = tok.next(f"a channel of {name}")
                 if ch.lower() not in _CHANNELS:
                     raise InputError(f"{tok.path}: joint {name} has an unknown channel {ch!r}")
                 channels.append((index, *_CHANNELS[ch.lower()]))
-        while True:
-            word = tok.next(f"'}}' closing {name}")
-            if word == "}":
-                return
-            if is_end:
-                raise InputError(f"{tok.path}: End Site of {names[parent]} has extra content")
-            if word.upper() == "JOINT":
-                joint(index, tok.next("a joint name"), False)
-            elif word.upper() == "END":
-                tok.expect("Site")
-                joint(index, f"{name}_end", True)
-            else:
-                raise InputError(f"{tok.path}: unexpected {word!r} inside joint {name}")
+        open_joints.append(index)
 
     tok.expect("HIERARCHY")
     tok.expect("ROOT")
-    joint(-1, tok.next("the root joint name"), False)
-    if len(set(names)) != len(names):
-        dup = next(n for n in names if names.count(n) > 1)
-        raise InputError(f"{tok.path}: joint name {dup!r} appears twice")
+    begin(-1, tok.next("the root joint name"), False)
+    while open_joints:
+        index = open_joints[-1]
+        name = names[index]
+        word = tok.next(f"'}}' closing {name}")
+        if word == "}":
+            open_joints.pop()
+        elif end_site[index]:
+            raise InputError(f"{tok.path}: End Site of {names[parents[index]]} has extra content")
+        elif word.upper() == "JOINT":
+            begin(index, tok.next("a joint name"), False)
+        elif word.upper() == "END":
+            tok.expect("Site")
+            begin(index, f"{name}_end", True)
+        else:
+            raise InputError(f"{tok.path}: unexpected {word!r} inside joint {name}")
+    seen: set[str] = set()
+    for n in names:
+        if n in seen:
+            raise InputError(f"{tok.path}: joint name {n!r} appears twice")
+        seen.add(n)
     return names, parents, np.array(offsets, dtype=np.float64), channels, end_site
+
+
+@dataclass
+class BvhLayout:
+    """What it takes to write a BVH file again on its own skeleton.
+
+    header: the file's text up to and including the ``MOTION`` line, verbatim (hierarchy,
+    names, offsets, channel layout). channels: (joint, kind "t"/"r", axis) per column.
+    data: (F, C) every frame of the file as read. rows: (T,) the file rows the SourceMotion's
+    frames came from (a dropped first frame or blank frames are written back unchanged).
+    frame_time: the ``Frame Time`` as written. offsets: (J, 3) the OFFSETs, file units.
+    metres_per_unit: the scale the SourceMotion is in. world_channels: joints whose position
+    channels hold world positions (ignored on reading, rewritten on writing).
+    moving: joints other than the root whose position channels move the joint.
+    """
+
+    header: str
+    channels: list[tuple[int, str, str]]
+    data: np.ndarray
+    rows: np.ndarray
+    frame_time: str
+    offsets: np.ndarray
+    metres_per_unit: float
+    world_channels: tuple[int, ...] = ()
+    moving: tuple[int, ...] = ()
+
+    def joint_columns(self, j: int, kind: str) -> list[tuple[int, str]]:
+        """(column, axis) of joint j's channels of one kind ("t" or "r"), in file order."""
+        return [(c, axis) for c, (jj, k, axis) in enumerate(self.channels) if jj == j and k == kind]
+
+
+def _positions(data, cols, offset) -> np.ndarray:
+    """A joint's translation per frame: its OFFSET with each position channel replacing its
+    component.  -> (T, 3)"""
+    t = np.tile(offset, (data.shape[0], 1))
+    for c, axis in cols:
+        t[:, "xyz".index(axis)] = data[:, c]
+    return t
+
+
+def _split_positions(names, parents, offsets, layout, data, rotations, root_pos, notes):
+    """Sort the non-root joints with position channels: fixed (their value becomes the
+    offset), world positions (written by some exporters; ignored) or moving local ones
+    (kept per frame).  -> rest offsets (J, 3), local positions (T, J, 3) or None"""
+    rest = offsets.copy()
+    J, T = len(names), data.shape[0]
+    local = np.tile(offsets, (T, 1, 1))
+    G = np.empty((T, J, 3, 3))
+    P = np.empty((T, J, 3))
+    world, moving = [], []
+    for j in range(J):
+        cols = layout.joint_columns(j, "t")
+        t = _positions(data, cols, offsets[j]) if j else np.zeros((T, 3))
+        p = parents[j]
+        if j and cols:
+            if np.ptp(t, axis=0).max() <= 1e-3 * max(1.0, np.abs(t).max()):
+                rest[j] = local[:, j] = t.mean(0)
+            else:
+                at_offset = P[:, p] + G[:, p] @ offsets[j]
+                far = np.median(np.linalg.norm(t - offsets[j], axis=1))
+                off_world = np.median(np.linalg.norm(t - at_offset, axis=1))
+                if far > 0.5 * max(np.linalg.norm(offsets[j]), 1e-9) and off_world < 0.2 * far:
+                    world.append(j)
+                    notes.append(f"joint {names[j]}'s position channels hold world positions; "
+                                 "its OFFSET is used")  # fmt: skip
+                else:
+                    moving.append(j)
+                    local[:, j] = t
+        G[:, j] = rotations[:, j] if p < 0 else G[:, p] @ rotations[:, j]
+        P[:, j] = root_pos if p < 0 else P[:, p] + (G[:, p] @ local[:, j, :, None])[..., 0]
+    layout.world_channels, layout.moving = tuple(world), tuple(moving)
+    return rest, (local if moving else None)
 
 
 def load_bvh(
@@ -172,22 +270,29 @@ def load_bvh(
     if not np.all(np.isfinite(values)):
         raise InputError(f"{path}: motion data contains NaN or infinite values")
     data = values.reshape(found, C)
+    layout = BvhLayout(header=text[: split.end()].rstrip() + "\n", channels=channels, data=data,
+                       rows=np.arange(found), frame_time=head.group(2), offsets=offsets,
+                       metres_per_unit=1.0)  # fmt: skip
 
     notes: list[str] = []
     cmuconvert = _CMUCONVERT_SIGNATURE <= set(names)
     if drop_first is None:
         drop_first = cmuconvert
+    rows = layout.rows
     if drop_first:
-        data = data[1:]
+        data, rows = data[1:], rows[1:]
+    if data.shape[0] == 0:
+        raise InputError(f"{path}: no motion frames")
     blank = ~np.any(data != 0.0, axis=1)  # every channel exactly 0: an exporter's empty frame
     if blank.all():
         raise InputError(f"{path}: every frame is blank (all channels 0)")
     first, last = int(np.argmin(blank)), len(blank) - int(np.argmin(blank[::-1]))
     if first or last < len(blank):
         notes.append(f"dropped {first + len(blank) - last} blank frame(s) at the start/end")
-        data = data[first:last]
+        data, rows = data[first:last], rows[first:last]
     if max_frames is not None:
-        data = data[:max_frames]
+        data, rows = data[:max_frames], rows[:max_frames]
+    layout.rows = rows
     T = data.shape[0]
     if T < 1:
         raise InputError(f"{path}: no motion frames")
@@ -195,35 +300,28 @@ def load_bvh(
     info: dict = {"format": "bvh", "dropped_first_frame": bool(drop_first),
                   "cmuconvert": cmuconvert, "frames_in_file": n_frames}  # fmt: skip
     J = len(names)
-    rest = offsets.copy()
-    root_pos = np.zeros((T, 3)) + offsets[0]
+    root_pos = _positions(data, layout.joint_columns(0, "t"), np.zeros(3)) + offsets[0]
     rotations = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
     for j in range(J):
-        cols = [(c, kind, axis) for c, (jj, kind, axis) in enumerate(channels) if jj == j]
-        rot = [(c, axis) for c, kind, axis in cols if kind == "r"]
+        rot = layout.joint_columns(j, "r")
         if rot:
             angles = np.deg2rad(data[:, [c for c, _ in rot]])
             check_angles(angles, f"joint {names[j]}", path)
             rotations[:, j] = euler_to_rotmat(angles, "".join(a for _, a in rot))
-        for c, kind, axis in cols:
-            if kind != "t":
-                continue
-            k = "xyz".index(axis)
-            if j == 0:
-                root_pos[:, k] = offsets[0, k] + data[:, c]
-            else:
-                rest[j, k] = data[:, c].mean()
-                if np.ptp(data[:, c]) > 1e-3 * max(1.0, np.abs(data[:, c]).max()):
-                    notes.append(f"joint {names[j]} has moving position channels; "
-                                 "using their mean as its offset")  # fmt: skip
+    rest, local = _split_positions(names, parents, offsets, layout, data, rotations, root_pos,
+                                   notes)  # fmt: skip
+    for j in layout.moving:
+        notes.append(f"joint {names[j]} has moving position channels (kept per frame)")
 
     height = skeleton_height(rest, np.array(parents))
     if scale is None:
-        unit, scale = ("cmu", CMU_UNIT) if cmuconvert else guess_length_unit(height)
+        guess = guess_length_unit(height, BVH_UNIT_GUESSES)
+        unit, scale = ("cmu", CMU_UNIT) if cmuconvert else guess
         info["unit"] = unit
+        info["unit_guessed"] = not cmuconvert
     else:
         info["unit"] = f"{scale:g} m"
-    info["metres_per_unit"] = float(scale)
+    info["metres_per_unit"] = layout.metres_per_unit = float(scale)
     fps = 1.0 / frame_time
     if abs(fps - round(fps)) < 5e-3 * fps:
         fps = float(round(fps))
@@ -239,4 +337,6 @@ def load_bvh(
         end_site=np.array(end_site, dtype=bool),
         info=info,
         notes=notes,
+        local_positions=None if local is None else local * scale,
+        layout=layout,
     ).check_distances(path)

@@ -1,12 +1,15 @@
 """The CMU Graphics Lab mocap corpus as stored in ``../shared/data/cmu``: what is special about it.
 
 * Layout: ``asfamc/<SS>/<SS>.asf`` + ``<SS>_<TT>.amc.gz``, ``bvh/<SS>_<TT>.bvh.gz`` (cmuconvert
-  release) and ``asfamc_noasf/<SS>/<SS>_<TT>.amc.gz`` (no skeleton of their own: imported on
-  the :data:`DONOR_SUBJECT`'s skeleton, marked as such, and kept out of validation and test).
+  release), ``bvh_daz/<SS>_<TT>.bvh.gz`` (the "daz-friendly" BVH conversion: another skeleton
+  of the same data) and ``asfamc_noasf/<SS>/<SS>_<TT>.amc.gz`` (no skeleton of their own:
+  imported on the :data:`DONOR_SUBJECT`'s skeleton, marked as such, and kept out of every
+  held-out split).
 * Frame rates: the files say 120 fps, but :data:`SIXTY_HZ_SUBJECTS` were captured at 60 fps.
 * Duplicates: byte-identical motions (91_xx = 105_xx) are imported once (first by subject number).
-* Splits are by subject (``weights_recipe/cmu_split.json``, mirrored by :data:`VAL_SUBJECTS` and
-  :data:`TEST_SUBJECTS`); only subjects with their own skeleton may be held out.
+* Splits are by subject (``weights_recipe/cmu_split.json``; ``motion.corpus_plan``); only
+  subjects with their own skeleton may be held out. A trial stored in two formats is imported
+  once (AMC, then cmuconvert BVH, then daz BVH).
 
 Acknowledgement required by the data's terms: "The data used in this project was obtained from
 mocap.cs.cmu.edu. The database was created with funding from NSF EIA-0196217."
@@ -15,14 +18,11 @@ mocap.cs.cmu.edu. The database was created with funding from NSF EIA-0196217."
 from __future__ import annotations
 
 import csv
-import gzip
-import hashlib
-import json
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.motion.corpus_plan import CorpusItem, SplitSpec, content_hash
 
 #: CMU subjects captured at 60 fps whose files say 120 (they play twice too fast as written)
 SIXTY_HZ_SUBJECTS = frozenset(
@@ -32,9 +32,12 @@ SIXTY_HZ_SUBJECTS = frozenset(
 CMU_FPS = 120.0
 #: subject whose skeleton carries the motions that lack their own (median height of the 19)
 DONOR_SUBJECT = "118"
-#: held-out subjects; must equal weights_recipe/cmu_split.json (a test checks)
+#: held-out subjects of the common kinds of motion; must equal weights_recipe/cmu_split.json
+#: (a test checks)
 VAL_SUBJECTS = ("06", "35")
 TEST_SUBJECTS = ("02", "07", "09")
+#: the folders of a CMU corpus, in the order a trial stored twice is taken from, and their kinds
+FOLDERS = (("asfamc", "amc"), ("bvh", "bvh"), ("bvh_daz", "bvh_daz"), ("asfamc_noasf", "amc_donor"))
 
 #: plain walks the manifest has no description for: CMU's index lists subject 35's first trials
 #: as "walk" (they move at 1.2-1.3 m/s; 35_17-35_23 are runs)
@@ -63,66 +66,6 @@ def is_walking(trial: str, description: str) -> bool:
     return trial in UNDESCRIBED_WALKS or bool(_WALK.match(description.strip().lower()))
 
 
-@dataclass
-class SplitSpec:
-    """Held-out subjects (CMU numbers as in file names, e.g. "07")."""
-
-    val: tuple[str, ...] = VAL_SUBJECTS
-    test: tuple[str, ...] = TEST_SUBJECTS
-
-    def split_of(self, subject: str) -> str:
-        if subject in self.test:
-            return "test"
-        if subject in self.val:
-            return "val"
-        return "train"
-
-
-def load_split_spec(path: Path | str | None) -> SplitSpec:
-    """Read a split file ``{"val_subjects": [...], "test_subjects": [...]}``; None -> defaults."""
-    if path is None:
-        return SplitSpec()
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-        val, test = data["val_subjects"], data["test_subjects"]
-    except FileNotFoundError:
-        raise InputError(f"no such split file: {path}") from None
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{path}: not a split file with val_subjects and test_subjects "
-                         f"({type(exc).__name__}: {exc})") from None  # fmt: skip
-    if not all(isinstance(s, str) for s in [*val, *test]):
-        raise InputError(f'{path}: subjects must be strings such as "07"')
-    if set(val) & set(test):
-        raise InputError(f"{path}: a subject is in both val and test")
-    return SplitSpec(tuple(val), tuple(test))
-
-
-@dataclass
-class CorpusItem:
-    """One CMU trial to import.
-
-    path: input file; relpath: path below the corpus root; kind: "amc", "bvh" or "amc_donor";
-    skeleton: the .asf to use (AMC only); fps: the true capture rate; split: train/val/test, or
-    None when the file is skipped, with ``skip`` saying why.
-    """
-
-    path: Path
-    relpath: Path
-    kind: str
-    subject: str
-    trial: str
-    skeleton: Path | None
-    fps: float
-    split: str | None
-    description: str = ""
-    skip: str | None = None
-
-    @property
-    def donor(self) -> bool:
-        return self.kind == "amc_donor"
-
-
 def read_manifest(root: Path) -> dict[str, str]:
     """trial id ("07_01") -> CMU description, from ``manifest.csv`` when there is one."""
     path = root / "manifest.csv"
@@ -132,33 +75,35 @@ def read_manifest(root: Path) -> dict[str, str]:
         return {row["trial"]: row.get("description") or "" for row in csv.DictReader(fh)}
 
 
-def _content_hash(path: Path) -> str:
-    opener = gzip.open if path.suffix == ".gz" else open
-    digest = hashlib.sha256()
-    with opener(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(chunk)
-    return digest.hexdigest()
+def default_split() -> SplitSpec:
+    """The held-out subjects when no split file is given."""
+    return SplitSpec(val=VAL_SUBJECTS, test=TEST_SUBJECTS)
 
 
-def plan_corpus(root: Path | str, spec: SplitSpec | None = None) -> list[CorpusItem]:
+def is_cmu_corpus(root: Path) -> bool:
+    """Whether ``root`` has the layout of a CMU corpus folder."""
+    return any((Path(root) / d).is_dir() for d, _ in FOLDERS)
+
+
+def plan_corpus(root: Path | str, spec: SplitSpec) -> list[CorpusItem]:
     """Every trial under a CMU corpus folder, with its skeleton, true fps and split.
 
     Raises InputError when the folder does not have the expected layout, the donor skeleton is
-    missing, or a held-out subject has no skeleton of its own.
+    missing, or a held-out CMU subject has no skeleton of its own.
     """
     root = Path(root)
-    spec = spec or SplitSpec()
     if not root.is_dir():
         raise InputError(f"no such folder: {root}")
-    found = [root / d for d in ("asfamc", "bvh", "asfamc_noasf") if (root / d).is_dir()]
-    if not found:
-        raise InputError(f"{root}: not a CMU corpus folder (no asfamc/, bvh/ or asfamc_noasf/)")
+    if not is_cmu_corpus(root):
+        names = ", ".join(f"{d}/" for d, _ in FOLDERS)
+        raise InputError(f"{root}: not a CMU corpus folder (none of {names})")
     notes = read_manifest(root)
     items: list[CorpusItem] = []
     own_skeleton: set[str] = set()
 
     def motions(folder: Path, suffix: str) -> list[Path]:
+        if not folder.is_dir():
+            return []
         return sorted(p for p in folder.rglob("*") if p.is_file() and not p.name.startswith(".")
                       and p.name.removesuffix(".gz").endswith(suffix))  # fmt: skip
 
@@ -167,31 +112,22 @@ def plan_corpus(root: Path | str, spec: SplitSpec | None = None) -> list[CorpusI
         if ids is None:
             raise InputError(f"{path}: not a CMU trial name (<subject>_<trial>)")
         subject, trial = ids
-        items.append(
-            CorpusItem(
-                path,
-                path.relative_to(root),
-                kind,
-                subject,
-                trial,
-                skeleton,
-                capture_fps(subject),
-                None,
-                notes.get(f"{subject}_{trial}", ""),
-            )
-        )
+        note = notes.get(f"{subject}_{trial}", "")
+        items.append(CorpusItem(path, path.relative_to(root), kind, subject, trial, skeleton,
+                                capture_fps(subject), None, note))  # fmt: skip
+        if kind != "amc_donor":
+            own_skeleton.add(subject)
 
-    for path in motions(root / "asfamc", ".amc") if (root / "asfamc").is_dir() else []:
+    for path in motions(root / "asfamc", ".amc"):
         subject = trial_of(path)[0] if trial_of(path) else ""
         asf = path.parent / f"{subject}.asf"
         if not asf.is_file():
             raise InputError(f"{path}: its skeleton {asf.name} is missing")
-        own_skeleton.add(subject)
         add(path, "amc", asf)
-    for path in motions(root / "bvh", ".bvh") if (root / "bvh").is_dir() else []:
-        add(path, "bvh", None)
-        own_skeleton.add(items[-1].subject)
-    noasf = motions(root / "asfamc_noasf", ".amc") if (root / "asfamc_noasf").is_dir() else []
+    for folder, kind in (("bvh", "bvh"), ("bvh_daz", "bvh_daz")):
+        for path in motions(root / folder, ".bvh"):
+            add(path, kind, None)
+    noasf = motions(root / "asfamc_noasf", ".amc")
     if noasf:
         donor = root / "asfamc" / DONOR_SUBJECT / f"{DONOR_SUBJECT}.asf"
         if not donor.is_file():
@@ -199,16 +135,24 @@ def plan_corpus(root: Path | str, spec: SplitSpec | None = None) -> list[CorpusI
         for path in noasf:
             add(path, "amc_donor", donor)
 
-    for subject in (*spec.val, *spec.test):
-        if subject not in own_skeleton:
+    for subject in spec.held_out():
+        if subject.isdigit() and subject not in own_skeleton:
             raise InputError(f"held-out subject {subject} has no motions with its own skeleton")
+    rank = {kind: i for i, (_, kind) in enumerate(FOLDERS)}
     seen: dict[str, Path] = {}
-    for item in sorted(items, key=lambda i: (int(i.subject), int(i.trial), i.kind)):
-        digest = _content_hash(item.path)
+    trials: dict[tuple[str, str], Path] = {}
+    for item in sorted(items, key=lambda i: (int(i.subject), int(i.trial), rank[i.kind])):
+        key = (str(int(item.subject)), str(int(item.trial)))
+        if key in trials:
+            taken = trials[key].as_posix()
+            item.skip = f"trial {item.subject}_{item.trial} already taken from {taken}"
+            continue
+        digest = content_hash(item.path)
         if digest in seen:
             item.skip = f"duplicate of {seen[digest].as_posix()}"
             continue
         seen[digest] = item.relpath
+        trials[key] = item.relpath
         split = spec.split_of(item.subject)
         if item.donor and split != "train":
             item.skip = f"donor-skeleton motion of held-out subject {item.subject}"
@@ -218,9 +162,6 @@ def plan_corpus(root: Path | str, spec: SplitSpec | None = None) -> list[CorpusI
 
 
 # --- summaries ---------------------------------------------------------------------------------
-# ``rows`` are per-file dicts as the importer returns them: format, frames, retarget_error_mm,
-# retarget_error_direct_mm, sole_height_mean_cm, speed_mps, output, and for corpus files
-# subject, trial, split, description, donor_skeleton.
 
 ACKNOWLEDGEMENT = (
     "The data used in this project was obtained from mocap.cs.cmu.edu. "
@@ -228,40 +169,12 @@ ACKNOWLEDGEMENT = (
 )
 
 
-def frame_weighted(rows: list[dict], key: str) -> float | None:
-    """Mean of ``key`` over rows weighted by their frames (None for no frames)."""
-    frames = sum(r["frames"] for r in rows)
-    if not frames:
-        return None
-    return round(sum(r[key] * r["frames"] for r in rows) / frames, 2)
-
-
-def error_summary(rows: list[dict]) -> dict:
-    """Frames and mean joint error overall and per format."""
-    by_format = {}
-    for fmt in sorted({r["format"] for r in rows}):
-        sub = [r for r in rows if r["format"] == fmt]
-        by_format[fmt] = {
-            "files": len(sub),
-            "frames": sum(r["frames"] for r in sub),
-            "retarget_error_mm": frame_weighted(sub, "retarget_error_mm"),
-        }
-    return {
-        "frames": sum(r["frames"] for r in rows),
-        "retarget_error_mm": frame_weighted(rows, "retarget_error_mm"),
-        "retarget_error_direct_mm": frame_weighted(rows, "retarget_error_direct_mm"),
-        "by_format": by_format,
-    }
-
-
-def corpus_summary(rows: list[dict]) -> dict:
-    """Per-split counts and the walking-trial checks (sole height, speed)."""
-    splits = {}
-    for name in ("train", "val", "test"):
-        sub = [r for r in rows if r["split"] == name]
-        splits[name] = {"files": len(sub), "frames": sum(r["frames"] for r in sub),
-                        "subjects": sorted({r["subject"] for r in sub}, key=int)}  # fmt: skip
-    walks = [r for r in rows if is_walking(f"{r['subject']}_{r['trial']}", r["description"])]
+def walking_summary(rows: list[dict]) -> dict:
+    """The walking-trial checks of an imported CMU corpus: mean lowest-sole height and speed
+    of the plain walks (``rows`` as the importer returns them, with subject, trial and
+    description)."""
+    walks = [r for r in rows if r.get("trial") and r["subject"].isdigit()
+             and is_walking(f"{r['subject']}_{r['trial']}", r["description"])]  # fmt: skip
     walking = {"files": len(walks), "sole_height_mean_cm": None, "speed_mps": None, "trials": {}}
     if walks:
         checks = ("sole_height_mean_cm", "speed_mps")
@@ -272,30 +185,4 @@ def corpus_summary(rows: list[dict]) -> dict:
                        "max": max(speeds)},
             trials={f"{r['subject']}_{r['trial']}": {k: r[k] for k in checks} for r in walks},
         )  # fmt: skip
-    return {"splits": splits, "walking": walking, "acknowledgement": ACKNOWLEDGEMENT}
-
-
-def split_document(rows: list[dict], spec: SplitSpec, fps: float | None) -> dict:
-    """The ``split.json`` written next to a converted corpus.
-
-    ``splits``: {"train"|"val"|"test": [output paths relative to the split file's folder]};
-    ``donor_skeleton``: outputs imported on the donor skeleton (all in train).
-    """
-
-    def outputs(pred) -> list[str]:
-        return sorted(r["output"] for r in rows if pred(r))
-
-    return {
-        "format": "mdvae-cmu-split/1",
-        "fps": fps,
-        "val_subjects": list(spec.val),
-        "test_subjects": list(spec.test),
-        "splits": {
-            name: outputs(lambda r, n=name: r["split"] == n) for name in ("train", "val", "test")
-        },  # fmt: skip
-        "subjects": {
-            name: sorted({r["subject"] for r in rows if r["split"] == name}, key=int)
-            for name in ("train", "val", "test")
-        },  # fmt: skip
-        "donor_skeleton": outputs(lambda r: r["donor_skeleton"]),
-    }
+    return walking

@@ -1,111 +1,124 @@
-"""Foot contacts and the floor: when a foot joint stands on the ground, and where the ground is.
+"""Foot contact: which foot joints are planted on the floor in each frame.
 
-One definition, shared by ``mdvae eval`` (foot metrics), ``mdvae denoise --feet lock`` and any
-viewer that marks contacts. Pure numpy; positions are z-up, in metres (AMASS convention).
+One definition, shared by whatever needs it (the viewer marks contacts, foot-skating metrics
+measure how far a foot slides while it is in contact): a foot joint is *in contact* in a frame
+when it is **low** (within ``height_tol`` of its own floor level) and **slow** (moving at less
+than ``speed_max``). Each joint's floor level is a low quantile of its own height over the take
+(the ankle sits ~8 cm above the sole, the toe base ~3 cm: one common floor would never find the
+ankle low), so the rule needs no known floor and ignores a few frames of noise below it.
 
-* **Foot joints**: the SMPL body joints 7, 8 (left, right ankle) and 10, 11 (left, right foot,
-  at the ball of the foot), in that order: :data:`FOOT_JOINTS`.
-* **Contact**: a foot joint is in contact at frame t when it is *low* — less than
-  ``height_tol`` (default 5 cm) above its planted level — and *slow* — its speed (3-D, central
-  difference) is under ``speed_tol`` (default 0.3 m/s, i.e. 1 cm per frame at 30 Hz).
-* **Planted level** (:func:`planted_levels`): the height of an ankle (and of a ball joint) when
-  its foot stands on the ground, estimated from the take itself: the 5th percentile of the
-  heights of both ankles over the take (and of both ball joints). It adapts to the body's size
-  and to a floor that is not at z = 0; a take needs a few frames with a foot down.
+Feet and floor, for the foot metrics and foot locking (docs/model.md, "Feet and floor"):
+
 * **Sole points** (:func:`foot_vertex_ids`): the mesh vertices of each foot (skinned at least
   half by that side's ankle and foot joints). A foot's *lowest sole point* at a frame is the
-  lowest of its vertices, which is the heel, the ball or the toes, whatever the foot's pitch.
-* **Floor** (:func:`estimate_floor`): the ground's height, from the lowest sole points: their
-  median over the frames where that foot is in contact (the foot is on the ground then), or,
-  in a take with no contact at all, their 5th percentile.
+  lowest of them: the heel, the ball or the toes, whatever the foot's pitch.
+* **Floor** (:func:`estimate_floor`): the ground's height, the median of the lowest sole points
+  over the frames where that foot is in contact (its ankle or its toe base is), or, in a take
+  with no contact at all, their 5th percentile.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-#: SMPL joint indices of the foot joints: left ankle, right ankle, left foot, right foot.
+from mdvae_cli.errors import InputError
+
+#: the SMPL foot joints, in the order of :func:`foot_contacts`' columns
 FOOT_JOINTS: tuple[int, ...] = (7, 8, 10, 11)
-#: which foot (0 left, 1 right) each of FOOT_JOINTS belongs to
-FOOT_SIDE: tuple[int, ...] = (0, 1, 0, 1)
-#: a foot joint is low when it is less than this above its planted level, metres
+FOOT_JOINT_NAMES: tuple[str, ...] = ("left_ankle", "right_ankle", "left_foot", "right_foot")
+#: metres above the joint's floor level within which a foot joint counts as low
 HEIGHT_TOL = 0.05
-#: a foot joint is slow when its speed is under this, m/s
-SPEED_TOL = 0.3
-#: percentile of the ankles' (balls') heights taken as their planted level
-LEVEL_PERCENTILE = 5.0
+#: m/s below which a foot joint counts as still
+SPEED_MAX = 0.2
+#: the quantile of a joint's height over the take taken as its floor level: low enough to be
+#: a frame of stance in any take with contact, high enough that 2 % of noisy frames below the
+#: floor do not set it
+FLOOR_QUANTILE = 0.02
 
 
-def _feet(joints: np.ndarray) -> np.ndarray:
-    """The foot joints of a (T, 22, 3) body-joint array.  -> (T, 4, 3) float64"""
-    joints = np.asarray(joints, dtype=np.float64)
-    if joints.ndim != 3 or joints.shape[1] < 12 or joints.shape[2] != 3:
-        raise ValueError(f"joints must be (T, 22, 3), got {joints.shape}")
-    return joints[:, list(FOOT_JOINTS)]
+def joint_speeds(points: np.ndarray, fps: float) -> np.ndarray:
+    """Speed of every point, m/s, by central differences (one-sided at the ends).
 
-
-def planted_levels(feet: np.ndarray, percentile: float = LEVEL_PERCENTILE) -> np.ndarray:
-    """Each foot joint's height when its foot stands on the ground.  (T, 4, 3) -> (4,)
-
-    feet: the ``FOOT_JOINTS`` of a take (``joints[:, FOOT_JOINTS]``). The ``percentile``-th
-    percentile of both ankles' heights (both balls') over the take; left and right share one.
+    points: (T, J, 3) metres -> (T, J); zeros for a single frame.
     """
-    z = np.asarray(feet, dtype=np.float64)[..., 2]
-    ankle = np.percentile(z[:, :2], percentile)
-    ball = np.percentile(z[:, 2:], percentile)
-    return np.array([ankle, ankle, ball, ball])
+    points = np.asarray(points, dtype=np.float64)
+    if points.shape[0] < 2:
+        return np.zeros(points.shape[:2])
+    velocity = np.gradient(points, axis=0) * fps
+    return np.linalg.norm(velocity, axis=-1)
 
 
-def joint_speeds(positions: np.ndarray, fps: float) -> np.ndarray:
-    """Speed of each point, central differences (one-sided at the ends), in units/s.
+def foot_floor_levels(joints: np.ndarray, up: int = 2, quantile: float = FLOOR_QUANTILE):
+    """Each foot joint's floor level: the ``quantile`` of its height over the take.
 
-    positions (T, K, 3) -> (T, K); zeros for a one-frame take.
+    joints: (T, J >= 12, 3) metres -> (4,) metres, in FOOT_JOINTS order.
     """
-    x = np.asarray(positions, dtype=np.float64)
-    if x.shape[0] < 2:
-        return np.zeros(x.shape[:2])
-    return np.linalg.norm(np.gradient(x, axis=0), axis=-1) * float(fps)
+    heights = np.asarray(joints, dtype=np.float64)[:, list(FOOT_JOINTS), up]
+    return np.quantile(heights, quantile, axis=0)
 
 
 def foot_contacts(
     joints: np.ndarray,
     fps: float,
-    levels: np.ndarray | None = None,
     height_tol: float = HEIGHT_TOL,
-    speed_tol: float = SPEED_TOL,
+    speed_max: float = SPEED_MAX,
+    up: int = 2,
+    floor: np.ndarray | float | None = None,
 ) -> np.ndarray:
-    """Which foot joint stands on the ground at each frame: low and slow.
+    """Which foot joints touch the floor in each frame: low and slow.
 
-    joints: (T, 22, 3) body joints, z-up, metres; fps: frames per second;
-    levels: (4,) planted heights of FOOT_JOINTS (or a scalar for all four), default
-    :func:`planted_levels` of this take; height_tol (m), speed_tol (m/s): the thresholds.
-    -> (T, 4) bool, columns in the order of :data:`FOOT_JOINTS` (left ankle, right ankle,
-    left foot, right foot).
+    joints: (T, J, 3) joint positions in metres, SMPL order (J >= 12: the 22 body joints or
+        more), ``up`` the vertical axis (2: z-up, AMASS; 1: y-up).
+    fps: frames per second (> 0), for the speed.
+    height_tol: a joint is low when its height is at most its floor level + this (m).
+    speed_max: a joint is still when its speed (3-D, central differences) is below this (m/s).
+    floor: the floor level of each foot joint (4,) or one for all, metres; default
+        :func:`foot_floor_levels` of this take.
+    Returns (T, 4) bool, columns FOOT_JOINTS: left ankle, right ankle, left foot (toe base),
+    right foot. A single frame has no speed: it counts as still.
     """
-    return contacts_of_feet(_feet(joints), fps, levels, height_tol, speed_tol)
+    joints = np.asarray(joints, dtype=np.float64)
+    if joints.ndim != 3 or joints.shape[1] < 12 or joints.shape[2] != 3:
+        raise InputError(f"foot_contacts needs joints of shape (T, J >= 12, 3), got {joints.shape}")
+    if not fps > 0:
+        raise InputError(f"foot_contacts needs a frame rate > 0, got {fps}")
+    return contacts_of_feet(joints[:, list(FOOT_JOINTS)], fps, height_tol, speed_max, up, floor)
 
 
 def contacts_of_feet(
     feet: np.ndarray,
     fps: float,
-    levels: np.ndarray | None = None,
     height_tol: float = HEIGHT_TOL,
-    speed_tol: float = SPEED_TOL,
+    speed_max: float = SPEED_MAX,
+    up: int = 2,
+    floor: np.ndarray | float | None = None,
 ) -> np.ndarray:
-    """:func:`foot_contacts` from the foot joints alone.  feet (T, 4, 3) -> (T, 4) bool"""
+    """:func:`foot_contacts` from the foot joints alone.  feet: (T, 4, 3), FOOT_JOINTS order
+    -> (T, 4) bool"""
     feet = np.asarray(feet, dtype=np.float64)
-    if feet.ndim != 3 or feet.shape[1:] != (4, 3):
-        raise ValueError(f"feet must be (T, 4, 3), got {feet.shape}")
-    if fps <= 0:
-        raise ValueError(f"fps must be > 0, got {fps}")
-    levels = planted_levels(feet) if levels is None else np.broadcast_to(levels, (4,))
-    low = feet[..., 2] - levels < height_tol
-    slow = joint_speeds(feet, fps) < speed_tol
-    return low & slow
+    if feet.ndim != 3 or feet.shape[1:] != (len(FOOT_JOINTS), 3):
+        raise InputError(f"contacts_of_feet needs feet of shape (T, 4, 3), got {feet.shape}")
+    if not fps > 0:
+        raise InputError(f"contacts_of_feet needs a frame rate > 0, got {fps}")
+    if feet.shape[0] == 0:
+        return np.zeros((0, len(FOOT_JOINTS)), dtype=bool)
+    if floor is None:
+        level = np.quantile(feet[..., up], FLOOR_QUANTILE, axis=0)
+    else:
+        level = np.broadcast_to(floor, (4,))
+    low = feet[..., up] <= np.asarray(level)[None, :] + height_tol
+    still = joint_speeds(feet, fps) < speed_max
+    return low & still
+
+
+#: which foot (0 left, 1 right) each of FOOT_JOINTS belongs to
+FOOT_SIDE: tuple[int, ...] = (0, 1, 0, 1)
+#: the percentile of the lowest sole points taken as the floor of a take with no contact
+FLOOR_PERCENTILE = 5.0
 
 
 def foot_of_joints(contacts: np.ndarray) -> np.ndarray:
-    """Per-foot contact: a foot is down when its ankle or its ball joint is.
+    """Per-foot contact: a foot is down when its ankle or its toe base is.
 
     contacts (T, 4) in FOOT_JOINTS order -> (T, 2) bool (left, right)
     """
@@ -122,16 +135,16 @@ def foot_vertex_ids(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     left = np.flatnonzero(W[:, [7, 10]].sum(1) >= 0.5)
     right = np.flatnonzero(W[:, [8, 11]].sum(1) >= 0.5)
     if not len(left) or not len(right):
-        raise ValueError("the body model has no foot vertices (weights on joints 7, 8, 10, 11)")
+        raise InputError("the body model has no foot vertices (weights on joints 7, 8, 10, 11)")
     return left, right
 
 
 def lowest_sole_points(
-    vertices: np.ndarray, left_ids: np.ndarray, right_ids: np.ndarray
+    vertices: np.ndarray, left_ids: np.ndarray, right_ids: np.ndarray, up: int = 2
 ) -> np.ndarray:
-    """Height of each foot's lowest vertex.  vertices (T, V, 3) -> (T, 2) (left, right), z"""
-    z = np.asarray(vertices)[..., 2]
-    return np.stack([z[:, left_ids].min(1), z[:, right_ids].min(1)], axis=1)
+    """Height of each foot's lowest vertex.  vertices (T, V, 3) -> (T, 2) (left, right)"""
+    h = np.asarray(vertices)[..., up]
+    return np.stack([h[:, left_ids].min(1), h[:, right_ids].min(1)], axis=1)
 
 
 def estimate_floor(soles: np.ndarray, foot_contact: np.ndarray | None = None) -> float:
@@ -140,11 +153,11 @@ def estimate_floor(soles: np.ndarray, foot_contact: np.ndarray | None = None) ->
     soles: (T, 2) lowest sole point of each foot (:func:`lowest_sole_points`);
     foot_contact: (T, 2) bool, which foot is down (:func:`foot_of_joints`).
     -> the median of ``soles`` where the foot is down; with no contact given or none found, the
-    5th percentile of all of them.
+    FLOOR_PERCENTILE-th percentile of all of them.
     """
     soles = np.asarray(soles, dtype=np.float64)
     if soles.size == 0:
-        raise ValueError("no frames to estimate the floor from")
+        raise InputError("no frames to estimate the floor from")
     if foot_contact is not None and np.any(foot_contact):
         return float(np.median(soles[np.asarray(foot_contact, dtype=bool)]))
-    return float(np.percentile(soles, LEVEL_PERCENTILE))
+    return float(np.percentile(soles, FLOOR_PERCENTILE))

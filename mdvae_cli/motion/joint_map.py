@@ -33,20 +33,28 @@ _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
 _ALIASES: dict[str, tuple[str, ...]] = {
     "pelvis": ("root", "hips", "pelvis", "hip"),
     "left_hip": ("lfemur", "leftupleg", "leftthigh", "lefthip", "lthigh", "lhip", "leftupperleg",
-                 "lupleg"),
-    "left_knee": ("ltibia", "leftleg", "leftshin", "leftknee", "lshin", "lknee", "leftlowerleg"),
-    "left_ankle": ("lfoot", "leftfoot", "leftankle", "lankle"),
-    "left_foot": ("ltoes", "lefttoebase", "lefttoe", "lefttoes", "ltoe", "lefttoebase"),
+                 "lupleg", "leftfemur"),
+    "left_knee": ("ltibia", "leftleg", "leftshin", "leftknee", "lshin", "lknee", "leftlowerleg",
+                  "leftloleg", "leftlowleg", "leftcalf"),
+    "left_ankle": ("leftankle", "lankle", "lfoot", "leftfoot"),
+    "left_foot": ("ltoes", "lefttoebase", "lefttoe", "lefttoes", "ltoe", "leftforefoot",
+                  "leftball", "leftfoot"),
     "left_shoulder": ("lhumerus", "leftarm", "leftupperarm", "leftuparm", "lshldr", "lshoulder",
                       "leftshoulder"),
     "left_collar": ("lclavicle", "leftshoulder", "leftcollar", "lcollar", "leftclavicle",
                     "lclav"),
-    "left_elbow": ("lradius", "leftforearm", "leftlowerarm", "leftelbow", "lforearm", "lelbow"),
-    "left_wrist": ("lhand", "lefthand", "leftwrist", "lwrist"),
-    "head": ("head",),
+    "left_elbow": ("lradius", "leftforearm", "leftlowerarm", "leftelbow", "lforearm", "lelbow",
+                   "leftloarm", "leftlowarm"),
+    "left_wrist": ("lhand", "leftwrist", "lefthand", "lwrist"),
+    "head": ("head", "neck1"),
 }  # fmt: skip
 
-#: SMPL joints that must be found in the source
+#: rig prefixes that carry no anatomy (SMPL's FBX rig, 3ds Max Biped, Character Creator)
+_PREFIXES = re.compile(r"^(?:[fm]_avg_|smpl_|bip\d*[\s_]|cc_base_)", re.IGNORECASE)
+#: a side written apart from the name: ``L_Hip``, ``Hand_L``, ``hand.l``, ``Left Arm``
+_SIDE_FIRST = re.compile(r"^(l|r|left|right)[\s_.\-]+(.+)$", re.IGNORECASE)
+_SIDE_LAST = re.compile(r"^(.+?)[\s_.\-]+(l|r|left|right)$", re.IGNORECASE)
+
 _REQUIRED = ("pelvis", "left_hip", "left_knee", "left_ankle", "left_shoulder", "left_elbow",
              "left_wrist", "head")  # fmt: skip
 _DIRECT = ("left_hip", "left_knee", "left_ankle", "left_foot", "left_shoulder", "left_elbow",
@@ -67,9 +75,17 @@ def _right_alias(alias: str) -> str:
 
 
 def normalise_name(name: str) -> str:
-    """``mixamorig:Left_Up-Leg`` -> ``leftupleg``."""
-    name = re.split(r"[:|]", name)[-1]
-    return re.sub(r"[\s_.\-]", "", name).lower()
+    """``mixamorig:Left_Up-Leg`` -> ``leftupleg``; ``f_avg_L_Hip`` -> ``lefthip``;
+    ``UpLeg_L`` -> ``leftupleg`` (a side written apart becomes a ``left``/``right`` prefix)."""
+    name = _PREFIXES.sub("", re.split(r"[:|]", name)[-1].strip())
+    side = ""
+    for pattern, s, rest in ((_SIDE_FIRST, 1, 2), (_SIDE_LAST, 2, 1)):
+        m = pattern.match(name)
+        if m:
+            side = "left" if m.group(s).lower().startswith("l") else "right"
+            name = m.group(rest)
+            break
+    return side + re.sub(r"[\s_.\-]", "", name).lower()
 
 
 @dataclass
@@ -109,29 +125,76 @@ def _path(parents: np.ndarray, a: int, b: int) -> list[int]:
     return out[::-1]
 
 
+#: every SMPL joint a user's --joint-map may name (the spine is placed by heights)
+MAP_KEYS = tuple(n for smpl in _ALIASES for n in _sides(smpl)) + ("left_foot", "right_foot")
+
+
+def _common_ancestor(parents: np.ndarray, joints: list[int]) -> int:
+    """The deepest joint that is an ancestor of (or equal to) every joint in ``joints``."""
+    paths = []
+    for j in joints:
+        chain = [j]
+        while parents[chain[-1]] >= 0:
+            chain.append(int(parents[chain[-1]]))
+        paths.append(chain[::-1])
+    common = 0
+    for level in zip(*paths, strict=False):
+        if len(set(level)) > 1:
+            break
+        common = level[0]
+    return int(common)
+
+
+def _user_anchors(src: SourceMotion, given: dict) -> dict[str, int]:
+    """The --joint-map entries as source joint indices; InputError for unknown names."""
+    out: dict[str, int] = {}
+    by_norm = {normalise_name(n): i for i, n in enumerate(src.names)}
+    for smpl, name in given.items():
+        if smpl not in MAP_KEYS:
+            raise InputError(f"joint map: {smpl!r} is not an SMPL joint it can use (one of "
+                             f"{', '.join(sorted(set(MAP_KEYS)))})")  # fmt: skip
+        if name in src.names:
+            out[smpl] = src.names.index(name)
+        elif normalise_name(str(name)) in by_norm:
+            out[smpl] = by_norm[normalise_name(str(name))]
+        else:
+            raise InputError(f"joint map: {smpl} -> {name!r}, but the skeleton has no joint "
+                             f"{name!r}")  # fmt: skip
+    return out
+
+
 def _find_anchors(src: SourceMotion) -> dict[str, int]:
-    """SMPL joint name -> source joint, by name; InputError when a required one is missing."""
+    """SMPL joint name -> source joint, by name (a --joint-map kept in ``src.info["joint_map"]``
+    first); InputError naming every required joint that is missing."""
     norm: dict[str, int] = {}
-    for i, n in enumerate(src.names):
+    helpers = [i for i, n in enumerate(src.names) if n.startswith("__")]  # MakeHuman's helpers
+    for i in [i for i in range(len(src.names)) if i not in helpers] + helpers:
         if not src.end_site[i]:
-            norm.setdefault(normalise_name(n), i)
-    anchor: dict[str, int] = {}
+            norm.setdefault(normalise_name(src.names[i]), i)
+    anchor = _user_anchors(src, src.info.get("joint_map") or {})
     for smpl, aliases in _ALIASES.items():
         for side, name in zip(("l", "r"), _sides(smpl), strict=False):
+            if name in anchor or smpl == "pelvis":
+                continue
             names = aliases if side == "l" else tuple(_right_alias(a) for a in aliases)
             taken = set(anchor.values())
             hit = next((norm[a] for a in names if a in norm and norm[a] not in taken), None)
             if hit is not None:
                 anchor[name] = hit
-    for smpl in _REQUIRED:
-        for name in _sides(smpl):
-            if name not in anchor:
-                more = ", ..." if len(src.names) > 12 else ""
-                raise InputError(
-                    f"cannot map the skeleton onto SMPL: no joint for {name} (looked for "
-                    f"{', '.join(_ALIASES[smpl][:4])}, ...; joints: {', '.join(src.names[:12])}"
-                    f"{more})"
-                )
+    missing = [name for smpl in _REQUIRED for name in _sides(smpl)
+               if name not in anchor and smpl != "pelvis"]  # fmt: skip
+    if missing:
+        more = ", ..." if len(src.names) > 12 else ""
+        raise InputError(
+            f"cannot map the skeleton onto SMPL: no joint found for {', '.join(missing)} "
+            f"(joints: {', '.join(src.names[:12])}{more}); name them in a --joint-map FILE.json, "
+            f'e.g. {{"{missing[0]}": "<joint name>"}}'
+        )
+    if "pelvis" not in (src.info.get("joint_map") or {}):
+        # the pelvis is where the legs and the spine part: names alone mislead (MakeHuman's
+        # Hips carry only the legs; the SMPL rig's root sits under the pelvis)
+        legs_and_head = [anchor["left_hip"], anchor["right_hip"], anchor["head"]]
+        anchor["pelvis"] = _common_ancestor(src.parents, legs_and_head)
     return anchor
 
 
@@ -213,13 +276,22 @@ def canonical_rotation(src: SourceMotion, jmap: JointMap) -> np.ndarray:
     return S
 
 
-def canonicalise(src: SourceMotion, S: np.ndarray) -> SourceMotion:
-    """``src`` expressed in the world turned by S (positions S p, rotations S R S^T)."""
-    if np.allclose(S, np.eye(3)):
+def canonicalise(src: SourceMotion, S: np.ndarray, S_motion: np.ndarray | None = None):
+    """``src`` expressed in the world turned by S (positions S p, rotations S R S^T).
+
+    S_motion: the world's own turn when it differs from the rest pose's S (a y-up rest pose in
+    a z-up take): the rest pose (offsets, joint rest frames) turns by S, the world (root
+    position and rotation) by S_motion.  -> SourceMotion
+    """
+    S_motion = S if S_motion is None else S_motion
+    if np.allclose(S, np.eye(3)) and np.allclose(S_motion, np.eye(3)):
         return src
     rot = np.einsum("ab,tjbc,dc->tjad", S, src.rotations, S)
-    return replace(src, offsets=src.offsets @ S.T, root_positions=src.root_positions @ S.T,
-                   rotations=rot, info=dict(src.info), notes=list(src.notes))  # fmt: skip
+    rot[:, 0] = S_motion @ src.rotations[:, 0] @ S.T
+    local = None if src.local_positions is None else src.local_positions @ S.T
+    return replace(src, offsets=src.offsets @ S.T, root_positions=src.root_positions @ S_motion.T,
+                   rotations=rot, info=dict(src.info), notes=list(src.notes),
+                   local_positions=local)  # fmt: skip
 
 
 def _last_below(heights: np.ndarray, chain: list[int], h: float) -> int:

@@ -11,6 +11,11 @@ from mdvae_cli.errors import InputError
 
 #: AMASS ``poses`` widths we read, and the layout name of each.
 POSE_WIDTHS = {156: "smplh", 165: "smplx", 72: "smpl", 66: "body"}
+#: no file holds an angle this large (degrees), a root this far from the origin or a bone this
+#: long (metres), or a body shape coefficient this large: a value past one is corrupt
+MAX_ANGLE_DEG = 1e5
+MAX_DISTANCE_M = 1e4
+MAX_BETA = 1e3
 #: the frame rates (Hz) a motion may have: outside is a mistake (e.g. a frame time stored as the
 #: rate, 1/120), and resampling it to 30 Hz would make hours of frames, or none
 FPS_RANGE = (1.0, 10_000.0)
@@ -47,7 +52,8 @@ class Motion:
         joint_mask: (T, 22) bool, True where a body joint was observed; None = all observed.
         extras: other keys of the source file, written back unchanged.
         layout: how the source stored things (fps key, gender as bytes), to write the same way.
-        notes: remarks made while reading (padded betas, missing keys) for the user.
+        notes: remarks made while reading (padded betas, missing keys) for the user; one that
+            starts with ``warning: `` says the output will differ from the file (a renamed key).
     """
 
     root_orient: np.ndarray
@@ -113,3 +119,25 @@ class Motion:
             pose_extra=poses[:, 66:].copy(),
             **kwargs,
         )
+
+
+def slice_frames(motion: Motion, start: int, stop: int) -> Motion:
+    """Frames [start, stop) of a motion as a new Motion; per-frame extra arrays (first dim T,
+    numeric) are sliced too, the others kept; notes are not carried."""
+    T = motion.num_frames
+    sl = slice(start, stop)
+    extras = {
+        k: (v[sl].copy() if v.ndim >= 1 and v.shape[0] == T and v.dtype.kind in "biuf" else v)
+        for k, v in motion.extras.items()
+    }
+    return replace(
+        motion,
+        root_orient=motion.root_orient[sl].copy(),
+        pose_body=motion.pose_body[sl].copy(),
+        trans=motion.trans[sl].copy(),
+        pose_extra=motion.pose_extra[sl].copy(),
+        joint_mask=None if motion.joint_mask is None else motion.joint_mask[sl].copy(),
+        extras=extras,
+        layout=dict(motion.layout),
+        notes=[],
+    )

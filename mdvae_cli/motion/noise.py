@@ -124,3 +124,156 @@ def file_rng(seed: int, relative_path: PurePath | str) -> np.random.Generator:
     digest = hashlib.sha256(name).digest()
     words = [int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4)]
     return np.random.default_rng(np.random.SeedSequence([int(seed), *words]))
+
+
+# --------------------------------------------------------------------------------------------
+# video-like noise (``mdvae add-noise --preset video``; docs/model.md, "Video-like noise")
+
+#: the leg joints of ``pose_body`` (SMPL joints 1..21 minus one) that a left/right swap
+#: exchanges: hips, knees, ankles, feet, left then right
+_LEFT_LEG, _RIGHT_LEG = (0, 3, 6, 9), (1, 4, 7, 10)
+_MIRROR = np.array([1.0, -1.0, -1.0])  # a joint's rotation reflected through x = 0
+
+
+@dataclass(frozen=True)
+class VideoNoise:
+    """What a monocular video pose estimator gets wrong, as noise on clean motion.
+
+    Each noise has a white part (independent per frame) and a slow part (white noise smoothed
+    over ``slow_time`` seconds, a smooth signal of the std given): the slow part is the
+    estimator's pose-dependent bias, which stays for a while, the white part its jitter.
+
+    pose_white, pose_slow: std of each body-joint axis-angle component, rad.
+    root_white, root_slow: the same on the root orientation, rad.
+    depth_white, depth_slow: translation noise along the camera's viewing direction (a random
+        horizontal direction per clip), m; lateral_white, lateral_slow: on the two other axes.
+    swap_rate: left/right leg swaps per second, each lasting 1..``swap_frames`` frames (the
+        legs' rotations exchanged and mirrored); turn_rate: 180-degree turns of the root about
+        the vertical per second (the person seen from the wrong side), 1..``swap_frames``.
+    spike_frac, spike_rad: per (frame, body joint) probability of a spike, and its std, rad.
+    slow_time: time scale of the slow parts (std of the Gaussian that smooths them), s.
+    """
+
+    pose_white: float = 0.01
+    pose_slow: float = 0.10
+    root_white: float = 0.005
+    root_slow: float = 0.05
+    depth_white: float = 0.04
+    depth_slow: float = 0.05
+    lateral_white: float = 0.002
+    lateral_slow: float = 0.01
+    swap_rate: float = 0.15
+    turn_rate: float = 0.05
+    swap_frames: int = 3
+    spike_frac: float = 0.005
+    spike_rad: float = 0.5
+    slow_time: float = 0.3
+
+    def validate(self) -> VideoNoise:
+        """Raise InputError naming the first out-of-range value."""
+        for name, value in vars(self).items():
+            if not (math.isfinite(value) and value >= 0):
+                raise InputError(f"video noise {name} must be a finite number >= 0, got {value:g}")
+        if not self.spike_frac <= 1:
+            raise InputError(f"video noise spike_frac must be <= 1, got {self.spike_frac:g}")
+        if self.swap_frames < 1 or int(self.swap_frames) != self.swap_frames:
+            raise InputError(f"video noise swap_frames must be a whole number >= 1, got "
+                             f"{self.swap_frames:g}")  # fmt: skip
+        return self
+
+    def with_overrides(self, overrides: dict[str, float]) -> VideoNoise:
+        """A copy with some fields replaced (``--set name=value``); InputError for an unknown
+        name."""
+        known = set(vars(self))
+        for name in overrides:
+            if name not in known:
+                raise InputError(f"unknown video noise parameter {name!r} (known: "
+                                 f"{', '.join(sorted(known))})")  # fmt: skip
+        values = {**vars(self), **{k: float(v) for k, v in overrides.items()}}
+        return VideoNoise(**values).validate()
+
+
+def slow_noise(rng: np.random.Generator, shape: tuple, std: float, frames: float) -> np.ndarray:
+    """A smooth, slowly varying random signal along axis 0: white noise smoothed by a Gaussian
+    kernel of std ``frames`` frames (cut at 3 std), scaled to a stationary std of ``std``.
+    shape: (T, ...) -> (T, ...)"""
+    T = shape[0]
+    r = max(1, math.ceil(3 * frames))
+    e = rng.normal(0.0, 1.0, size=(T + 2 * r, *shape[1:]))
+    if std == 0 or T == 0:
+        return np.zeros(shape)
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / max(frames, 1e-6)) ** 2)
+    k /= np.sqrt((k**2).sum())
+    flat = e.reshape(T + 2 * r, -1)
+    out = np.stack([np.convolve(flat[:, j], k, mode="valid") for j in range(flat.shape[1])], 1)
+    return std * out.reshape(shape)
+
+
+def _events(rng: np.random.Generator, T: int, rate: float, fps: float, longest: int):
+    """Frames hit by events arriving at ``rate`` per second, each 1..``longest`` frames long.
+    -> (T,) bool"""
+    hit = np.zeros(T, dtype=bool)
+    starts = np.flatnonzero(rng.random(T) < rate / fps)
+    lengths = rng.integers(1, longest + 1, size=len(starts))
+    for s, n in zip(starts, lengths, strict=True):
+        hit[s : s + n] = True
+    return hit
+
+
+def add_video_noise(motion: Motion, noise: VideoNoise, rng: np.random.Generator) -> Motion:
+    """A noisy copy of ``motion`` (z up) with the errors of a video pose estimator
+    (:class:`VideoNoise`; the input is not modified). Each kind of noise draws from its own
+    stream of ``rng``, so turning one off leaves the others' draws unchanged."""
+    noise.validate()
+    T, fps = motion.num_frames, motion.fps
+    a = noise.slow_time * fps  # the slow parts' time scale in frames
+    pose_rng, root_rng, trans_rng, swap_rng, turn_rng, spike_rng = rng.spawn(6)
+
+    pose = motion.pose_body + pose_rng.normal(0.0, noise.pose_white, motion.pose_body.shape)
+    pose += slow_noise(pose_rng, motion.pose_body.shape, noise.pose_slow, a)
+    swapped = _events(swap_rng, T, noise.swap_rate, fps, int(noise.swap_frames))
+    left, right = list(_LEFT_LEG), list(_RIGHT_LEG)
+    legs = pose[swapped][:, left + right] * _MIRROR
+    pose[np.ix_(swapped, left)] = legs[:, len(left) :]
+    pose[np.ix_(swapped, right)] = legs[:, : len(left)]
+    hit = spike_rng.random(pose.shape[:-1]) < noise.spike_frac
+    pose[hit] += spike_rng.normal(0.0, noise.spike_rad, size=(int(hit.sum()), 3))
+
+    root_noise = root_rng.normal(0.0, noise.root_white, (T, 3))
+    root_noise += slow_noise(root_rng, (T, 3), noise.root_slow, a)
+    root = motion.root_orient.copy()
+    if noise.root_white or noise.root_slow:
+        root = _compose(root_noise, root)
+    turned = _events(turn_rng, T, noise.turn_rate, fps, int(noise.swap_frames))
+    root[turned] = _compose(np.array([0.0, 0.0, math.pi]), root[turned])
+
+    heading = trans_rng.uniform(0.0, 2 * math.pi)
+    depth = np.array([math.cos(heading), math.sin(heading), 0.0])
+    side = np.array([-math.sin(heading), math.cos(heading), 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    amount = trans_rng.normal(0.0, 1.0, (T, 3)) * [noise.depth_white, *[noise.lateral_white] * 2]
+    amount += np.stack([
+        slow_noise(trans_rng, (T,), noise.depth_slow, a),
+        slow_noise(trans_rng, (T,), noise.lateral_slow, a),
+        slow_noise(trans_rng, (T,), noise.lateral_slow, a),
+    ], axis=1)  # fmt: skip
+    trans = motion.trans + amount @ np.stack([depth, side, up])
+    noisy = motion.with_body(root_orient=root, pose_body=pose, trans=trans)
+    noisy.joint_mask = None if motion.joint_mask is None else motion.joint_mask.copy()
+    return noisy
+
+
+def _compose(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Axis-angles of R(left) R(right).  (..., 3), (..., 3) -> (..., 3)"""
+    import torch
+
+    from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+
+    def m(x):
+        return rotvec_to_rotmat(torch.as_tensor(np.asarray(x, dtype=np.float64)))
+
+    return rotmat_to_rotvec(m(left) @ m(right)).numpy()
+
+
+#: ``mdvae add-noise --preset NAME``
+PRESETS = {"video": VideoNoise()}

@@ -13,6 +13,17 @@ import numpy as np
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, check_fps
+from mdvae_cli.motion.npz_values import (
+    ANGLE,
+    BETA,
+    DISTANCE,
+    frame_rate,
+    gender_text,
+    joint_mask,
+    real_array,
+    safe_keys,
+)
+from mdvae_cli.npz_archive import NpzArchive, write_npz
 
 FPS_KEYS = ("mocap_framerate", "mocap_frame_rate")
 _OWN_KEYS = {"poses", "trans", "betas", "gender", "joint_mask", *FPS_KEYS}
@@ -32,29 +43,15 @@ _BODY_SPLIT_KEYS = ("root_orient", "pose_body")
 _SPLIT_TOL = 1e-5
 
 
-def _decode_gender(value: np.ndarray) -> tuple[str, bool]:
-    item = value.item() if value.ndim == 0 else value.reshape(-1)[0]
-    if isinstance(item, bytes):
-        return item.decode("utf-8", "replace").strip(), True
-    return str(item).strip(), False
-
-
-def _finite(name: str, arr: np.ndarray, path: Path) -> np.ndarray:
-    if not np.issubdtype(arr.dtype, np.number):
-        raise InputError(f"{path}: '{name}' is not numeric (dtype {arr.dtype})")
-    arr = np.asarray(arr, dtype=np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise InputError(f"{path}: '{name}' contains NaN or infinite values")
-    return arr
-
-
 def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     """Read an AMASS-layout motion file.
 
     A ``.gz`` file (``take.npz.gz``, as folders are searched) is gunzipped first. Never
     executes pickled objects unless ``allow_pickle``. Raises InputError with a one-line
-    message for every malformed input (missing file, not an npz, corrupt archive, missing or
-    mis-shaped keys, NaN/inf, no frames, frame rate <= 0 or outside FPS_RANGE).
+    message for every malformed input (missing file, not an npz, corrupt archive or member,
+    a member claiming more than it holds, missing or mis-shaped keys, complex, NaN/inf or
+    corrupt-looking values, no frames, frame rate <= 0 or outside FPS_RANGE). Extra keys whose
+    names are paths (``../x``) are renamed, with a warning among the notes.
     """
     path = Path(path)
     if not path.exists():
@@ -62,33 +59,17 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     if path.is_dir():
         raise InputError(f"{path} is a folder, expected an .npz file")
     source = _gunzip(path) if path.suffix.lower() == ".gz" else path
-    if not zipfile.is_zipfile(source):
-        kind = path.name.lower().removesuffix(".gz").rsplit(".", 1)[-1]
-        if kind in ("bvh", "amc", "asf"):  # mocap a studio exported: the importer reads it
-            raise InputError(
-                f"{path}: a .{kind} file, not an .npz; convert it first with "
-                f"`mdvae import {path} -o imported/`"
-            )
-        raise InputError(f"{path}: not an .npz archive")
-    try:
-        with zipfile.ZipFile(source) as zf:
-            compressed = any(i.compress_type != zipfile.ZIP_STORED for i in zf.infolist())
-        if isinstance(source, io.BytesIO):
-            source.seek(0)  # np.load reads from where the last reader left off
-        with np.load(source, allow_pickle=allow_pickle) as npz:
-            data = {k: npz[k] for k in npz.files}  # in the archive's order
-    except InputError:
-        raise
-    except (zipfile.BadZipFile, EOFError, OSError) as exc:
-        raise InputError(f"{path}: not a readable .npz archive ({exc})") from None
-    except ValueError as exc:
-        if "pickle" in str(exc):
-            raise InputError(
-                f"{path}: holds pickled objects; re-run with --allow-pickle if you trust it"
-            ) from None
-        raise InputError(f"{path}: not a readable .npz archive ({exc})") from None
-    except Exception as exc:  # zlib errors, truncated members, ...
-        raise InputError(f"{path}: corrupt .npz archive ({type(exc).__name__}: {exc})") from None
+    kind = path.name.lower().removesuffix(".gz").rsplit(".", 1)[-1]
+    if kind in ("bvh", "amc", "asf") and not zipfile.is_zipfile(source):
+        raise InputError(  # mocap a studio exported: the importer reads it
+            f"{path}: a .{kind} file, not an .npz; convert it first with "
+            f"`mdvae import {path} -o imported/`"
+        )
+    if isinstance(source, io.BytesIO):
+        source.seek(0)
+    with NpzArchive(source, path, pickle_option="--allow-pickle") as npz:
+        data = {key: npz.read(key, allow_pickle) for key in npz.keys}  # in the archive's order
+        compressed = npz.compressed
     motion = motion_from_arrays(data, path)
     motion.layout["compressed"] = compressed
     return motion
@@ -115,7 +96,7 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     notes: list[str] = []
     has_poses = "poses" in data
     if has_poses:
-        poses = _finite("poses", data["poses"], path)
+        poses = real_array("poses", data["poses"], path, ANGLE)
     else:
         poses = _poses_from_split(data, path)
     if poses.ndim != 2 or poses.shape[1] not in POSE_WIDTHS:
@@ -127,7 +108,7 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     split = _split_layout(data, poses, path, notes)
 
     if "trans" in data:
-        trans = _finite("trans", data["trans"], path)
+        trans = real_array("trans", data["trans"], path, DISTANCE)
         if trans.shape != (T, 3):
             raise InputError(f"{path}: 'trans' has shape {trans.shape}, expected ({T}, 3)")
     else:
@@ -136,7 +117,7 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
 
     betas_rows = None
     if "betas" in data:
-        betas = _finite("betas", data["betas"], path)
+        betas = real_array("betas", data["betas"], path, BETA)
         if betas.ndim == 2 and betas.shape[0] == T:  # one shape vector per frame
             betas_rows = data["betas"]
             spread = float(np.ptp(betas, axis=0).max(initial=0.0))
@@ -155,21 +136,22 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     fps_key = next((k for k in FPS_KEYS if k in data), None)
     if fps_key is None:
         raise InputError(f"{path}: no frame rate ('mocap_framerate' or 'mocap_frame_rate')")
-    fps = float(_finite(fps_key, np.asarray(data[fps_key]), path).reshape(-1)[0])
+    fps = frame_rate(fps_key, data[fps_key], path)
     if not fps > 0:
         raise InputError(f"{path}: frame rate must be > 0, got {fps:g}")
     check_fps(fps, str(path), swapped=f"is {fps_key} a frame time?")
 
     gender, gender_bytes = ("neutral", False)
     if "gender" in data:
-        gender, gender_bytes = _decode_gender(np.asarray(data["gender"]))
+        gender, gender_bytes = gender_text(data["gender"], path)
 
     mask = None
     if "joint_mask" in data:
-        mask = np.asarray(data["joint_mask"]).astype(bool)
+        mask = joint_mask(data["joint_mask"], path)
         if mask.shape != (T, 22):
             raise InputError(f"{path}: 'joint_mask' has shape {mask.shape}, expected ({T}, 22)")
 
+    data = safe_keys(data, notes)
     extras = {k: v for k, v in data.items() if k not in _OWN_KEYS and k not in split}
     own = [k for k in ("poses", "trans", "betas", fps_key, "gender", "joint_mask") if k in data]
     layout = {
@@ -195,7 +177,7 @@ def _split_array(data: dict[str, np.ndarray], key: str, T: int) -> np.ndarray | 
     if key not in data:
         return None
     arr = np.asarray(data[key])
-    if not np.issubdtype(arr.dtype, np.number):
+    if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
         return None
     if arr.ndim < 2 or arr.shape[0] != T or arr.size != T * columns:
         return None
@@ -210,14 +192,13 @@ def _poses_from_split(data: dict[str, np.ndarray], path: Path) -> np.ndarray:
             f"(keys: {', '.join(sorted(data)) or 'none'})"
         )
     T = np.shape(data["root_orient"])[0] if np.ndim(data["root_orient"]) else 0
-    body = [_split_array(data, k, T) for k in _BODY_SPLIT_KEYS]
-    for key, arr in zip(_BODY_SPLIT_KEYS, body, strict=True):
-        if arr is None:
+    for key in _BODY_SPLIT_KEYS:
+        real_array(key, data[key], path, ANGLE)
+        if _split_array(data, key, T) is None:
             shape = np.shape(data[key])
             raise InputError(
                 f"{path}: '{key}' has shape {shape}, expected ({T}, {SPLIT_KEYS[key][0]})"
             )
-        _finite(key, arr, path)
     for width in (165, 156, 66):  # the widest layout whose split arrays are all there
         keys = [k for k, (_, starts) in SPLIT_KEYS.items() if width in starts]
         parts = {k: _split_array(data, k, T) for k in keys}
@@ -225,7 +206,7 @@ def _poses_from_split(data: dict[str, np.ndarray], path: Path) -> np.ndarray:
             poses = np.zeros((T, width))
             for k, p in parts.items():
                 start = SPLIT_KEYS[k][1][width]
-                poses[:, start : start + p.shape[1]] = _finite(k, p, path)
+                poses[:, start : start + p.shape[1]] = real_array(k, p, path, ANGLE)
             return poses
     raise AssertionError("unreachable: width 66 needs only the body arrays")
 
@@ -366,10 +347,10 @@ def save_motion(motion: Motion, path: Path | str, forbid: tuple[Path, ...] = ())
                 f"cannot write {path}: its '{key}' is not finite as {arrays[key].dtype} "
                 "(values too large); nothing written"
             )
-    savez = np.savez_compressed if motion.layout.get("compressed") else np.savez
+    compress = bool(motion.layout.get("compressed"))
 
     def write(tmp: Path) -> None:
         with open(tmp, "wb") as fh:
-            savez(fh, **arrays)
+            write_npz(fh, arrays, compress)
 
     write_atomic(Path(path), write, forbid=forbid)

@@ -55,6 +55,7 @@ from mdvae_cli.motion.pose_solve import (
     solve_pose,
 )
 from mdvae_cli.motion.source import SourceMotion, resample_source
+from mdvae_cli.motion.upright import canonical_axes, stature_unit, upright_rest
 
 __all__ = [
     "Y_UP_TO_Z_UP",
@@ -101,6 +102,9 @@ class RetargetResult:
     much the source's ground was tilted (and levelled).
     sole_height: (T,) lowest foot-vertex height per frame after the shift, metres.
     joint_map: SMPL joint -> source joint (``~`` = attached point).
+    jmap: the joint map itself (source joint indices, rotation sources), for the way back.
+    to_output: (3, 3) rotation from the source's world axes to the output's (z up, levelled);
+    a source point p (metres) lands at ``to_output @ p - drop``. drop: (3,).
     """
 
     motion: Motion
@@ -113,6 +117,9 @@ class RetargetResult:
     sole_height: np.ndarray
     joint_map: dict[str, str]
     direct: np.ndarray
+    jmap: JointMap | None = None
+    to_output: np.ndarray | None = None
+    drop: np.ndarray | None = None
 
     @property
     def mean_error(self) -> float:
@@ -196,7 +203,8 @@ def retarget(
     if src.num_frames < 2:
         raise InputError(f"a motion needs at least 2 frames, this one has {src.num_frames}")
     jmap = build_joint_map(src)
-    src = canonicalise(src, canonical_rotation(src, jmap))
+    S_rest, S_world = canonical_axes(src, jmap)
+    src = canonicalise(src, S_rest, S_world)
     if betas is None:
         betas = fit_betas(src, body, jmap)
     b = torch.as_tensor(np.asarray(betas, dtype=np.float64))
@@ -288,6 +296,9 @@ def retarget(
         sole_height=soles.numpy(),
         joint_map=jmap.describe(src.names),
         direct=jmap.direct.copy(),
+        jmap=jmap,
+        to_output=Q.numpy() @ S_world,
+        drop=drop.numpy(),
     )
 
 
@@ -313,12 +324,16 @@ def load_source(
     fps: float | None = None,
     scale: float | None = None,
     max_frames: int | None = None,
+    joint_map: dict[str, str] | None = None,
 ) -> SourceMotion:
     """Read a ``.bvh`` or ``.amc`` file (``.gz`` too) into a :class:`SourceMotion`.
 
     skeleton: the ``.asf`` an AMC motion needs. fps: the true frame rate when the file's is
     wrong (AMC files have none: 120 is assumed). scale: metres per file unit. A rate outside
     FPS_RANGE (e.g. a BVH Frame Time of 120, a rate written as a frame time) is refused.
+    joint_map: SMPL joint name -> source joint name, for joints the names do not reveal.
+    A BVH rest pose that does not stand is replaced by the take's most upright frame, and a
+    guessed length unit is checked against the body's stature from its bone lengths.
     """
     name = Path(path).name.lower().removesuffix(".gz")
     if name.endswith(".bvh"):
@@ -329,10 +344,18 @@ def load_source(
         src = load_amc(path, skeleton, scale=scale, max_frames=max_frames)
     else:
         raise InputError(f"{path}: not a .bvh or .amc file")
+    if joint_map:
+        src.info["joint_map"] = dict(joint_map)
     if fps is not None and abs(fps - src.fps) > 1e-9:
         src = src.with_fps(fps)
         src.notes.append(f"frame rate {src.info.get('fps_in_file'):g} in the file, {fps:g} used")
     check_fps(src.fps, str(path), swapped="is its Frame Time a frame rate? Pass --source-fps")
+    if src.info.get("format") == "bvh":
+        try:
+            jmap = build_joint_map(src)
+        except InputError:
+            return src  # the retarget says what is missing
+        src = stature_unit(upright_rest(src, jmap), jmap)
     return src
 
 

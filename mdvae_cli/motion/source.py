@@ -15,6 +15,7 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotmat, rotmat_to_quat
+from mdvae_cli.motion.motion import MAX_ANGLE_DEG, MAX_DISTANCE_M
 
 #: metres per CMU length unit (inches / 0.45); ASF ``:units length 0.45`` and cmuconvert BVH
 CMU_UNIT = 0.0254 / 0.45
@@ -23,13 +24,8 @@ CMU_UNIT = 0.0254 / 0.45
 #: candidate length units for files that do not say (name, metres per unit)
 _UNIT_GUESSES = (("m", 1.0), ("cm", 0.01), ("mm", 0.001), ("in", 0.0254), ("cmu", CMU_UNIT))
 
-
-#: no exporter writes an angle this large (degrees): a file that does is corrupt
-MAX_ANGLE_DEG = 1e5
-
-
-#: a root this far from the origin, or a bone this long (metres), is not mocap of a person
-MAX_DISTANCE_M = 1e4
+#: BVH files also come in decimetres (MakeHuman)
+BVH_UNIT_GUESSES = (*_UNIT_GUESSES, ("dm", 0.1))
 
 
 def check_angles(radians: np.ndarray, what: str, path) -> None:
@@ -56,6 +52,11 @@ class SourceMotion:
         end_site: (J,) bool, True for BVH End Sites / ASF bone tips (no channels).
         info: what the file said (format, units, fps as written, dropped frames), for metadata.
         notes: remarks for the user.
+        local_positions: (T, J, 3) per-frame offsets from the parent (metres, parent frame) for
+            files whose non-root joints carry moving position channels (the SMPL FBX rig's
+            pelvis); None when every offset is fixed.
+        layout: what a writer needs to write the file again on its own skeleton (the parsed
+            BVH, see ``motion.bvh_write.BvhLayout``); None when not kept.
     """
 
     names: tuple[str, ...]
@@ -67,6 +68,8 @@ class SourceMotion:
     end_site: np.ndarray
     info: dict = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    local_positions: np.ndarray | None = None
+    layout: object | None = None
 
     @property
     def num_frames(self) -> int:
@@ -110,7 +113,10 @@ class SourceMotion:
         for j in range(1, J):
             p = self.parents[j]
             G[:, j] = G[:, p] @ self.rotations[:, j]
-            P[:, j] = P[:, p] + G[:, p] @ self.offsets[j]
+            if self.local_positions is None:
+                P[:, j] = P[:, p] + G[:, p] @ self.offsets[j]
+            else:
+                P[:, j] = P[:, p] + (G[:, p] @ self.local_positions[:, j, :, None])[..., 0]
         return G, P
 
 
@@ -132,8 +138,10 @@ def euler_to_rotmat(angles: np.ndarray, axes: str) -> np.ndarray:
     return out
 
 
-def read_text(path: Path | str) -> str:
-    """A text file's contents, gunzipped when it ends in ``.gz``; InputError when unreadable."""
+def read_text(path: Path | str, errors: str = "replace") -> str:
+    """A text file's contents, gunzipped when it ends in ``.gz``; InputError when unreadable.
+    errors: how bytes that are not UTF-8 are decoded ("surrogateescape" keeps them, so that
+    text written back with the same setting has the file's bytes)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"no such file: {path}")
@@ -146,18 +154,22 @@ def read_text(path: Path | str) -> str:
         else:
             raw = path.read_bytes()
     except (OSError, EOFError, zlib.error) as exc:
-        raise InputError(f"{path}: cannot read ({exc})") from None
+        gz = path.suffix == ".gz" and not isinstance(exc, PermissionError)
+        what = "not a readable .gz file" if gz else "cannot read"
+        raise InputError(f"{path}: {what} ({exc})") from None
     if b"\0" in raw[:4096]:
         raise InputError(f"{path}: binary data, not a text mocap file")
-    return raw.decode("utf-8", errors="replace")
+    return raw.decode("utf-8", errors=errors)
 
 
-def guess_length_unit(height: float) -> tuple[str, float]:
-    """The unit (name, metres per unit) that makes a skeleton ``height`` units tall closest to
-    1.7 m (log scale): metres, cm, mm, inches or CMU units."""
+def guess_length_unit(
+    height: float, candidates: tuple[tuple[str, float], ...] = _UNIT_GUESSES, target: float = 1.7
+) -> tuple[str, float]:
+    """The unit (name, metres per unit) among ``candidates`` that makes a skeleton ``height``
+    units tall closest to ``target`` metres (log scale): metres, cm, mm, inches or CMU units."""
     if not height > 0:
         return "m", 1.0
-    return min(_UNIT_GUESSES, key=lambda u: abs(math.log(height * u[1] / 1.7)))
+    return min(candidates, key=lambda u: abs(math.log(height * u[1] / target)))
 
 
 def skeleton_height(offsets: np.ndarray, parents: np.ndarray) -> float:
@@ -183,6 +195,9 @@ def resample_source(src: SourceMotion, fps: float) -> SourceMotion:
     w = np.clip(t - i0, 0.0, 1.0)
     rot = src.rotations[i0].copy()
     root = src.root_positions[i0] * (1 - w[:, None]) + src.root_positions[i1] * w[:, None]
+    local = src.local_positions
+    if local is not None:
+        local = local[i0] * (1 - w[:, None, None]) + local[i1] * w[:, None, None]
     mid = np.flatnonzero(w > 1e-9)  # frames between two source frames (none for 120 -> 30)
     if len(mid):
         q0 = rotmat_to_quat(torch.from_numpy(src.rotations[i0[mid]]))
@@ -190,5 +205,5 @@ def resample_source(src: SourceMotion, fps: float) -> SourceMotion:
         wq = torch.from_numpy(w[mid])[:, None].expand(len(mid), src.num_joints)
         rot[mid] = quat_to_rotmat(quat_slerp(q0, q1, wq)).numpy()
     out = replace(src, rotations=rot, root_positions=root, fps=float(fps), info=dict(src.info),
-                  notes=list(src.notes))  # fmt: skip
+                  notes=list(src.notes), local_positions=local, layout=None)  # fmt: skip
     return out

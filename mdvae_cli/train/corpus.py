@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
@@ -17,7 +18,7 @@ from mdvae_cli.motion.chunks import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.resample import resample_motion
+from mdvae_cli.motion.resample import resample_motion, resample_times, time_warp
 from mdvae_cli.motion.state import BodyParams
 
 
@@ -104,6 +105,24 @@ def outside(files: list[Path], folder: Path) -> list[Path]:
     return [f for f in files if not Path(f).resolve().is_relative_to(root)]
 
 
+def fraction_of(motions: list[Motion], fraction: float, seed: int) -> list[int]:
+    """Indices of a seeded random subset of whole motions holding about ``fraction`` of all
+    their frames (the data-scaling runs: the same recipe on 25 / 50 % of the minutes). The
+    subsets are nested: a smaller fraction with the same seed keeps a prefix of a larger
+    one's order."""
+    if fraction >= 1.0:
+        return list(range(len(motions)))
+    order = np.random.default_rng(seed).permutation(len(motions))
+    total = sum(m.num_frames for m in motions)
+    keep, frames = [], 0
+    for i in order:
+        if frames >= fraction * total:
+            break
+        keep.append(int(i))
+        frames += motions[i].num_frames
+    return sorted(keep)
+
+
 def load_windows(
     files: list[Path],
     body: BodyModel,
@@ -111,22 +130,54 @@ def load_windows(
     stride: int,
     on_file: Callable[[Path], None] | None = None,
     mirror: bool = False,
+    speeds: tuple[float, ...] = (1.0,),
+    fraction: float = 1.0,
+    fraction_seed: int = 0,
 ) -> WindowSet:
     """Load files, resample to the model rate and cut windows; files too short are skipped.
 
-    ``mirror``: also cut windows from each motion's left-right mirror image (twice the
-    windows; data augmentation for a small corpus). The mirrored windows follow all the
-    original ones."""
-    sets, mirrored = [], []
+    Augmentation for a small corpus (the augmented windows follow all the original ones):
+    ``speeds``: every motion is also played at each of these speeds (``motion.resample.
+    time_warp``; 1.0 is the motion as captured); ``mirror``: each of those also as its
+    left-right mirror image. ``fraction`` < 1: only a seeded subset of whole files holding
+    about that share of the frames (:func:`fraction_of`)."""
+    motions = []
     for f in files:
-        motion = resample_motion(load_motion(f), MODEL_FPS)
-        ws = motion_windows(motion, body, length, stride)
-        if ws is not None:
-            sets.append(ws)
-            if mirror:
-                mirrored.append(motion_windows(mirror_motion(motion, body), body, length, stride))
+        motions.append(resample_motion(load_motion(f), MODEL_FPS))
         if on_file is not None:
             on_file(f)
-    if not sets:
+    motions = [motions[i] for i in fraction_of(motions, fraction, fraction_seed)]
+    variants = [(s, False) for s in speeds] + ([(s, True) for s in speeds] if mirror else [])
+    variants.sort(key=lambda v: (v[0] != 1.0 or v[1], v[1]))  # the captured motion first
+    jobs = [(speed, mirrored, m) for speed, mirrored in variants for m in motions]
+    # filled in place, so that memory holds the windows once (not a list of pieces and
+    # their concatenation: ~100,000 windows are 3.4 GB)
+    out: WindowSet | None = None
+    n = 0
+    for speed, mirrored, motion in jobs:
+        m = motion if speed == 1.0 else time_warp(motion, speed, MODEL_FPS)
+        m = mirror_motion(m, body) if mirrored else m
+        ws = motion_windows(m, body, length, stride)
+        if ws is None:
+            continue
+        if out is None:
+            total = sum(window_count(_frames(s, mo), length, stride) for s, _, mo in jobs)
+            out = WindowSet(*(t.new_empty(total, *t.shape[1:]) for t in (ws.x0, ws.x, ws.betas)))
+        for name in ("x0", "x", "betas"):
+            getattr(out, name)[n : n + len(ws)] = getattr(ws, name)
+        n += len(ws)
+    if out is None:
         raise InputError(f"no motion of at least {length + 1} frames at {MODEL_FPS:g} Hz found")
-    return WindowSet.concat(sets + mirrored)
+    return out.subset(torch.arange(n)) if n < len(out) else out
+
+
+def window_count(num_frames: int, length: int, stride: int) -> int:
+    """How many windows of ``length`` + 1 frames :func:`motion_windows` cuts every ``stride``."""
+    return len(range(0, num_frames - length, stride)) if num_frames >= length + 1 else 0
+
+
+def _frames(speed: float, motion: Motion) -> int:
+    """Frames of ``motion`` (at the model rate) played at ``speed``, as ``time_warp`` samples."""
+    if speed == 1.0:
+        return motion.num_frames
+    return len(resample_times(motion.num_frames, motion.fps * speed, MODEL_FPS))

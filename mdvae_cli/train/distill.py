@@ -15,13 +15,15 @@ regression mode's cost. The prior, the decoder and the noise predictor are not t
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 
 import torch
 
 from mdvae_cli.errors import diverged
+from mdvae_cli.infer.elbo_fit import batch_order
 from mdvae_cli.infer.refine import refine_posterior
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup
@@ -137,8 +139,8 @@ def distill_loss(
 
 def distill(
     denoiser: Denoiser,
-    group: WindowGroup,
-    targets: Targets,
+    group: WindowGroup | list[WindowGroup],
+    targets: Targets | list[Targets],
     cfg: DistillConfig,
     seed: int = 0,
     done: int = 0,
@@ -148,29 +150,35 @@ def distill(
 ) -> list[float]:
     """Train the encoder and the x0 predictor on ``targets`` for ``cfg.epochs`` passes.
 
-    ``done`` steps were taken before (resume: the learning-rate schedule and the batch order
-    carry on where they were); ``checkpoint(step)`` is called every ``checkpoint_every``
-    steps with the number of distillation steps taken so far. Returns every step's loss.
+    ``group`` and ``targets`` may be lists (windows of several lengths, e.g. full windows and
+    short takes): batches then come from one group at a time, groups chosen in proportion to
+    their sizes (``infer.elbo_fit.batch_order``); with one group, every epoch is a seeded
+    permutation of its windows. ``done`` steps were taken before (resume: the learning-rate
+    schedule and the batch order carry on where they were); ``checkpoint(step)`` is called every
+    ``checkpoint_every`` steps with the number of distillation steps taken so far. Returns
+    every step's loss.
     """
-    if len(targets) != len(group):
-        raise ValueError(f"{len(targets)} targets for {len(group)} windows")
-    per_epoch = max(1, len(group) // cfg.batch_size)
+    groups = group if isinstance(group, list) else [group]
+    all_targets = targets if isinstance(targets, list) else [targets]
+    for g, t in zip(groups, all_targets, strict=True):
+        if len(t) != len(g):
+            raise ValueError(f"{len(t)} targets for {len(g)} windows")
+    size = sum(len(g) for g in groups)
+    per_epoch = max(1, size // cfg.batch_size)
     total = per_epoch * cfg.epochs
     params = [*denoiser.encoder.parameters(), *denoiser.x0_predictor.parameters()]
     opt = torch.optim.Adam(params, lr=cfg.lr)
     device = params[0].device  # the windows and targets stay where they are, batches move
-    col_weight = column_weights(cfg.velocity_weight, group.yn.shape[-1]).to(device)
+    col_weight = column_weights(cfg.velocity_weight, groups[0].yn.shape[-1]).to(device)
+    order = _batches(groups, cfg.batch_size, per_epoch, seed)
+    order = itertools.islice(order, done, total)
     denoiser.train()
     losses = []
-    perm = None
-    for step in range(done, total):
-        epoch, i = divmod(step, per_epoch)
-        if perm is None or i == 0:
-            perm = torch.randperm(len(group), generator=torch.Generator().manual_seed(seed + epoch))
-        idx = perm[i * cfg.batch_size : (i + 1) * cfg.batch_size]
+    for step, (gi, idx) in enumerate(order, start=done):
+        t = all_targets[gi]
         set_lr(opt, cosine_lr(step, total, cfg.lr, cfg.lr_final))
-        batch = Targets(*(t[idx].to(device) for t in (targets.z, targets.x0, targets.z_logvar)))
-        terms = distill_loss(denoiser, group.yn[idx].to(device), batch, col_weight,
+        batch = Targets(*(x[idx].to(device) for x in (t.z, t.x0, t.z_logvar)))
+        terms = distill_loss(denoiser, groups[gi].yn[idx].to(device), batch, col_weight,
                              cfg.latent_weight)  # fmt: skip
         loss = terms["loss"].item()
         if not math.isfinite(loss):  # the weights are still the last good ones
@@ -182,3 +190,16 @@ def distill(
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
     denoiser.eval()
     return losses
+
+
+def _batches(
+    groups: list[WindowGroup], batch_size: int, per_epoch: int, seed: int
+) -> Iterator[tuple[int, torch.Tensor]]:
+    """The endless batch order of :func:`distill`: (group index, window indices)."""
+    if len(groups) > 1:
+        yield from batch_order([len(g) for g in groups], batch_size, seed)
+        return
+    for epoch in itertools.count():
+        perm = torch.randperm(len(groups[0]), generator=torch.Generator().manual_seed(seed + epoch))
+        for i in range(per_epoch):
+            yield 0, perm[i * batch_size : (i + 1) * batch_size]

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from mdvae_cli.body.formats import load_body_model
@@ -32,6 +33,7 @@ from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, sa
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.chunks import MODEL_FPS
 from mdvae_cli.motion.mirror import mirror_motion
+from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.train.corpus import outside
@@ -60,7 +62,11 @@ class FitConfig:
     refinement (``train.distill``; 0 = off). ``init_from``: start from this denoiser's networks
     (checkpoint or fit-dataset folder; its prior and denoiser settings come with it) instead
     of new ones on ``prior``. ``mirror_augment``: also fit to every file's left-right mirror
-    image (twice the windows).
+    image (twice the windows). ``short_windows``: also fit to short takes — clips of these
+    lengths (frames at 30 Hz, x0 included) cut from the noisy files, ``short_share`` as many
+    in all as there are full windows (split evenly over the lengths): the networks then learn
+    what a take of a few frames looks like instead of meeting it for the first time at
+    denoising (docs/model.md, "Short takes").
     """
 
     data: list[str] = field(default_factory=list)
@@ -76,6 +82,8 @@ class FitConfig:
     device: str = "auto"
     init_from: str | None = None
     mirror_augment: bool = False
+    short_windows: list[int] = field(default_factory=list)
+    short_share: float = 0.25
     denoiser: DenoiserConfig = field(default_factory=DenoiserConfig)
     distill: DistillConfig = field(default_factory=DistillConfig)
 
@@ -88,6 +96,15 @@ class FitConfig:
         for name, low in (("window", 1), ("stride", 1), ("batch_size", 1), ("epochs", 0)):
             require_int(f"--{name.replace('_', '-')}", getattr(self, name), low)
         require_bool("--mirror-augment", self.mirror_augment)
+        if not isinstance(self.short_windows, (list, tuple)):
+            raise InputError(
+                f"--short-windows must be a list of lengths, got {self.short_windows!r}"
+            )
+        for n in self.short_windows:
+            require_int("--short-windows", n, 2)
+            if n > self.window:
+                raise InputError(f"--short-windows {n} is not shorter than --window {self.window}")
+        require_number("--short-share", self.short_share, 0.0, 4.0, open_low=True)
         require_seed("--seed", self.seed)
         require_number("--lr", self.lr, 0.0, open_low=True)
         require_number("--lr-final", self.lr_final, 0.0)
@@ -128,9 +145,13 @@ def load_noisy_windows(
     window: int,
     stride: int,
     mirror: bool = False,
+    short_windows: tuple[int, ...] = (),
+    short_share: float = 0.25,
+    seed: int = 0,
 ) -> list[WindowGroup]:
     """The full-length windows of noisy files at 30 Hz (with ``mirror``, also those of every
-    file's left-right mirror image: still only noisy data), as one group."""
+    file's left-right mirror image: still only noisy data) as the first group, then one group
+    of short takes per length of ``short_windows`` (:func:`short_takes`)."""
     motions = [resample_motion(load_motion(f), MODEL_FPS) for f in files]
     if mirror:
         motions += [mirror_motion(m, body) for m in motions]
@@ -138,7 +159,28 @@ def load_noisy_windows(
     full = concat_groups(groups, window + 1)
     if full is None:
         raise InputError(f"no noisy motion of at least {window + 1} frames at 30 Hz found")
-    return [full]
+    out = [full]
+    if short_windows:
+        count = max(1, round(short_share * len(full) / len(short_windows)))
+        for length in short_windows:
+            clips = short_takes(motions, length, count, seed)
+            out += make_windows(clips, denoiser, body, window, stride)
+    return out
+
+
+def short_takes(motions: list[Motion], length: int, count: int, seed: int) -> list[Motion]:
+    """``count`` clips of ``length`` frames cut from the motions: every motion is cut into
+    consecutive clips from a seeded random start, then ``count`` of all of them are drawn
+    (seeded, without replacement; all when there are fewer)."""
+    gen = np.random.default_rng([seed, length])
+    pieces = []
+    for mi, m in enumerate(motions):
+        if m.num_frames < length:
+            continue
+        first = int(gen.integers(0, length))
+        pieces += [(mi, s) for s in range(first, m.num_frames - length + 1, length)]
+    pick = gen.permutation(len(pieces))[:count]
+    return [slice_frames(motions[mi], s, s + length) for mi, s in (pieces[i] for i in sorted(pick))]
 
 
 @dataclass
@@ -189,10 +231,11 @@ def fit_dataset(
     files = outside([f for f, _ in expand_inputs([Path(p) for p in cfg.data])], out_dir)
     if not files:
         raise InputError("no noisy .npz files found in the given paths")
-    groups = load_noisy_windows(files, denoiser, body, cfg.window, cfg.stride, cfg.mirror_augment)
+    groups = load_noisy_windows(files, denoiser, body, cfg.window, cfg.stride, cfg.mirror_augment,
+                                tuple(cfg.short_windows), cfg.short_share, cfg.seed)  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)  # the inputs are good: the run folder is made
     (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
-    total = math.ceil(len(groups[0]) / cfg.batch_size) * cfg.epochs
+    total = math.ceil(sum(len(g) for g in groups) / cfg.batch_size) * cfg.epochs
     steps = max(0, total - done)
     if max_steps is not None:
         steps = min(steps, max_steps)
@@ -247,10 +290,11 @@ def fit_dataset(
     d_losses = []
     if cfg.distill.epochs > 0:
         targets = _distill_targets(
-            denoiser, groups[0], cfg, out_dir, steps > 0, distilled > 0, progress
+            denoiser, groups, cfg, out_dir, steps > 0, distilled > 0, progress
         )
         d_losses = distill(
-            denoiser, groups[0], targets, cfg.distill, cfg.seed, distilled,
+            denoiser, groups if len(groups) > 1 else groups[0],
+            targets if len(groups) > 1 else targets[0], cfg.distill, cfg.seed, distilled,
             _staged(progress, "distill"), lambda step: save(done, step),
         )  # fmt: skip
         distilled += len(d_losses)
@@ -272,7 +316,7 @@ def fit_dataset(
         losses[0] if losses else math.nan,
         losses[-1] if losses else math.nan,
         time.time() - start,
-        len(groups[0]),
+        sum(len(g) for g in groups),
         distilled,
         d_losses[0] if d_losses else math.nan,
         d_losses[-1] if d_losses else math.nan,
@@ -310,33 +354,39 @@ def _starting_point(cfg: FitConfig, out_dir: Path, resume: bool) -> tuple[Denois
 
 def _distill_targets(
     denoiser: Denoiser,
-    group: WindowGroup,
+    groups: list[WindowGroup],
     cfg: FitConfig,
     out_dir: Path,
     fresh: bool,
     distilling: bool,
     progress: Callable[[dict], None] | None,
-) -> Targets:
-    """The refined targets of a run: read back from ``out_dir`` when they were made for these
-    windows and settings from these very networks (or, ``distilling`` — a resumed run part
-    way through distillation — from the networks this run started from; ``fresh``: ELBO steps
-    were just taken, never reuse), else computed and saved there."""
+) -> list[Targets]:
+    """The refined targets of a run, one per group: read back from ``out_dir`` when they were
+    made for these windows and settings from these very networks (or, ``distilling`` — a
+    resumed run part way through distillation — from the networks this run started from;
+    ``fresh``: ELBO steps were just taken, never reuse), else computed and saved there. (One
+    group's tensors are stored as before, unprefixed; more groups' as ``g<i>/...``.)"""
     path = out_dir / TARGETS_FILE
-    key = {"windows": len(group), "refine_steps": cfg.distill.refine_steps}
+    sizes = [len(g) for g in groups]
+    key = {"windows": sizes[0] if len(sizes) == 1 else sizes,
+           "refine_steps": cfg.distill.refine_steps}  # fmt: skip
     names = ("z", "x0", "z_logvar")
+    prefixes = [""] if len(groups) == 1 else [f"g{i}/" for i in range(len(groups))]
     digest = parameter_digest(denoiser)
     if path.exists() and not fresh:
         tensors, meta = load_checkpoint(path)
-        same = all(meta.get(k) == v for k, v in key.items()) and all(n in tensors for n in names)
+        same = all(meta.get(k) == v for k, v in key.items())
+        same = same and all(p + n in tensors for p in prefixes for n in names)
         if same and (distilling or meta.get("networks") == digest):
-            return Targets(*(tensors[n] for n in names))
+            return [Targets(*(tensors[p + n] for n in names)) for p in prefixes]
     device = next(denoiser.parameters()).device
     denoiser.cpu()  # refinement runs batch by batch on the CPU copy of the windows
-    targets = refine_targets(
-        denoiser, group, cfg.distill.refine_steps, _staged(progress, "targets")
-    )
+    targets = [
+        refine_targets(denoiser, g, cfg.distill.refine_steps, _staged(progress, "targets"))
+        for g in groups
+    ]
     denoiser.to(device)
-    tensors = {n: getattr(targets, n) for n in names}
+    tensors = {p + n: getattr(t, n) for p, t in zip(prefixes, targets, strict=True) for n in names}
     save_checkpoint(path, tensors, {"kind": "mdvae-distill-targets", "networks": digest, **key})
     return targets
 

@@ -51,6 +51,14 @@ class TrainConfig:
     train_only: str = "all"
     #: also train on every training motion's left-right mirror image (twice the windows)
     mirror_augment: bool = False
+    #: play speeds every training motion is also used at (time-warp augmentation; 1.0 = as
+    #: captured, e.g. [0.8, 1.0, 1.25]); validation stays at 1.0
+    speeds: list[float] = field(default_factory=lambda: [1.0])
+    #: train on a seeded subset of whole training files holding this share of the frames (the
+    #: data-scaling runs); 1.0 = all
+    data_fraction: float = 1.0
+    #: the split-file lists whose windows choose the best checkpoint (e.g. ["val", "unseen_val"])
+    val_splits: list[str] = field(default_factory=lambda: ["val"])
     model: ModelConfig = field(default_factory=ModelConfig)
 
     def __post_init__(self):
@@ -87,6 +95,15 @@ class TrainConfig:
                 f"train_only must be one of {', '.join(TRAINABLE)}, got {self.train_only!r}"
             )
         require_bool("--mirror-augment", self.mirror_augment)
+        if not isinstance(self.speeds, (list, tuple)) or not self.speeds:
+            raise InputError(f"--speeds must be a list of play speeds, got {self.speeds!r}")
+        for speed in self.speeds:
+            require_number("--speeds", speed, 0.25, 4.0)
+        require_number("--data-fraction", self.data_fraction, 0.0, 1.0, open_low=True)
+        if not isinstance(self.val_splits, (list, tuple)) or not all(
+            isinstance(v, str) for v in self.val_splits
+        ):
+            raise InputError(f"--val-split must name split lists, got {self.val_splits!r}")
         if self.train_only != "all" and not self.init_from:
             raise InputError(
                 f"--train-only {self.train_only} trains part of a trained prior: give --init-from"

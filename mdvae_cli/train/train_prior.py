@@ -185,20 +185,24 @@ def train_prior(
         data = [Path(p) for p in cfg.data]
         # a run folder inside a data folder: its checkpoints are not motion
         train_files = outside(select_files(data, split, "train"), run_dir)
-        val_files = outside(select_files(data, split, "val"), run_dir)
+        if split is None and list(cfg.val_splits) != ["val"]:
+            raise InputError("--val-split other than val needs --split (a split file)")
+        val_files = [f for name in cfg.val_splits for f in select_files(data, split, name)]
+        val_files = outside(list(dict.fromkeys(val_files)), run_dir)
         if not train_files:
             raise InputError(no_training_files(data, split, val_files))
         cpu_body = BodyModel(body.data)
         train = load_windows(
-            train_files, cpu_body, cfg.window, cfg.stride, mirror=cfg.mirror_augment
-        )
+            train_files, cpu_body, cfg.window, cfg.stride, mirror=cfg.mirror_augment,
+            speeds=tuple(cfg.speeds), fraction=cfg.data_fraction, fraction_seed=cfg.seed,
+        )  # fmt: skip
         val = load_windows(val_files, cpu_body, cfg.window, cfg.window) if val_files else None
         if val is not None and len(val) > cfg.max_val_windows:
             pick = torch.linspace(0, len(val) - 1, cfg.max_val_windows).long()
             val = val.subset(pick)
 
         model = PriorModel(cfg.model)
-        model.normalizer.fit(torch.cat([train.x0[:, None], train.x], dim=1))
+        model.normalizer.fit(train.x0, train.x)
         model.normalizer.scale_std(VELOCITY_DIMS, cfg.velocity_std_scale)
         if cfg.init_from and not resume:
             init_from_prior(model, Path(cfg.init_from))

@@ -1,0 +1,209 @@
+"""The options of ``mdvae denoise`` (kept apart from the command: its --help is long)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED
+
+#: click options, in --help order
+OPTIONS = [
+    click.option(
+        "-o",
+        "--out",
+        required=True,
+        type=click.Path(),
+        help="Output file (one input: .npz; a BVH take also as .bvh/.bvh.gz, an AMC take as "
+        ".amc/.amc.gz, on its own skeleton) or folder (inputs mirrored below it, each in its own "
+        "form).",
+    ),
+    click.option(
+        "--denoiser",
+        "denoiser_path",
+        type=click.Path(path_type=Path),
+        help="Denoiser checkpoint or fit-dataset folder (default: the shipped one).",
+    ),
+    click.option(
+        "--optimize",
+        "optimize_steps",
+        type=click.IntRange(min=0),
+        default=0,
+        show_default=True,
+        help="Optimisation mode: first fine-tune the inference networks on these files "
+        "for N steps (the paper uses 50); 0 = regression mode, one forward pass.",
+    ),
+    click.option(
+        "--per-file",
+        is_flag=True,
+        help="With --optimize: adapt once per file instead of once to the whole set.",
+    ),
+    click.option(
+        "--lr",
+        type=POSITIVE,
+        default=None,
+        help="With --optimize: its learning rate (> 0) [default: 3e-4].",
+    ),
+    click.option(
+        "--seed", type=SEED, default=0, show_default=True, help="With --optimize: its random seed."
+    ),
+    click.option(
+        "--refine",
+        "refine_steps",
+        type=click.IntRange(min=0),
+        default=0,
+        show_default=True,
+        help="Then refine every window's latents for N gradient steps on its own ELBO, scoring "
+        "the file's noisy joint rotations with a noise level estimated per joint (50 is a good "
+        "value: markedly cleaner, about 15x slower than the default); 0 = off.",
+    ),
+    click.option(
+        "--refine-lr",
+        type=POSITIVE,
+        default=0.1,
+        show_default=True,
+        help="Step size of --refine (> 0).",
+    ),
+    click.option(
+        "--refine-offset",
+        type=NON_NEGATIVE,
+        default=None,
+        help="The scale (rad) each joint's slow rotation offset (--offset, --refine) starts from "
+        "in every window, then estimated from the file. 0 = no offset. [default: 0.03, or the "
+        "input kind's setting]",
+    ),
+    click.option(
+        "--trans-offset",
+        type=NON_NEGATIVE,
+        default=None,
+        help="The scale (m) the root translation's slow offset (--offset) starts from in every "
+        "window: it keeps the file's path, from which the decoded one drifts by ~4 cm. 0 = no "
+        "translation offset. (--refine fits the translation itself.) [default: 0.03, or the "
+        "input kind's setting]",
+    ),
+    click.option(
+        "--offset/--no-offset",
+        default=True,
+        show_default=True,
+        help="After the forward pass, fit a slow rotation offset per joint, and one for the root "
+        "translation, to the file in closed form (no gradient steps): it follows slow motion the "
+        "learned prior cannot express, so clean parts of a take come back almost unchanged, the "
+        "body keeps the file's path, and the result is more accurate than a tuned filter, at "
+        "~1.3x the time. --no-offset is the paper's plain regression mode. Part of --refine "
+        "already.",
+    ),
+    click.option(
+        "--loop/--no-loop",
+        default=None,
+        help="Denoise every take as a cycle (a game loop whose last frame leads into its first): "
+        "its ends get context from each other and the seam stays continuous when it plays on "
+        "repeat. Default: a take whose last pose is within two frame steps of its first is "
+        "treated as a loop, and said so; --no-loop never.",
+    ),
+    click.option(
+        "--guard/--no-guard",
+        default=True,
+        show_default=True,
+        help="Where a denoised stretch moved further from the input than the input's own noise "
+        "explains (likely worse than the input: a kind of motion the prior never saw, or a take of "
+        "a few frames), use the input smoothed instead and say so (notes, --json "
+        '"fallbacks"). Not with --no-offset, which is the paper\'s regression mode untouched.',
+    ),
+    click.option(
+        "--outliers",
+        is_flag=True,
+        help="Model the noise as heavy-tailed (Student-t, 10 degrees of freedom, = --lam 10) per "
+        "frame and joint, so spikes (a swapped marker, a solver flip) are down-weighted where they "
+        "happen instead of raising the whole joint's noise level: with --refine, about 40 % lower "
+        "error on takes with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py); "
+        "without --refine (the video setting) smoother, but worse on spiky mocap takes.",
+    ),
+    click.option(
+        "--lam",
+        type=NON_NEGATIVE,
+        default=None,
+        help="The paper's lambda: degrees of freedom of the Student-t noise per frame and joint "
+        "that the offset and --refine assume (smaller: heavier tails, flips and spikes count "
+        "less); 0 = Gaussian. [default: 0 for mocap files; the video setting for video-pipeline "
+        "outputs (docs/model.md)]",
+    ),
+    click.option(
+        "--input-kind",
+        type=click.Choice(["auto", "mocap", "video"]),
+        default="auto",
+        show_default=True,
+        help="Which settings row to start from: 'video' for a video pipeline's estimates (chosen "
+        "automatically for their files), 'mocap' otherwise; options override either.",
+    ),
+    click.option(
+        "--mirror",
+        is_flag=True,
+        help="Also denoise each file's left-right mirror image and average the two results (the "
+        "learned prior is not exactly mirror-symmetric): about 10 % lower error in regression "
+        "mode without the offset, 1 % with it, 3 % with --refine, at about twice the time.",
+    ),
+    click.option(
+        "--feet",
+        type=click.Choice(["lock", "off"]),
+        default="lock",
+        show_default=True,
+        help="lock: where a foot is down (a foot joint low and slow), hold it still on the floor "
+        "with a small turn of the hip, knee and ankle, and lift a foot that dips under the "
+        "floor; frames away from contacts are left as denoised, and a clean take keeps its own "
+        "feet. FEET_NUMBERS off: the feet as denoised.",
+    ),
+    click.option(
+        "--mesh-dir",
+        type=click.Path(path_type=Path),
+        help="Also write the cleaned mesh sequence here (one input: into the folder itself; "
+        "several: a subfolder per file).",
+    ),
+    click.option(
+        "--mesh-format",
+        type=click.Choice(["obj", "ply"]),
+        default=None,
+        help="Mesh file format for --mesh-dir [default: ply].",
+    ),
+    click.option(
+        "--view",
+        "view_dir",
+        type=click.Path(path_type=Path),
+        help="Also write a before/after page per file here (<name>.html, folders mirrored): the "
+        "input and the cleaned motion playing side by side in any browser (see mdvae view).",
+    ),
+    click.option(
+        "--window",
+        type=click.IntRange(min=8),
+        default=60,
+        show_default=True,
+        help="Frames per window at 30 Hz (as trained).",
+    ),
+    click.option(
+        "--overlap",
+        type=click.IntRange(min=1),
+        default=15,
+        show_default=True,
+        help="Frames shared by consecutive windows, cross-faded.",
+    ),
+    click.option(
+        "--asf",
+        type=click.Path(path_type=Path, dir_okay=False),
+        help="Skeleton for .amc inputs (default: <subject>.asf or the only .asf next to each).",
+    ),
+    click.option(
+        "--joint-map",
+        "joint_map_file",
+        type=click.Path(path_type=Path, dir_okay=False),
+        help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them, "
+        'e.g. {"pelvis": "Hips", "left_hip": "LeftUpLeg", "head": "Head"} (SMPL joint -> yours).',
+    ),
+]
+
+
+def denoise_options(command):
+    """Apply every option of :data:`OPTIONS` to the command function (as stacked decorators
+    would, first listed first in --help)."""
+    for option in reversed(OPTIONS):
+        command = option(command)
+    return command

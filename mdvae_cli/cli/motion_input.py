@@ -1,0 +1,93 @@
+"""What the file commands share about reading motion: the ``--format``, ``--fps`` and ``--track``
+options, the suffixes folders are searched for, and where each track of a file is written.
+
+A file of several people (a WHAM or PHALP result with several tracks) gives one output per
+track, named ``<output stem>.track<ID>.npz`` beside the output the file would have had
+(``--track ID`` keeps one track, written to the output itself).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import click
+
+from mdvae_cli.cli.batch import print_notes
+from mdvae_cli.cli.common import POSITIVE
+from mdvae_cli.motion.load_any import (
+    ALIASES,
+    FORMATS,
+    MOTION_FILE_SUFFIXES,
+    LoadedFile,
+    load_any,
+)
+from mdvae_cli.motion.motion import Motion
+
+#: what folders are searched for by the commands that read any motion file
+INPUT_SUFFIXES = MOTION_FILE_SUFFIXES
+
+
+FORMATS_HELP = (
+    "amass (AMASS-style .npz), a video pipeline's output (wham, gvhmr, tram, phalp, vibe/pare, "
+    "hybrik, romp/bev, slahmr) or aistpp (docs/formats.md)."
+)
+
+
+def format_choice() -> click.Choice:
+    """The ``--format`` values: every format name and alias, any case."""
+    return click.Choice(sorted({*FORMATS, *ALIASES}), case_sensitive=False)
+
+
+def motion_input_options(fn: Callable) -> Callable:
+    """``--format``, ``--fps`` and ``--track``: how to read the input files."""
+    fn = click.option(
+        "--track",
+        default=None,
+        metavar="ID",
+        help="Files of several people: keep only this track (its id in the file). Default: "
+        "every track, each written to <output>.track<ID>.npz.",
+    )(fn)
+    fn = click.option(
+        "--fps",
+        "input_fps",
+        type=POSITIVE,
+        default=None,
+        help="Frame rate of the inputs. Video-pipeline outputs store none: 30 is assumed "
+        "unless given; for other files it replaces the file's rate.",
+    )(fn)
+    return click.option(
+        "--format",
+        "input_format",
+        type=format_choice(),
+        default=None,
+        help="Input format, when the file does not tell (default: from the extension and "
+        "contents): " + FORMATS_HELP,
+    )(fn)
+
+
+def read_input(
+    path: Path, relpath: Path, fmt, fps, track, allow_pickle: bool = False, body=None
+) -> LoadedFile:
+    """:func:`load_any` with the command's options, printing the file's notes."""
+    loaded = load_any(path, fmt, fps=fps, track=track, allow_pickle=allow_pickle, body=body)
+    print_notes(relpath, loaded.notes)
+    for label, motion in loaded.tracks:
+        where = relpath if label is None else Path(f"{relpath.as_posix()} track {label}")
+        print_notes(where, motion.notes)
+    return loaded
+
+
+def track_output(output: Path, label: str | None) -> Path:
+    """Where one track of a file goes: ``output`` itself for a file of one motion, else
+    ``<stem>.track<label><suffix>`` beside it (the label made file-name safe)."""
+    if label is None:
+        return output
+    safe = re.sub(r"[^A-Za-z0-9_-]+", "_", str(label)) or "_"
+    return output.with_name(f"{output.stem}.track{safe}{output.suffix}")
+
+
+def outputs_of(loaded: LoadedFile, output: Path) -> list[tuple[str | None, Motion, Path]]:
+    """Each track of a file with its output path."""
+    return [(label, m, track_output(output, label)) for label, m in loaded.tracks]

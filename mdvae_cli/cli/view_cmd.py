@@ -1,0 +1,192 @@
+"""``mdvae view`` (one self-contained HTML page that plays motions side by side) and
+``mdvae plot`` (a static before/after figure, PNG or SVG)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from mdvae_cli.cli.batch import emit_json, json_option, print_notes
+from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
+from mdvae_cli.errors import InputError
+
+
+def motion_labels(paths: list[Path]) -> list[str]:
+    """Each file's label: its name, with as many parent folders as it takes to tell the
+    files apart (``a/take.npz``, ``b/take.npz``)."""
+    paths = [Path(p) for p in paths]
+    for depth in range(1, max(len(p.parts) for p in paths) + 1):
+        labels = ["/".join(p.parts[-depth:]) for p in paths]
+        if len(set(labels)) == len(labels):
+            return labels
+    return [f"{i + 1}: {p.name}" for i, p in enumerate(paths)]
+
+
+def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle):
+    """(label, Motion) for each input file, read by :func:`load_any_motion`."""
+    from mdvae_cli.cli.takes import load_joint_map
+    from mdvae_cli.motion.any_file import ReadOptions, load_any_motion
+
+    if asf is not None and not Path(asf).is_file():
+        raise InputError(f"no such skeleton file: {asf}")
+    options = ReadOptions(
+        allow_pickle=allow_pickle,
+        body=body_data,
+        skeleton=None if asf is None else Path(asf),
+        joint_map=load_joint_map(joint_map_file),
+    )
+    items = []
+    for path, label in zip(inputs, motion_labels(list(inputs)), strict=True):
+        motion = load_any_motion(path, options)
+        print_notes(Path(label), motion.notes)
+        items.append((label, motion))
+    return items
+
+
+def check_output(out: Path, suffixes: tuple[str, ...], inputs) -> None:
+    if out.suffix.lower() not in suffixes:
+        raise InputError(f"the output {out} must end in {' or '.join(suffixes)}")
+    for p in inputs:
+        if Path(p).exists() and Path(p).resolve() == out.resolve():
+            raise InputError(f"refusing to overwrite the input file {p}")
+
+
+def inputs_argument(fn):
+    return click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))(fn)
+
+
+def take_options(fn):
+    """``--asf`` and ``--joint-map``: how BVH / AMC takes are read (as ``mdvae denoise``)."""
+    fn = click.option(
+        "--joint-map",
+        "joint_map_file",
+        type=click.Path(path_type=Path, dir_okay=False),
+        help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them "
+        '(SMPL joint -> yours, e.g. {"left_hip": "LeftUpLeg"}).',
+    )(fn)
+    return click.option(
+        "--asf",
+        type=click.Path(path_type=Path, dir_okay=False),
+        default=None,
+        help="The .asf skeleton of .amc inputs (default: the one next to each file).",
+    )(fn)
+
+
+@click.command("view")
+@inputs_argument
+@click.option(
+    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    help="The .html page to write.",
+)  # fmt: skip
+@click.option(
+    "--mesh/--no-mesh", default=True, show_default=True,
+    help="Embed a skinned low-poly body mesh as well as the skeleton (a few kB).",
+)  # fmt: skip
+@click.option("--title", default=None, help="The page's title (default: the file names).")
+@take_options
+@body_model_option
+@allow_pickle_option
+@json_option
+@handle_errors
+def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle, as_json):
+    """Write one self-contained HTML page that plays motions side by side or overlaid.
+
+    INPUTS are motion files in any format mdvae reads (.npz, .bvh, .amc; .gz too), e.g. a
+    noisy take, its cleaned version and the ground truth. The page works offline in any
+    current browser, with no server: play / pause, a timeline to scrub, speed, an orbiting
+    camera (drag, wheel), side-by-side or overlay, skeleton and a low-poly body mesh, foot
+    contacts marked, and a plot of a chosen joint's angle, height or speed for every motion.
+    Motions of different lengths and frame rates are aligned by time.
+
+    \b
+    Examples:
+      mdvae view noisy.npz clean.npz -o compare.html
+      mdvae view noisy.npz clean.npz gt.npz studio.bvh -o compare.html --no-mesh
+    """
+    from mdvae_cli.body.formats import load_body_model
+    from mdvae_cli.body.skinning import BodyModel
+    from mdvae_cli.view.page import build_view_page, write_view_page
+
+    out = Path(out)
+    check_output(out, (".html", ".htm"), inputs)
+    body_data = load_body_model(body_model)
+    items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle)
+    page = build_view_page(items, BodyModel(body_data), mesh=mesh, title=title)
+    write_view_page(page, out, forbid=tuple(inputs))
+    summary = {"output": str(out), "bytes": page.num_bytes, "mesh": page.mesh,
+               "motions": page.motions}  # fmt: skip
+    if as_json:
+        emit_json(summary)
+    else:
+        frames = sum(m["frames"] for m in page.motions)
+        console.print(
+            f"wrote {out} ({page.num_bytes / 1e6:.2f} MB, {len(items)} motion(s), {frames} frames"
+            f"{', skeleton only' if not page.mesh else ''})"
+        )
+
+
+@click.command("plot")
+@inputs_argument
+@click.option(
+    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    help="The figure to write: .png, or .svg for a vector figure.",
+)  # fmt: skip
+@click.option(
+    "--joint", "joints", multiple=True, default=("left_knee", "right_knee"), show_default=True,
+    help="A joint to plot (name or index of the 22 SMPL body joints); repeat for more panels.",
+)  # fmt: skip
+@click.option(
+    "--series", type=click.Choice(["rotation", "bend", "height", "speed"]), default="rotation",
+    show_default=True,
+    help="What to plot: the joint angle, its rotation from its parent (rotation); the angle "
+    "between the bones into and out of it (bend); its height (m) or speed (m/s).",
+)  # fmt: skip
+@click.option(
+    "--frames", type=click.IntRange(1, 20), default=6, show_default=True,
+    help="Frames in the filmstrip (evenly spread over the take).",
+)  # fmt: skip
+@click.option(
+    "--width", type=click.IntRange(400, 8000), default=1400, show_default=True,
+    help="Figure width in pixels.",
+)  # fmt: skip
+@click.option("--title", default=None, help="The figure's title (default: the file names).")
+@take_options
+@body_model_option
+@allow_pickle_option
+@handle_errors
+def plot(
+    inputs, out, joints, series, frames, width, title, asf, joint_map_file, body_model,
+    allow_pickle,
+):  # fmt: skip
+    """Draw a static before/after figure: joint curves over time, foot contacts and a
+    filmstrip of a few frames for every motion (for reports).
+
+    INPUTS are motion files in any format mdvae reads, drawn in this order and colour.
+    Written with no plotting library: a PNG, or an SVG when -o ends in .svg.
+
+    \b
+    Examples:
+      mdvae plot noisy.npz clean.npz -o before_after.png
+      mdvae plot noisy.npz clean.npz gt.npz -o fig.svg --joint left_hip --series bend
+    """
+    from mdvae_cli.body.formats import load_body_model
+    from mdvae_cli.body.skinning import BodyModel
+    from mdvae_cli.fileio import write_atomic
+    from mdvae_cli.view.figure import FigureSpec, draw_figure, joint_index
+
+    out = Path(out)
+    check_output(out, (".png", ".svg"), inputs)
+    spec = FigureSpec(
+        joints=tuple(joint_index(j) for j in joints), series=series, frames=frames,
+        width=width, title=title,
+    ).validate()  # fmt: skip
+    body_data = load_body_model(body_model)
+    items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle)
+    canvas = draw_figure(items, BodyModel(body_data), spec, svg=out.suffix.lower() == ".svg")
+    data = canvas.to_bytes()
+    write_atomic(out, lambda tmp: tmp.write_bytes(data), forbid=tuple(inputs))
+    console.print(f"wrote {out} ({canvas.width} x {canvas.height}, {len(data) / 1e3:.0f} kB)")
+
+
+COMMANDS = [view, plot]

@@ -1,0 +1,102 @@
+"""Takes that loop (a game cycle whose last frame meets its first), denoised as a cycle.
+
+A loop played on repeat has no ends: its first frames follow its last ones. Denoised as a
+take, the two ends are each guessed from one side only and the seam jumps when it plays. As a
+cycle it is tiled three times (the root moving on by the loop's own displacement each time, so
+a walk cycle keeps walking), denoised as one motion, and the middle copy is kept, with context
+on both sides; what small mismatch remains between the middle copy's start and the next copy's
+is spread linearly over the cycle, so that the last frame leads into the first exactly as any
+two frames do.
+
+Pure numpy on Motion values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
+from mdvae_cli.motion.motion import Motion
+
+#: a take is a loop when its last pose is this close to its first, in frame-to-frame steps
+LOOP_STEPS = 2.0
+#: copies of a loop denoised together (the middle one is kept)
+COPIES = 3
+
+
+def _rotations(motion: Motion) -> np.ndarray:
+    """(T, 22, 3): root orientation then the 21 body joints."""
+    return np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mean rotation angle between two sets of axis-angles (..., 22, 3) -> (...)"""
+    ra = rotvec_to_rotmat(torch.as_tensor(a, dtype=torch.float64))
+    rb = rotvec_to_rotmat(torch.as_tensor(b, dtype=torch.float64))
+    rel = rotmat_to_rotvec(ra.transpose(-1, -2) @ rb)
+    return rel.norm(dim=-1).mean(dim=-1).numpy()
+
+
+def looks_like_loop(motion: Motion, steps: float = LOOP_STEPS) -> bool:
+    """Whether the last frame meets the first: its pose (every joint's rotation, the root's
+    heading included) is within ``steps`` typical frame-to-frame steps of the first's. Takes
+    under 4 frames are never loops."""
+    if motion.num_frames < 4:
+        return False
+    rot = _rotations(motion)
+    step = float(np.median(_angle(rot[:-1], rot[1:])))
+    gap = float(_angle(rot[-1:], rot[:1])[0])
+    return gap <= steps * max(step, 1e-4)
+
+
+def displacement(motion: Motion) -> np.ndarray:
+    """How far the root moves per cycle: last minus first position plus one more step (the
+    step from the last frame into the next cycle's first).  -> (3,)"""
+    trans = motion.trans
+    return trans[-1] - trans[0] + (trans[-1] - trans[-2])
+
+
+def tile(motion: Motion, copies: int = COPIES) -> Motion:
+    """The cycle played ``copies`` times; each copy's root moved on by :func:`displacement`.
+    Per-frame extras are tiled too."""
+    T = motion.num_frames
+    shift = np.repeat(np.arange(copies), T)[:, None] * displacement(motion)[None]
+
+    def rep(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([a] * copies, axis=0)
+
+    extras = {
+        k: (rep(v) if v.ndim >= 1 and v.shape[0] == T and v.dtype.kind in "biuf" else v)
+        for k, v in motion.extras.items()
+    }
+    return replace(
+        motion,
+        root_orient=rep(motion.root_orient),
+        pose_body=rep(motion.pose_body),
+        trans=rep(motion.trans) + shift,
+        pose_extra=rep(motion.pose_extra),
+        joint_mask=None if motion.joint_mask is None else rep(motion.joint_mask),
+        extras=extras,
+        notes=[],
+    )
+
+
+def untile(denoised: Motion, motion: Motion, copies: int = COPIES) -> Motion:
+    """The middle copy of a denoised tiling, closed into a cycle: the jump between its start
+    and the next copy's start (less the loop's displacement) is spread linearly over the
+    cycle. Written into a copy of ``motion`` (the input cycle)."""
+    T = motion.num_frames
+    mid = (copies // 2) * T
+    rot = np.concatenate([denoised.root_orient[:, None], denoised.pose_body], axis=1)
+    # continuous axis-angles over the middle copy and the first frame of the next one
+    seq = rotvec_unwrap(torch.as_tensor(rot[mid : mid + T + 1], dtype=torch.float64)).numpy()
+    ramp = (np.arange(T) / T)[:, None, None]
+    rot_out = seq[:T] - ramp * (seq[T] - seq[0])[None]
+    step = displacement(motion)
+    trans = denoised.trans[mid : mid + T + 1] - (copies // 2) * step  # back to the first copy
+    jump = trans[T] - trans[0] - step
+    trans_out = trans[:T] - (np.arange(T) / T)[:, None] * jump[None]
+    return motion.with_body(root_orient=rot_out[:, 0], pose_body=rot_out[:, 1:], trans=trans_out)

@@ -1,0 +1,136 @@
+"""Writing BVH files: Euler angles back out of rotation matrices, and the file itself.
+
+A file read by :func:`mdvae_cli.motion.bvh.load_bvh` keeps its :class:`BvhLayout` (the header
+verbatim, the channel layout, every frame as read); :func:`write_bvh` writes new channel values
+under that same header, so hierarchy, names, offsets, channel order and frame time stay the
+file's own. :func:`bvh_text` builds a file from scratch (``mdvae export-bvh``).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from mdvae_cli.fileio import write_atomic
+
+#: digits after the decimal point in written channel values (0.000001 deg, 0.000001 unit)
+DECIMALS = 6
+
+
+def rotmat_to_euler(R: np.ndarray, axes: str, near: np.ndarray | None = None) -> np.ndarray:
+    """Angles (radians) with ``R = R_axes[0](a0) @ R_axes[1](a1) @ R_axes[2](a2)``, the BVH
+    convention (first channel outermost), for three distinct axes.
+
+    Of the two solutions, the one closest to ``near`` is returned, each angle moved by whole
+    turns to lie nearest its ``near`` value (so a file's angles that run past 180 degrees, or
+    sit at -180 rather than 180, come back as written).
+
+    R: (T, 3, 3); axes: e.g. "zxy"; near: (T, 3) radians or None  -> (T, 3)
+    """
+    i, j, k = ("xyz".index(a) for a in axes)
+    sign = 1.0 if (j - i) % 3 == 1 else -1.0  # cyclic order (xyz, yzx, zxy) or not
+    s = np.clip(sign * R[:, i, k], -1.0, 1.0)
+    b = np.arcsin(s)
+    a = np.arctan2(-sign * R[:, j, k], R[:, k, k])
+    c = np.arctan2(-sign * R[:, i, j], R[:, i, i])
+    lock = np.sqrt(R[:, i, i] ** 2 + R[:, i, j] ** 2) < 1e-9  # gimbal lock: put it all in a
+    if lock.any():
+        c = np.where(lock, 0.0, c)
+        a = np.where(lock, np.arctan2(sign * R[:, k, j], R[:, j, j]), a)
+    one = np.stack([a, b, c], axis=1)
+    two = np.stack([a + np.pi, np.pi - b, c + np.pi], axis=1)
+    if near is None:
+        return _wrap(one, np.zeros_like(one))
+    one, two = _wrap(one, near), _wrap(two, near)
+    pick = np.abs(two - near).sum(1) < np.abs(one - near).sum(1)
+    return np.where(pick[:, None], two, one)
+
+
+def _wrap(angles: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """angles moved by whole turns to lie within half a turn of near."""
+    return angles + 2 * np.pi * np.round((near - angles) / (2 * np.pi))
+
+
+def format_rows(data: np.ndarray) -> str:
+    """Channel values as BVH motion lines (``DECIMALS`` decimals, space separated)."""
+    buf = io.StringIO()
+    np.savetxt(buf, data, fmt=f"%.{DECIMALS}f", delimiter=" ")
+    return buf.getvalue()
+
+
+def motion_text(header: str, data: np.ndarray, frame_time: str) -> str:
+    """A BVH file: ``header`` (through the MOTION line), the frame count, the frame time as
+    given and the rows of ``data`` (F, C)."""
+    return f"{header.rstrip()}\nFrames: {data.shape[0]}\nFrame Time: {frame_time}\n" + format_rows(
+        data
+    )
+
+
+def write_text(path: Path | str, text: str, forbid: tuple[Path, ...] = ()) -> None:
+    """Write ``text`` atomically as UTF-8 (bytes a reader kept with "surrogateescape" as they
+    were), newlines as given; a name ending in ``.gz`` is gzip-compressed."""
+    path = Path(path)
+    raw = text.encode("utf-8", errors="surrogateescape")
+
+    def write(tmp: Path) -> None:
+        if path.suffix.lower() == ".gz":
+            import gzip
+
+            with gzip.open(tmp, "wb", compresslevel=6) as fh:
+                fh.write(raw)
+        else:
+            tmp.write_bytes(raw)
+
+    write_atomic(path, write, forbid=forbid)
+
+
+def write_bvh(layout, data: np.ndarray, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:
+    """Write every frame ``data`` (F, C) under the file's own header (``layout``: a
+    :class:`~mdvae_cli.motion.bvh.BvhLayout`), atomically."""
+    write_text(path, motion_text(layout.header, data, layout.frame_time), forbid=forbid)
+
+
+def bvh_text(
+    names: list[str],
+    parents: list[int],
+    offsets: np.ndarray,
+    ends: dict[int, np.ndarray],
+    data: np.ndarray,
+    frame_time: float,
+    order: str = "ZXY",
+) -> str:
+    """A BVH file from scratch: the root with 6 channels (position, then rotation in
+    ``order``), every other joint with 3 rotation channels, an End Site below each joint in
+    ``ends`` (joint -> its offset).  offsets: (J, 3) file units; data: (F, 3 + 3 J): the root
+    position, then each joint's angles in joint index order (written in the file's
+    depth-first order)."""
+    kids: dict[int, list[int]] = {}
+    for j, p in enumerate(parents):
+        kids.setdefault(p, []).append(j)
+    rot = " ".join(f"{a}rotation" for a in order)
+    lines = ["HIERARCHY"]
+
+    def block(j: int, depth: int) -> None:
+        pad = "\t" * depth
+        word = "ROOT" if parents[j] < 0 else "JOINT"
+        lines.append(f"{pad}{word} {names[j]}")
+        lines.append(pad + "{")
+        off = " ".join(f"{v:.{DECIMALS}f}" for v in offsets[j])
+        lines.append(f"{pad}\tOFFSET {off}")
+        pos = "Xposition Yposition Zposition " if parents[j] < 0 else ""
+        lines.append(f"{pad}\tCHANNELS {6 if parents[j] < 0 else 3} {pos}{rot}")
+        for k in kids.get(j, []):
+            block(k, depth + 1)
+        if j in ends:
+            end = " ".join(f"{v:.{DECIMALS}f}" for v in ends[j])
+            lines.extend([f"{pad}\tEnd Site", pad + "\t{", f"{pad}\t\tOFFSET {end}", pad + "\t}"])
+        lines.append(pad + "}")
+
+    block(0, 0)
+    lines.append("MOTION")
+    order_j = [names.index(line.split()[-1]) for line in lines
+               if line.strip().startswith(("ROOT ", "JOINT "))]  # fmt: skip
+    cols = [0, 1, 2] + [3 + 3 * j + k for j in order_j for k in range(3)]
+    return motion_text("\n".join(lines), data[:, cols], f"{frame_time:.8g}")

@@ -1,0 +1,107 @@
+"""What the arrays of an AMASS-style ``.npz`` may hold: real, finite numbers within the limits of
+a motion; one frame rate; one gender as text; key names that are safe to write back.
+
+Each check raises InputError with one line naming the file, the key and the problem; used by
+:mod:`mdvae_cli.motion.npz_io`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.motion.motion import MAX_ANGLE_DEG, MAX_BETA, MAX_DISTANCE_M
+from mdvae_cli.npz_archive import safe_key, safe_name
+
+
+@dataclass(frozen=True)
+class Limit:
+    """The largest magnitude a key's values may have, and how a refusal words a value past it:
+    ``value`` (e.g. "an angle of {} rad") and ``kind`` (e.g. "angles over 1745 rad")."""
+
+    largest: float
+    value: str
+    kind: str
+
+
+#: axis-angles (radians), as the BVH and ASF/AMC readers limit Euler angles
+ANGLE = Limit(math.radians(MAX_ANGLE_DEG), "holds an angle of {:.3g} rad",
+              f"angles over {math.radians(MAX_ANGLE_DEG):.0f} rad")  # fmt: skip
+#: root translation (metres)
+DISTANCE = Limit(MAX_DISTANCE_M, "reaches {:.3g} m", f"distances over {MAX_DISTANCE_M:g} m")
+#: body shape coefficients (standard deviations)
+BETA = Limit(MAX_BETA, "holds a shape coefficient of {:.3g}", f"coefficients over {MAX_BETA:g}")
+
+
+def real_array(key: str, arr: np.ndarray, path: Path, limit: Limit | None = None) -> np.ndarray:
+    """``arr`` as float64; InputError when it is not real numbers (text, complex...), holds
+    NaN or inf, or holds a value past ``limit``."""
+    arr = np.asarray(arr)
+    if np.iscomplexobj(arr):
+        raise InputError(f"{path}: '{key}' holds complex numbers; expected real numbers")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise InputError(f"{path}: '{key}' is not numeric (dtype {arr.dtype})")
+    arr = np.asarray(arr, dtype=np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{path}: '{key}' contains NaN or infinite values")
+    if limit is not None and arr.size and np.abs(arr).max() > limit.largest:
+        worst = float(np.abs(arr).max())
+        raise InputError(f"{path}: '{key}' {limit.value.format(worst)}; the file is corrupt "
+                         f"({limit.kind} are refused)")  # fmt: skip
+    return arr
+
+
+def frame_rate(key: str, value: np.ndarray, path: Path) -> float:
+    """The one number of a frame-rate array (0-d or one element)."""
+    value = np.asarray(value)
+    if value.size != 1:
+        what = "is empty" if value.size == 0 else f"holds {value.size} values"
+        raise InputError(f"{path}: '{key}' {what}; expected one frame rate")
+    return float(real_array(key, value, path).reshape(-1)[0])
+
+
+def gender_text(value: np.ndarray, path: Path) -> tuple[str, bool]:
+    """The one text a ``gender`` array holds, and whether it was stored as bytes."""
+    value = np.asarray(value)
+    if value.size != 1:
+        what = "is empty" if value.size == 0 else f"holds {value.size} values; expected one"
+        raise InputError(f"{path}: 'gender' {what} (e.g. 'female')")
+    item = value.reshape(-1)[0]
+    if isinstance(item, np.generic):
+        item = item.item()
+    if isinstance(item, bytes):
+        return item.decode("utf-8", "replace").strip(), True
+    if not isinstance(item, str):
+        raise InputError(f"{path}: 'gender' is not text (dtype {value.dtype})")
+    return item.strip(), False
+
+
+def joint_mask(value: np.ndarray, path: Path) -> np.ndarray:
+    """A ``joint_mask`` as bool: true/false values, or numbers (non-zero = observed)."""
+    mask = np.asarray(value)
+    if mask.dtype.kind not in "biuf":
+        raise InputError(f"{path}: 'joint_mask' is not true/false values (dtype {mask.dtype})")
+    return mask if mask.dtype.kind == "b" else real_array("joint_mask", mask, path) != 0
+
+
+def safe_keys(data: dict[str, np.ndarray], notes: list[str]) -> dict[str, np.ndarray]:
+    """``data`` with every key that is a path (``../../x``, ``/abs/y``: unsafe as an archive
+    member name, see :func:`~mdvae_cli.npz_archive.safe_key`) renamed in place, and a
+    ``warning:`` note for each."""
+    if all(safe_key(k) for k in data):
+        return data
+    taken = {k for k in data if safe_key(k)}
+    out = {}
+    for key, value in data.items():
+        if not safe_key(key):
+            new = safe_name(key, taken)
+            taken.add(new)
+            notes.append(f"warning: key {key!r} is a path, unsafe in an archive: written as "
+                         f"{new!r}")  # fmt: skip
+            key = new
+        out[key] = value
+    return out

@@ -1,0 +1,69 @@
+"""An SMPL motion as a BVH file on the SMPL skeleton of its own shape.
+
+The 22 body joints (SMPL's names) with their rest offsets from the body model and the motion's
+betas; End Sites at the hands (SMPL's hand joints), the toe tips and the top of the head. Y up
+(the axis Blender's and MotionBuilder's BVH importers take as up by default), the body facing
++Z; ZXY rotation channels; the root (pelvis) with position channels. Each joint's BVH rotation is
+its SMPL local rotation exactly (every rest frame is the world frame), so importing the file
+again gives back the motion.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES, SMPL_PARENTS
+from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+from mdvae_cli.motion.bvh_write import bvh_text, rotmat_to_euler
+from mdvae_cli.motion.fit_shape import BodyJoints
+from mdvae_cli.motion.motion import Motion
+
+_N = NUM_BODY_JOINTS
+
+#: metres per unit of each ``--units`` choice
+UNITS = {"cm": 0.01, "m": 1.0, "mm": 0.001, "in": 0.0254}
+
+#: AMASS z-up world -> BVH y-up world: (x, y, z) -> (x, z, -y)
+Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+#: End Site lengths (metres) where the body model has no joint: head top, toe tip
+_HEAD_TOP, _TOE = 0.18, 0.05
+
+
+def smpl_bvh(motion: Motion, body: BodyJoints, units: str = "cm", order: str = "ZXY") -> str:
+    """The BVH text of ``motion`` (AMASS layout, z up) on the body's skeleton for its betas.
+
+    units: one of UNITS. order: the rotation channel order (first listed outermost).
+    """
+    scale = UNITS[units]
+    betas = torch.as_tensor(np.asarray(motion.betas, dtype=np.float64))
+    nb = min(len(betas), body.num_betas)
+    full = torch.zeros(body.num_betas, dtype=torch.float64)
+    full[:nb] = betas[:nb]
+    X = body.rest_joints(full).numpy()
+    parents = [int(p) for p in SMPL_PARENTS[:_N]]
+    offsets = np.zeros((_N, 3))
+    offsets[1:] = X[1:_N] - X[[parents[j] for j in range(1, _N)]]
+    ends = {15: np.array([0.0, _HEAD_TOP, 0.0]), 10: np.array([0.0, 0.0, _TOE]),
+            11: np.array([0.0, 0.0, _TOE])}  # fmt: skip
+    for wrist, hand in ((20, 22), (21, 23)):
+        if len(X) > hand:
+            ends[wrist] = X[hand] - X[wrist]
+        else:
+            d = X[wrist] - X[wrist - 2]
+            ends[wrist] = d / np.linalg.norm(d) * 0.08
+    T = motion.num_frames
+    body_pose = np.reshape(motion.pose_body, (T, -1, 3))[:, : _N - 1]
+    pose = np.concatenate([np.reshape(motion.root_orient, (T, 1, 3)), body_pose], axis=1)
+    L = rotvec_to_rotmat(torch.as_tensor(pose, dtype=torch.float64)).numpy()
+    L[:, 0] = Z_UP_TO_Y_UP @ L[:, 0]
+    root = (np.asarray(motion.trans, dtype=np.float64) + X[0]) @ Z_UP_TO_Y_UP.T
+    axes = order.lower()
+    angles = np.concatenate(
+        [np.rad2deg(rotmat_to_euler(L[:, j], axes)) for j in range(_N)], axis=1
+    )  # (T, 3 * 22)
+    data = np.concatenate([root / scale, angles], axis=1)
+    ends = {j: v / scale for j, v in ends.items()}
+    return bvh_text(list(SMPL_JOINT_NAMES[:_N]), parents, offsets / scale, ends, data,
+                    1.0 / motion.fps, order=order.upper())  # fmt: skip

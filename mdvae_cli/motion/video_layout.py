@@ -1,0 +1,55 @@
+"""What the video-pipeline readers share: typed access to a result's arrays and the SMPL
+layouts they come in (``motion.video_formats``, ``motion.video_people``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.motion.video_tracks import matrices_to_rotvecs, rotmats, rotvecs, to_rotmat
+
+
+def array(d: dict, key: str, label: str) -> np.ndarray:
+    if key not in d:
+        raise InputError(f"{label}: no '{key}' array")
+    a = np.asarray(d[key])
+    if not np.issubdtype(a.dtype, np.number):
+        raise InputError(f"{label}: '{key}' is not numeric (dtype {a.dtype})")
+    return a
+
+
+def frames_of(a: np.ndarray, T: int, key: str, label: str) -> np.ndarray:
+    if a.shape[0] != T:
+        raise InputError(f"{label}: '{key}' has {a.shape[0]} frames, the pose {T}")
+    return a
+
+
+def smpl_axis_angle(pose: np.ndarray, key: str, label: str) -> tuple:
+    """(T, 72) SMPL axis-angles -> root (T, 3, 3), body (T, 21, 3), hands (T, 6)."""
+    aa = rotvecs(pose, 24, key, label)
+    return to_rotmat(aa[:, 0]), aa[:, 1:22], aa[:, 22:].reshape(len(aa), 6)
+
+
+def smpl_matrices(mats: np.ndarray, joints: int, key: str, label: str) -> tuple:
+    """(T, J, 3, 3) rotation matrices, root first -> root (T, 3, 3), body (T, 21, 3), the
+    remaining joints as axis-angles (T, 3 (J - 22))."""
+    m = rotmats(mats, joints, key, label)
+    aa = matrices_to_rotvecs(m[:, 1:])
+    return m[:, 0], aa[:, :21], aa[:, 21:].reshape(len(m), -1)
+
+
+def cam_extras(root: np.ndarray, transl: np.ndarray) -> dict[str, np.ndarray]:
+    """The camera-frame root and translation as the pipeline estimated them (carried)."""
+    return {
+        "cam_root_orient": matrices_to_rotvecs(root).astype(np.float32),
+        "cam_trans": np.asarray(transl, dtype=np.float32),
+    }
+
+
+def track_items(data: dict) -> list[tuple[str, dict]]:
+    """(label, per-track dict) of a dict keyed by track id, sorted by id."""
+
+    def order(k):
+        return (0, int(k), "") if np.issubdtype(type(k), np.integer) else (1, 0, str(k))
+
+    return [(str(k), v) for k, v in sorted(data.items(), key=lambda kv: order(kv[0]))]

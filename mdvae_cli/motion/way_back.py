@@ -1,0 +1,198 @@
+"""The way back: a cleaned SMPL motion onto the source file's own skeleton.
+
+A take is retargeted onto SMPL (``retarget``), cleaned there, and written again on its own
+skeleton. Each source joint that drives an SMPL joint (its *rotation source*) turns by the same
+world-space change as that SMPL joint did: ``G'_s = D_j G_s`` with ``D_j = G_clean_j
+G_orig_j^T``, starting from the file's own rotations, so a joint the cleaning left alone keeps
+its channels exactly, whatever its rest pose. Joints the SMPL proxy does not cover (fingers,
+toes, twist and extra spine joints, props) keep their local channels and follow their parent.
+The pelvis point moves as the SMPL pelvis did; the translation goes to the channels that
+carried it (the root's, or a moving pelvis's own), in the file's units and axes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
+from mdvae_cli.errors import InputError
+from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+from mdvae_cli.motion.bvh import BvhLayout, _positions
+from mdvae_cli.motion.bvh_write import rotmat_to_euler
+from mdvae_cli.motion.fit_shape import BodyJoints
+from mdvae_cli.motion.joint_map import JointMap
+from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.source import SourceMotion, euler_to_rotmat
+
+_N = NUM_BODY_JOINTS
+_SPINE = (0, 3, 6, 9, 12, 15)
+
+
+def smpl_globals(motion: Motion, model: BodyJoints) -> tuple[np.ndarray, np.ndarray]:
+    """World rotations (T, 22, 3, 3) and joint positions (T, 22, 3) of a motion's body."""
+    parents = [int(p) for p in SMPL_PARENTS[:_N]]
+    X = model.rest_joints(torch.as_tensor(np.asarray(motion.betas, dtype=np.float64)))[:_N]
+    T = motion.num_frames
+    body = np.reshape(motion.pose_body, (T, -1, 3))[:, : _N - 1]
+    pose = np.concatenate([np.reshape(motion.root_orient, (T, 1, 3)), body], axis=1)
+    L = rotvec_to_rotmat(torch.as_tensor(pose, dtype=torch.float64)).numpy()
+    X = X.numpy()
+    G = np.empty((T, _N, 3, 3))
+    P = np.empty((T, _N, 3))
+    G[:, 0], P[:, 0] = L[:, 0], np.asarray(motion.trans, dtype=np.float64) + X[0]
+    for j in range(1, _N):
+        p = parents[j]
+        G[:, j] = G[:, p] @ L[:, j]
+        P[:, j] = P[:, p] + G[:, p] @ (X[j] - X[p])
+    return G, P
+
+
+def drivers(jmap: JointMap, num_joints: int) -> np.ndarray:
+    """Per source joint, the SMPL joint whose change it follows (-1: none, keeps its channels).
+
+    The pelvis drives the source pelvis; where several SMPL joints share a source joint (one
+    source spine joint for three SMPL ones, an ankle without toes) the deepest one drives it;
+    collars the source lacks drive nothing.  -> (J,) int
+    """
+    cands: dict[int, list[int]] = {}
+    for j in range(_N):
+        s = int(jmap.rot_source[j])
+        side = {13: "left_collar", 14: "right_collar"}.get(j)
+        if s < 0 or (side is not None and side not in jmap.anchor):
+            continue
+        cands.setdefault(s, []).append(j)
+    out = np.full(num_joints, -1, dtype=np.int64)
+    for s, js in cands.items():
+        spine = [j for j in js if j in _SPINE]
+        out[s] = 0 if 0 in js else max(spine or js)
+    return out
+
+
+def smpl_change(rt, original: Motion, cleaned: Motion, body: BodyJoints, scale: float):
+    """What cleaning did to the SMPL body, in the source file's axes: each body joint's
+    world-space turn ``D_j = M^T G_clean_j G_orig_j^T M`` (T, 22, 3, 3) and the pelvis's move
+    (T, 3) in file units (``scale``: metres per file unit). rt: the take's RetargetResult
+    (``M = rt.to_output``: source world -> SMPL output world)."""
+    M = np.asarray(rt.to_output)
+    Go, Po = smpl_globals(original, body)
+    Gc, Pc = smpl_globals(cleaned, body)
+    D = np.einsum("ab,tjbc,tjdc,de->tjae", M.T, Gc, Go, M)
+    return D, (Pc[:, 0] - Po[:, 0]) @ M / scale
+
+
+def pelvis_point(rt, D: np.ndarray, shift: np.ndarray, anchor: np.ndarray, scale: float):
+    """Where the source pelvis joint goes (T, 3; file units and axes): the point the SMPL
+    pelvis was fitted to moves by the pelvis's ``shift`` and turns with it (``D[:, 0]``), and
+    the source pelvis joint (at ``anchor`` (T, 3) before) keeps its place relative to it."""
+    target = ((rt.targets[:, 0] + rt.drop) @ np.asarray(rt.to_output)) / scale
+    arm = target - anchor
+    return target + shift - (D[:, 0] @ arm[..., None])[..., 0]
+
+
+def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray):
+    """Local rotations (T, J, 3, 3), translations (T, J, 3; the root's is its position) and
+    world rotations and positions of the file's own frames ``data`` (T, C), in file units."""
+    T, J = data.shape[0], src.num_joints
+    L = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
+    t = np.tile(layout.offsets, (T, 1, 1))
+    for j in range(J):
+        rot = layout.joint_columns(j, "r")
+        if rot:
+            L[:, j] = euler_to_rotmat(np.deg2rad(data[:, [c for c, _ in rot]]),
+                                      "".join(a for _, a in rot))  # fmt: skip
+        cols = layout.joint_columns(j, "t")
+        if j == 0:
+            t[:, 0] = _positions(data, cols, np.zeros(3)) + layout.offsets[0]
+        elif cols and j not in layout.world_channels:
+            t[:, j] = _positions(data, cols, layout.offsets[j])
+    G, P = _fk(L, t, src.parents)
+    return L, t, G, P
+
+
+def _fk(L, t, parents):
+    T, J = L.shape[:2]
+    G = np.empty_like(L)
+    P = np.empty((T, J, 3))
+    G[:, 0], P[:, 0] = L[:, 0], t[:, 0]
+    for j in range(1, J):
+        p = parents[j]
+        G[:, j] = G[:, p] @ L[:, j]
+        P[:, j] = P[:, p] + (G[:, p] @ t[:, j, :, None])[..., 0]
+    return G, P
+
+
+def _carrier(src: SourceMotion, layout: BvhLayout, a: int) -> int:
+    """The joint whose position channels move joint a: a itself when they move it, else the
+    nearest ancestor with position channels (the root)."""
+    j = a
+    while j >= 0:
+        if layout.joint_columns(j, "t") and (j == 0 or j in layout.moving):
+            return j
+        j = int(src.parents[j])
+    raise InputError("the skeleton has no position channels to carry the root's motion")
+
+
+def write_back_data(
+    src: SourceMotion,
+    rt,
+    original: Motion,
+    cleaned: Motion,
+    body: BodyJoints,
+) -> np.ndarray:
+    """The file's channel values (F, C) with the change from ``original`` to ``cleaned`` (SMPL
+    motions of the same frames as ``src``, e.g. a retarget result's motion and its denoised
+    version) carried onto the file's own skeleton.  rt: the :class:`RetargetResult` of
+    ``src`` (its joint map and axes). Rows the reader skipped are kept as they were."""
+    layout: BvhLayout = src.layout
+    if layout is None:
+        raise InputError("this motion was not read from a BVH file; it cannot be written back")
+    data = layout.data[layout.rows]
+    T = data.shape[0]
+    if original.num_frames != T or cleaned.num_frames != T:
+        raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
+    scale = layout.metres_per_unit
+    D, shift = smpl_change(rt, original, cleaned, body, scale)
+
+    L, t, G, P = file_pose(src, layout, data)
+    drive = drivers(rt.jmap, src.num_joints)
+    G2 = G.copy()
+    for j in range(src.num_joints):
+        p = int(src.parents[j])
+        if drive[j] >= 0:
+            G2[:, j] = D[:, drive[j]] @ G[:, j]
+        elif p >= 0:
+            G2[:, j] = G2[:, p] @ L[:, j]
+    L2 = G2.copy()
+    L2[:, 1:] = np.swapaxes(G2[:, src.parents[1:]], -1, -2) @ G2[:, 1:]
+
+    # the pelvis point (the SMPL pelvis's target) moves by the SMPL pelvis's change and turns
+    # with the pelvis; the channels that carry the source pelvis take up the difference
+    a = int(rt.jmap.anchor["pelvis"])
+    new_a = pelvis_point(rt, D, shift, P[:, a], scale)
+    c = _carrier(src, layout, a)
+    t2 = t.copy()
+    Gp = np.broadcast_to(np.eye(3), (T, 3, 3)) if c == 0 else G2[:, src.parents[c]]
+    t2[:, c] = t[:, c] + (np.swapaxes(Gp, -1, -2) @ (new_a - P[:, a])[..., None])[..., 0]
+
+    out = layout.data.copy()
+    new = data.copy()
+    for j in range(src.num_joints):
+        rot = layout.joint_columns(j, "r")
+        if rot and drive[j] >= 0:
+            axes = "".join(a_ for _, a_ in rot)
+            if len(rot) != 3 or len(set(axes)) != 3:
+                continue  # a joint that cannot turn freely keeps its channels
+            near = np.deg2rad(data[:, [col for col, _ in rot]])
+            new[:, [col for col, _ in rot]] = np.rad2deg(rotmat_to_euler(L2[:, j], axes, near))
+    for col, axis in layout.joint_columns(c, "t"):
+        k = "xyz".index(axis)
+        new[:, col] = t2[:, c, k] - (layout.offsets[0, k] if c == 0 else 0.0)
+    if layout.world_channels:
+        _, P2 = _fk(L2, t2, src.parents)
+        for j in layout.world_channels:
+            for col, axis in layout.joint_columns(j, "t"):
+                k = "xyz".index(axis)  # the file's value, moved as the joint moved
+                new[:, col] = data[:, col] + P2[:, j, k] - P[:, j, k]
+    out[layout.rows] = new
+    return out

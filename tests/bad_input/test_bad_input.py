@@ -1,0 +1,252 @@
+"""Bad input, measured: every reader's defects through every file command that reads them.
+
+Each case (``cases.py``) writes one bad file beside the good files its command needs and runs
+the command in-process (click's CliRunner). It must: exit 1; print exactly one ``error: ...``
+line that names the bad file and says what is wrong with it in the user's words (no Python
+exception names, no traceback); leave no output or temporary file anywhere; leave every input
+byte-identical; run no code from a pickle. A few cases run as real processes, for the exit
+status and stderr a shell sees.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import subprocess
+import sys
+import zipfile
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from mdvae_cli.cli.main import cli
+from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import write_atomic
+from mdvae_cli.npz_archive import read_npz, write_npz
+from tests.bad_input import files as F
+from tests.bad_input.cases import COMMANDS, MARKER, READER_COMMANDS, Case, cases
+from tests.conftest import tree_digest
+
+CASES = cases()
+REPO = Path(__file__).resolve().parents[2]
+
+#: words that give away an internal failure rather than a refusal in the user's words
+_INTERNAL = re.compile(
+    r"Traceback|MDVAE_DEBUG|\b[A-Za-z]*(Error|Exception|Warning)\b|\bFile \"|<[a-z]+ object"
+)
+
+
+@cache
+def _good_bytes(kind: str) -> bytes:
+    """A good file of ``kind``: what the bad files of its reader are made from."""
+    return {
+        "npz": F.good_motion,
+        "bvh": lambda: F.bvh_text().encode(),
+        "asf": lambda: F.asf_text().encode(),
+        "amc": lambda: F.amc_text(frames=32).encode(),
+        "body-npz": lambda: F.npz_bytes(F.body_members()),
+        "body-pkl": F.body_pickle,
+    }[kind]()
+
+
+def _good_name(kind: str) -> str:
+    return {"npz": "good.npz", "bvh": "good.bvh", "asf": "good.asf", "amc": "good_01.amc",
+            "body-npz": "body.npz", "body-pkl": "body.pkl"}[kind]  # fmt: skip
+
+
+def _setup(case: Case, folder: Path) -> tuple[Path, dict[str, Path]]:
+    """Write the case's bad file and the good files its command needs under ``folder/in``."""
+    inputs = folder / "in"
+    inputs.mkdir(exist_ok=True)
+    bad = inputs / f"bad{case.defect.file_suffix}"
+    bad.write_bytes(case.defect.build(folder))
+    good = {}
+    for kind in case.command.needs:
+        good[kind] = inputs / _good_name(kind)
+        good[kind].write_bytes(_good_bytes(kind))
+    return bad, good
+
+
+def _listing(folder: Path) -> set[str]:
+    return {p.relative_to(folder).as_posix() for p in folder.rglob("*")}
+
+
+def check_refusal(output: str, bad: Path, expect: str) -> str:
+    """The one ``error:`` line of ``output``, checked; other lines may only be notes."""
+    lines = [line for line in output.splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("error: ")]
+    assert len(errors) == 1, lines
+    others = [line for line in lines if not line.startswith(("error: ", "note: ", "warning: "))]
+    assert not others, lines
+    line = errors[0]
+    assert bad.name in line, line
+    assert re.search(expect, line), f"{expect!r} not in {line!r}"
+    assert not _INTERNAL.search(output), output
+    return line
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
+def test_bad_input_is_refused_in_one_line(case: Case, tmp_path: Path):
+    bad, good = _setup(case, tmp_path)
+    before = tree_digest(tmp_path / "in")
+    listing = _listing(tmp_path)
+    out = tmp_path / "out"
+    args = [str(a) for a in case.command.args(bad, good, out)]
+    result = CliRunner().invoke(cli, args)
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    assert result.exit_code == 1, result.output
+    check_refusal(result.output, bad, case.defect.expect)
+    assert not (tmp_path / MARKER).exists(), "code from a pickle ran"
+    assert not out.exists(), sorted(_listing(out))  # no output, not even an empty folder
+    assert _listing(tmp_path) == listing  # no temporary left anywhere
+    assert tree_digest(tmp_path / "in") == before  # inputs untouched
+
+
+def test_the_suite_is_big_enough_and_covers_every_command():
+    """At least 150 cases; every command of every reader gets some of its reader's defects."""
+    assert len(CASES) >= 150
+    ran = {(c.defect.reader, c.command.name) for c in CASES}
+    for reader, group in READER_COMMANDS.items():
+        for command in COMMANDS[group]:
+            assert (reader, command.name) in ran, (reader, command.name)
+
+
+#: a run of each command group on the good files the bad ones are made from
+_GOOD_RUNS = {
+    "npz-add-noise": lambda g, o: ["add-noise", g["npz"], "-o", o / "o.npz"],
+    "npz-export-mesh": lambda g, o: ["export-mesh", g["npz"], "-o", o / "meshes"],
+    "bvh-import": lambda g, o: ["import", g["bvh"], "-o", o / "o.npz"],
+    "amc-import": lambda g, o: ["import", g["amc"], "--asf", g["asf"], "-o", o / "o.npz"],
+    "body-npz": lambda g, o: [
+        "export-bvh",
+        g["npz"],
+        "--body-model",
+        g["body-npz"],
+        "-o",
+        o / "o.bvh",
+    ],  # fmt: skip
+    "body-pkl": lambda g, o: [
+        "export-bvh",
+        g["npz"],
+        "--body-model",
+        g["body-pkl"],
+        "-o",
+        o / "o.bvh",
+    ],  # fmt: skip
+}
+
+
+@pytest.mark.parametrize("run", list(_GOOD_RUNS))
+def test_the_good_files_are_accepted(tmp_path, run):
+    """The files the bad ones are made from are read without complaint (so each case fails
+    for its own defect)."""
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    good = {}
+    for kind in ("npz", "bvh", "asf", "amc", "body-npz", "body-pkl"):
+        good[kind] = inputs / _good_name(kind)
+        good[kind].write_bytes(_good_bytes(kind))
+    out = tmp_path / "out"
+    result = CliRunner().invoke(cli, [str(a) for a in _GOOD_RUNS[run](good, out)])
+    assert result.exit_code == 0, result.output
+    assert not any(line.startswith("error") for line in result.output.splitlines())
+    assert len(list(out.iterdir())) == 1
+
+
+#: cases run as real processes: the exit status and stderr a shell sees
+_PROCESS_CASES = ["npz-huge-shape-add-noise", "npz-pickled-poses-add-noise",
+                  "bvh-deep-hierarchy-import"]  # fmt: skip
+
+
+@pytest.mark.parametrize("case_id", _PROCESS_CASES)
+def test_bad_input_in_a_real_process(case_id: str, tmp_path: Path):
+    case = next(c for c in CASES if c.id == case_id)
+    bad, good = _setup(case, tmp_path)
+    before = tree_digest(tmp_path / "in")
+    args = [str(a) for a in case.command.args(bad, good, tmp_path / "out")]
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    env.pop("MDVAE_DEBUG", None)
+    proc = subprocess.run([sys.executable, "-m", "mdvae_cli.cli.main", *args], env=env,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stdout == ""
+    check_refusal(proc.stderr, bad, case.defect.expect)
+    assert not (tmp_path / MARKER).exists() and not (tmp_path / "out").exists()
+    assert tree_digest(tmp_path / "in") == before
+
+
+def _extras() -> dict[str, np.ndarray]:
+    """Extra keys that np.savez could not write (its own parameters) or that are paths."""
+    return {
+        "file": np.arange(3.0),
+        "allow_pickle": np.array([1, 2]),
+        "../../escape": np.ones(2),
+        "/abs/olute": np.zeros(1),
+        "back\\slash": np.array(7),
+    }
+
+
+@pytest.mark.parametrize("command", ["add-noise", "denoise", "sample"])
+def test_extra_keys_are_carried_or_renamed_with_a_warning(tmp_path: Path, command: str):
+    """``file`` and ``allow_pickle`` (np.savez's parameters) are written back as they are;
+    keys that are paths are renamed, one ``warning:`` line each; none is dropped silently
+    (``sample`` makes a new motion: it says which per-frame keys it leaves out)."""
+    src = tmp_path / "take.npz"
+    members = F.motion_members()
+    members.update({f"{k}.npy": v for k, v in _extras().items()})
+    members["dmpls.npy"] = np.arange(F.FRAMES * 8.0).reshape(F.FRAMES, 8)
+    src.write_bytes(F.npz_bytes(members))
+    out = tmp_path / "out.npz"
+    args = {"add-noise": ["add-noise", src, "-o", out], "denoise": ["denoise", src, "-o", out],
+            "sample": ["sample", "--from", src, "--frames", 4, "-o", out]}[command]  # fmt: skip
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    warnings = [line for line in result.output.splitlines() if line.startswith("warning: ")]
+    assert len(warnings) == 3, result.output
+    for old, new in (("../../escape", "escape"), ("/abs/olute", "abs_olute"),
+                     ("back\\slash", "back_slash")):  # fmt: skip
+        assert any(repr(old) in w and repr(new) in w and "take.npz" in w for w in warnings)
+    with zipfile.ZipFile(out) as zf:
+        names = zf.namelist()
+    assert not any("/" in n or "\\" in n for n in names), names
+    written = read_npz(out, out)
+    expected = {"file": "file", "allow_pickle": "allow_pickle", "../../escape": "escape",
+                "/abs/olute": "abs_olute", "back\\slash": "back_slash"}  # fmt: skip
+    for old, new in expected.items():
+        np.testing.assert_array_equal(written[new], _extras()[old])
+    left_out = "per-frame keys of the start file are not carried into the sample: dmpls"
+    assert ("dmpls" in written) == (command != "sample")
+    assert (left_out in result.output) == (command == "sample"), result.output
+
+
+def test_the_npz_writer_takes_any_safe_key_and_refuses_paths():
+    buf = io.BytesIO()
+    arrays = {"file": np.arange(2), "allow_pickle": np.ones(1), "compress": np.zeros(3)}
+    write_npz(buf, arrays)
+    buf.seek(0)
+    back = read_npz(buf, "memory")
+    assert list(back) == list(arrays)
+    for key in arrays:
+        np.testing.assert_array_equal(back[key], arrays[key])
+    for key in ("../x", "/abs", "a\\b", "..", "", "c:d"):
+        with pytest.raises(InputError, match="its name is a path"):
+            write_npz(io.BytesIO(), {key: np.zeros(1)})
+
+
+def test_a_failed_write_leaves_no_folder_it_made(tmp_path: Path):
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    target = kept / "new" / "deeper" / "out.npz"
+
+    def fail(tmp: Path) -> None:
+        tmp.write_bytes(b"partial")
+        raise InputError("refused halfway")
+
+    with pytest.raises(InputError, match="refused halfway"):
+        write_atomic(target, fail)
+    assert kept.exists() and list(kept.iterdir()) == []

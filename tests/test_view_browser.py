@@ -1,0 +1,116 @@
+"""``mdvae view``'s page in a real browser (headless Chromium, Debian's ``chromium`` package):
+it starts, plays, draws different frames as the timeline moves, rebuilds the posed joints,
+fetches nothing and logs no error. Skipped where Chromium is not installed."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from benchmarks.chromium import Chromium, file_url, find_chromium
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.motion.npz_io import motion_from_arrays
+from mdvae_cli.view.page import build_view_page, write_view_page
+from mdvae_cli.view.pose import pose_skeleton
+from tests.conftest import motion_arrays
+
+pytestmark = pytest.mark.skipif(
+    find_chromium() is None,
+    reason="chromium not installed (apt-get install chromium): the page is not run in a browser",
+)
+
+READY = "window.mdvaeView && (window.mdvaeView.ready || window.mdvaeView.errors.length > 0)"
+#: the fraction of the scene canvas's bytes that differ between two frames
+SCENE_CHANGE = """(async () => {
+  const c = document.getElementById('scene'), ctx = c.getContext('2d');
+  const grab = () => ctx.getImageData(0, 0, c.width, c.height).data;
+  window.mdvaeView.seek(%d); const a = grab();
+  window.mdvaeView.seek(%d); const b = grab();
+  let n = 0; for (let i = 0; i < a.length; i++) if (a[i] !== b[i]) n++;
+  return n / a.length;
+})()"""
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory, tiny_body):
+    """One page in one browser for the module: a noisy 30 Hz take and a clean 60 Hz take of
+    another length (the page aligns them by time)."""
+    rng = np.random.default_rng(0)
+    noisy = motion_from_arrays(motion_arrays(T=60, fps=30.0, seed=0))
+    noisy = noisy.with_body(pose_body=noisy.pose_body + rng.normal(0, 0.15, (60, 21, 3)))
+    clean = motion_from_arrays(motion_arrays(T=150, fps=60.0, seed=0))
+    body = BodyModel(tiny_body)
+    path = tmp_path_factory.mktemp("view") / "page.html"
+    write_view_page(build_view_page([("noisy", noisy), ("clean", clean)], body), path)
+    browser = Chromium.launch()
+    try:
+        tab = browser.open_page(width=1000, height=800)
+        tab.navigate(file_url(path))
+        tab.wait_for(READY, timeout=60)
+        yield tab, path, [pose_skeleton(m, body).joints for m in (noisy, clean)]
+    finally:
+        browser.close()
+
+
+def test_page_starts_without_errors_or_requests(page):
+    tab, path, _ = page
+    assert tab.evaluate("window.mdvaeView.errors") == []
+    assert tab.errors() == []
+    assert tab.requests() == [file_url(path)]  # the file itself, nothing else
+    state = tab.evaluate("window.mdvaeView.state()")
+    assert state["mesh"] and state["frames"] == 150 and state["fps"] == 60
+    assert tab.evaluate("window.mdvaeView.firstFrameMs") > 0
+
+
+def test_timeline_moves_the_picture_and_keeps_motions_aligned_by_time(page):
+    tab, _, _ = page
+    assert tab.evaluate(SCENE_CHANGE % (0, 80)) > 0.002  # the bodies moved
+    assert tab.evaluate(SCENE_CHANGE % (80, 80)) == 0.0  # drawing is deterministic
+    shots = []
+    for frame in (0, 80):
+        state = tab.evaluate(f"window.mdvaeView.seek({frame})")
+        shots.append(tab.screenshot())
+    assert shots[0] != shots[1]
+    # timeline frame 80 at 60 Hz = 1.333 s: frame 40 of the 30 Hz take, 80 of the 60 Hz one
+    assert [m["frame"] for m in state["motions"]] == [40, 80]
+    # past the end of the shorter take, it holds its last frame
+    state = tab.evaluate("window.mdvaeView.seek(149)")
+    assert [m["frame"] for m in state["motions"]] == [59, 149]
+
+
+def test_page_rebuilds_the_posed_joints(page):
+    tab, _, truth = page
+    for i, frames in ((0, (0, 33, 59)), (1, (0, 77, 149))):
+        for f in frames:
+            got = np.array(tab.evaluate(f"window.mdvaeView.jointsAt({i}, {f})")).reshape(22, 3)
+            assert np.abs(got - truth[i][f]).max() < 2e-3
+
+
+def test_controls_change_the_picture_without_errors(page):
+    tab, _, _ = page
+    tab.evaluate("window.mdvaeView.seek(50)")
+    before = tab.screenshot()
+    for call in ("setLayout('overlay')", "setBody('skeleton')", "setBody('mesh')",
+                 "setPlot('bend', 4)", "setPlot('height', 10, 1)", "setPlot('speed', 20)",
+                 "setPlot('rotation', 0, 0)", "setLayout('side')", "setBody('both')"):  # fmt: skip
+        tab.evaluate(f"window.mdvaeView.{call}")
+        assert tab.evaluate("window.mdvaeView.errors") == [], call
+    tab.evaluate("window.mdvaeView.setLayout('overlay')")
+    assert tab.screenshot() != before
+    tab.evaluate("window.mdvaeView.setLayout('side')")
+    assert tab.errors() == []
+
+
+def test_play_advances_time(page):
+    tab, _, _ = page
+    tab.evaluate("window.mdvaeView.seek(0); window.mdvaeView.play()")
+    start = time.monotonic()
+    while tab.evaluate("window.mdvaeView.state().time") == 0 and time.monotonic() - start < 5:
+        time.sleep(0.05)
+    state = tab.evaluate("window.mdvaeView.state()")
+    tab.evaluate("window.mdvaeView.pause()")
+    assert state["playing"] and state["time"] > 0
+    assert json.dumps(tab.errors()) == "[]"
