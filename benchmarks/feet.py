@@ -161,7 +161,9 @@ def metrics_table(results: Sequence[SigmaResult]) -> str:
 def targets_table(results: Sequence[SigmaResult]) -> str:
     """Issue 20's targets: lock's skate and penetration against the ground truth's, V2V change."""
 
-    def ratio(lock: float, off: float, truth: float) -> str:
+    def ratio(lock: float | None, off: float | None, truth: float | None) -> str:
+        if lock is None or off is None or not truth:
+            return "-"  # no contact, or a truth that never slides or sinks
         return f"{lock / truth:.2f} (off: {off / truth:.2f})"
 
     rows = []
@@ -173,7 +175,7 @@ def targets_table(results: Sequence[SigmaResult]) -> str:
             f"{r.sigma:.2f}",
             ratio(lk.foot_skate_pred, off.foot_skate_pred, lk.foot_skate_gt),
             ratio(lk.penetration_pred, off.penetration_pred, lk.penetration_gt),
-            f"{100 * (lk.v2v_cm / off.v2v_cm - 1):+.1f} %",
+            f"{100 * (lk.v2v_cm / off.v2v_cm - 1):+.1f} %" if off.v2v_cm else "-",
         ])  # fmt: skip
     header = [
         "σ (rad)",

@@ -275,3 +275,32 @@ def test_cli_feet_lock_and_off(body, tmp_path):
     res = CliRunner().invoke(cli, ["denoise", str(src), "-o", str(tmp_path / "x.npz"),
                                    "--feet", "glue"])  # fmt: skip
     assert res.exit_code == 2 and "glue" in res.output
+
+
+def test_feet_benchmark_runs_on_two_clips(body):
+    from benchmarks.common import cut_clips
+    from benchmarks.feet import markdown, parse_variant, run_sigma
+    from mdvae_cli.model.denoiser import load_denoiser
+    from mdvae_cli.motion.contacts import foot_contacts
+
+    m = crouch(60)
+    m.trans[:, 0] = 0.3 * np.sin(np.arange(60) / 10)  # swaying: still at the turns
+    m.trans[:, 2] -= feet_and_soles(m, body)[1].min()
+    clips = cut_clips(m, 30, "sway.npz")
+    truth = [foot_contacts(_joints(c.motion, body), FPS) for c in clips]
+    assert all(t.any() for t in truth)
+    denoiser, _ = load_denoiser(None)
+    result = run_sigma(clips, denoiser, body, 0.1, FootLockConfig(), truth)
+    assert result.frames == 60 and result.lock_s > 0 and result.denoise_s > 0
+    assert result.off.v2v_cm > 0 and result.lock.penetration_pred is not None
+    assert set(result.detection) == {
+        "denoised motion (what `--feet lock` uses)", "noisy input, same settings"
+    }  # fmt: skip
+    md = markdown([result], "header")
+    assert "| 0.10 | `--feet lock` |" in md and "skate / GT skate" in md
+    cfg, use_input = parse_variant("keep=0,passes=1,input=0")
+    assert cfg.keep == 0 and cfg.passes == 1 and not use_input
+
+
+def _joints(motion: Motion, body: BodyModel) -> np.ndarray:
+    return np.concatenate([o.joints.double().numpy() for _, o in pose_motion_chunks(motion, body)])

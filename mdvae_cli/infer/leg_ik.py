@@ -162,15 +162,19 @@ def pose_legs(motion: Motion, model: LegModel) -> tuple[np.ndarray, np.ndarray]:
     return pos, sole_heights(pos, G, model)
 
 
-def sole_heights(pos: np.ndarray, G: np.ndarray, model: LegModel) -> np.ndarray:
-    """Height of each foot's lowest sole vertex.  pos (B, 2, 4, 3), G (B, 2, 4, 3, 3) -> (B, 2)"""
+def sole_heights(pos: np.ndarray, G: np.ndarray, model: LegModel, chunk: int = 4096) -> np.ndarray:
+    """Height of each foot's lowest sole vertex.  pos (B, 2, 4, 3), G (B, 2, 4, 3, 3) -> (B, 2)
+
+    Computed ``chunk`` frames at a time (the vertices of a chunk take chunk x 4 x F floats)."""
     out = np.empty(pos.shape[:2])
     for leg in range(2):
         # z of sum_i w_i (R_i (v - J_i) + o_i) over the joints i
         local = model.soles[leg][None] - model.joints[leg][:, None]  # (4, F, 3)
         weighted = (local * model.weights[leg].T[..., None]).transpose(0, 2, 1)  # (4, 3, F)
-        z = (G[:, leg, :, 2:3] @ weighted)[:, :, 0].sum(1)  # (B, F)
-        out[:, leg] = (z + pos[:, leg, :, 2] @ model.weights[leg].T).min(-1)
+        for s in range(0, len(pos), chunk):
+            sl = slice(s, s + chunk)
+            z = (G[sl, leg, :, 2:3] @ weighted)[:, :, 0].sum(1)  # (b, F)
+            out[sl, leg] = (z + pos[sl, leg, :, 2] @ model.weights[leg].T).min(-1)
     return out
 
 
