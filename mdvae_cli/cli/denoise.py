@@ -209,7 +209,7 @@ def denoise(
         for j in good:
             for i, (_, motion, _) in enumerate(loaded[j.source]):
                 cycles[(j.source, i)] = loop if loop is not None else looks_like_loop(motion)
-                if loop is None and cycles[(j.source, i)]:
+                if loop is None and cycles[(j.source, i)] and not as_json:  # --json: "loop"
                     print_notes(j.relpath, [LOOP_NOTE])
 
     def run(group: list[FileJob], refine, guard_on: bool) -> None:
@@ -285,7 +285,8 @@ def denoise(
                 page = track_output(Path(view_dir) / strip_gz(job.relpath).with_suffix(".html"),
                                     label)  # fmt: skip
                 write_before_after(source_motion, motion, job, page, body, forbid=sources)
-            print_notes(job.relpath, [n for n in motion.notes if "input smoothed instead" in n])
+            if not as_json:  # --json has them under "fallbacks"
+                print_notes(job.relpath, [n for n in motion.notes if "smoothed instead" in n])
             tracks.append({"track": label, "output": str(output), "frames": motion.num_frames,
                            "fallbacks": fallbacks.get((job.source, i), []),
                            "loop": cycles.get((job.source, i), False)})  # fmt: skip

@@ -20,6 +20,7 @@ from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion import cmu
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.npz_io import load_motion
 
 
 @dataclass(frozen=True)
@@ -138,5 +139,10 @@ def load_any_motion(path: Path | str, options: ReadOptions | None = None) -> Mot
         raise InputError(f"no such file: {path}")
     if path.is_dir():
         raise InputError(f"{path} is a folder, expected a motion file")
-    reader = READERS.get(_suffix(path), read_npz)
+    reader = READERS.get(_suffix(path), read_amass)
     return reader(path, options or ReadOptions())
+
+
+def read_amass(path: Path, options: ReadOptions) -> Motion:
+    """An AMASS-style .npz only (a file of an unknown suffix is tried as one)."""
+    return load_motion(path, allow_pickle=options.allow_pickle)
