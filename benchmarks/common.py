@@ -19,6 +19,7 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, pose_motion_chunks
+from mdvae_cli.foot_metrics import compare_feet
 from mdvae_cli.metrics import (
     EvalResult,
     acceleration_error,
@@ -27,6 +28,7 @@ from mdvae_cli.metrics import (
     mpjpe,
     v2v,
 )
+from mdvae_cli.motion.contacts import foot_vertex_ids, lowest_sole_points
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
 from mdvae_cli.motion.npz_io import load_motion, save_motion
@@ -177,15 +179,18 @@ def compact(pred: Motion, gt: Motion) -> Motion:
 class _Posed:
     joints: torch.Tensor  # (T, 22, 3) float64
     vertices: torch.Tensor  # (T, V, 3) float64
+    soles: np.ndarray  # (T, 2) each foot's lowest vertex height
 
 
 def _pose(motion: Motion, body: BodyModel, betas: np.ndarray) -> _Posed:
     chunks = list(
         pose_motion_chunks(motion, body, DEFAULT_CHUNK_FRAMES, vertices=True, betas=betas)
     )
+    vertices = torch.cat([o.vertices for _, o in chunks]).double()
     return _Posed(
         torch.cat([o.joints for _, o in chunks]).double(),
-        torch.cat([o.vertices for _, o in chunks]).double(),
+        vertices,
+        lowest_sole_points(vertices.numpy(), *foot_vertex_ids(body.data.weights)),
     )
 
 
@@ -209,6 +214,7 @@ def _compare(gt: _Posed, pred: _Posed, fps: float) -> EvalResult:
         accel_gt=accel[0],
         accel_pred=accel[1],
         accel_error=accel[2],
+        **compare_feet(jg.numpy(), gt.soles, jp.numpy(), pred.soles, fps),
     )
 
 

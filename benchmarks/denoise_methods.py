@@ -22,6 +22,7 @@ try:
         ROW_GT,
         ROW_OBS,
         ROW_OFFSET,
+        ROW_OFFSET_FEET,
         ROW_OPTIMIZATION,
         ROW_OPTIMIZATION_OFFSET,
         ROW_REFINE,
@@ -44,6 +45,7 @@ except ModuleNotFoundError:  # run as a file
         ROW_GT,
         ROW_OBS,
         ROW_OFFSET,
+        ROW_OFFSET_FEET,
         ROW_OPTIMIZATION,
         ROW_OPTIMIZATION_OFFSET,
         ROW_REFINE,
@@ -63,6 +65,7 @@ except ModuleNotFoundError:  # run as a file
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
 from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import EvalResult
 from mdvae_cli.model.denoiser import Denoiser
@@ -113,10 +116,12 @@ def _denoise(
     steps: int,
     refine: int | None = None,
     mirror: bool = False,
+    feet: bool = False,
 ) -> Process:
     """Regression (steps 0) or optimisation mode; ``refine``: None = no refinement, 0 = the
     closed-form offset alone, N = N refinement steps (with the offset); ``mirror``: average
-    with the mirror image's result (``mdvae denoise --mirror``). With the offset (refine not
+    with the mirror image's result (``mdvae denoise --mirror``); ``feet``: then hold the feet
+    still on the floor (``mdvae denoise --feet lock``). With the offset (refine not
     None) the guard is on, as ``mdvae denoise`` runs it; the paper's modes run untouched."""
     cfg = None
     if refine is not None:
@@ -128,6 +133,7 @@ def _denoise(
         return denoise_motions(
             motions, model, body, s.window, s.stride, steps, s.lr, s.batch_size, s.seed,
             refine=cfg, mirror=mirror, guard=cfg is not None,
+            feet=FootLockConfig() if feet else None,
         )  # fmt: skip
 
     return process
@@ -180,6 +186,10 @@ def build_table(
             f"{RefineConfig.trans_offset_std:g} m on the root (`mdvae denoise`)",
             _denoise(denoiser, body, s, 0, 0),
         ),
+        ROW_OFFSET_FEET: (
+            "the above, then feet held still on the floor where they are down (`--feet lock`)",
+            _denoise(denoiser, body, s, 0, 0, feet=True),
+        ),
         ROW_OPTIMIZATION: (
             f"{s.optimize_steps} steps on each sigma's set, lr {s.lr:g}, batch {s.batch_size}",
             _denoise(denoiser, body, s, s.optimize_steps),
@@ -228,6 +238,7 @@ def build_table(
                 ROW_REGRESSION,
                 ROW_REGRESSION_MIRROR,
                 ROW_OFFSET,
+                ROW_OFFSET_FEET,
             ):
                 if name not in methods:
                     continue
@@ -242,8 +253,10 @@ def build_table(
         evaluated = common.evaluate_clips(gt, predictions, body)
         obs = evaluated[ROW_OBS]
         rows[ROW_GT].results[sigma] = replace(
-            obs, v2v_cm=0.0, v2v_abs_cm=0.0, mpjpe_cm=0.0, accel_pred=obs.accel_gt, accel_error=0.0
-        )
+            obs, v2v_cm=0.0, v2v_abs_cm=0.0, mpjpe_cm=0.0, accel_pred=obs.accel_gt, accel_error=0.0,
+            foot_skate_pred=obs.foot_skate_gt, foot_slide_pred=obs.foot_slide_gt,
+            penetration_pred=obs.penetration_gt, float_pred=obs.float_gt,
+        )  # fmt: skip
         for key, result in evaluated.items():
             if isinstance(key, int):
                 extra[key] = (result, timings[key])

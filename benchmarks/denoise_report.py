@@ -45,6 +45,9 @@ def table_columns(settings: TableSettings) -> list[str]:
         "1 clip, warm (ms)",
         *(f"V2V σ={s:.2f} (cm) ↓" for s in settings.sigmas),
         *(f"Accel σ={s:.2f} (m/s²)" for s in settings.sigmas),
+        f"Foot skate σ={ref} (cm/s)",
+        f"Penetration σ={ref} (cm)",
+        f"Float σ={ref} (cm)",
         f"absolute V2V σ={ref} (cm)",
         f"V2V / V2V(obs) σ={ref}",
         f"improvement over best filter σ={' / '.join(f'{x:.2f}' for x in settings.sigmas)}",
@@ -82,6 +85,9 @@ def table_rows(result: TableResult) -> list[list[str]]:
                 _num(None if r.one_clip_s is None else 1000 * r.one_clip_s, ".3g"),
                 *(_num(v, ".2f") for v in v2v),
                 *(_num(a, ".2f") for a in accel),
+                _num(r.results[ref].foot_skate_pred, ".2f"),
+                _num(r.results[ref].penetration_pred, ".3f"),
+                _num(r.results[ref].float_pred, ".3f"),
                 _num(absolute, ".2f"),
                 ratio,
                 gain,
@@ -130,7 +136,9 @@ def report_markdown(
         f"(seed {s.seed}). V2V is root-relative (cm), as in the paper; the absolute V2V "
         "keeps the root translation in (the noise leaves it clean: a method that moves it "
         "pays here). The acceleration is the mean joint "
-        "acceleration (m/s²; the closer to the ground truth the better). Speed is measured file "
+        "acceleration (m/s²; the closer to the ground truth the better). Foot skate, penetration "
+        "and float are `mdvae eval`'s, on the ground truth's contacts and floor (the ground truth "
+        "row gives its own values; docs/benchmarks.md, 'Feet and floor'). Speed is measured file "
         f"to file at σ = {ref}: loading, denoising and saving all clips in one run; "
         "'1 clip, warm' is one clip processed alone after a warm-up (median). The last two "
         f"columns compare V2V with the observations' (at σ = {ref}) and with the better filter's "

@@ -1,9 +1,11 @@
-"""Evaluation metrics: V2V, MPJPE, joint acceleration, acceleration error.
+"""Evaluation metrics: V2V, MPJPE, joint acceleration, acceleration error, feet and floor.
 
 The metric functions are pure: they take torch tensors or numpy arrays (and return the same
 kind), in whatever length unit they are given, and return per-frame values; a metric over a
 clip is the mean of those. :func:`evaluate_pair` poses two motions with a body model and
 reduces everything to one :class:`EvalResult` in the units of the paper's tables (cm, m/s^2).
+
+The foot metrics (skate, penetration, float) are in :mod:`mdvae_cli.foot_metrics`.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, as_body_model, pose_motion_chunks
+from mdvae_cli.foot_metrics import compare_feet
+from mdvae_cli.motion.contacts import foot_vertex_ids, lowest_sole_points
 from mdvae_cli.motion.motion import Motion
 
 Array = torch.Tensor | np.ndarray
@@ -102,6 +106,13 @@ class EvalResult:
     accel_gt / accel_pred: mean joint acceleration magnitude, m/s^2;
     accel_error: mean norm of the acceleration difference, m/s^2.
     The acceleration fields are None for clips under 3 frames.
+    Feet (ground truth's contacts and floor; ``_gt`` the ground truth's own value):
+    foot_skate_*: mean horizontal speed of contacting foot joints, cm/s; foot_slide_*: % of
+    them faster than SLIDE_SPEED; penetration_*: mean depth of each foot's lowest sole point
+    below the floor, all frames, cm; float_*: its mean height above the floor while that foot
+    is down, cm (skate, slide, float: None without contacts); floor_m: the floor's height
+    (None in a mean over several clips); contact_pairs, contact_frames: the counts the means
+    of skate and float weigh by.
     """
 
     num_frames: int
@@ -112,6 +123,17 @@ class EvalResult:
     accel_gt: float | None
     accel_pred: float | None
     accel_error: float | None
+    foot_skate_gt: float | None = None
+    foot_skate_pred: float | None = None
+    foot_slide_gt: float | None = None
+    foot_slide_pred: float | None = None
+    penetration_gt: float | None = None
+    penetration_pred: float | None = None
+    float_gt: float | None = None
+    float_pred: float | None = None
+    floor_m: float | None = None
+    contact_pairs: int = 0
+    contact_frames: int = 0
 
     @property
     def accel_frames(self) -> int:
@@ -153,6 +175,8 @@ def evaluate_pair(
     sums = {"v2v": 0.0, "v2v_abs": 0.0, "mpjpe": 0.0}
     joints_gt = np.empty((T, 22, 3))
     joints_pred = np.empty((T, 22, 3))
+    soles_gt, soles_pred = np.empty((T, 2)), np.empty((T, 2))
+    feet = foot_vertex_ids(model.data.weights)
     chunks = zip(
         pose_motion_chunks(gt, model, chunk_frames, vertices=True, betas=gt.betas),
         pose_motion_chunks(pred, model, chunk_frames, vertices=True, betas=gt.betas),
@@ -166,6 +190,8 @@ def evaluate_pair(
         sums["mpjpe"] += float(mpjpe(jp, jg).sum())
         joints_gt[ids] = jg.numpy()
         joints_pred[ids] = jp.numpy()
+        soles_gt[ids] = lowest_sole_points(vg.numpy(), *feet)
+        soles_pred[ids] = lowest_sole_points(vp.numpy(), *feet)
 
     accel_gt = accel_pred = accel_err = None
     if T >= 3:
@@ -181,13 +207,15 @@ def evaluate_pair(
         accel_gt=accel_gt,
         accel_pred=accel_pred,
         accel_error=accel_err,
+        **compare_feet(joints_gt, soles_gt, joints_pred, soles_pred, gt.fps),
     )
 
 
 def mean_result(results: Sequence[EvalResult]) -> EvalResult:
     """Frame-weighted mean: every frame of every clip counts once (inner frames for accelerations).
 
-    Equals pooling all frames of all clips, so a long clip weighs more than a short one.
+    Equals pooling all frames of all clips, so a long clip weighs more than a short one; foot
+    skate pools contact pairs and float contact foot-frames the same way.
     """
     if not results:
         raise ValueError("mean_result needs at least one result")
@@ -203,6 +231,13 @@ def mean_result(results: Sequence[EvalResult]) -> EvalResult:
             return None
         return sum(getattr(r, name) * r.accel_frames for r in results if r.accel_frames) / n_acc
 
+    def weighted(name: str, weight: str) -> float | None:
+        items = [(getattr(r, name), getattr(r, weight)) for r in results]
+        items = [(v, w) for v, w in items if v is not None and w]
+        total = sum(w for _, w in items)
+        return sum(v * w for v, w in items) / total if total else None
+
+    floors = {r.floor_m for r in results}
     return EvalResult(
         num_frames=n,
         fps=rates.pop() if len(rates) == 1 else None,
@@ -212,4 +247,14 @@ def mean_result(results: Sequence[EvalResult]) -> EvalResult:
         accel_gt=accel_mean("accel_gt"),
         accel_pred=accel_mean("accel_pred"),
         accel_error=accel_mean("accel_error"),
+        **{
+            f"{k}_{w}": weighted(f"{k}_{w}", "contact_pairs")
+            for k in ("foot_skate", "foot_slide")
+            for w in ("gt", "pred")
+        },
+        **{f"penetration_{w}": weighted(f"penetration_{w}", "num_frames") for w in ("gt", "pred")},
+        **{f"float_{w}": weighted(f"float_{w}", "contact_frames") for w in ("gt", "pred")},
+        floor_m=floors.pop() if len(floors) == 1 else None,
+        contact_pairs=sum(r.contact_pairs for r in results),
+        contact_frames=sum(r.contact_frames for r in results),
     )

@@ -288,8 +288,10 @@ def test_noisy_amc_comes_back_closer_than_the_npz_path(tmp_path, generated, join
     noisy = tmp_path / "gen_02.amc"
     noisy.write_text(amc_file(_noisy(motion_values(360), np.random.default_rng(1))))
     shutil.copy(asf, tmp_path / "gen.asf")
-    assert _run(noisy, "-o", tmp_path / "out.amc").exit_code == 0
-    assert _run(noisy, "-o", tmp_path / "out.npz").exit_code == 0
+    # the write-back, not the foot lock: on this generated take (feet sliding by design) the
+    # lock's leg turns cost more through its bones' dofs (29.5 mm against 23.6 by npz)
+    assert _run(noisy, "-o", tmp_path / "out.amc", "--feet", "off").exit_code == 0
+    assert _run(noisy, "-o", tmp_path / "out.npz", "--feet", "off").exit_code == 0
     betas = take.retarget.betas
     back = read_take(tmp_path / "out.amc", joints, asf, betas=betas).motion
     noisy_motion = read_take(noisy, joints, asf, betas=betas).motion

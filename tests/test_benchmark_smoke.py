@@ -109,7 +109,11 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
 
     header, rows = table_columns(settings), table_rows(result)
     assert [r[0] for r in rows] == list(ROWS)
-    assert len(header) == 14 and all(len(r) == len(header) for r in rows)
+    assert len(header) == 17 and all(len(r) == len(header) for r in rows)
+    feet = ["Foot skate σ=0.15 (cm/s)", "Penetration σ=0.15 (cm)", "Float σ=0.15 (cm)"]
+    assert header[11:14] == feet
+    penetration = [float(r[header.index(feet[1])]) for r in rows]  # on every row, >= 0
+    assert all(p >= 0 for p in penetration)
     for sigma in ("0.10", "0.15", "0.20"):
         assert f"V2V σ={sigma} (cm) ↓" in header and f"Accel σ={sigma} (m/s²)" in header
     assert "s/frame ↓" in header and "frames/s ↑" in header and "1 clip, warm (ms)" in header
@@ -129,6 +133,7 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
         "Regression mode",
         "Regression + mirror",
         "Regression + offset (default)",
+        "Regression + offset + feet lock",
     ):
         assert float(cell(row, "s/frame ↓")) > 0 and float(cell(row, "1 clip, warm (ms)")) > 0
     for row in (

@@ -115,8 +115,12 @@ def test_add_noise_then_eval_json(make_motion_file, tmp_path, hash_tree):
     assert row["ok"] is True and row["error"] is None and row["file"] == "clean.npz"
     metrics = row["metrics"]
     keys = {"num_frames", "fps", "v2v_cm", "v2v_abs_cm", "mpjpe_cm", "accel_gt", "accel_pred",
-            "accel_error"}  # fmt: skip
+            "accel_error", "foot_skate_gt", "foot_skate_pred", "foot_slide_gt", "foot_slide_pred",
+            "penetration_gt", "penetration_pred", "float_gt", "float_pred", "floor_m",
+            "contact_pairs", "contact_frames"}  # fmt: skip
     assert set(metrics) == keys and set(data["mean"]) == keys
+    for name in ("foot_skate", "foot_slide", "penetration", "float"):
+        assert data["units"][f"{name}_gt"] == data["units"][f"{name}_pred"]
     assert metrics["num_frames"] == 12 and metrics["fps"] == 30.0
     assert metrics["v2v_cm"] > 0.5 and metrics["mpjpe_cm"] > 0.5
     assert metrics["accel_pred"] > metrics["accel_gt"] > 0

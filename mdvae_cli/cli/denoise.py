@@ -60,6 +60,7 @@ def denoise(
     lam,
     input_kind,
     mirror,
+    feet,
     guard,
     loop,
     mesh_dir,
@@ -107,6 +108,7 @@ def denoise(
       mdvae denoise noisy.npz -o clean.npz --no-offset
       mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
       mdvae denoise spiky.npz -o clean.npz --refine 50 --outliers
+      mdvae denoise take.npz -o clean.npz --feet off
       mdvae denoise wham_output.pkl -o clean.npz
       mdvae denoise hmr4d_results.pt -o clean.npz --fps 25 --refine 50
       mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
@@ -116,6 +118,7 @@ def denoise(
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.infer.denoise import check_finite, check_length, denoise_motions
+    from mdvae_cli.infer.feet import FootLockConfig
     from mdvae_cli.infer.input_kinds import refine_config
     from mdvae_cli.infer.settings import OUTLIER_DOF
     from mdvae_cli.model.denoiser import load_denoiser
@@ -242,6 +245,7 @@ def denoise(
                 progress=tick,
                 refine=refine,
                 mirror=mirror,
+                feet=FootLockConfig() if feet == "lock" else None,
                 guard=guard_on,
                 loops=[cycles[item] for item in keys],
                 on_fallback=lambda k, a, b: fallbacks.setdefault(keys[k], []).append(
@@ -311,6 +315,7 @@ def denoise(
                 "refine": first[0].to_dict() if first[0] else None,
                 "settings": {kind: c[1] for kind, c in chosen.items()},
                 "mirror": mirror,
+                "feet": feet,
                 "guard": any(guarding.values()),
             }
         )

@@ -1,4 +1,4 @@
-"""``mdvae eval``: compare predictions with ground truth (V2V, MPJPE, accelerations)."""
+"""``mdvae eval``: compare predictions with ground truth (V2V, MPJPE, accelerations, feet)."""
 
 from __future__ import annotations
 
@@ -33,6 +33,15 @@ UNITS = {
     "accel_gt": "m/s^2",
     "accel_pred": "m/s^2",
     "accel_error": "m/s^2",
+    "foot_skate_gt": "cm/s",
+    "foot_skate_pred": "cm/s",
+    "foot_slide_gt": "%",
+    "foot_slide_pred": "%",
+    "penetration_gt": "cm",
+    "penetration_pred": "cm",
+    "float_gt": "cm",
+    "float_pred": "cm",
+    "floor_m": "m",
 }
 
 
@@ -67,14 +76,21 @@ def _fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
 
 
+def _pair(pred: float | None, gt: float | None) -> str:
+    return f"{_fmt(pred)} ({_fmt(gt)})"
+
+
 def results_table(rows: list[tuple[str, EvalResult]], mean: EvalResult | None) -> Table:
     """A rich table: one row per file, then the frame-weighted mean."""
     table = Table(
-        title="Evaluation", title_justify="left", caption="errors in cm, accelerations in m/s²",
+        title="Evaluation", title_justify="left",
+        caption="errors in cm, accelerations in m/s², skate in cm/s; feet: pred (GT)",
         caption_justify="left",
     )  # fmt: skip
     table.add_column("file", overflow="fold", min_width=12)
-    for name in ("frames", "V2V", "V2V abs", "MPJPE", "acc GT", "acc pred", "acc err"):
+    names = ("frames", "V2V", "V2V abs", "MPJPE", "acc GT", "acc pred", "acc err", "skate",
+             "slide %", "penetr.", "float")  # fmt: skip
+    for name in names:
         table.add_column(name, justify="right", no_wrap=True)
 
     def cells(r: EvalResult) -> list[str]:
@@ -86,6 +102,10 @@ def results_table(rows: list[tuple[str, EvalResult]], mean: EvalResult | None) -
             _fmt(r.accel_gt),
             _fmt(r.accel_pred),
             _fmt(r.accel_error),
+            _pair(r.foot_skate_pred, r.foot_skate_gt),
+            _pair(r.foot_slide_pred, r.foot_slide_gt),
+            _pair(r.penetration_pred, r.penetration_gt),
+            _pair(r.float_pred, r.float_gt),
         ]
 
     for name, r in rows:
@@ -124,7 +144,16 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
       MPJPE     error of the 22 body joints in world coordinates, cm
       acc       mean joint |x[t-1] - 2x[t] + x[t+1]| * fps^2, m/s^2 (GT, pred)
       acc err   mean norm of the difference of accelerations, m/s^2
-    The mean row weights every frame equally. Frame rates and lengths must match.
+    Feet, where the ground truth has a foot down (its ankle or ball joint less
+    than 5 cm above its planted level, the take's 5th percentile of ankle or
+    ball heights, and slower than 0.3 m/s), against the ground truth's floor
+    (the median height of its lowest sole points there); prediction (GT):
+      skate     mean horizontal speed of contacting foot joints, cm/s
+      slide %   share of them faster than 0.6 m/s (2 cm per frame at 30 Hz)
+      penetr.   mean depth of each foot's lowest point under the floor, cm
+      float     its mean height above the floor while the foot is down, cm
+    The mean row weights every frame equally (skate: every contact pair; float:
+    every foot-frame down). Frame rates and lengths must match.
 
     \b
     Example:

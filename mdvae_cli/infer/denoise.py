@@ -20,6 +20,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.infer.closed_form import add_offset
+from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.guard import guard
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
@@ -254,6 +255,7 @@ def denoise_motions(
     guard: bool = False,
     on_fallback: Callable[[int, float, float], None] | None = None,
     loops: Sequence[bool] | None = None,
+    feet: FootLockConfig | None = None,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -274,7 +276,15 @@ def denoise_motions(
     ``on_fallback(motion index, start s, end s)`` (times in the motion's own clock).
     ``loops``: per motion, whether it is a cycle to denoise as one (``infer.loop``: tiled three
     times, the middle copy kept and closed at the seam).
+    With ``feet``, the results' feet are then held still on the floor where they are down
+    (``infer.feet.lock_feet``, each input as its source).
     """
+    if feet is not None:
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror, guard, on_fallback, loops,
+        )  # fmt: skip
+        return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
     if loops is not None and any(loops):
         return _denoise_cycles(
             motions, list(loops), denoiser, body, window, stride, optimize_steps, lr,

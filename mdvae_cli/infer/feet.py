@@ -1,0 +1,308 @@
+"""Foot locking (``mdvae denoise --feet lock``): feet that stand on the ground stay on it.
+
+A post-process on a motion (in ``mdvae denoise``, the denoised one), optionally given the input
+it was made from (same frames):
+
+1. **Contacts.** The motion's foot joints, smoothed in time (Gaussian, ``smooth_s``), go
+   through the shared definition (:func:`mdvae_cli.motion.contacts.contacts_of_feet`: a foot
+   joint low and slow), with a speed threshold (``speed_tol``, 1 m/s) above the one for clean
+   motion (0.3 m/s), because a denoised foot that should stand still slides (by 19 to 48 cm/s
+   on average on clean to very noisy clips). Gaps up to ``max_gap_s`` are filled, contacts
+   shorter than ``min_contact_s`` dropped, and each contact is extended by ``extend_s`` at both
+   ends (a foot that slides as it lands or lifts is caught there too). Contacts are found on
+   the denoised motion, not on a noisy input, whose feet shake too much (docs/model.md, "Feet
+   and floor").
+2. **Floor**: :func:`mdvae_cli.motion.contacts.estimate_floor`, from the motion's lowest sole
+   points where the feet are down.
+3. **Goals in contact.** A foot joint (ankle or ball) is held at one anchor per contact run,
+   its mean horizontal position over the run, keeping ``keep`` of its own horizontal movement
+   about it; its height puts the foot's lowest sole point on the floor. When the input is
+   given and clean (its foot joints' jitter, :func:`input_jitter`, under ``trust_below``), the
+   goal is instead the input's own foot joints (lightly smoothed): a clean take keeps the feet
+   it came with, rolling from heel to toe; between ``trust_below`` and ``distrust_above`` the
+   two goals are blended.
+4. **Fades.** A run's correction fades out over ``blend_s`` before and after it (smoothstep),
+   in the swing: a fade inside the contact would be sliding itself. Anywhere else, a foot
+   whose sole is under the floor is lifted onto it.
+5. **Leg IK** (:func:`mdvae_cli.infer.leg_ik.two_bone_ik`): hips, knees and ankles turn, in
+   closed form, to put the joints on their targets; ``passes`` times, each with the soles as
+   the pass before left them. Frames more than ``blend_s`` from a contact (with no foot under
+   the floor), legs without a target, and every joint but hips, knees and ankles keep their
+   exact values.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.filters import gaussian_smooth
+from mdvae_cli.infer.leg_ik import (
+    LEGS,
+    LegModel,
+    leg_chain,
+    leg_rotations,
+    pose_legs,
+    rotvec_to_rotmat_np,
+    sole_heights,
+    to_rotvecs,
+    two_bone_ik,
+)
+from mdvae_cli.motion.contacts import (
+    FOOT_SIDE,
+    HEIGHT_TOL,
+    contacts_of_feet,
+    estimate_floor,
+    foot_of_joints,
+)
+from mdvae_cli.motion.motion import Motion
+
+#: per leg (left, right): its (ankle, ball) columns of FOOT_JOINTS
+LEG_COLUMNS = ((0, 2), (1, 3))
+
+
+@dataclass(frozen=True)
+class FootLockConfig:
+    """Settings of :func:`lock_feet` (times in seconds, whatever the frame rate).
+
+    smooth_s: std of the Gaussian on the foot joints before contacts are found; height_tol (m),
+    speed_tol (m/s): the contact thresholds (:func:`contacts_of_feet`); min_contact_s: shorter
+    contacts are dropped; max_gap_s: shorter gaps inside a contact are filled; extend_s:
+    contacts are extended by this at both ends; blend_s: the fade of a contact's correction
+    before and after it; keep: the share of its own horizontal movement a held joint keeps
+    (0 = nailed to its anchor); trust_below, distrust_above (m): the input's foot jitter under
+    which its own feet are the goal, and over which they are ignored; reference_smooth_s: std
+    of the Gaussian on the input's feet used as goal; passes: IK passes (the second puts the
+    soles on the floor as posed by the first).
+    """
+
+    smooth_s: float = 0.05
+    height_tol: float = HEIGHT_TOL
+    speed_tol: float = 1.0
+    min_contact_s: float = 0.1
+    max_gap_s: float = 0.07
+    extend_s: float = 0.034
+    blend_s: float = 0.2
+    keep: float = 0.1
+    trust_below: float = 0.02
+    distrust_above: float = 0.08
+    reference_smooth_s: float = 0.05
+    passes: int = 2
+
+    def __post_init__(self):
+        for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
+                     "trust_below", "reference_smooth_s"):  # fmt: skip
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not (self.height_tol > 0 and self.speed_tol > 0):
+            raise ValueError("height_tol and speed_tol must be > 0")
+        if not 0 <= self.keep <= 1:
+            raise ValueError(f"keep must be in [0, 1], got {self.keep}")
+        if not self.distrust_above > self.trust_below:
+            raise ValueError("distrust_above must be larger than trust_below")
+        if self.passes < 1:
+            raise ValueError(f"passes must be >= 1, got {self.passes}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+# --------------------------------------------------------------------------------------------
+# contacts over time
+
+
+def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of True in a (T,) bool array, as [start, stop) pairs in order."""
+    c = np.concatenate([[False], np.asarray(contact, dtype=bool), [False]])
+    edges = np.flatnonzero(np.diff(c.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def clean_contacts(contacts: np.ndarray, min_frames: int, max_gap: int, extend: int) -> np.ndarray:
+    """Fill gaps of up to ``max_gap`` frames between two contacts, drop contacts shorter than
+    ``min_frames``, then extend the others by ``extend`` frames at both ends; each column on its
+    own.  (T, K) bool -> (T, K) bool"""
+    out = np.array(contacts, dtype=bool)
+    T = out.shape[0]
+    for k in range(out.shape[1]):
+        runs = contact_runs(out[:, k])
+        for (_, stop), (start, _) in zip(runs[:-1], runs[1:], strict=True):
+            if start - stop <= max_gap:
+                out[stop:start, k] = True
+        for start, stop in contact_runs(out[:, k]):
+            out[start:stop, k] = False
+            if stop - start >= min_frames:
+                out[max(start - extend, 0) : min(stop + extend, T), k] = True
+    return out
+
+
+def detect_contacts(feet: np.ndarray, fps: float, cfg: FootLockConfig) -> np.ndarray:
+    """Where the feet are down, robust to sliding and to noise.  feet: (T, 4, 3) the foot
+    joints (``FOOT_JOINTS`` order) -> (T, 4) bool"""
+    smooth = gaussian_smooth(feet, cfg.smooth_s * fps) if len(feet) > 1 else feet
+    contacts = contacts_of_feet(smooth, fps, height_tol=cfg.height_tol, speed_max=cfg.speed_tol)
+    return clean_contacts(
+        contacts,
+        math.ceil(cfg.min_contact_s * fps - 1e-9),
+        round(cfg.max_gap_s * fps),
+        round(cfg.extend_s * fps),
+    )
+
+
+def _smoothstep(u: np.ndarray) -> np.ndarray:
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * (3 - 2 * u)
+
+
+def fade_weights(contacts: np.ndarray, blend: int) -> np.ndarray:
+    """How much of each contact's correction a frame gets.  (T, K) bool -> (T, K, 2)
+
+    [..., 0]: of the last run that ended before the frame, [..., 1]: of the next one to start
+    after it; both 1 inside a run. Out of contact, each falls from 1 next to its run to 0 at
+    ``blend + 1`` frames away (smoothstep); where two runs are that close, they share the frame
+    (weights normalised to sum 1).
+    """
+    T, K = np.shape(contacts)
+    w = np.zeros((T, K, 2))
+    t = np.arange(T)
+    for k in range(K):
+        for start, stop in contact_runs(contacts[:, k]):
+            after = _smoothstep(1 - (t - (stop - 1)) / (blend + 1)) * (t >= stop)
+            before = _smoothstep(1 - (start - t) / (blend + 1)) * (t < start)
+            w[:, k, 0] = np.maximum(w[:, k, 0], after)
+            w[:, k, 1] = np.maximum(w[:, k, 1], before)
+            w[start:stop, k] = 1.0
+    total = w.sum(-1, keepdims=True)
+    share = ~np.asarray(contacts, dtype=bool)[..., None] & (total > 1)
+    return np.where(share, w / np.maximum(total, 1e-12), w)
+
+
+def run_means(values: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """Each contact run's mean value, on the run's frames (``values`` elsewhere).
+    values (T, K, D), contacts (T, K) bool -> (T, K, D)"""
+    out = np.array(values, dtype=np.float64)
+    for k in range(out.shape[1]):
+        for start, stop in contact_runs(contacts[:, k]):
+            out[start:stop, k] = out[start:stop, k].mean(0)
+    return out
+
+
+def hold_targets(
+    positions: np.ndarray, contacts: np.ndarray, goals: np.ndarray, weights: np.ndarray
+) -> np.ndarray:
+    """Where each foot joint should be: on its goal in contact, fading back around it.
+
+    positions: (T, K, 3) the joints as they are; contacts: (T, K) bool; goals: (T, K, 3) where
+    they should be at the contact frames; weights: (T, K, 2) from :func:`fade_weights`.
+    Out of contact, a frame moves by the correction (goal - position) at the end of the run
+    before it and the start of the run after it, times their weights.
+    -> (T, K, 3); equal to ``positions`` where ``weights`` are 0.
+    """
+    T, K = np.shape(contacts)
+    inside = np.asarray(contacts, dtype=bool)
+    shift = np.where(inside[..., None], goals - positions, 0.0)
+    ends = np.zeros((T, K, 2, 3))  # the shift at the end of the run before, the start of the next
+    for k in range(K):
+        runs = contact_runs(inside[:, k])
+        for i, (start, stop) in enumerate(runs):
+            ends[stop : runs[i + 1][0] if i + 1 < len(runs) else T, k, 0] = shift[stop - 1, k]
+            ends[runs[i - 1][1] if i else 0 : start, k, 1] = shift[start, k]
+    return positions + np.where(inside[..., None], shift, (weights[..., None] * ends).sum(-2))
+
+
+def input_jitter(feet: np.ndarray) -> float:
+    """How much a take's foot joints shake: the median over frames and joints of
+    |x[t-1] - 2 x[t] + x[t+1]| / sqrt(6), in metres. White noise of std s per axis gives 1.54 s
+    (the median of a chi distribution with 3 degrees of freedom); clean mocap gives a few
+    millimetres, the feet being still or moving smoothly most of the time (CMU val clips: 0.6
+    to 7 mm clean, 18 to 27 mm with Pose-NDF noise of 0.02 rad, 45 to 68 mm at 0.05 rad).
+    feet (T, 4, 3) -> metres"""
+    if len(feet) < 3:
+        return 0.0
+    d2 = feet[:-2] - 2 * feet[1:-1] + feet[2:]
+    return float(np.median(np.linalg.norm(d2, axis=-1)) / math.sqrt(6))
+
+
+# --------------------------------------------------------------------------------------------
+# the whole step
+
+
+def feet_of(pos: np.ndarray) -> np.ndarray:
+    """Leg positions (T, 2, 4, 3) -> the foot joints (T, 4, 3) in ``FOOT_JOINTS`` order."""
+    return pos[:, :, 2:].transpose(0, 2, 1, 3).reshape(-1, 4, 3)
+
+
+def input_trust(source: Motion, model: LegModel, cfg: FootLockConfig) -> tuple[float, np.ndarray]:
+    """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed.
+    model: the legs of the input's shape.  -> (trust, (T, 4, 3))"""
+    src = feet_of(pose_legs(source, model)[0])
+    span = cfg.distrust_above - cfg.trust_below
+    trust = float(np.clip((cfg.distrust_above - input_jitter(src)) / span, 0.0, 1.0))
+    if len(src) > 1:
+        src = gaussian_smooth(src, cfg.reference_smooth_s * source.fps)
+    return trust, src
+
+
+def lock_feet(
+    motion: Motion,
+    body: BodyModel,
+    cfg: FootLockConfig | None = None,
+    source: Motion | None = None,
+) -> Motion:
+    """``motion`` with its feet held still on the floor where they are down (module doc).
+
+    source: the input ``motion`` was made from (same frames), or None. Returns a copy; hips,
+    knees and ankles change only near contacts and where a foot is under the floor, and only on
+    legs that have a target there.
+    """
+    cfg = cfg or FootLockConfig()
+    if source is not None and source.num_frames != motion.num_frames:
+        raise ValueError(f"{motion.num_frames} frames to lock, {source.num_frames} in the input")
+    model = LegModel.build(body, motion.betas)
+    pos, soles = pose_legs(motion, model)
+    feet = feet_of(pos)
+    contacts = detect_contacts(feet, motion.fps, cfg)
+    if not contacts.any():
+        return motion.with_body()
+    floor = estimate_floor(soles, foot_of_joints(contacts))
+    anchors = run_means(feet[..., :2], contacts)
+    goals = feet.copy()
+    goals[..., :2] = anchors + cfg.keep * (feet[..., :2] - anchors)
+    trust, reference = 0.0, feet
+    if source is not None:
+        same = np.array_equal(source.betas, motion.betas)
+        trust, reference = input_trust(
+            source, model if same else LegModel.build(body, source.betas), cfg
+        )
+    weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
+    under = (soles < floor)[:, list(FOOT_SIDE)]  # a foot under the floor: both its joints
+    held = contacts | (weights.sum(-1) > 0) | under
+    f = np.flatnonzero(held.any(1))
+    columns = np.asarray(LEG_COLUMNS)
+    legs_held = held[f][:, columns]  # (B, 2, 2)
+    root = rotvec_to_rotmat_np(motion.root_orient[f])
+    pelvis = motion.trans[f] + model.pelvis
+    legs = leg_rotations(motion, f)
+    flexion = motion.pose_body[f][:, [LEGS[0][1] - 1, LEGS[1][1] - 1], 0]
+    free = ~contacts[f]
+    new, sub_pos, sub_soles = legs, pos[f], soles[f]
+    for _ in range(cfg.passes):
+        # each joint's height above its foot's lowest sole point, as posed now
+        clearance = feet_of(sub_pos)[..., 2] - sub_soles[:, list(FOOT_SIDE)]
+        heights = feet[..., 2].copy()
+        heights[f] = floor + clearance
+        goals[..., 2] = heights
+        goal = trust * reference + (1 - trust) * goals
+        targets = hold_targets(feet, contacts, goal, weights)[f]
+        targets[..., 2] = np.where(free, np.maximum(targets[..., 2], heights[f]), targets[..., 2])
+        new = two_bone_ik(root, legs, pelvis, model.bones, targets[:, columns], legs_held, flexion)
+        sub_pos, G = leg_chain(root, new, pelvis, model.bones)
+        sub_soles = sole_heights(sub_pos, G, model)
+    out = motion.pose_body.copy()
+    b, leg = np.nonzero(legs_held.any(-1))  # frames where each leg has a target
+    joints = np.asarray(LEGS)[leg, :3] - 1  # pose_body rows of hip, knee, ankle
+    out[f[b, None], joints] = to_rotvecs(new[b, leg, :3], motion.pose_body[f[b, None], joints])
+    return motion.with_body(pose_body=out)

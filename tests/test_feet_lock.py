@@ -1,0 +1,306 @@
+"""Foot locking (infer/feet.py, infer/leg_ik.py) and ``mdvae denoise --feet``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from mdvae_cli.body.formats import load_body_model
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.cli.main import cli
+from mdvae_cli.export import pose_motion_chunks
+from mdvae_cli.infer import leg_ik
+from mdvae_cli.infer.feet import (
+    FootLockConfig,
+    clean_contacts,
+    contact_runs,
+    fade_weights,
+    hold_targets,
+    input_jitter,
+    lock_feet,
+)
+from mdvae_cli.motion.contacts import foot_vertex_ids
+from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.npz_io import load_motion, save_motion
+
+FPS = 30.0
+LEG_ROWS = [0, 1, 3, 4, 6, 7]  # pose_body rows of hips, knees, ankles
+
+
+@pytest.fixture(scope="module")
+def body() -> BodyModel:
+    return BodyModel(load_body_model(None))
+
+
+def crouch(T: int) -> Motion:
+    """The built-in body standing z-up, knees a little bent, pelvis still over the origin."""
+    pose = np.zeros((T, 21, 3))
+    pose[:, [0, 1], 0] = -0.3  # hips flexed
+    pose[:, [3, 4], 0] = 0.6  # knees bent
+    pose[:, [6, 7], 0] = -0.3  # ankles: feet flat again
+    root = np.tile([np.pi / 2, 0.0, 0.0], (T, 1))  # y-up body -> z-up world
+    return Motion(root_orient=root, pose_body=pose, trans=np.zeros((T, 3)), betas=np.zeros(10),
+                  fps=FPS)  # fmt: skip
+
+
+def feet_and_soles(motion: Motion, body: BodyModel) -> tuple[np.ndarray, np.ndarray]:
+    """Foot joints (T, 4, 3) and lowest foot-vertex heights (T, 2) from the full mesh."""
+    left, right = foot_vertex_ids(body.data.weights)
+    joints, soles = [], []
+    for _, out in pose_motion_chunks(motion, body, 256, vertices=True):
+        joints.append(out.joints[:, [7, 8, 10, 11]].double().numpy())
+        z = out.vertices[..., 2].double().numpy()
+        soles.append(np.stack([z[:, left].min(1), z[:, right].min(1)], 1))
+    return np.concatenate(joints), np.concatenate(soles)
+
+
+def sliding_then_jumping(body: BodyModel) -> Motion:
+    """Frames 0-44: standing with both feet sliding along x at 10 cm/s; 45-89: 0.5 m up in
+    the air (no contact)."""
+    m = crouch(90)
+    m.trans[:, 0] = 0.1 / FPS * np.arange(90)
+    m.trans[45:, 2] = 0.5
+    floor = feet_and_soles(m, body)[1][0].min()
+    m.trans[:, 2] -= floor  # soles on z = 0
+    return m
+
+
+# --------------------------------------------------------------------------------------------
+# contacts over time, targets
+
+
+def test_clean_contacts_fills_gaps_drops_short_ones_and_extends():
+    c = np.zeros((20, 1), dtype=bool)
+    c[2:6] = c[7:10] = True  # a 1-frame gap: filled -> 2..9
+    c[14:15] = True  # a 1-frame contact: dropped
+    out = clean_contacts(c, min_frames=3, max_gap=2, extend=1)
+    assert contact_runs(out[:, 0]) == [(1, 11)]
+    assert contact_runs(clean_contacts(c, 3, 0, 0)[:, 0]) == [(2, 6), (7, 10)]
+
+
+def test_fade_weights_fall_off_around_a_contact():
+    c = np.zeros((10, 1), dtype=bool)
+    c[3:5] = True
+    w = fade_weights(c, blend=2)
+    assert np.allclose(w[3:5, 0], 1.0)
+    # after the run: smoothstep of 2/3, 1/3, 0; before: the same, mirrored
+    assert np.allclose(w[5:8, 0, 0], [20 / 27, 7 / 27, 0.0])
+    assert np.allclose(w[0:3, 0, 1], [0.0, 7 / 27, 20 / 27])
+    assert np.allclose(w[8:, 0], 0.0) and np.allclose(w[:3, 0, 0], 0.0)
+
+
+def test_hold_targets_holds_the_goal_and_leaves_far_frames():
+    T = 30
+    pos = np.zeros((T, 1, 3))
+    pos[:, 0, 0] = 0.01 * np.arange(T)  # sliding 1 cm per frame
+    c = np.zeros((T, 1), dtype=bool)
+    c[10:20] = True
+    goals = pos.copy()
+    goals[10:20, 0, 0] = 0.145  # the run's mean
+    targets = hold_targets(pos, c, goals, fade_weights(c, 3))
+    assert np.allclose(targets[10:20, 0, 0], 0.145)
+    assert np.array_equal(targets[:6], pos[:6]) and np.array_equal(targets[24:], pos[24:])
+    # next to the run the correction is nearly all there, then fades
+    shifts = targets[20:24, 0, 0] - pos[20:24, 0, 0]
+    assert shifts[0] < 0 and np.all(np.diff(np.abs(shifts)) < 0)
+
+
+def test_input_jitter_reads_white_noise_and_ignores_still_feet():
+    rng = np.random.default_rng(0)
+    still = np.zeros((400, 4, 3))
+    assert input_jitter(still) == 0.0
+    noisy = still + rng.normal(0, 0.01, size=still.shape)
+    assert input_jitter(noisy) == pytest.approx(0.01 * 1.538, rel=0.05)  # median of chi(3)
+
+
+def test_config_is_checked():
+    with pytest.raises(ValueError, match="keep"):
+        FootLockConfig(keep=1.5)
+    with pytest.raises(ValueError, match="blend_s"):
+        FootLockConfig(blend_s=-1)
+    with pytest.raises(ValueError, match="distrust_above"):
+        FootLockConfig(trust_below=0.1, distrust_above=0.05)
+
+
+# --------------------------------------------------------------------------------------------
+# leg IK
+
+
+def chain_of(motion: Motion, model: leg_ik.LegModel):
+    root = leg_ik.rotvec_to_rotmat_np(motion.root_orient)
+    return root, leg_ik.leg_rotations(motion), motion.trans + model.pelvis
+
+
+def test_leg_chain_matches_the_body_model(body):
+    m = crouch(5)
+    m.pose_body += np.random.default_rng(1).normal(0, 0.2, size=m.pose_body.shape)
+    model = leg_ik.LegModel.build(body, m.betas)
+    pos, soles = leg_ik.pose_legs(m, model)
+    feet, mesh_soles = feet_and_soles(m, body)
+    assert np.abs(pos[:, :, 2:].transpose(0, 2, 1, 3).reshape(5, 4, 3) - feet).max() < 1e-5
+    assert np.abs(soles - mesh_soles).max() < 1e-5
+
+
+def test_two_bone_ik_reaches_reachable_targets_and_changes_nothing_on_the_spot(body):
+    rng = np.random.default_rng(2)
+    m = crouch(40)
+    m.pose_body += rng.normal(0, 0.15, size=m.pose_body.shape)
+    model = leg_ik.LegModel.build(body, m.betas)
+    root, legs, pelvis = chain_of(m, model)
+    flexion = m.pose_body[:, [3, 4], 0]
+    held = np.ones((40, 2, 2), dtype=bool)
+    pos, _ = leg_ik.leg_chain(root, legs, pelvis, model.bones)
+    same = leg_ik.two_bone_ik(root, legs, pelvis, model.bones, pos[:, :, 2:], held, flexion)
+    assert np.abs(same - legs).max() < 1e-12
+    # targets from another pose: hips and ankles turned any way, knees about their hinge
+    other = m.with_body(pose_body=m.pose_body.copy())
+    other.pose_body[:, [0, 1, 6, 7]] += rng.normal(0, 0.1, size=(40, 4, 3))
+    other.pose_body[:, [3, 4], 0] += rng.normal(0, 0.1, size=(40, 2))
+    goal, _ = leg_ik.leg_chain(root, leg_ik.leg_rotations(other), pelvis, model.bones)
+    new = leg_ik.two_bone_ik(root, legs, pelvis, model.bones, goal[:, :, 2:], held, flexion)
+    reached, _ = leg_ik.leg_chain(root, new, pelvis, model.bones)
+    assert np.abs(reached[:, :, 2:] - goal[:, :, 2:]).max() < 1e-9
+    assert np.array_equal(new[:, :, 3], legs[:, :, 3])  # the ball's own rotation is kept
+
+
+def test_two_bone_ik_straightens_toward_a_target_out_of_reach(body):
+    m = crouch(1)
+    model = leg_ik.LegModel.build(body, m.betas)
+    root, legs, pelvis = chain_of(m, model)
+    pos, _ = leg_ik.leg_chain(root, legs, pelvis, model.bones)
+    far = pos[:, :, 2:] + np.array([0.0, 0.0, -1.0])  # a metre below the feet
+    held = np.array([[[True, False], [True, False]]])
+    new = leg_ik.two_bone_ik(root, legs, pelvis, model.bones, far, held, np.full((1, 2), 0.6))
+    after, _ = leg_ik.leg_chain(root, new, pelvis, model.bones)
+    hip, knee, ankle = after[0, :, 0], after[0, :, 1], after[0, :, 2]
+    thigh, shin = np.linalg.norm(knee - hip, axis=-1), np.linalg.norm(ankle - knee, axis=-1)
+    # as far as the knee's hinge goes (the rest leg is not quite straight)
+    reach = np.linalg.norm(ankle - hip, axis=-1)
+    assert np.all(reach > 0.995 * (thigh + shin)) and np.all(reach <= thigh + shin)
+    direction = (far[0, :, 0] - hip) / np.linalg.norm(far[0, :, 0] - hip, axis=-1)[:, None]
+    assert np.allclose((ankle - hip) / reach[:, None], direction, atol=1e-6)
+
+
+# --------------------------------------------------------------------------------------------
+# lock_feet
+
+
+def test_lock_brings_a_sliding_foot_to_rest_and_leaves_the_rest(body):
+    m = sliding_then_jumping(body)
+    locked = lock_feet(m, body, FootLockConfig(keep=0.0))
+    before, soles_before = feet_and_soles(m, body)
+    after, soles_after = feet_and_soles(locked, body)
+    speed = lambda f: np.linalg.norm(np.diff(f[..., :2], axis=0), axis=-1) * FPS  # noqa: E731
+    assert np.allclose(speed(before)[:40], 0.1, atol=1e-4)
+    assert speed(after)[3:38].max() < 0.002  # was 10 cm/s: now still
+    assert np.abs(soles_after[:40] - soles_before[:40]).max() < 2e-3  # kept on the floor
+    # only hips, knees and ankles change, and only near the contact (fade 0.2 s = 6 frames)
+    changed = np.abs(locked.pose_body - m.pose_body).max(axis=2)
+    assert (changed[:40][:, LEG_ROWS] > 0).all(1).sum() >= 38  # (not where already on anchor)
+    assert not np.delete(changed, LEG_ROWS, axis=1).any()
+    assert np.array_equal(locked.root_orient, m.root_orient)
+    assert np.array_equal(locked.trans, m.trans)
+    last = np.flatnonzero(changed.any(1)).max()
+    assert last <= 44 + 1 + 6
+    assert np.array_equal(locked.pose_body[last + 1 :], m.pose_body[last + 1 :])  # bit-identical
+
+
+def test_keep_leaves_that_share_of_the_slide(body):
+    m = sliding_then_jumping(body)
+    after, _ = feet_and_soles(lock_feet(m, body, FootLockConfig(keep=0.25)), body)
+    speed = np.linalg.norm(np.diff(after[..., :2], axis=0), axis=-1) * FPS
+    assert np.allclose(speed[5:36], 0.025, atol=0.002)
+
+
+def test_a_foot_under_the_floor_is_lifted_onto_it(body):
+    m = crouch(60)
+    m.trans[:, 0] = 0.05 * np.arange(60)  # 1.5 m/s: too fast to be a contact
+    on_floor = -feet_and_soles(m, body)[1].min()  # the height that puts the soles on z = 0
+    m.trans[:, 2] = on_floor + 0.05 * np.sin(np.arange(60) / 5)  # bobbing 5 cm up and down
+    m.trans[10:20, 0] = m.trans[10, 0]  # but still for 10 frames, on the floor: a contact
+    m.trans[10:20, 2] = on_floor
+    locked = lock_feet(m, body)
+    _, before = feet_and_soles(m, body)
+    _, after = feet_and_soles(locked, body)
+    assert before.min() < -0.04 and after.min() > -0.003
+    assert np.array_equal(after[before > 0.001], before[before > 0.001])
+
+
+def test_a_clean_input_keeps_its_own_feet(body):
+    m = sliding_then_jumping(body)
+    locked = lock_feet(m, body, source=m)  # trust the (clean) input: its feet are the goal
+    before, _ = feet_and_soles(m, body)
+    after, _ = feet_and_soles(locked, body)
+    assert np.abs(after - before)[:40].max() < 0.002  # (the smoothed goal rounds the jump)
+    noisy = m.with_body(
+        pose_body=m.pose_body + np.random.default_rng(3).normal(0, 0.1, (90, 21, 3))
+    )
+    distrusted = lock_feet(m, body, source=noisy)
+    assert np.array_equal(distrusted.pose_body, lock_feet(m, body).pose_body)
+    with pytest.raises(ValueError, match="frames"):
+        lock_feet(m, body, source=crouch(10))
+
+
+def test_no_contact_gives_the_motion_back(body):
+    m = crouch(30)
+    m.trans[:, 0] = 0.1 * np.arange(30)  # 3 m/s
+    out = lock_feet(m, body)
+    assert np.array_equal(out.pose_body, m.pose_body) and out is not m
+
+
+# --------------------------------------------------------------------------------------------
+# the command
+
+
+def test_cli_feet_lock_and_off(body, tmp_path):
+    src = tmp_path / "take.npz"
+    save_motion(sliding_then_jumping(body), src)
+    outs = {}
+    for mode in ("lock", "off"):
+        res = CliRunner().invoke(
+            cli, ["denoise", str(src), "-o", str(tmp_path / f"{mode}.npz"), "--feet", mode,
+                  "--json"],
+        )  # fmt: skip
+        assert res.exit_code == 0, res.output
+        assert json.loads(res.stdout)["feet"] == mode
+        outs[mode] = load_motion(tmp_path / f"{mode}.npz")
+    lock, off = outs["lock"], outs["off"]
+    assert np.array_equal(lock.root_orient, off.root_orient)
+    assert np.array_equal(lock.trans, off.trans)
+    changed = np.abs(lock.pose_body - off.pose_body).max(axis=(0, 2)) > 0
+    assert changed[LEG_ROWS].all() and not np.delete(changed, LEG_ROWS).any()
+    res = CliRunner().invoke(cli, ["denoise", str(src), "-o", str(tmp_path / "x.npz"),
+                                   "--feet", "glue"])  # fmt: skip
+    assert res.exit_code == 2 and "glue" in res.output
+
+
+def test_feet_benchmark_runs_on_two_clips(body):
+    from benchmarks.common import cut_clips
+    from benchmarks.feet import markdown, parse_variant, run_sigma
+    from mdvae_cli.model.denoiser import load_denoiser
+    from mdvae_cli.motion.contacts import foot_contacts
+
+    m = crouch(60)
+    m.trans[:, 0] = 0.3 * np.sin(np.arange(60) / 10)  # swaying: still at the turns
+    m.trans[:, 2] -= feet_and_soles(m, body)[1].min()
+    clips = cut_clips(m, 30, "sway.npz")
+    truth = [foot_contacts(_joints(c.motion, body), FPS) for c in clips]
+    assert all(t.any() for t in truth)
+    denoiser, _ = load_denoiser(None)
+    result = run_sigma(clips, denoiser, body, 0.1, FootLockConfig(), truth)
+    assert result.frames == 60 and result.lock_s > 0 and result.denoise_s > 0
+    assert result.off.v2v_cm > 0 and result.lock.penetration_pred is not None
+    assert set(result.detection) == {
+        "denoised motion (what `--feet lock` uses)", "noisy input, same settings"
+    }  # fmt: skip
+    md = markdown([result], "header")
+    assert "| 0.10 | `--feet lock` |" in md and "skate / GT skate" in md
+    cfg, use_input = parse_variant("keep=0,passes=1,input=0")
+    assert cfg.keep == 0 and cfg.passes == 1 and not use_input
+
+
+def _joints(motion: Motion, body: BodyModel) -> np.ndarray:
+    return np.concatenate([o.joints.double().numpy() for _, o in pose_motion_chunks(motion, body)])
