@@ -44,14 +44,15 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def looks_like_loop(motion: Motion, steps: float = LOOP_STEPS) -> bool:
     """Whether the last frame meets the first: its pose (every joint's rotation, the root's
     heading included) is within ``steps`` typical frame-to-frame steps of the first's, both
-    measured on the motion smoothed over 9 frames (a local line). Takes under 4 frames are
+    measured on the motion smoothed over 9 frames (local quadratics). Takes under 4 frames are
     never loops."""
     if motion.num_frames < 4:
         return False
-    # judged on the motion smoothed over 9 frames: on a noisy take every frame-to-frame step
-    # is mostly noise, and any two poses would look a step or two apart
+    # judged on the motion smoothed over 9 frames (local quadratics, which keep a cycle's ends
+    # where they are): on a noisy take every frame-to-frame step is mostly noise, and any two
+    # poses would look a step or two apart
     T = motion.num_frames
-    rot = savgol_smooth(_rotations(motion), min(9, T - 1 + T % 2), 1)
+    rot = savgol_smooth(_rotations(motion), min(9, T - 1 + T % 2), 2)
     step = float(np.median(_angle(rot[:-1], rot[1:])))
     gap = float(_angle(rot[-1:], rot[:1])[0])
     return gap <= steps * max(step, 1e-4)
