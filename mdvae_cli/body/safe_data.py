@@ -349,6 +349,10 @@ def _decompress(data: bytes) -> bytes:
     return out
 
 
+class UnknownFileType(ValueError):
+    """The bytes start like none of the containers :func:`sniff` knows."""
+
+
 def sniff(data: bytes) -> str:
     """What kind of container ``data`` starts like: "zip", "npy", "zlib", "gzip", "pickle",
     or "" (none of them)."""
@@ -386,6 +390,22 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
         raise
     except RecursionError:
         raise InputError(f"{label}: nested too deeply to read") from None
+    except MemoryError:
+        raise InputError(f"{label}: an array in it is too large to load") from None
+    except (
+        EOFError,
+        IndexError,
+        pickle.UnpicklingError,
+        zipfile.BadZipFile,
+        zlib.error,
+        gzip.BadGzipFile,
+    ):
+        raise InputError(
+            f"{label}: the file is truncated or damaged (cannot unpickle it)"
+        ) from None
+    except UnknownFileType:
+        what = "the file is empty" if not data else "not a pickle, joblib, torch or .npy file"
+        raise InputError(f"{label}: {what}") from None
     except Exception as exc:  # noqa: BLE001 - any parsing failure is a bad file
         raise InputError(
             f"{label}: not a readable pickle/torch/npy file ({type(exc).__name__}: {one_line(exc)})"
@@ -417,4 +437,4 @@ def _load(data: bytes, label: str, depth: int) -> Any:
         if first == _TORCH_MAGIC and isinstance(first, int):
             return _load_torch_legacy(data, label)
         return first
-    raise ValueError("unknown file type")
+    raise UnknownFileType()

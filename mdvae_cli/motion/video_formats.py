@@ -21,6 +21,7 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.motion.video_layout import (
     array,
     cam_extras,
+    framed,
     frames_of,
     smpl_axis_angle,
     smpl_matrices,
@@ -97,7 +98,7 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
     tracks = []
     for tid, d in track_items(data):
         where = f"{label} track {tid}"
-        pose = array(d, "pose", where)
+        pose = framed(array(d, "pose", where), "pose", where)
         if pose[0].size == 72:
             root, body, hands = smpl_axis_angle(pose, "pose", where)
         else:
@@ -141,7 +142,7 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
 def read_hybrik(data: dict, label: str) -> list[RawTrack]:
     """HybrIK ``res.pk``: pred_thetas (T, 24*9) rotation matrices (HybrIK-X: 55 SMPL-X joints),
     pred_betas, transl = the pelvis in the camera frame (metres)."""
-    thetas = array(data, "pred_thetas", label)
+    thetas = framed(array(data, "pred_thetas", label), "pred_thetas", label)
     joints = thetas[0].size // 9
     if joints not in (24, 55) or thetas[0].size != joints * 9:
         raise InputError(

@@ -15,6 +15,15 @@ def array(d: dict, key: str, label: str) -> np.ndarray:
     a = np.asarray(d[key])
     if not np.issubdtype(a.dtype, np.number):
         raise InputError(f"{label}: '{key}' is not numeric (dtype {a.dtype})")
+    if np.iscomplexobj(a):
+        raise InputError(f"{label}: '{key}' holds complex numbers; it must be real")
+    return a
+
+
+def framed(a: np.ndarray, key: str, label: str) -> np.ndarray:
+    """``a`` when it has at least one frame (a leading axis of length > 0)."""
+    if a.ndim == 0 or a.shape[0] == 0:
+        raise InputError(f"{label}: '{key}' has no frames")
     return a
 
 

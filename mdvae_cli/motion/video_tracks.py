@@ -107,10 +107,26 @@ def to_rotvec(rotmat: np.ndarray) -> np.ndarray:
     return rotmat_to_rotvec(torch.as_tensor(rotmat, dtype=torch.float64)).numpy()
 
 
+def pose_values(x, what: str, label: str) -> np.ndarray:
+    """A pose array as float64, refused in one line when it is not real numbers, has no
+    frames or holds NaN/inf (a rotation cannot be made of those)."""
+    a = np.asarray(x)
+    if np.iscomplexobj(a):
+        raise InputError(f"{label}: '{what}' holds complex numbers; poses must be real")
+    if not (np.issubdtype(a.dtype, np.number) or a.dtype == bool):
+        raise InputError(f"{label}: '{what}' is not numeric (dtype {a.dtype})")
+    a = a.astype(np.float64)
+    if a.ndim >= 1 and a.shape[0] == 0:
+        raise InputError(f"{label}: '{what}' has no frames")
+    if not np.isfinite(a).all():
+        raise InputError(f"{label}: '{what}' holds NaN or infinite values")
+    return a
+
+
 def rotvecs(aa: np.ndarray, joints: int, what: str, label: str) -> np.ndarray:
     """Axis-angles of ``joints`` joints per frame from (T, joints * 3) or (T, joints, 3).
     -> (T, joints, 3) float64; InputError naming ``what`` otherwise."""
-    a = np.asarray(aa, dtype=np.float64)
+    a = pose_values(aa, what, label)
     if a.ndim < 2 or a[0].size != joints * 3:
         raise InputError(f"{label}: '{what}' has shape {a.shape}, expected (T, {joints * 3})")
     return a.reshape(a.shape[0], joints, 3)
@@ -119,7 +135,7 @@ def rotvecs(aa: np.ndarray, joints: int, what: str, label: str) -> np.ndarray:
 def rotmats(m: np.ndarray, joints: int, what: str, label: str) -> np.ndarray:
     """Rotation matrices of ``joints`` joints per frame from (T, joints * 9) or
     (T, joints, 3, 3). -> (T, joints, 3, 3) float64; InputError otherwise."""
-    a = np.asarray(m, dtype=np.float64)
+    a = pose_values(m, what, label)
     if a.ndim < 2 or a[0].size != joints * 9:
         raise InputError(f"{label}: '{what}' has shape {a.shape}, expected (T, {joints}, 3, 3)")
     return a.reshape(a.shape[0], joints, 3, 3)

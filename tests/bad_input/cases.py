@@ -132,6 +132,15 @@ COMMANDS: dict[str, list[Command]] = {
         Command("plot", lambda b, g, o: ["plot", g["npz"], "--body-model", b,
                                          "-o", o / "figure.png"], ("npz",)),
     ],
+    # a video pipeline's output (pickle, joblib, torch file, .npy)
+    "video": [
+        Command("import", lambda b, g, o: ["import", b, "-o", o / "take.npz"]),
+        Command("denoise", lambda b, g, o: ["denoise", b, "-o", o / "clean.npz"]),
+        Command("add-noise", lambda b, g, o: ["add-noise", b, "-o", o / "noisy.npz"]),
+        Command("eval-gt", lambda b, g, o: ["eval", "--gt", b, "--pred", g["npz"]], ("npz",)),
+        Command("view", lambda b, g, o: ["view", b, "-o", o / "page.html"]),
+        Command("plot", lambda b, g, o: ["plot", b, "-o", o / "figure.png"]),
+    ],
     # a model checkpoint (.npz of weights and its .json beside it)
     "checkpoint": [
         Command("denoise", lambda b, g, o: ["denoise", g["npz"], "--denoiser", b,
@@ -144,13 +153,15 @@ COMMANDS: dict[str, list[Command]] = {
 
 #: the reader of each kind of bad file -> its command group (both body-model kinds: "body")
 READER_COMMANDS = {"npz": "npz", "bvh": "bvh", "amc": "amc", "asf": "asf", "body-npz": "body",
-                   "body-pkl": "body", "checkpoint": "checkpoint"}  # fmt: skip
+                   "body-pkl": "body", "checkpoint": "checkpoint", "video-pkl": "video",
+                   "video-pt": "video", "video-npy": "video"}  # fmt: skip
 SUFFIXES = {"npz": ".npz", "bvh": ".bvh", "amc": ".amc", "asf": ".asf", "body-npz": ".npz",
-            "body-pkl": ".pkl", "checkpoint": ".npz"}  # fmt: skip
+            "body-pkl": ".pkl", "checkpoint": ".npz", "video-pkl": ".pkl", "video-pt": ".pt",
+            "video-npy": ".npy"}  # fmt: skip
 #: what every defect of a reader goes through; the rest get the defects marked ``ALL``
 CORE = {"npz": ("add-noise", "denoise", "sample"), "bvh": ("import", "denoise"),
         "amc": ("import", "denoise"), "asf": ("import", "denoise"),
-        "body": ("export-mesh", "import")}  # fmt: skip
+        "body": ("export-mesh", "import"), "video": ("import", "denoise")}  # fmt: skip
 ALL = ("*",)
 
 
@@ -626,9 +637,66 @@ CHECKPOINT = [
 # fmt: on
 
 
+# --- video pipelines' outputs -------------------------------------------------------------------
+
+
+def _hybrik(**changes) -> Builder:
+    """HybrIK's res.pk (a plain pickle) of a small clip, with ``changes`` to its keys."""
+    return lambda c: F.pickled({**F.hybrik_result(), **changes}, protocol=4)
+
+
+def _wham_cut(n: int) -> Builder:
+    """The first ``n`` bytes of a WHAM output (a joblib stream): a truncated file."""
+    return lambda c: F.wham_bytes()[:n]
+
+
+_REFUSED = r"refusing to load '.*' from the pickle .*nothing was run"
+_LAYOUT = r"not a motion layout this tool knows \(give --format"
+
+# fmt: off
+VIDEO = [
+    Defect("video-pkl", "not-pickle", lambda c: b"not a pickle at all\n",
+           r"bad\.pkl: not a pickle, joblib, torch or \.npy file", commands=ALL),
+    Defect("video-pkl", "empty", lambda c: b"", r"bad\.pkl: the file is empty"),
+    Defect("video-pkl", "truncated", _wham_cut(300), r"bad\.pkl: the file is truncated"),
+    Defect("video-pkl", "truncated-early", _wham_cut(40), r"bad\.pkl: the file is truncated"),
+    Defect("video-pkl", "payload-system", lambda c: F.pickled({"0": F.Payload(c / MARKER)}),
+           _REFUSED, commands=ALL),
+    Defect("video-pkl", "payload-open",
+           lambda c: F.pickled({"pose": F.Payload(c / MARKER, "open")}), _REFUSED),
+    Defect("video-pkl", "unknown-layout", lambda c: F.pickled({"a": np.zeros(2)}), _LAYOUT),
+    Defect("video-pkl", "a-list", lambda c: F.pickled([1, 2, 3]), _LAYOUT),
+    Defect("video-pkl", "huge-array", _hybrik(pred_thetas=F.HugeArray()),
+           r"bad\.pkl: an array in it is too large to load"),
+    Defect("video-pkl", "pose-nan", _hybrik(pred_thetas=np.full((12, 216), np.nan, np.float32)),
+           r"'pred_thetas' holds NaN or infinite values", commands=ALL),
+    Defect("video-pkl", "pose-inf", _hybrik(pred_thetas=np.full((12, 216), np.inf, np.float32)),
+           r"'pred_thetas' holds NaN or infinite values"),
+    Defect("video-pkl", "pose-shape", _hybrik(pred_thetas=np.zeros((12, 215), np.float32)),
+           r"'pred_thetas' has shape \(12, 215\), expected \(T, 216\)"),
+    Defect("video-pkl", "no-frames", _hybrik(pred_thetas=np.zeros((0, 216), np.float32)),
+           r"'pred_thetas' has no frames"),
+    Defect("video-pkl", "pose-text", _hybrik(pred_thetas=np.array(["abc"])),
+           r"'pred_thetas' is not numeric"),
+    Defect("video-pkl", "pose-complex",
+           _hybrik(pred_thetas=np.zeros((12, 216), np.complex64)),
+           r"'pred_thetas' holds complex numbers", commands=ALL),
+    Defect("video-pt", "payload", lambda c: F.torch_bytes({"smpl_params_global":
+                                                           F.Payload(c / MARKER)}),
+           _REFUSED, commands=ALL),
+    Defect("video-pt", "damaged-zip", lambda c: b"PK\x03\x04" + b"\x00" * 40,
+           r"bad\.pt: the file is truncated or damaged"),
+    Defect("video-pt", "unknown-layout", lambda c: F.torch_bytes({"foo": np.zeros(3)}), _LAYOUT),
+    Defect("video-npy", "payload",
+           lambda c: F.npy_bytes(np.array([F.Payload(c / MARKER)], object)), _REFUSED),
+    Defect("video-npy", "plain-array", lambda c: F.npy_bytes(np.zeros((4, 3))), _LAYOUT),
+]
+# fmt: on
+
+
 # --- the table -----------------------------------------------------------------------------------
 
-DEFECTS = [*NPZ, *BVH, *ASF, *AMC, *BODY, *CHECKPOINT]
+DEFECTS = [*NPZ, *BVH, *ASF, *AMC, *BODY, *CHECKPOINT, *VIDEO]
 
 
 def cases() -> list[Case]:

@@ -12,11 +12,13 @@ import gzip
 import io
 import os
 import pickle
+import tempfile
 import warnings
 import zipfile
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from tests.conftest import make_tiny_body, motion_arrays
 
@@ -338,3 +340,33 @@ def checkpoint_with(
     with np.load(shipped) as npz:
         arrays = {f"{k}.npy": npz[k] for k in npz.files[drop:]}
     return npz_bytes(arrays)
+
+
+# --- video pipelines' outputs -------------------------------------------------------------------
+
+
+def hybrik_result(frames: int = 12) -> dict:
+    """The keys of HybrIK's res.pk for a small upright clip (tests/video_files.py)."""
+    from tests import video_files
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "res.pk"
+        video_files.write_hybrik(path, video_files.clip(frames, seed=5))
+        return pickle.loads(path.read_bytes())
+
+
+def wham_bytes(frames: int = 12) -> bytes:
+    """A WHAM output (joblib stream) of a small clip."""
+    from tests import video_files
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "wham_output.pkl"
+        video_files.write_wham(path, {0: (video_files.clip(frames, seed=6), None)})
+        return path.read_bytes()
+
+
+def torch_bytes(obj) -> bytes:
+    """``obj`` as torch.save writes it (a zip archive holding data.pkl)."""
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    return buf.getvalue()
