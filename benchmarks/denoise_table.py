@@ -58,6 +58,7 @@ except ModuleNotFoundError:  # run as a file
         CURVE_STEPS,
         REPO,
         TableSettings,
+        section_markers,
     )
 try:
     from benchmarks.denoise_methods import build_table
