@@ -15,8 +15,10 @@ run() {  # run NAME EPOCHS EXTRA-OPTIONS...
         --config weights_recipe/prior_config.json --kl-warmup 500 --epochs "$epochs" \
         --threads 1 --device cpu "$@"
 }
+# `scaling_curve.sh curve` runs the first three only (the curve without the ablation).
 run full_100 1
 run full_50 2 --data-fraction 0.5
 run full_25 4 --data-fraction 0.25
+[ "${1:-all}" = curve ] && exit 0
 run mirror_only_100 3 --speeds 1
 run no_augment_100 6 --speeds 1 --no-mirror-augment

@@ -688,7 +688,8 @@ VIDEO = [
            r"bad\.pt: the file is truncated or damaged"),
     Defect("video-pt", "unknown-layout", lambda c: F.torch_bytes({"foo": np.zeros(3)}), _LAYOUT),
     Defect("video-npy", "payload",
-           lambda c: F.npy_bytes(np.array([F.Payload(c / MARKER)], object)), _REFUSED),
+           lambda c: F.npy_bytes(np.array([F.Payload(c / MARKER)], object)), _REFUSED,
+           commands=ALL),
     Defect("video-npy", "plain-array", lambda c: F.npy_bytes(np.zeros((4, 3))), _LAYOUT),
 ]
 # fmt: on
