@@ -15,7 +15,7 @@ import pytest
 import torch
 from video_files import joblib_dumps
 
-from mdvae_cli.body.safe_data import load_data, sniff
+from mdvae_cli.body.data_files import load_data, sniff
 from mdvae_cli.errors import InputError
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real"

@@ -646,12 +646,17 @@ def test_ctrl_c_while_a_checkpoint_is_written_leaves_its_two_files_matched(tmp_p
             signal.raise_signal(signal.SIGINT)
 
     monkeypatch.setattr(ck, "write_atomic", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        ck.save_checkpoint(path, {"w": torch.ones(2)}, {"step": 2})
+    # a shell's background job starts with SIGINT ignored: give it Python's usual handler
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ck.save_checkpoint(path, {"w": torch.ones(2)}, {"step": 2})
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
     tensors, meta = ck.load_checkpoint(path)
     assert meta["step"] == 2 and torch.equal(tensors["w"], torch.ones(2))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["last.json", "last.npz"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 def test_one_seed_bound_for_every_command_and_the_largest_seed_trains(corpus, tmp_path):

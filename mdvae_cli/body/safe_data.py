@@ -4,8 +4,8 @@ containers (dict, list, tuple), nothing else.
 
 Video pipelines save their results as pickles (WHAM, VIBE, PARE, PHALP through joblib; HybrIK
 and AIST++ with ``pickle``; GVHMR with ``torch.save``; TRAM and ROMP as object arrays in
-``np.save``/``np.savez``). :func:`load_data` opens all of them with an unpickler that knows a
-short list of globals, each replaced by a stand-in that builds data:
+``np.save``/``np.savez``). ``body.data_files.load_data`` opens all of them with the unpickler
+here, which knows a short list of globals, each replaced by a stand-in that builds data:
 
 * numpy arrays, dtypes and scalars (``numpy.core``/``numpy._core`` ``multiarray._reconstruct``,
   ``scalar``, ``numeric._frombuffer``, ``numpy.ndarray``, ``numpy.dtype``);
@@ -29,22 +29,16 @@ anything is built, with one :class:`InputError` line; nothing of the file has ru
 from __future__ import annotations
 
 import collections
-import gzip
 import io
 import pickle
 import zipfile
-import zlib
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from mdvae_cli.body.safe_pickle import numpy_globals, one_line
+from mdvae_cli.body.safe_pickle import numpy_globals
 from mdvae_cli.errors import InputError
-
-#: bytes a compressed pickle may expand to (a guard against decompression bombs)
-MAX_DECOMPRESSED = 4 << 30
 
 #: torch storage classes -> numpy dtype of their elements ("bf16": bfloat16, widened)
 TORCH_STORAGES = {
@@ -60,7 +54,7 @@ TORCH_STORAGES = {
     "BoolStorage": "?",
     "UntypedStorage": "u1",
 }
-_TORCH_MAGIC = 0x1950A86A20F9469CFC6C  # the first pickle of torch's legacy (non-zip) format
+TORCH_MAGIC = 0x1950A86A20F9469CFC6C  # the first pickle of torch's legacy (non-zip) format
 
 
 class _StorageType:
@@ -231,11 +225,11 @@ def _remaining(file: Any) -> int | None:
 # containers
 
 
-def _unpickle(file: Any, label: str, storages=None) -> Any:
+def unpickle(file: Any, label: str, storages=None) -> Any:
     return DataUnpickler(file, label, storages).load()
 
 
-def _load_torch_zip(zf: zipfile.ZipFile, label: str) -> Any:
+def load_torch_zip(zf: zipfile.ZipFile, label: str) -> Any:
     """A torch zip file (``torch.save`` since 1.6): ``<name>/data.pkl`` with persistent ids
     for storages kept as ``<name>/data/<key>``."""
     names = zf.namelist()
@@ -252,26 +246,26 @@ def _load_torch_zip(zf: zipfile.ZipFile, label: str) -> Any:
             cache[key] = _storage_array(zf.read(member), dtype, numel, big)
         return cache[key]
 
-    return _unpickle(io.BytesIO(zf.read(pkl)), label, storage)
+    return unpickle(io.BytesIO(zf.read(pkl)), label, storage)
 
 
-def _load_torch_legacy(data: bytes, label: str) -> Any:
+def load_torch_legacy(data: bytes, label: str) -> Any:
     """torch's legacy stream: pickles of the magic number, the protocol version and the system
     info, the object (storages as persistent ids), the storage keys, then each storage's
     element count (int64) and bytes."""
     f = io.BytesIO(data)
-    if _unpickle(f, label) != _TORCH_MAGIC:
+    if unpickle(f, label) != TORCH_MAGIC:
         raise ValueError("not a torch file")
-    _unpickle(f, label)  # protocol version
-    info = _unpickle(f, label)
+    unpickle(f, label)  # protocol version
+    info = unpickle(f, label)
     big = isinstance(info, dict) and info.get("little_endian") is False
     pending: dict[str, _PendingStorage] = {}
 
     def placeholder(key: str, dtype: str, numel: int) -> _PendingStorage:
         return pending.setdefault(key, _PendingStorage(key, dtype, numel))
 
-    obj = _unpickle(f, label, placeholder)
-    keys = _unpickle(f, label)
+    obj = unpickle(f, label, placeholder)
+    keys = unpickle(f, label)
     if not isinstance(keys, list):
         raise ValueError("torch file without its storage keys")
     arrays: dict[str, np.ndarray] = {}
@@ -310,131 +304,5 @@ def _load_torch_bytes(data: Any) -> Any:
         raise ValueError("torch storage bytes expected")
     if zipfile.is_zipfile(io.BytesIO(data)):
         with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            return _load_torch_zip(zf, "<tensor>")
-    return _load_torch_legacy(bytes(data), "<tensor>")
-
-
-def _read_npy(f: Any, label: str) -> np.ndarray:
-    """One ``.npy`` array; object arrays through the data unpickler."""
-    version = np.lib.format.read_magic(f)
-    read_header = {
-        (1, 0): np.lib.format.read_array_header_1_0,
-        (2, 0): np.lib.format.read_array_header_2_0,
-    }.get(version)
-    if read_header is None:
-        raise ValueError(f"unsupported .npy version {version}")
-    shape, fortran, dtype = read_header(f)
-    if dtype.hasobject:
-        arr = _unpickle(f, label)
-        if not isinstance(arr, np.ndarray):
-            raise ValueError("object .npy that does not hold an array")
-        return arr
-    count = int(np.prod(shape, dtype=np.int64))
-    data = f.read(count * dtype.itemsize)
-    if len(data) != count * dtype.itemsize:
-        raise ValueError("the .npy file is truncated")
-    arr = np.frombuffer(data, dtype=dtype, count=count).copy()
-    return arr.reshape(shape[::-1]).transpose() if fortran else arr.reshape(shape)
-
-
-def _decompress(data: bytes) -> bytes:
-    """joblib's zlib (``compress=3``) or gzip streams, bounded by MAX_DECOMPRESSED."""
-    if data[:2] == b"\x1f\x8b":
-        out = gzip.GzipFile(fileobj=io.BytesIO(data)).read(MAX_DECOMPRESSED + 1)
-    else:
-        d = zlib.decompressobj()
-        out = d.decompress(data, MAX_DECOMPRESSED + 1)
-    if len(out) > MAX_DECOMPRESSED:
-        raise ValueError("decompresses to more than 4 GiB")
-    return out
-
-
-class UnknownFileType(ValueError):
-    """The bytes start like none of the containers :func:`sniff` knows."""
-
-
-def sniff(data: bytes) -> str:
-    """What kind of container ``data`` starts like: "zip", "npy", "zlib", "gzip", "pickle",
-    or "" (none of them)."""
-    if data[:4] == b"PK\x03\x04":
-        return "zip"
-    if data[:6] == b"\x93NUMPY":
-        return "npy"
-    if data[:2] == b"\x1f\x8b":
-        return "gzip"
-    if data[:1] == b"\x78" and len(data) > 1 and (data[0] * 256 + data[1]) % 31 == 0:
-        return "zlib"
-    if data[:1] == b"\x80" and len(data) > 1 and 2 <= data[1] <= 5:
-        return "pickle"
-    return ""
-
-
-def load_data(path: Path | str, data: bytes | None = None) -> Any:
-    """The contents of a pickled data file as numpy arrays and plain containers.
-
-    Handles plain pickles, joblib dumps (raw or zlib/gzip-compressed, with in-stream arrays),
-    torch files (zip or legacy), ``.npy`` (object arrays too) and ``.npz`` (a dict of its
-    members; object members through the data unpickler). ``data``: the file's bytes, when
-    already read. Raises InputError (one line) for a refused global or an unreadable file.
-    """
-    path = Path(path)
-    label = str(path)
-    if data is None:
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise InputError(f"{label}: cannot read ({exc.strerror or exc})") from None
-    try:
-        return _load(data, label, depth=0)
-    except InputError:
-        raise
-    except RecursionError:
-        raise InputError(f"{label}: nested too deeply to read") from None
-    except MemoryError:
-        raise InputError(f"{label}: an array in it is too large to load") from None
-    except (
-        EOFError,
-        IndexError,
-        pickle.UnpicklingError,
-        zipfile.BadZipFile,
-        zlib.error,
-        gzip.BadGzipFile,
-    ):
-        raise InputError(
-            f"{label}: the file is truncated or damaged (cannot unpickle it)"
-        ) from None
-    except UnknownFileType:
-        what = "the file is empty" if not data else "not a pickle, joblib, torch or .npy file"
-        raise InputError(f"{label}: {what}") from None
-    except Exception as exc:  # noqa: BLE001 - any parsing failure is a bad file
-        raise InputError(
-            f"{label}: not a readable pickle/torch/npy file ({type(exc).__name__}: {one_line(exc)})"
-        ) from None
-
-
-def _load(data: bytes, label: str, depth: int) -> Any:
-    kind = sniff(data)
-    if kind in ("zlib", "gzip") and depth == 0:
-        return _load(_decompress(data), label, depth + 1)
-    if kind == "npy":
-        return _read_npy(io.BytesIO(data), label)
-    if kind == "zip":
-        with zipfile.ZipFile(io.BytesIO(data)) as zf:
-            names = zf.namelist()
-            if any(n == "data.pkl" or n.endswith("/data.pkl") for n in names):
-                return _load_torch_zip(zf, label)
-            out = {}
-            for name in names:
-                if name.endswith(".npy"):
-                    with zf.open(name) as member:
-                        out[name[: -len(".npy")]] = _read_npy(io.BytesIO(member.read()), label)
-            if not out:
-                raise ValueError("a zip archive that is neither a torch file nor an .npz")
-            return out
-    if kind == "pickle":
-        f = io.BytesIO(data)
-        first = _unpickle(f, label)
-        if first == _TORCH_MAGIC and isinstance(first, int):
-            return _load_torch_legacy(data, label)
-        return first
-    raise UnknownFileType()
+            return load_torch_zip(zf, "<tensor>")
+    return load_torch_legacy(bytes(data), "<tensor>")

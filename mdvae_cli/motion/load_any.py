@@ -126,7 +126,7 @@ def load_any(
         name = None if data_npz else "amass"
     if name == "amass":
         return _load_amass(path, fps, track, allow_pickle)
-    from mdvae_cli.body.safe_data import load_data
+    from mdvae_cli.body.data_files import load_data
     from mdvae_cli.motion.video_formats import detect
 
     data = load_data(path)

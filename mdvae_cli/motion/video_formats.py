@@ -228,7 +228,7 @@ def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack
     world, notes = None, []
     camera = None if path is None else path.parent.parent / "camera.npy"
     if camera is not None and camera.is_file() and frames is not None:
-        from mdvae_cli.body.safe_data import load_data
+        from mdvae_cli.body.data_files import load_data
 
         cam = load_data(camera)
         cam = cam.item() if isinstance(cam, np.ndarray) and cam.dtype.hasobject else cam
