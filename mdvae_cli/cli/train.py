@@ -30,6 +30,7 @@ class StepReporter:
         self.progress = progress
         self.label = label
         self.task = None
+        self.terms = ""
 
     def __call__(self, info: dict) -> None:
         if info.get("epoch_end"):
@@ -40,9 +41,11 @@ class StepReporter:
         total = info["steps_per_epoch"] * info["epochs"]
         if self.task is None:
             self.task = self.progress.add_task(self.label, total=total, info="")
-        terms = "  ".join(
-            f"{k} {info[k]:.3f}" for k in ("loss", "recon", "kl", "body_cm2") if k in info
-        )
+        if "loss" in info:  # steps without the loss terms keep the last ones shown
+            self.terms = "  ".join(
+                f"{k} {info[k]:.3f}" for k in ("loss", "recon", "kl", "body_cm2") if k in info
+            )
+        terms = self.terms
         self.progress.update(
             self.task, completed=info["step"], info=f"ep {info['epoch'] + 1} {terms}"
         )

@@ -136,37 +136,107 @@ class Encoder(nn.Module):
         g_part = nn.functional.linear(g, first.weight[:, :H], first.bias)
         if self.x_skip:
             g_part = g_part + nn.functional.linear(x, first.weight[:, H + S :])
-        w_state = first.weight[:, H : H + S]
-        h = self.init(x0)
-        hd = decoder.init(x0) if self.reads_decoder else None  # decoder state after z_{1:t-1}
-        rnn = decoder.rnn if self.reads_decoder else None
-        z_prev = x.new_zeros(x.shape[0], self.cell.input_size)
+        steps = EncoderSteps(self.cell, first.weight[:, H : H + S], decoder)
+        h, hd = self.init(x0), (decoder.init(x0) if self.reads_decoder else None)
         zs, means, logvars, hds = [], [], [], []
-        for t in range(x.shape[1]):
-            h = self.cell(z_prev, h)
-            state = h if hd is None else torch.cat([h, hd], dim=-1)
-            pre = g_part[:, t] + nn.functional.linear(state, w_state)
+        # one view per frame: indexing g_part[:, t] in the loop costs a full-size gradient each
+        for t, g_t in enumerate(g_part.unbind(1)):
+            h = steps.encoder_state(h)
+            pre = g_t + steps.state_part(h, hd)
             mean, logvar = rest(pre).chunk(2, dim=-1)
             logvar = logvar.clamp(-12.0, 6.0)
             if sample:
                 eps = torch.randn(
                     mean.shape, generator=generator, dtype=mean.dtype, device=mean.device
                 )
-                z_prev = mean + torch.exp(0.5 * logvar) * eps
+                z = mean + torch.exp(0.5 * logvar) * eps
             else:
-                z_prev = mean
-            if hd is not None:  # one step of the decoder's GRU (same weights, same equations)
-                hd = torch.gru_cell(
-                    z_prev, hd, rnn.weight_ih_l0, rnn.weight_hh_l0, rnn.bias_ih_l0, rnn.bias_hh_l0
-                )
+                z = mean
+            hd = steps.take_latent(z, hd, last=t == x.shape[1] - 1)
+            if hd is not None:
                 hds.append(hd)
-            zs.append(z_prev)
+            zs.append(z)
             means.append(mean)
             logvars.append(logvar)
         stack = lambda v: torch.stack(v, dim=1)  # noqa: E731
         if decoder_states:
             return stack(zs), Gaussian(stack(means), stack(logvars)), stack(hds)
         return stack(zs), Gaussian(stack(means), stack(logvars))
+
+
+def gru_update(gi: torch.Tensor, gh: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+    """One GRU update from its two projections (PyTorch's equations, gates in r, z, n order).
+
+    gi = W_i x + b_i, gh = W_h h + b_h: (B, 3H); h: (B, H) -> h' (B, H)
+    """
+    i_r, i_z, i_n = gi.chunk(3, dim=-1)
+    h_r, h_z, h_n = gh.chunk(3, dim=-1)
+    r = torch.sigmoid(i_r + h_r)
+    u = torch.sigmoid(i_z + h_z)
+    n = torch.tanh(i_n + r * h_n)
+    return n + u * (h - n)
+
+
+class EncoderSteps:
+    """The encoder's sequential loop with its matrix products fused: each step multiplies
+    each of its three changing vectors (h_t, hd_{t-1}, z_t) once, by the weights of every
+    network that reads it, instead of six separate products (same equations as
+    ``nn.GRUCell`` / ``torch.gru_cell``; the order of the products differs, so results
+    agree to float rounding).
+
+    ``cell``: the encoder's GRUCell over z_{t-1}; ``w_state``: (M, H) or (M, 2H), the head's
+    first-layer columns for [h_t] or [h_t, hd_t]; ``decoder``: the decoder whose GRU the
+    encoder steps along, or None.
+    """
+
+    def __init__(self, cell: nn.GRUCell, w_state: torch.Tensor, decoder: Decoder | None):
+        H = cell.hidden_size
+        self.M = w_state.shape[0]
+        self.G = 3 * H
+        self.reads_decoder = w_state.shape[1] == 2 * H
+        # h_t -> [state columns | the encoder cell's hidden projection for step t+1]
+        self.w_h = torch.cat([w_state[:, :H], cell.weight_hh], dim=0)
+        self.b_h = torch.cat([cell.bias_hh.new_zeros(self.M), cell.bias_hh])
+        self.cell = cell
+        self.gi = cell.bias_ih.expand(1, -1)  # z_0 = 0: the input projection is its bias
+        self.gh = None
+        if self.reads_decoder:
+            rnn = decoder.rnn
+            # hd_{t-1} -> [the decoder GRU's hidden projection | state columns]
+            self.w_hd = torch.cat([rnn.weight_hh_l0, w_state[:, H:]], dim=0)
+            self.b_hd = torch.cat([rnn.bias_hh_l0, rnn.bias_hh_l0.new_zeros(self.M)])
+            # z_t -> [the decoder GRU's input projection | the encoder cell's, for step t+1]
+            self.w_z = torch.cat([rnn.weight_ih_l0, cell.weight_ih], dim=0)
+            self.b_z = torch.cat([rnn.bias_ih_l0, cell.bias_ih])
+            self.hd_proj = None
+
+    def encoder_state(self, h: torch.Tensor) -> torch.Tensor:
+        """h_{t-1} (B, H) -> h_t, from z_{t-1}'s projection kept by the previous step."""
+        if self.gh is None:  # first step: h_0's projection
+            self.gh = nn.functional.linear(h, self.cell.weight_hh, self.cell.bias_hh)
+        h_new = gru_update(self.gi, self.gh, h)
+        both = torch.addmm(self.b_h, h_new, self.w_h.t())
+        self.state_h, self.gh = both[:, : self.M], both[:, self.M :]
+        return h_new
+
+    def state_part(self, h: torch.Tensor, hd: torch.Tensor | None) -> torch.Tensor:
+        """The head's first layer on [h_t, hd_{t-1}] (B, M); h_t's part is already made."""
+        if hd is None:
+            return self.state_h
+        both = torch.addmm(self.b_hd, hd, self.w_hd.t())
+        self.hd_proj = both[:, : self.G]
+        return self.state_h + both[:, self.G :]
+
+    def take_latent(self, z: torch.Tensor, hd: torch.Tensor | None, last: bool):
+        """Feed z_t (B, L): the decoder's state hd_t (or None), and the encoder cell's input
+        projection for step t+1 (skipped after the last step)."""
+        if hd is None:
+            if not last:
+                self.gi = nn.functional.linear(z, self.cell.weight_ih, self.cell.bias_ih)
+            return None
+        both = torch.addmm(self.b_z, z, self.w_z.t())
+        self.gi = both[:, self.G :]
+        return gru_update(both[:, : self.G], self.hd_proj, hd)
 
 
 class MotionDVAE(nn.Module):

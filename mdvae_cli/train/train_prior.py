@@ -46,6 +46,8 @@ from mdvae_cli.train.run_state import (
 )
 from mdvae_cli.train.train_config import TRAINABLE, TrainConfig
 
+REPORT_EVERY = 10  # steps between loss readings on a GPU
+
 
 @torch.no_grad()
 def evaluate(
@@ -203,6 +205,8 @@ def train_prior(
 
         model = PriorModel(cfg.model)
         model.normalizer.fit(train.x0, train.x)
+        if device.type == "cuda":  # the windows stay on the device: no copy per step
+            train = WindowSet(*(t.to(device) for t in (train.x0, train.x, train.betas)))
         model.normalizer.scale_std(VELOCITY_DIMS, cfg.velocity_std_scale)
         if cfg.init_from and not resume:
             init_from_prior(model, Path(cfg.init_from))
@@ -244,7 +248,7 @@ def train_prior(
             # the epoch's order (mod 2^64: any seed fits; the same numbers as ever below ~1e16)
             gen = torch.Generator().manual_seed((cfg.seed * 1000 + epoch) % 2**64)
             perm = torch.randperm(len(train), generator=gen)
-            mine = perm[dist.rank :: dist.world_size]
+            mine = perm[dist.rank :: dist.world_size].to(train.x.device)
             taken = steps_per_epoch
             for i in range(skip if epoch == first_epoch else 0, steps_per_epoch):
                 idx = mine[i * cfg.batch_size : (i + 1) * cfg.batch_size]
@@ -269,6 +273,9 @@ def train_prior(
                 clipped_step(opt, terms["loss"], model.dvae.parameters(), cfg.grad_clip)
                 step += 1
                 if progress is not None and dist.is_main:
+                    # the loss terms as numbers every REPORT_EVERY steps: on a GPU each
+                    # reading waits for the device
+                    report = step % REPORT_EVERY == 0 or device.type == "cpu"
                     progress(
                         {
                             "epoch": epoch,
@@ -276,7 +283,7 @@ def train_prior(
                             "steps_per_epoch": steps_per_epoch,
                             "epochs": cfg.epochs,
                             "kl_w": kl_w,
-                            **{k: v.item() for k, v in terms.items()},
+                            **({k: v.item() for k, v in terms.items()} if report else {}),
                         }
                     )
                 if max_steps is not None and step >= max_steps:

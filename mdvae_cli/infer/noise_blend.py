@@ -1,0 +1,187 @@
+"""What the input's own noise does not explain stays as it came.
+
+The denoiser's output is a second estimate of the motion beside the input itself. Where the
+input is clean, the input is the better estimate; where it is noisy, the denoiser's. Their best
+mix frame by frame (noise and the denoiser's error independent) is
+
+    x = y + g (x_hat - y),   g = s^2 / (s^2 + e^2) = s^2 / E|x_hat - y|^2,
+
+with s^2 the input's noise variance and e^2 the denoiser's error variance: E|x_hat - y|^2 =
+s^2 + e^2. So the change the denoiser made is kept in full only where the input's own noise
+explains it, and shrunk where it is more than the noise: a clean take comes back nearly as it
+came, a noisy one cleaned. Per joint (each joint has its own noise: a video tracker's wrists
+jitter more than its pelvis) and per stretch of about a second (the denoiser errs more on some
+moves than on others).
+
+The input's noise is measured on the input alone, from its third differences in time: white
+noise of variance s^2 gives third differences of variance 20 s^2, while a smooth motion's third
+differences are small at any rate of 24 Hz and up; the median keeps fast moves from inflating
+it. Spikes (a marker swap, a solver flip) are not white noise: a frame that jumps away from
+both of its neighbours by far more than the noise is an outlier of the input, and there the
+denoiser's frame is taken whole.
+
+Pure numpy/torch math on arrays of one motion: rotations (T, J, 3) axis-angle, translation
+(T, 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
+
+#: the median of a chi-square variable with one degree of freedom over its mean
+_CHI2_MEDIAN = 0.4549
+#: variance of the third difference of unit white noise: C(6, 3)
+_THIRD_DIFF_GAIN = 20.0
+#: the stretch over which the denoiser's change is measured (seconds)
+BLEND_SECONDS = 1.0
+#: a frame this many noise levels away from its neighbours' midpoint (and back) is a spike
+SPIKE_LEVELS = 8.0
+#: ... and at least this far from it (rad for rotations, m for the root's translation)
+SPIKE_FLOOR_RAD = 0.15
+SPIKE_FLOOR_M = 0.05
+#: the slow and fast bands are split by a Gaussian of this width (seconds)
+BAND_SECONDS = 0.05
+#: how many times its noise variance a band's residual must exceed before any is put back
+SLOW_MARGIN = 1.0
+FAST_MARGIN = 3.0
+
+
+@dataclass
+class BlendReport:
+    """How far a motion leans on the denoiser: the mean gain g over rotations (0 = the input
+    as it came, 1 = the denoiser's output), and the share of frames taken as input spikes."""
+
+    mean_gain: float
+    spike_share: float
+
+
+def noise_variance(values: np.ndarray) -> np.ndarray:
+    """The white-noise variance of each channel from its third differences in time.
+
+    values: (T, C, ...) -> (C, ...) (per channel, the median over time and the remaining
+    trailing axis when there is one per channel); zeros for T < 4."""
+    if values.shape[0] < 4:
+        return np.zeros(values.shape[1:-1] if values.ndim > 2 else values.shape[1:])
+    d3 = np.diff(values, n=3, axis=0) ** 2
+    if values.ndim > 2:  # pool the components of a channel (x, y, z)
+        d3 = np.moveaxis(d3, -1, 1).reshape(-1, *values.shape[1:-1])
+    return np.median(d3, axis=0) / (_THIRD_DIFF_GAIN * _CHI2_MEDIAN)
+
+
+def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
+    """Centred moving average along axis 0 over ``width`` frames (shorter at the ends).
+
+    x: (T, ...) -> (T, ...)"""
+    T = x.shape[0]
+    h = max(0, width // 2)
+    c = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(x, axis=0)])
+    lo = np.clip(np.arange(T) - h, 0, T)
+    hi = np.clip(np.arange(T) + h + 1, 0, T)
+    n = (hi - lo).reshape(-1, *([1] * (x.ndim - 1)))
+    return (c[hi] - c[lo]) / n
+
+
+def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.ndarray:
+    """Frames of each channel that jump away from both neighbours and back, by far more than
+    the noise and by at least ``floor`` (a fast move also bends the track, but it does not
+    come back; on a clean take the noise is tiny, and only a real glitch is that far).
+
+    values: (T, C, 3), noise_var: (C,) -> (T, C) bool"""
+    T = values.shape[0]
+    out = np.zeros(values.shape[:2], dtype=bool)
+    if T < 3:
+        return out
+    away = np.linalg.norm(values[1:-1] - 0.5 * (values[2:] + values[:-2]), axis=-1)
+    across = np.linalg.norm(values[2:] - values[:-2], axis=-1)
+    # a frame's distance from its neighbours' midpoint: variance 1.5 s^2 per component
+    level = np.sqrt(1.5 * 3.0 * noise_var) + 1e-9
+    out[1:-1] = (away > np.maximum(SPIKE_LEVELS * level, floor)) & (away > across)
+    return out
+
+
+def gaussian_kernel(sigma_frames: float) -> np.ndarray:
+    """Normalised Gaussian weights over +-3 sigma.  -> (2r + 1,)"""
+    r = max(1, int(np.ceil(3.0 * sigma_frames)))
+    w = np.exp(-0.5 * (np.arange(-r, r + 1) / max(sigma_frames, 1e-6)) ** 2)
+    return w / w.sum()
+
+
+def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Convolve along axis 0 with edge values repeated.  x: (T, ...) -> (T, ...)"""
+    r = len(kernel) // 2
+    padded = np.concatenate([np.repeat(x[:1], r, 0), x, np.repeat(x[-1:], r, 0)])
+    out = np.zeros_like(x)
+    for k, w in enumerate(kernel):
+        out += w * padded[k : k + x.shape[0]]
+    return out
+
+
+def kept_share(residual_sq: np.ndarray, noise_var: np.ndarray, width: int) -> np.ndarray:
+    """The share of a band of the residual that its noise does not explain, per frame and
+    channel: 1 - s^2 / E|r|^2, in [0, 1].
+
+    residual_sq: (T, C) squared residual per component; noise_var: (C,) the band's noise
+    variance per component; width: frames over which E is taken -> (T, C)"""
+    local = moving_mean(residual_sq, width)
+    return np.clip(1.0 - noise_var[None] / np.maximum(local, 1e-12), 0.0, 1.0)
+
+
+def keep_unexplained(
+    residual: np.ndarray, noise_var: np.ndarray, spikes: np.ndarray, fps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """What of the input's difference from the denoiser's output to keep: the part its noise
+    does not explain, band by band (a slow band, where the denoiser's own errors sit, and a
+    fast one, where white noise sits), and nothing at the input's spikes.
+
+    residual: (T, C, 3) input minus output; noise_var: (C,); spikes: (T, C) bool ->
+    (kept residual (T, C, 3), the slow band's kept share (T, C))"""
+    r = np.where(spikes[..., None], 0.0, residual)
+    kernel = gaussian_kernel(BAND_SECONDS * fps)
+    slow = smooth_in_time(r, kernel)
+    fast = r - slow
+    # white noise's variance in each band, per unit of input noise variance
+    delta = np.zeros_like(kernel)
+    delta[len(kernel) // 2] = 1.0
+    width = max(3, int(round(BLEND_SECONDS * fps)) | 1)
+    slow_noise = SLOW_MARGIN * noise_var * (kernel**2).sum()
+    fast_noise = FAST_MARGIN * noise_var * ((delta - kernel) ** 2).sum()
+    keep_slow = kept_share((slow**2).mean(-1), slow_noise, width)
+    keep_fast = kept_share((fast**2).mean(-1), fast_noise, width)
+    return keep_slow[..., None] * slow + keep_fast[..., None] * fast, keep_slow
+
+
+def blend_rotations(
+    source: np.ndarray, denoised: np.ndarray, fps: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each joint's denoised rotation with the part of the input's difference from it that
+    the input's noise does not explain put back.
+
+    source, denoised: (T, J, 3) axis-angle -> (blended (T, J, 3), the share of the slow
+    difference put back (T, J): 0 = the denoiser's, 1 = the input's; spikes (T, J))
+    """
+    src = torch.as_tensor(source, dtype=torch.float64)
+    R_den = rotvec_to_rotmat(torch.as_tensor(denoised, dtype=torch.float64))
+    residual = rotmat_to_rotvec(R_den.transpose(-1, -2) @ rotvec_to_rotmat(src)).numpy()
+    unwrapped = rotvec_unwrap(src, dim=0).numpy()
+    noise = noise_variance(unwrapped)  # (J,)
+    spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
+    kept, share = keep_unexplained(residual, noise, spikes, fps)
+    out = rotmat_to_rotvec(R_den @ rotvec_to_rotmat(torch.as_tensor(kept))).numpy()
+    return out, share, spikes
+
+
+def blend_translation(
+    source: np.ndarray, denoised: np.ndarray, fps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The root translation, blended as :func:`blend_rotations` does.
+
+    source, denoised: (T, 3) -> (blended (T, 3), slow share put back (T,))"""
+    noise = noise_variance(source[:, None, :])  # (1,)
+    spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M)
+    kept, share = keep_unexplained((source - denoised)[:, None, :], noise, spikes, fps)
+    return denoised + kept[:, 0], share[:, 0]
