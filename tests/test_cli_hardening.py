@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs, write_atomic
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.formats.npz_io import load_motion
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 NOISY = EXAMPLES / "noisy_walk.npz"
@@ -336,7 +336,7 @@ def test_an_implausible_frame_rate_is_refused_when_the_file_is_read(tmp_path):
 
 
 def test_an_output_that_is_an_input_is_refused_before_anything_is_read(tmp_path, monkeypatch):
-    import mdvae_cli.motion.npz_io as npz_io
+    import mdvae_cli.formats.npz_io as npz_io
 
     def never(*args, **kwargs):
         raise AssertionError("an input was read")

@@ -13,6 +13,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import savgol_filter_motion
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.closed_form import (
     ClosedFormFactors,
     cosine_basis,
@@ -30,10 +31,9 @@ from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.dvae import Gaussian
 from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.model.state import POSE, ROOT, TRANS, finite_difference
 from mdvae_cli.motion.motion import slice_frames
 from mdvae_cli.motion.noise import add_pose_noise
-from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.state import POSE, ROOT, TRANS, finite_difference
 from mdvae_cli.train.corpus import load_windows
 from mdvae_cli.train.prior_loss import prior_losses, spread_vertex_ids
 from mdvae_cli.train.reconstruct import refine_reconstruction

@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.sample import (
     FOOT_JOINTS,
     PARTICLES,
@@ -22,8 +23,7 @@ from mdvae_cli.infer.sample import (
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.dvae import MotionDVAE
 from mdvae_cli.model.prior_model import load_prior
-from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.state import ROOT, STATE_DIM, TRANS
+from mdvae_cli.model.state import ROOT, STATE_DIM, TRANS
 from mdvae_cli.weights import default_weights
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "walk.npz"

@@ -64,7 +64,8 @@ class FileOutcome:
         return {
             "file": self.job.relpath.as_posix(),
             "input": str(self.job.source),
-            "output": None if self.job.output is None else str(self.job.output),
+            # a failed file wrote nothing: no output to list
+            "output": None if self.job.output is None or not self.ok else str(self.job.output),
             "ok": self.ok,
             "error": self.error,
             "result": result if self.ok else None,
@@ -150,7 +151,9 @@ def plan_jobs(
         raise InputError(f"no {'/'.join(suffixes)} files found in {names}")
     if out is None:
         return [FileJob(rel, src) for src, rel in items]
-    single = len(inputs) == 1 and Path(inputs[0]).is_file()
+    single = len(items) == 1 and all(Path(p).is_file() for p in inputs)
+    if single and not as_folder and not out.is_dir():
+        refuse_unsupported(out)
 
     if out_suffix is None:
         if single:
@@ -173,6 +176,18 @@ def plan_jobs(
         raise InputError(f"with a folder or several inputs, the output {out} must be a folder")
     rename = rename or strip_gz
     return no_clashes([FileJob(rel, src, out / rename(rel)) for src, rel in items])
+
+
+def refuse_unsupported(out: Path) -> None:
+    """InputError when the output name ``out`` is in a format mdvae does not write (FBX, C3D,
+    ...): it would otherwise be taken for a folder name."""
+    from mdvae_cli.formats.registry import suffix_of, unsupported
+
+    if unsupported(out) is not None:
+        raise InputError(
+            f"cannot write {out}: mdvae does not write {suffix_of(out)[1:].upper()}; write .npz "
+            "or .bvh (Blender, Maya and MotionBuilder import BVH and save it as FBX)"
+        )
 
 
 def refuse_gz(out: Path, suffix: str = ".npz") -> None:

@@ -23,13 +23,14 @@ from mdvae_cli.cli.batch import (
 )
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, console, handle_errors
 from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice
+from mdvae_cli.cli.takes import load_joint_map
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.motion import cmu, corpus_plan, hdm05
 from mdvae_cli.motion.motion import check_fps
 
 #: what folders are searched for: mocap to retarget, and video pipelines' outputs (files given
-#: by name may be of any format ``motion.load_any`` reads, AMASS .npz included)
+#: by name may be of any format ``formats.registry`` reads, AMASS .npz included)
 SUFFIXES = (".bvh", ".amc", ".pkl", ".pk", ".pt", ".pth", ".npy")
 
 
@@ -160,11 +161,17 @@ def _print_summary(summary: dict) -> None:
     "-j", "--jobs", "jobs_n", type=click.IntRange(min=1), default=1, show_default=True,
     help="Worker processes (one CPU core each).",
 )  # fmt: skip
+@click.option(
+    "--joint-map", "joint_map_file", type=click.Path(path_type=Path, dir_okay=False),
+    help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them "
+    '(SMPL joint -> yours, e.g. {"left_hip": "LeftUpLeg"}).',
+)  # fmt: skip
 @body_model_option
 @json_option
 @handle_errors
 def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, split_file,
-                   input_format, track, jobs_n, body_model, as_json) -> None:  # fmt: skip
+                   input_format, track, jobs_n, joint_map_file, body_model,
+                   as_json) -> None:  # fmt: skip
     """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton,
     and the output files of video pose pipelines (WHAM, GVHMR, TRAM, 4D-Humans/PHALP, VIBE,
     PARE, HybrIK, ROMP/BEV, SLAHMR) or AIST++ pickles as AMASS-style .npz.
@@ -232,10 +239,12 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
         raise InputError(f"two inputs would both be written to {dup}; import them separately")
 
     from mdvae_cli.cli.import_worker import FileImporter
-    from mdvae_cli.motion.retarget import RetargetSettings
+    from mdvae_cli.retarget.retarget import RetargetSettings
 
     settings = RetargetSettings(floor=floor).validate()
-    args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track)
+    joint_map = load_joint_map(joint_map_file)
+    args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track,
+            joint_map)  # fmt: skip
     pool = None
     if jobs_n > 1 and len(jobs) > 1:
         pool = ProcessPoolExecutor(min(jobs_n, len(jobs)), mp_context=get_context("spawn"),

@@ -56,7 +56,7 @@ class SourceMotion:
             files whose non-root joints carry moving position channels (the SMPL FBX rig's
             pelvis); None when every offset is fixed.
         layout: what a writer needs to write the file again on its own skeleton (the parsed
-            BVH, see ``motion.bvh_write.BvhLayout``); None when not kept.
+            BVH, see ``formats.bvh_write.BvhLayout``); None when not kept.
     """
 
     names: tuple[str, ...]

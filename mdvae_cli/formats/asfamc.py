@@ -1,4 +1,4 @@
-"""Acclaim motion files (``.amc``) on their ``.asf`` skeleton (``motion.asf``), as used by the
+"""Acclaim motion files (``.amc``) on their ``.asf`` skeleton (``formats.asf``), as used by the
 CMU mocap database.
 
 Conventions (Acclaim, as CMU writes them):
@@ -10,7 +10,7 @@ Conventions (Acclaim, as CMU writes them):
 :func:`load_amc` returns a :class:`SourceMotion` whose joints are the root, every bone (placed at
 the bone's start) and an ``<bone>_end`` tip for each leaf bone. It keeps the file's
 :class:`AmcLayout` (header, frame numbers, each frame's bones and values as written) so that
-``motion.amc_write`` can write the take again on its own skeleton.
+``formats.amc_write`` can write the take again on its own skeleton.
 """
 
 from __future__ import annotations
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.asf import (
+from mdvae_cli.formats.asf import (
     AsfSkeleton,
     axis_frame,
     load_asf,
 )
-from mdvae_cli.motion.source import (
+from mdvae_cli.formats.source import (
     SourceMotion,
     check_angles,
     euler_to_rotmat,

@@ -1,6 +1,6 @@
 """Per-person tracks of video-pipeline estimates -> upright Motions (z-up, metres, AMASS layout).
 
-A pipeline reader (``motion.video_formats``) fills a :class:`RawTrack` with what the file holds,
+A pipeline reader (``formats.video_formats``) fills a :class:`RawTrack` with what the file holds,
 in the file's own frame; :func:`track_to_motion` turns it into a :class:`Motion`:
 
 * **frame**: every source frame is mapped to the AMASS convention (z up) by the smallest

@@ -2,7 +2,7 @@
 a motion; one frame rate; one gender as text; key names that are safe to write back.
 
 Each check raises InputError with one line naming the file, the key and the problem; used by
-:mod:`mdvae_cli.motion.npz_io`.
+:mod:`mdvae_cli.formats.npz_io`.
 """
 
 from __future__ import annotations

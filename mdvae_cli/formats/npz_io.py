@@ -12,8 +12,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
-from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, check_fps
-from mdvae_cli.motion.npz_values import (
+from mdvae_cli.formats.npz_values import (
     ANGLE,
     BETA,
     DISTANCE,
@@ -23,6 +22,7 @@ from mdvae_cli.motion.npz_values import (
     real_array,
     safe_keys,
 )
+from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, check_fps
 from mdvae_cli.npz_archive import NpzArchive, write_npz
 
 FPS_KEYS = ("mocap_framerate", "mocap_frame_rate")
@@ -75,13 +75,21 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     return motion
 
 
+#: bytes a ``.npz.gz`` may expand to (a guard against decompression bombs)
+MAX_GUNZIP = 1 << 30
+
+
 def _gunzip(path: Path) -> io.BytesIO:
-    """A ``.gz`` file's decompressed bytes; InputError when it is not gzip data."""
+    """A ``.gz`` file's decompressed bytes; InputError when it is not gzip data or expands
+    past MAX_GUNZIP (read in steps: the limit holds while reading)."""
     try:
         with gzip.open(path, "rb") as fh:
-            return io.BytesIO(fh.read())
+            raw = fh.read(MAX_GUNZIP + 1)
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"{path}: not a readable .gz file ({exc})") from None
+    if len(raw) > MAX_GUNZIP:
+        raise InputError(f"{path}: expands past {MAX_GUNZIP >> 20} MiB when unzipped; refused")
+    return io.BytesIO(raw)
 
 
 def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>") -> Motion:

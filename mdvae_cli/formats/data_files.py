@@ -2,7 +2,7 @@
 
 :func:`load_data` tells the container from the file's first bytes (:func:`sniff`: a pickle or a
 joblib stream, zlib/gzip-compressed or not, a torch zip or legacy file, ``.npy``, ``.npz``) and
-reads it through the restricted unpickler of :mod:`mdvae_cli.body.safe_data`; every failure is
+reads it through the restricted unpickler of :mod:`mdvae_cli.formats.safe_data`; every failure is
 one :class:`InputError` line in the user's words.
 """
 
@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from mdvae_cli.body.safe_data import TORCH_MAGIC, load_torch_legacy, load_torch_zip, unpickle
 from mdvae_cli.body.safe_pickle import one_line
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.safe_data import TORCH_MAGIC, load_torch_legacy, load_torch_zip, unpickle
 
 #: bytes a compressed pickle may expand to (a guard against decompression bombs)
 MAX_DECOMPRESSED = 4 << 30
