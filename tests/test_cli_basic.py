@@ -268,10 +268,10 @@ def test_add_noise_batch_goes_on_after_a_failure(make_motion_file, tmp_path):
      ("--spike-rad", -1)],
 )  # fmt: skip
 def test_add_noise_bad_option_values(make_motion_file, tmp_path, option):
-    # refused while parsing (a usage error, exit 2) naming the option; nothing written
+    # refused while parsing (one error line, exit 1) naming the option; nothing written
     src = make_motion_file("c.npz", T=5)
     code, out, err = run("add-noise", src, "-o", tmp_path / "n.npz", *option)
-    assert code == 2 and f"Invalid value for '{option[0]}'" in out + err
+    assert code == 1 and f"Invalid value for '{option[0]}'" in out + err
     assert "Traceback" not in out + err and not (tmp_path / "n.npz").exists()
 
 

@@ -56,7 +56,9 @@ def one_error_line(res) -> str:
 def test_numbers_that_are_not_finite_or_in_range_are_usage_errors(tmp_path, args, message):
     out = tmp_path / "o.npz"
     res = invoke(*args, "-o", out)
-    assert res.exit_code == 2 and message in res.output and "Traceback" not in res.output
+    assert res.exit_code == 1 and message in res.output and "Traceback" not in res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ")  # not Click's usage block
     assert not out.exists()
 
 

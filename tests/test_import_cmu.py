@@ -564,7 +564,7 @@ def test_cli_rejects_bad_options(tmp_path):
     assert code == 1 and "error: --split only goes with --corpus" in err
     for bad, why in ((-1, "-1 is not >= 0"), ("inf", "'inf' is not a finite number")):
         code, out, err = run(tmp_path, "-o", tmp_path / "o", "--fps", bad)
-        assert code == 2 and f"Invalid value for '--fps': {why}" in out + err
+        assert code == 1 and f"Invalid value for '--fps': {why}" in out + err
     for option, rate in (("--fps", "0.5"), ("--source-fps", "20000")):
         code, out, err = run(tmp_path, "-o", tmp_path / "o", option, rate)
         assert code == 1 and f"error: {option}: frame rate {rate} Hz is implausible" in err
