@@ -67,7 +67,7 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
         )
     if isinstance(source, io.BytesIO):
         source.seek(0)
-    with NpzArchive(source, path, pickle_option="--allow-pickle") as npz:
+    with NpzArchive(source, path, "--allow-pickle", max_member=MAX_MEMBER) as npz:
         data = {key: npz.read(key, allow_pickle) for key in npz.keys}  # in the archive's order
         compressed = npz.compressed
     motion = motion_from_arrays(data, path)
@@ -75,8 +75,10 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     return motion
 
 
+#: bytes one array of a motion file may take (a 10-minute SMPL-X take at 120 Hz: 57 MB)
+MAX_MEMBER = 512 << 20
 #: bytes a ``.npz.gz`` may expand to (a guard against decompression bombs)
-MAX_GUNZIP = 1 << 30
+MAX_GUNZIP = 512 << 20
 
 
 def _gunzip(path: Path) -> io.BytesIO:
@@ -126,6 +128,9 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     betas_rows = None
     if "betas" in data:
         betas = real_array("betas", data["betas"], path, BETA)
+        if betas.ndim > 2 or (betas.ndim == 2 and betas.shape[0] not in (1, T)):
+            raise InputError(f"{path}: 'betas' has shape {betas.shape}; expected (S,), (1, S) "
+                             f"or one row per frame ({T}, S)")  # fmt: skip
         if betas.ndim == 2 and betas.shape[0] == T:  # one shape vector per frame
             betas_rows = data["betas"]
             spread = float(np.ptp(betas, axis=0).max(initial=0.0))

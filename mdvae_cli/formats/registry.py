@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular
@@ -184,6 +186,7 @@ def write(
         take = take if take is not None else item.take
         item = item.single()
     path = Path(path)
+    check_writable(item, path)
     kind = suffix_of(path)
     if kind == ".npz":
         from mdvae_cli.formats.npz_io import save_motion
@@ -210,6 +213,23 @@ def write(
         f"cannot write {path}: mdvae writes .npz and .bvh (and takes back as .amc); Blender, "
         "Maya and MotionBuilder import BVH and save it as FBX"
     )
+
+
+def check_writable(motion: Motion, path: Path) -> None:
+    """InputError when ``motion`` holds values no motion file may (NaN, angles or distances
+    past the readers' limits): nothing is written that mdvae would refuse to read back."""
+    from mdvae_cli.formats.npz_values import ANGLE, DISTANCE
+
+    for key, arr, limit in (("root_orient", motion.root_orient, ANGLE),
+                            ("pose_body", motion.pose_body, ANGLE),
+                            ("trans", motion.trans, DISTANCE)):  # fmt: skip
+        arr = np.asarray(arr, dtype=np.float64)
+        if not np.isfinite(arr).all():
+            raise InputError(f"cannot write {path}: its '{key}' holds NaN or infinite values")
+        if arr.size and np.abs(arr).max() > limit.largest:
+            worst = limit.value.format(float(np.abs(arr).max()))
+            raise InputError(f"cannot write {path}: its '{key}' {worst} ({limit.kind} are "
+                             "refused on reading; nothing written)")  # fmt: skip
 
 
 def _builtin() -> Any:
