@@ -241,6 +241,8 @@ def load_amc(
     layout = {"root": len(skeleton.root_order)}
     layout.update({name: len(b.dofs) for name, b in skeleton.bones.items()})
     file_values, amc_degrees, amc_notes, kept = _read_amc_values(text, layout, path)
+    if not any(kept[3]):  # the bones each frame lists: none in any frame
+        raise InputError(f"{path}: frame numbers but no bone lines: the AMC holds no motion")
     degrees = skeleton.degrees if amc_degrees is None else amc_degrees
     T = T_file = kept[-1]
     if max_frames is not None:
