@@ -296,3 +296,12 @@ def test_the_registry_knows_every_suffix_it_reads():
     assert set(registry.READ_SUFFIXES) >= {".npz", ".bvh", ".amc", ".pkl", ".pt", ".npy"}
     assert not set(registry.READ_SUFFIXES) & set(registry.UNSUPPORTED)
     assert ReadOptions().format is None
+
+
+def test_a_file_name_too_long_is_said_in_words(make_motion_file, tmp_path):
+    long = tmp_path / ("a" * 300 + ".npz")
+    line = one_error(*run("add-noise", long, "-o", tmp_path / "n.npz"))
+    assert line.endswith(".npz: File name too long") and "Errno" not in line
+    src = make_motion_file("m.npz", T=10)
+    line = one_error(*run("add-noise", src, "-o", long))
+    assert "File name too long" in line and "OSError" not in line

@@ -23,7 +23,7 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from mdvae_cli.cli.common import console, progress_bar
+from mdvae_cli.cli.common import console, os_error_words, progress_bar
 from mdvae_cli.errors import InputError, MdvaeError
 from mdvae_cli.fileio import MOTION_SUFFIXES, expand_inputs
 
@@ -220,7 +220,12 @@ def no_clashes(jobs: list[FileJob]) -> list[FileJob]:
 
 
 def _message(job: FileJob, exc: BaseException) -> str:
-    text = str(exc) if isinstance(exc, MdvaeError) else f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, MdvaeError):
+        text = str(exc)
+    elif isinstance(exc, OSError):
+        text = os_error_words(exc)
+    else:
+        text = f"{type(exc).__name__}: {exc}"
     text = " ".join(text.split())  # one line
     named = [str(job.source)] + ([str(job.data)] if isinstance(job.data, Path) else [])
     return text if any(name in text for name in named) else f"{job.source}: {text}"

@@ -126,7 +126,7 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
         raise InputError(f"{label}: {what}") from None
     except Exception as exc:  # noqa: BLE001 - any parsing failure is a bad file
         raise InputError(
-            f"{label}: not a readable pickle/torch/npy file ({type(exc).__name__}: {one_line(exc)})"
+            f"{label}: not a readable pickle/torch/npy file (damaged: {one_line(exc)})"
         ) from None
 
 
