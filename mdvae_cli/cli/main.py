@@ -56,9 +56,9 @@ def cli() -> None:
       mdvae denoise noisy.npz -o cleaned.npz
       mdvae eval --gt clean.npz --pred cleaned.npz
 
-    Files are AMASS-style .npz (poses, trans, betas, mocap_framerate). The file commands
-    (add-noise, denoise, eval, export-mesh, import) take files or folders; folders are
-    mirrored into the output folder.
+    Files are AMASS-style .npz (poses, trans, betas, mocap_framerate), BVH and ASF/AMC takes,
+    or the outputs of video pose pipelines (WHAM, GVHMR, ...). Every file command takes files
+    or folders (folders are mirrored into the output folder) and answers --json.
     """
 
 
