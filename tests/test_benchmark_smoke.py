@@ -186,6 +186,7 @@ def test_file_to_file_times_load_process_and_save(tmp_path):
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [f.name for f in files]
 
 
+@pytest.mark.slow  # ~23 s on 2 cores
 def test_script_main_end_to_end(tiny_denoiser, tmp_path):
     """Both splits' tables (test tuned on val, unseen_test on its own clips) and the short-take
     rows go into their own sections of --out and into --json."""

@@ -223,6 +223,7 @@ def test_cli_denoise_keeps_layout_frames_and_extras(tiny_prior, make_motion_file
         assert float(b["mocap_frame_rate"]) == 60.0
 
 
+@pytest.mark.slow  # ~13 s on 2 cores
 def test_cli_denoise_optimize_folder_meshes_and_failures(tiny_prior, noisy_dir, tmp_path):
     den = write_denoiser(tiny_prior, tmp_path / "den")
     inputs = tmp_path / "in"
@@ -330,6 +331,7 @@ def test_the_default_keeps_the_file_s_root_path():
     assert drifted.mean() > 3 * kept.mean() and drifted.max() > 2 * kept.max()
 
 
+@pytest.mark.slow  # ~22 s on 2 cores
 def test_ten_minute_file_denoises_in_bounded_memory(tmp_path):
     T = 10 * 60 * 30
     t = np.arange(T)[:, None] / 30.0

@@ -50,6 +50,7 @@ def test_refine_targets_are_what_refinement_finds(windows):
     assert (targets.z - start).abs().mean() > 1e-3
 
 
+@pytest.mark.slow  # ~18 s on 2 cores
 def test_distillation_brings_one_pass_output_to_the_refined_states(windows):
     den, group = windows
     den = Denoiser(den.prior, den.cfg)

@@ -304,6 +304,7 @@ def test_cli_train_prior_and_sample(tmp_path):
     assert res.exit_code == 1 and "error:" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.slow  # ~15 s on 2 cores
 def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
     data = write_corpus(tmp_path / "data", n=4, T=60)
     run = tmp_path / "run"

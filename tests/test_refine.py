@@ -332,6 +332,7 @@ def test_refine_windows_needs_the_raw_states(tiny_prior):  # noqa: F811
         refine_windows(den, group, RefineConfig(steps=1))
 
 
+@pytest.mark.slow  # ~13 s on 2 cores
 def test_shipped_denoiser_refined_beats_regression_and_the_tuned_filter():
     clean = load_motion(EXAMPLES / "walk.npz")
     noisy = add_pose_noise(clean, 0.15, np.random.default_rng(7))

@@ -225,7 +225,8 @@ def check_writable(motion: Motion, path: Path) -> None:
                             ("trans", motion.trans, DISTANCE)):  # fmt: skip
         arr = np.asarray(arr, dtype=np.float64)
         if not np.isfinite(arr).all():
-            raise InputError(f"cannot write {path}: its '{key}' holds NaN or infinite values")
+            raise InputError(f"cannot write {path}: its '{key}' holds NaN or infinite values; "
+                             "nothing written")  # fmt: skip
         if arr.size and np.abs(arr).max() > limit.largest:
             worst = limit.value.format(float(np.abs(arr).max()))
             raise InputError(f"cannot write {path}: its '{key}' {worst} ({limit.kind} are "
