@@ -305,3 +305,12 @@ def test_a_file_name_too_long_is_said_in_words(make_motion_file, tmp_path):
     src = make_motion_file("m.npz", T=10)
     line = one_error(*run("add-noise", src, "-o", long))
     assert "File name too long" in line and "OSError" not in line
+
+
+def test_a_broken_skeleton_is_blamed_not_the_take(tmp_path):
+    (tmp_path / "s.asf").write_text("garbage\n")
+    take = tmp_path / "s_01.amc"
+    take.write_text(F.amc_text(frames=32))
+    line = one_error(*run("import", take, "-o", tmp_path / "o.npz"))
+    assert line.startswith(f"error: {tmp_path / 's.asf'}: not an ASF skeleton")
+    assert line.endswith(f"(reading {take})")

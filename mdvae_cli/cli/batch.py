@@ -228,7 +228,12 @@ def _message(job: FileJob, exc: BaseException) -> str:
         text = f"{type(exc).__name__}: {exc}"
     text = " ".join(text.split())  # one line
     named = [str(job.source)] + ([str(job.data)] if isinstance(job.data, Path) else [])
-    return text if any(name in text for name in named) else f"{job.source}: {text}"
+    if any(name in text for name in named):
+        return text
+    blamed = text.split(": ", 1)[0]
+    if blamed != text and Path(blamed).is_file():  # another file is at fault (an .asf, a map)
+        return f"{text} (reading {job.source})"
+    return f"{job.source}: {text}"
 
 
 def run_batch(
