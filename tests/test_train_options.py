@@ -430,6 +430,14 @@ def test_cli_partial_config_file_keeps_the_default_architecture(corpus, tmp_path
     assert res.exit_code == 0, res.output
     saved = json.loads((tmp_path / "run" / "config.json").read_text())
     assert saved["model"]["decoder_z_skip"] is True
+    # --json: the run's summary as one JSON document on stdout (issue 33)
+    res = CliRunner().invoke(
+        cli, ["train-prior", str(corpus), "-o", str(tmp_path / "run2"), "--config", str(cfg),
+              "--max-steps", "1", "--json"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["steps"] == 1 and summary["run_dir"] == str(tmp_path / "run2")
 
 
 @pytest.mark.parametrize(
@@ -674,3 +682,14 @@ def test_one_seed_bound_for_every_command_and_the_largest_seed_trains(corpus, tm
     res = CliRunner().invoke(cli, ["train-prior", str(corpus), "-o", str(tmp_path / "r2"),
                                    "--seed", str(MAX_SEED + 1)])  # fmt: skip
     assert res.exit_code == 1 and "--seed" in res.output
+
+
+def test_fit_dataset_answers_json(corpus, tiny_prior, tmp_path):
+    res = CliRunner().invoke(
+        cli, ["fit-dataset", str(corpus), "-o", str(tmp_path / "d"), "--prior", str(tiny_prior),
+              "--max-steps", "1", "--batch-size", "4", "--window", "20", "--stride", "10",
+              "--json"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["steps"] == 1 and summary["out_dir"] == str(tmp_path / "d")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from mdvae_cli.cli.batch import emit_json
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
@@ -15,7 +16,7 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
-from mdvae_cli.cli.train import apply_overrides, run_options, start_config
+from mdvae_cli.cli.train import apply_overrides, run_options, start_config, summary_dict
 from mdvae_cli.errors import InputError
 
 
@@ -138,6 +139,7 @@ def fit_dataset(
     max_steps,
     threads,
     body_model,
+    as_json,
     **overrides,
 ) -> None:
     """Fit the denoiser to noisy motion files, unsupervised (no clean data needed).
@@ -224,6 +226,9 @@ def fit_dataset(
                 console.print(f"{labels[stage]} {info['step']}/{info['steps']} {text}")
 
         summary = run(cfg, out_dir, resume=resume, progress=tick, max_steps=max_steps)
+    if as_json:
+        emit_json(summary_dict(summary))
+        return
     elbo = (
         f"loss {summary.first_loss:.3f} -> {summary.last_loss:.3f}"
         if not math.isnan(summary.first_loss)  # ELBO steps were taken in this run
