@@ -31,18 +31,18 @@ import torch
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.formats.amc_write import amc_text, write_amc
+from mdvae_cli.formats.asf import load_asf
+from mdvae_cli.formats.source import read_text
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion import cmu
-from mdvae_cli.motion.amc_write import amc_text, write_amc
-from mdvae_cli.motion.asf import load_asf
-from mdvae_cli.motion.fit_shape import BodyJoints
-from mdvae_cli.motion.retarget import RetargetSettings, import_motion, load_source
-from mdvae_cli.motion.source import read_text
-from mdvae_cli.motion.take import read_take
-from mdvae_cli.motion.way_back import smpl_globals
-from mdvae_cli.motion.way_back_amc import amc_pose, write_back_amc
+from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.retarget import RetargetSettings, import_motion, load_source
+from mdvae_cli.retarget.take import read_take
+from mdvae_cli.retarget.way_back import smpl_globals
+from mdvae_cli.retarget.way_back_amc import amc_pose, write_back_amc
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"

@@ -28,14 +28,14 @@ import torch
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.formats.bvh_write import rotmat_to_euler, write_bvh
+from mdvae_cli.formats.source import euler_to_rotmat
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import load_denoiser
-from mdvae_cli.motion.bvh_write import rotmat_to_euler, write_bvh
-from mdvae_cli.motion.fit_shape import BodyJoints
-from mdvae_cli.motion.source import euler_to_rotmat
-from mdvae_cli.motion.take import read_take
-from mdvae_cli.motion.way_back import file_pose, smpl_globals, write_back_data
+from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.take import read_take
+from mdvae_cli.retarget.way_back import file_pose, smpl_globals, write_back_data
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
@@ -111,7 +111,7 @@ def main() -> None:
         return denoise_motions([motion], denoiser, body, 60, 45, refine=refine)[0]
 
     def read(path):
-        from mdvae_cli.motion.retarget import load_source
+        from mdvae_cli.retarget.retarget import load_source
 
         src = load_source(path, max_frames=args.frames)
         return read_take(path, joints, source=src)
@@ -152,7 +152,7 @@ def main() -> None:
             noisy_data = add_noise(take, args.sigma, rng)
             noisy_file = Path(tmp) / "noisy.bvh"
             write_bvh(take.source.layout, noisy_data, noisy_file)
-            from mdvae_cli.motion.retarget import load_source
+            from mdvae_cli.retarget.retarget import load_source
 
             nsrc = load_source(noisy_file, max_frames=args.frames, scale=take.source.info[
                 "metres_per_unit"])  # fmt: skip

@@ -20,6 +20,7 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, pose_motion_chunks
 from mdvae_cli.foot_metrics import compare_feet
+from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.metrics import (
     EvalResult,
     acceleration_error,
@@ -31,7 +32,6 @@ from mdvae_cli.metrics import (
 from mdvae_cli.motion.contacts import foot_vertex_ids, lowest_sole_points
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
-from mdvae_cli.motion.npz_io import load_motion, save_motion
 from mdvae_cli.motion.resample import resample_motion
 
 # --------------------------------------------------------------------------------------------

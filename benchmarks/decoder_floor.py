@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.motion.state import state_to_params
+from mdvae_cli.model.state import state_to_params
 
 try:
     from benchmarks import common

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.sample import FOOT_JOINTS, PARTICLES, SPEED_LIMIT, sample_motion
+from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.losses import gaussian_kl
-from mdvae_cli.motion.chunks import MODEL_FPS
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.model.state import state_to_params
 from mdvae_cli.motion.resample import resample_motion
-from mdvae_cli.motion.state import state_to_params
 from mdvae_cli.train.corpus import WindowSet
 from mdvae_cli.train.reconstruct import refine_reconstruction
 from mdvae_cli.train.train_config import TrainConfig

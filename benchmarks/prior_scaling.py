@@ -29,7 +29,7 @@ except ModuleNotFoundError:  # run as a file
     import common  # type: ignore[no-redef]
     from prior import reconstruction  # type: ignore[no-redef]
 
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.train.corpus import fraction_of, read_split
 from mdvae_cli.train.train_config import TrainConfig
 

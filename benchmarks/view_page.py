@@ -26,12 +26,12 @@ import torch
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise
-from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.view.page import build_view_page, write_view_page
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
-from mdvae_cli.motion.npz_io import load_motion, save_motion
 
 HERE = Path(__file__).resolve().parent
 

@@ -6,7 +6,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import re
+import secrets
+import shutil
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
@@ -113,17 +117,41 @@ def export_mesh_sequence(
     forbid = tuple(Path(p) for p in forbid)
     frames = range(0, motion.num_frames, every)
     written: list[Path] = []
-    for ids, out in pose_motion_chunks(motion, model, chunk_frames, vertices=True, frames=frames):
-        verts = out.vertices.double().cpu().numpy()
-        for t, v in zip(ids, verts, strict=True):
-            mesh = trimesh.Trimesh(vertices=v, faces=faces, process=False)
-            path = out_dir / f"frame_{int(t):06d}.{fmt}"
-            write_atomic(path, lambda tmp, m=mesh: m.export(tmp, file_type=fmt), forbid=forbid)
-            written.append(path)
-        if progress is not None:
-            progress(len(ids))
+    # every frame goes to a hidden staging folder first and is moved in at the end: a failure
+    # or Ctrl-C part way leaves no frames behind (and no folder that was made for them)
+    staging = out_dir / f".mdvae-partial-{secrets.token_hex(6)}"
+    made = [p for p in (out_dir, *out_dir.parents) if not p.exists()]
+    try:
+        chunks = pose_motion_chunks(motion, model, chunk_frames, vertices=True, frames=frames)
+        for ids, out in chunks:
+            verts = out.vertices.double().cpu().numpy()
+            for t, v in zip(ids, verts, strict=True):
+                mesh = trimesh.Trimesh(vertices=v, faces=faces, process=False)
+                path = out_dir / f"frame_{int(t):06d}.{fmt}"
+                _refuse_input(path, forbid)
+                write_atomic(staging / path.name, lambda tmp, m=mesh: m.export(tmp, file_type=fmt))
+                written.append(path)
+            if progress is not None:
+                progress(len(ids))
+        for path in written:
+            os.replace(staging / path.name, path)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        for folder in made:  # deepest first, only while empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
+    with contextlib.suppress(OSError):
+        staging.rmdir()
     remove_stale_frames(out_dir, fmt, written)
     return written
+
+
+def _refuse_input(path: Path, forbid: tuple[Path, ...]) -> None:
+    """InputError when ``path`` is one of the input files ``forbid``."""
+    for p in forbid:
+        if p.exists() and p.resolve() == path.resolve():
+            raise InputError(f"refusing to overwrite the input file {p}")
 
 
 def remove_stale_frames(out_dir: Path, fmt: str, keep: list[Path]) -> int:

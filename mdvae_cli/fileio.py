@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import stat
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -53,6 +54,22 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
 MOTION_SUFFIXES = (".npz",)
 
 
+def check_regular(path: Path) -> None:
+    """InputError unless ``path`` is a regular file: missing, a folder, a FIFO, a device or a
+    socket are refused before anything is opened (reading a FIFO would wait forever)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise InputError(f"no such file: {path}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read it ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(mode):
+        raise InputError(f"{path} is a folder, expected a file")
+    if not stat.S_ISREG(mode):
+        what = "a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a device or socket"
+        raise InputError(f"{path} is {what}, not a file: give a regular file")
+
+
 def expand_inputs(
     inputs: Iterable[Path], suffixes: tuple[str, ...] = MOTION_SUFFIXES, skip: Iterable[Path] = ()
 ) -> list[tuple[Path, Path]]:
@@ -79,6 +96,7 @@ def expand_inputs(
                 if f.is_file() and name.endswith(suffixes) and not hidden and not left_out:
                     out.append((f, f.relative_to(item)))
         elif item.exists():
+            check_regular(item)
             out.append((item, Path(item.name)))
         else:
             raise InputError(f"no such file or folder: {item}")

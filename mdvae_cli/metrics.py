@@ -102,7 +102,8 @@ class EvalResult:
 
     num_frames: frames compared; fps: their frame rate (None for a mean over mixed rates).
     v2v_cm: root-relative vertex error, cm; v2v_abs_cm: absolute vertex error, cm;
-    mpjpe_cm: absolute error of the 22 body joints, cm;
+    mpjpe_cm: error of the 22 body joints in world space, cm; mpjpe_root_cm: the same with
+    each skeleton's pelvis at the origin (root-relative, the literature's MPJPE), cm;
     accel_gt / accel_pred: mean joint acceleration magnitude, m/s^2;
     accel_error: mean norm of the acceleration difference, m/s^2.
     The acceleration fields are None for clips under 3 frames.
@@ -132,6 +133,7 @@ class EvalResult:
     float_gt: float | None = None
     float_pred: float | None = None
     floor_m: float | None = None
+    mpjpe_root_cm: float | None = None
     contact_pairs: int = 0
     contact_frames: int = 0
 
@@ -172,7 +174,7 @@ def evaluate_pair(
     check_compatible(gt, pred)
     model = as_body_model(body)
     T = gt.num_frames
-    sums = {"v2v": 0.0, "v2v_abs": 0.0, "mpjpe": 0.0}
+    sums = {"v2v": 0.0, "v2v_abs": 0.0, "mpjpe": 0.0, "mpjpe_root": 0.0}
     joints_gt = np.empty((T, 22, 3))
     joints_pred = np.empty((T, 22, 3))
     soles_gt, soles_pred = np.empty((T, 2)), np.empty((T, 2))
@@ -188,6 +190,7 @@ def evaluate_pair(
         sums["v2v"] += float(v2v(vp, vg, jp[:, 0], jg[:, 0]).sum())
         sums["v2v_abs"] += float(v2v(vp, vg).sum())
         sums["mpjpe"] += float(mpjpe(jp, jg).sum())
+        sums["mpjpe_root"] += float(mpjpe(jp - jp[:, :1], jg - jg[:, :1]).sum())
         joints_gt[ids] = jg.numpy()
         joints_pred[ids] = jp.numpy()
         soles_gt[ids] = lowest_sole_points(vg.numpy(), *feet)
@@ -204,6 +207,7 @@ def evaluate_pair(
         v2v_cm=100.0 * sums["v2v"] / T,
         v2v_abs_cm=100.0 * sums["v2v_abs"] / T,
         mpjpe_cm=100.0 * sums["mpjpe"] / T,
+        mpjpe_root_cm=100.0 * sums["mpjpe_root"] / T,
         accel_gt=accel_gt,
         accel_pred=accel_pred,
         accel_error=accel_err,
@@ -244,6 +248,7 @@ def mean_result(results: Sequence[EvalResult]) -> EvalResult:
         v2v_cm=frames_mean("v2v_cm"),
         v2v_abs_cm=frames_mean("v2v_abs_cm"),
         mpjpe_cm=frames_mean("mpjpe_cm"),
+        mpjpe_root_cm=weighted("mpjpe_root_cm", "num_frames"),
         accel_gt=accel_mean("accel_gt"),
         accel_pred=accel_mean("accel_pred"),
         accel_error=accel_mean("accel_error"),

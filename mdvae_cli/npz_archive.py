@@ -80,10 +80,15 @@ class NpzArchive:
     archive, or two members share a key."""
 
     def __init__(
-        self, source: Path | str | BinaryIO, label: str | Path, pickle_option: str | None = None
+        self,
+        source: Path | str | BinaryIO,
+        label: str | Path,
+        pickle_option: str | None = None,
+        max_member: int | None = None,
     ):
         self.label = str(label)
         self.pickle_option = pickle_option
+        self.max_member = max_member  # bytes one array may take (None: what the file holds)
         self._own = None
         if isinstance(source, (str, Path)):
             if Path(source).is_file() and Path(source).stat().st_size == 0:
@@ -114,6 +119,15 @@ class NpzArchive:
                 f"{self.label}: member {info.filename!r} is not a numpy array (.npy); an .npz "
                 "holds only arrays"
             )
+        if info.flag_bits & 0x1:
+            raise InputError(
+                f"{self.label}: member {info.filename!r} is encrypted (password-protected); "
+                "save the arrays without a password"
+            )
+        where = f"{self.label}: {key!r}"
+        if self.max_member is not None and info.file_size > self.max_member:
+            size, most = _bytes(info.file_size), _bytes(self.max_member)
+            raise InputError(f"{where} is {size}, over the {most} one array of it may take")
         return _read_member(self._zip, info, key, self.label, allow_pickle, self.pickle_option)
 
     def __getitem__(self, key: str) -> np.ndarray:
@@ -180,6 +194,8 @@ def _read_member(
         raise InputError(f"{where} is corrupt (its compressed data cannot be read)") from None
     except MemoryError:
         raise InputError(f"{where} does not fit in memory") from None
+    except RuntimeError as exc:  # zipfile: encrypted, or a compression it cannot read
+        raise InputError(f"{where} cannot be read ({exc})") from None
     except (ValueError, EOFError, OSError, NotImplementedError):
         raise InputError(f"{where} is not a readable .npy array (truncated or damaged)") from None
     except Exception as exc:  # an allowed pickle that fails to load

@@ -15,16 +15,16 @@ from click.testing import CliRunner
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.amc_write import amc_text, format_value
-from mdvae_cli.motion.asf import load_asf
-from mdvae_cli.motion.asfamc import load_amc
-from mdvae_cli.motion.dof_solve import chain_rotation, closest_angles
-from mdvae_cli.motion.fit_shape import BodyJoints
+from mdvae_cli.formats.amc_write import amc_text, format_value
+from mdvae_cli.formats.asf import load_asf
+from mdvae_cli.formats.asfamc import load_amc
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.retarget import load_source
-from mdvae_cli.motion.take import read_take, write_take
-from mdvae_cli.motion.way_back import smpl_globals
-from mdvae_cli.motion.way_back_amc import amc_pose, write_back_amc
+from mdvae_cli.retarget.dof_solve import chain_rotation, closest_angles
+from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.retarget import load_source
+from mdvae_cli.retarget.take import read_take, write_take
+from mdvae_cli.retarget.way_back import smpl_globals
+from mdvae_cli.retarget.way_back_amc import amc_pose, write_back_amc
 
 REPO = Path(__file__).resolve().parents[1]
 CMU = REPO.parent / "shared" / "data" / "cmu"
@@ -295,7 +295,7 @@ def test_noisy_amc_comes_back_closer_than_the_npz_path(tmp_path, generated, join
     betas = take.retarget.betas
     back = read_take(tmp_path / "out.amc", joints, asf, betas=betas).motion
     noisy_motion = read_take(noisy, joints, asf, betas=betas).motion
-    from mdvae_cli.motion.npz_io import load_motion
+    from mdvae_cli.formats.npz_io import load_motion
 
     npz = load_motion(tmp_path / "out.npz")
     err = {name: _body_mm(m, take.motion, joints)
@@ -358,7 +358,7 @@ def test_folder_of_mixed_takes_each_in_its_own_form(tmp_path, make_motion_file):
         assert (tmp_path / "out" / name).is_file(), name
     one = tmp_path / "one.npz"  # an AMC take as the cleaned SMPL motion
     assert _run(folder / "amc" / "gen_01.amc", "-o", one).exit_code == 0
-    from mdvae_cli.motion.npz_io import load_motion
+    from mdvae_cli.formats.npz_io import load_motion
 
     assert load_motion(one).num_frames == 160
 

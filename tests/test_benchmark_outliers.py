@@ -7,8 +7,8 @@ from benchmarks.common import Clip, cut_clips
 from benchmarks.outliers import SECTION_BEGIN, SECTION_END, Scenario, markdown, run
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.model.denoiser import load_denoiser
-from mdvae_cli.motion.npz_io import load_motion
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -22,10 +22,10 @@ from benchmarks.denoise_rows import ROWS, SECTION_BEGIN, SECTION_END, TableSetti
 from benchmarks.denoise_table import main
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.formats.npz_io import motion_from_arrays
 from mdvae_cli.metrics import evaluate_pair, mean_result
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, save_denoiser
 from mdvae_cli.model.prior_model import load_prior
-from mdvae_cli.motion.npz_io import motion_from_arrays
 from mdvae_cli.train.train_prior import train_prior
 from tests.conftest import motion_arrays
 from tests.test_prior import tiny_config, write_corpus
@@ -186,6 +186,7 @@ def test_file_to_file_times_load_process_and_save(tmp_path):
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [f.name for f in files]
 
 
+@pytest.mark.slow  # ~23 s on 2 cores
 def test_script_main_end_to_end(tiny_denoiser, tmp_path):
     """Both splits' tables (test tuned on val, unseen_test on its own clips) and the short-take
     rows go into their own sections of --out and into --json."""

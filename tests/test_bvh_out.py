@@ -13,15 +13,15 @@ from click.testing import CliRunner
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.bvh import load_bvh
-from mdvae_cli.motion.bvh_write import rotmat_to_euler
-from mdvae_cli.motion.fit_shape import BodyJoints
-from mdvae_cli.motion.joint_map import build_joint_map, normalise_name
-from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.retarget import load_source
-from mdvae_cli.motion.source import euler_to_rotmat
-from mdvae_cli.motion.take import read_take
-from mdvae_cli.motion.way_back import file_pose, smpl_globals, write_back_data
+from mdvae_cli.formats.bvh import load_bvh
+from mdvae_cli.formats.bvh_write import rotmat_to_euler
+from mdvae_cli.formats.npz_io import load_motion
+from mdvae_cli.formats.source import euler_to_rotmat
+from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.joint_map import build_joint_map, normalise_name
+from mdvae_cli.retarget.retarget import load_source
+from mdvae_cli.retarget.take import read_take
+from mdvae_cli.retarget.way_back import file_pose, smpl_globals, write_back_data
 
 REPO = Path(__file__).resolve().parents[1]
 REAL = REPO.parent / "shared" / "data"

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from mdvae_cli.cli.main import cli
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.formats.npz_io import load_motion
 
 
 @pytest.fixture
@@ -110,11 +110,11 @@ def test_add_noise_then_eval_json(make_motion_file, tmp_path, hash_tree):
     assert set(data) == {"files", "mean", "failed", "units", "body_model"}
     assert data["failed"] == 0
     (row,) = data["files"]
-    assert set(row) == {"file", "gt", "pred", "ok", "error", "result", "metrics"}
-    assert row["result"] == row["metrics"]  # "result" as in every command's --json
+    assert set(row) == {"file", "gt", "pred", "ok", "error", "result"}  # metrics said once
     assert row["ok"] is True and row["error"] is None and row["file"] == "clean.npz"
-    metrics = row["metrics"]
-    keys = {"num_frames", "fps", "v2v_cm", "v2v_abs_cm", "mpjpe_cm", "accel_gt", "accel_pred",
+    metrics = row["result"]
+    keys = {"num_frames", "fps", "v2v_cm", "v2v_abs_cm", "mpjpe_cm", "mpjpe_root_cm",
+            "accel_gt", "accel_pred",
             "accel_error", "foot_skate_gt", "foot_skate_pred", "foot_slide_gt", "foot_slide_pred",
             "penetration_gt", "penetration_pred", "float_gt", "float_pred", "floor_m",
             "contact_pairs", "contact_frames"}  # fmt: skip
@@ -123,12 +123,14 @@ def test_add_noise_then_eval_json(make_motion_file, tmp_path, hash_tree):
         assert data["units"][f"{name}_gt"] == data["units"][f"{name}_pred"]
     assert metrics["num_frames"] == 12 and metrics["fps"] == 30.0
     assert metrics["v2v_cm"] > 0.5 and metrics["mpjpe_cm"] > 0.5
+    # noise on the body joints only: the pelvis stays, so both MPJPEs agree
+    assert metrics["mpjpe_root_cm"] == pytest.approx(metrics["mpjpe_cm"])
     assert metrics["accel_pred"] > metrics["accel_gt"] > 0
     assert metrics["accel_error"] > 0
     assert data["units"]["v2v_cm"] == "cm" and data["units"]["accel_error"] == "m/s^2"
 
     code, out, err = run("eval", "--gt", clean, "--pred", clean, "--json")
-    same = json.loads(out)["files"][0]["metrics"]
+    same = json.loads(out)["files"][0]["result"]
     assert same["v2v_cm"] == pytest.approx(0, abs=1e-9)
     assert same["mpjpe_cm"] == pytest.approx(0, abs=1e-9)
     assert same["accel_error"] == pytest.approx(0, abs=1e-9)
@@ -150,7 +152,7 @@ def test_eval_table_on_folders(make_motion_file, tmp_path):
 
     code, out, _ = run("eval", "--gt", tmp_path / "gt", "--pred", tmp_path / "pred", "--json")
     data = json.loads(out)
-    rows = [f["metrics"] for f in data["files"]]
+    rows = [f["result"] for f in data["files"]]
     assert data["mean"]["num_frames"] == 12
     assert data["mean"]["v2v_cm"] == pytest.approx(np.mean([r["v2v_cm"] for r in rows]))
 
@@ -266,10 +268,10 @@ def test_add_noise_batch_goes_on_after_a_failure(make_motion_file, tmp_path):
      ("--spike-rad", -1)],
 )  # fmt: skip
 def test_add_noise_bad_option_values(make_motion_file, tmp_path, option):
-    # refused while parsing (a usage error, exit 2) naming the option; nothing written
+    # refused while parsing (one error line, exit 1) naming the option; nothing written
     src = make_motion_file("c.npz", T=5)
     code, out, err = run("add-noise", src, "-o", tmp_path / "n.npz", *option)
-    assert code == 2 and f"Invalid value for '{option[0]}'" in out + err
+    assert code == 1 and f"Invalid value for '{option[0]}'" in out + err
     assert "Traceback" not in out + err and not (tmp_path / "n.npz").exists()
 
 
@@ -399,7 +401,7 @@ def test_export_mesh_sequence_library(tiny_body, tmp_path):
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.errors import InputError
     from mdvae_cli.export import export_mesh_sequence
-    from mdvae_cli.motion.npz_io import motion_from_arrays
+    from mdvae_cli.formats.npz_io import motion_from_arrays
 
     m = motion_from_arrays(motion_arrays(T=7))
     calls = []

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs, write_atomic
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.formats.npz_io import load_motion
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 NOISY = EXAMPLES / "noisy_walk.npz"
@@ -56,7 +56,9 @@ def one_error_line(res) -> str:
 def test_numbers_that_are_not_finite_or_in_range_are_usage_errors(tmp_path, args, message):
     out = tmp_path / "o.npz"
     res = invoke(*args, "-o", out)
-    assert res.exit_code == 2 and message in res.output and "Traceback" not in res.output
+    assert res.exit_code == 1 and message in res.output and "Traceback" not in res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ")  # not Click's usage block
     assert not out.exists()
 
 
@@ -297,7 +299,8 @@ def test_sigma_minus_zero_is_zero(tmp_path):
 def test_values_too_large_for_the_file_s_dtype_are_never_written(tmp_path):
     out = tmp_path / "o.npz"  # walk.npz holds float32 poses: 1e308 rad noise overflows them
     line = one_error_line(invoke("add-noise", EXAMPLES / "walk.npz", "-o", out, "--sigma", "1e308"))
-    assert "'poses' is not finite as float32" in line and "nothing written" in line
+    # refused before the file's dtype is reached: the motion itself holds infinities
+    assert "'pose_body' holds NaN or infinite values" in line and "nothing written" in line
     assert list(tmp_path.iterdir()) == []
 
 
@@ -336,7 +339,7 @@ def test_an_implausible_frame_rate_is_refused_when_the_file_is_read(tmp_path):
 
 
 def test_an_output_that_is_an_input_is_refused_before_anything_is_read(tmp_path, monkeypatch):
-    import mdvae_cli.motion.npz_io as npz_io
+    import mdvae_cli.formats.npz_io as npz_io
 
     def never(*args, **kwargs):
         raise AssertionError("an input was read")

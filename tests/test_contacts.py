@@ -10,6 +10,7 @@ import pytest
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.motion.contacts import (
     FOOT_JOINTS,
     HEIGHT_TOL,
@@ -18,7 +19,6 @@ from mdvae_cli.motion.contacts import (
     foot_floor_levels,
     joint_speeds,
 )
-from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.view.pose import pose_skeleton
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -17,14 +17,14 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import savgol_filter_motion
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.denoise import blend_windows, denoise_motions
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.model.state import BodyParams
 from mdvae_cli.motion.noise import add_pose_noise
-from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.state import BodyParams
 from mdvae_cli.train.fit_dataset import FitConfig, fit_dataset
 from mdvae_cli.train.train_prior import train_prior
 from tests.test_prior import tiny_config, write_corpus
@@ -210,7 +210,9 @@ def test_cli_denoise_keeps_layout_frames_and_extras(tiny_prior, make_motion_file
     )
     assert res.exit_code == 0, res.output
     report = json.loads(res.stdout)
-    assert report["succeeded"] == 1 and report["mode"] == "regression"
+    assert (
+        report["succeeded"] == 1 and report["mode"] == "regression+offset"
+    )  # the default: offset on
     assert src.read_bytes() == before
     with np.load(src) as a, np.load(out) as b:
         assert set(a.files) == set(b.files)
@@ -221,6 +223,7 @@ def test_cli_denoise_keeps_layout_frames_and_extras(tiny_prior, make_motion_file
         assert float(b["mocap_frame_rate"]) == 60.0
 
 
+@pytest.mark.slow  # ~13 s on 2 cores
 def test_cli_denoise_optimize_folder_meshes_and_failures(tiny_prior, noisy_dir, tmp_path):
     den = write_denoiser(tiny_prior, tmp_path / "den")
     inputs = tmp_path / "in"
@@ -328,6 +331,7 @@ def test_the_default_keeps_the_file_s_root_path():
     assert drifted.mean() > 3 * kept.mean() and drifted.max() > 2 * kept.max()
 
 
+@pytest.mark.slow  # ~22 s on 2 cores
 def test_ten_minute_file_denoises_in_bounded_memory(tmp_path):
     T = 10 * 60 * 30
     t = np.arange(T)[:, None] / 30.0
@@ -445,8 +449,8 @@ def test_x0_predictor_reads_the_whole_window_and_old_configs_keep_their_layout()
 
 def test_input_filter_smooths_what_the_networks_read_but_not_the_observations(tiny_prior):
     from mdvae_cli.infer.window_groups import make_windows, smooth_inputs
+    from mdvae_cli.model.state import POSE
     from mdvae_cli.motion.motion import slice_frames
-    from mdvae_cli.motion.state import POSE
 
     assert DenoiserConfig().input_window == 11
     assert DenoiserConfig.from_dict({"lam": 10.0}).input_window == 0  # older files: raw input

@@ -12,13 +12,13 @@ from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.refine import refine_posterior
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import make_windows
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.mirror import mirror_motion
-from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.train import fit_dataset as fd
 from mdvae_cli.train.distill import DistillConfig, distill, refine_targets
@@ -50,6 +50,7 @@ def test_refine_targets_are_what_refinement_finds(windows):
     assert (targets.z - start).abs().mean() > 1e-3
 
 
+@pytest.mark.slow  # ~18 s on 2 cores
 def test_distillation_brings_one_pass_output_to_the_refined_states(windows):
     den, group = windows
     den = Denoiser(den.prior, den.cfg)

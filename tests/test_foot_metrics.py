@@ -16,6 +16,7 @@ from mdvae_cli.foot_metrics import (
     foot_scores,
     penetration_depths,
 )
+from mdvae_cli.formats.npz_io import motion_from_arrays
 from mdvae_cli.metrics import evaluate_pair, mean_result
 from mdvae_cli.motion.contacts import (
     SPEED_MAX,
@@ -25,7 +26,6 @@ from mdvae_cli.motion.contacts import (
     foot_of_joints,
     foot_vertex_ids,
 )
-from mdvae_cli.motion.npz_io import motion_from_arrays
 
 FPS = 30.0
 T = 60

@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
+from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.guard import (
     fallback_states,
@@ -23,10 +24,9 @@ from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig
 from mdvae_cli.model.prior_model import load_prior
+from mdvae_cli.model.state import POSE
 from mdvae_cli.motion.motion import slice_frames
 from mdvae_cli.motion.noise import add_pose_noise
-from mdvae_cli.motion.npz_io import load_motion, save_motion
-from mdvae_cli.motion.state import POSE
 from tests.test_denoise import tiny_prior  # noqa: F401 (fixture)
 
 REPO = Path(__file__).resolve().parents[1]

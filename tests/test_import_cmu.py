@@ -24,13 +24,14 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.asf import load_asf, parse_asf
+from mdvae_cli.formats.asfamc import load_amc
+from mdvae_cli.formats.bvh import load_bvh
+from mdvae_cli.formats.npz_io import load_motion
+from mdvae_cli.formats.source import CMU_UNIT, euler_to_rotmat
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion import cmu, corpus_plan
-from mdvae_cli.motion.asf import load_asf, parse_asf
-from mdvae_cli.motion.asfamc import load_amc
-from mdvae_cli.motion.bvh import load_bvh
-from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.retarget import (
+from mdvae_cli.retarget.retarget import (
     Y_UP_TO_Z_UP,
     BodyJoints,
     RetargetSettings,
@@ -38,7 +39,6 @@ from mdvae_cli.motion.retarget import (
     load_source,
     walking_speed,
 )
-from mdvae_cli.motion.source import CMU_UNIT, euler_to_rotmat
 
 REPO = Path(__file__).resolve().parents[1]
 CMU = Path(os.environ.get("MDVAE_CMU_DATA", REPO.parent / "shared" / "data" / "cmu"))
@@ -401,7 +401,7 @@ def test_walking_units_axes_and_frame_rate(tmp_path, body, body_data, kind, name
     assert head_up.min() > 0.35  # z is up
     assert np.ptp(m.trans[:, 2]) < 0.12  # walking stays level
     # the saved file reproduces the joints through the body model (trans / root conventions)
-    from mdvae_cli.motion.npz_io import save_motion
+    from mdvae_cli.formats.npz_io import save_motion
 
     save_motion(m, tmp_path / "m.npz")
     back = load_motion(tmp_path / "m.npz")
@@ -564,7 +564,7 @@ def test_cli_rejects_bad_options(tmp_path):
     assert code == 1 and "error: --split only goes with --corpus" in err
     for bad, why in ((-1, "-1 is not >= 0"), ("inf", "'inf' is not a finite number")):
         code, out, err = run(tmp_path, "-o", tmp_path / "o", "--fps", bad)
-        assert code == 2 and f"Invalid value for '--fps': {why}" in out + err
+        assert code == 1 and f"Invalid value for '--fps': {why}" in out + err
     for option, rate in (("--fps", "0.5"), ("--source-fps", "20000")):
         code, out, err = run(tmp_path, "-o", tmp_path / "o", option, rate)
         assert code == 1 and f"error: {option}: frame rate {rate} Hz is implausible" in err
@@ -608,7 +608,7 @@ def test_whole_corpus_meets_the_issue(tmp_path):
 def test_cli_import_never_writes_a_non_finite_retarget(tmp_path, monkeypatch):
     # a retarget that comes out non-finite (e.g. a wildly wrong --scale) is one error line and
     # no file, not a NaN motion with exit 0
-    import mdvae_cli.cli.import_worker as worker
+    import mdvae_cli.retarget.take as worker  # the take reader the registry calls
 
     real = worker.import_motion
 

@@ -10,6 +10,7 @@ from conftest import motion_arrays
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.export import pose_motion_chunks
+from mdvae_cli.formats.npz_io import motion_from_arrays
 from mdvae_cli.metrics import (
     EvalResult,
     acceleration,
@@ -20,7 +21,6 @@ from mdvae_cli.metrics import (
     mpjpe,
     v2v,
 )
-from mdvae_cli.motion.npz_io import motion_from_arrays
 
 RNG = np.random.default_rng(0)
 

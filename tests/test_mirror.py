@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import load_denoiser
@@ -21,7 +22,6 @@ from mdvae_cli.motion.mirror import (
     mirror_motion,
     mirror_rotvecs,
 )
-from mdvae_cli.motion.npz_io import load_motion
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -7,10 +7,8 @@ import pytest
 import torch
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.npz_io import load_motion, save_motion
-from mdvae_cli.motion.resample import resample_motion
-from mdvae_cli.motion.state import (
+from mdvae_cli.formats.npz_io import load_motion, save_motion
+from mdvae_cli.model.state import (
     POSE_VEL,
     STATE_DIM,
     TRANS_VEL,
@@ -18,7 +16,9 @@ from mdvae_cli.motion.state import (
     params_to_state,
     state_to_params,
 )
-from mdvae_cli.motion.windows import canonicalize, heading, uncanonicalize, window_starts
+from mdvae_cli.model.windows import canonicalize, heading, uncanonicalize, window_starts
+from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.resample import resample_motion
 
 
 def write_npz(path, **arrays):
@@ -197,7 +197,7 @@ def test_chunk_state_pair_matches_two_separate_passes(tiny_body):
     give: the inputs in their own frames, the raw chunks in the inputs' frames, plain
     differences for the raw velocities."""
     from mdvae_cli.body.skinning import BodyModel
-    from mdvae_cli.motion.chunks import chunk_state_pair, chunk_states
+    from mdvae_cli.model.chunks import chunk_state_pair, chunk_states
 
     body = BodyModel(tiny_body)
     B, T = 3, 12
@@ -232,7 +232,7 @@ def test_window_starts_cover_every_frame():
 
 
 def test_smoothed_difference_is_exact_on_lines_and_damps_noise():
-    from mdvae_cli.motion.state import finite_difference, smoothed_difference
+    from mdvae_cli.model.state import finite_difference, smoothed_difference
 
     t = torch.arange(25, dtype=torch.float64)[:, None] * torch.tensor([0.5, -1.0])
     v = smoothed_difference(t, 30.0, 9)

@@ -9,8 +9,8 @@ import pytest
 from conftest import motion_arrays
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.npz_io import load_motion, motion_from_arrays, save_motion
 from mdvae_cli.motion.noise import NoiseSettings, add_pose_noise, file_rng
-from mdvae_cli.motion.npz_io import load_motion, motion_from_arrays, save_motion
 
 
 def clip(T: int = 200, width: int = 156, seed: int = 0):
@@ -176,7 +176,7 @@ def test_file_rng_depends_on_seed_and_path_only():
 def _video_clip(T=300, fps=30.0):
     from conftest import motion_arrays
 
-    from mdvae_cli.motion.npz_io import motion_from_arrays
+    from mdvae_cli.formats.npz_io import motion_from_arrays
 
     return motion_from_arrays(motion_arrays(T=T, width=72, fps=fps, seed=5, num_betas=10))
 

@@ -12,8 +12,8 @@ from click.testing import CliRunner
 
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.motion.noise import add_pose_noise
-from mdvae_cli.motion.npz_io import load_motion, save_motion
 from mdvae_cli.motion.resample import resample_motion
 
 T = 12

@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.npz_io import motion_from_arrays
+from mdvae_cli.formats.npz_io import motion_from_arrays
 from mdvae_cli.view.canvas import RasterCanvas, SvgCanvas, mix, rgb
 from mdvae_cli.view.figure import FigureSpec, draw_figure, envelope, joint_index, nice_ticks
 from mdvae_cli.view.font import GLYPHS, glyph, text_mask, text_size

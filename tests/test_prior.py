@@ -19,7 +19,7 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel, load_prior, widen_state
-from mdvae_cli.motion.state import VELOCITY_DIMS
+from mdvae_cli.model.state import VELOCITY_DIMS
 from mdvae_cli.train.corpus import WindowSet
 from mdvae_cli.train.prior_loss import prior_losses
 from mdvae_cli.train.train_config import TrainConfig
@@ -304,6 +304,7 @@ def test_cli_train_prior_and_sample(tmp_path):
     assert res.exit_code == 1 and "error:" in res.output and "Traceback" not in res.output
 
 
+@pytest.mark.slow  # ~15 s on 2 cores
 def test_ddp_two_cpu_processes_end_with_identical_weights(tmp_path):
     data = write_corpus(tmp_path / "data", n=4, T=60)
     run = tmp_path / "run"
@@ -352,8 +353,8 @@ def test_mirror_augment_adds_each_motions_mirror_image(tmp_path, tiny_body):
     """``load_windows(mirror=True)``: the original windows, then the same count cut from the
     mirrored motions; a mirrored window's joint rotations are the original's with left and
     right swapped and (a, b, c) -> (a, -b, -c); the config option reaches the training set."""
+    from mdvae_cli.model.state import POSE
     from mdvae_cli.motion.mirror import MIRROR_JOINTS
-    from mdvae_cli.motion.state import POSE
     from mdvae_cli.train.corpus import load_windows, select_files
 
     data = write_corpus(tmp_path / "data", n=2)
@@ -379,7 +380,7 @@ def test_mirror_augment_adds_each_motions_mirror_image(tmp_path, tiny_body):
 def test_time_warp_plays_the_same_path_at_another_speed(make_motion_file):
     """A motion at 1.25x covers the same path in 1/1.25 of the time: frame k of the warped
     motion is the original at time 1.25 k / fps; the root's mean speed scales by 1.25."""
-    from mdvae_cli.motion.npz_io import load_motion
+    from mdvae_cli.formats.npz_io import load_motion
     from mdvae_cli.motion.resample import resample_motion, time_warp
 
     motion = resample_motion(load_motion(make_motion_file(T=121, fps=60.0)), 30.0)

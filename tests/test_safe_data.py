@@ -1,4 +1,4 @@
-"""The restricted data unpickler (body/safe_data.py): pickles, joblib streams, torch files and
+"""The restricted data unpickler (formats/safe_data.py): pickles, joblib streams, torch files and
 object .npy/.npz read as numpy without running code; anything else refused in one line."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import pytest
 import torch
 from video_files import joblib_dumps
 
-from mdvae_cli.body.data_files import load_data, sniff
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.data_files import load_data, sniff
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real"
 

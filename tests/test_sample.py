@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.sample import (
     FOOT_JOINTS,
     PARTICLES,
@@ -22,8 +23,7 @@ from mdvae_cli.infer.sample import (
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.dvae import MotionDVAE
 from mdvae_cli.model.prior_model import load_prior
-from mdvae_cli.motion.npz_io import load_motion
-from mdvae_cli.motion.state import ROOT, STATE_DIM, TRANS
+from mdvae_cli.model.state import ROOT, STATE_DIM, TRANS
 from mdvae_cli.weights import default_weights
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "walk.npz"
@@ -157,7 +157,7 @@ def test_cli_sample_keeps_the_floor_by_default(tmp_path, body):
     assert not np.allclose(a.pose_body, b.pose_body)
     assert lowest_foot(body, a) > motion_floor(body, load_motion(EXAMPLE)) - 0.02
     res = runner.invoke(cli, [*args, "--particles", "0", "-o", str(tmp_path / "bad.npz")])
-    assert res.exit_code == 2 and "particles" in res.output
+    assert res.exit_code == 1 and "particles" in res.output
     assert not (tmp_path / "bad.npz").exists()
     res = runner.invoke(cli, ["sample", "--help"])
     assert "--no-floor" in res.output and "0.5" in res.output
@@ -184,6 +184,6 @@ def test_progress_is_told_per_window_and_leaves_the_sample_as_it_is(body):
         np.testing.assert_array_equal(getattr(watched, key), getattr(plain, key))
     runner = CliRunner()
     res = runner.invoke(cli, ["sample", "--from", str(EXAMPLE), "--frames", "1080001", "-o", "x"])
-    assert res.exit_code == 2 and "1080001 is not in the range 1<=x<=1080000" in res.output
+    assert res.exit_code == 1 and "1080001 is not in the range 1<=x<=1080000" in res.output
     help_text = " ".join(runner.invoke(cli, ["sample", "--help"]).output.split())
     assert "Frames to generate at 30 Hz (at most 1,080,000: 10 hours)." in help_text

@@ -70,7 +70,7 @@ def tiny_fit_config(data: Path, prior: Path, **kw) -> FitConfig:
     return FitConfig(**base)
 
 
-# --- the command line refuses bad values at parse time (exit 2) ---------------------------------
+# --- the command line refuses bad values at parse time (exit 1) ---------------------------------
 
 TRAIN_BAD = [
     ["--kl-max", "nan"],
@@ -124,9 +124,9 @@ FIT_BAD = [
 def test_cli_refuses_bad_numbers_before_writing_anything(corpus, tmp_path, command, bad):
     out = tmp_path / "out"
     res = CliRunner().invoke(cli, [command, str(corpus), "-o", str(out), "--device", "cpu", *bad])
-    assert res.exit_code == 2, res.output
-    errors = [line for line in res.output.splitlines() if line.startswith("Error:")]
-    assert len(errors) == 1 and bad[0] in errors[0], res.output
+    assert res.exit_code == 1, res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and bad[0] in lines[0], res.output
     assert "Traceback" not in res.output
     assert not out.exists()
 
@@ -430,6 +430,14 @@ def test_cli_partial_config_file_keeps_the_default_architecture(corpus, tmp_path
     assert res.exit_code == 0, res.output
     saved = json.loads((tmp_path / "run" / "config.json").read_text())
     assert saved["model"]["decoder_z_skip"] is True
+    # --json: the run's summary as one JSON document on stdout (issue 33)
+    res = CliRunner().invoke(
+        cli, ["train-prior", str(corpus), "-o", str(tmp_path / "run2"), "--config", str(cfg),
+              "--max-steps", "1", "--json"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["steps"] == 1 and summary["run_dir"] == str(tmp_path / "run2")
 
 
 @pytest.mark.parametrize(
@@ -449,7 +457,7 @@ def test_threads_has_an_upper_bound(corpus, tmp_path):
     res = CliRunner().invoke(
         cli, ["train-prior", str(corpus), "-o", str(tmp_path / "r"), "--threads", "100000"]
     )
-    assert res.exit_code == 2 and "Invalid value for '--threads'" in res.output
+    assert res.exit_code == 1 and "Invalid value for '--threads'" in res.output
     assert not (tmp_path / "r").exists()
 
 
@@ -673,4 +681,15 @@ def test_one_seed_bound_for_every_command_and_the_largest_seed_trains(corpus, tm
     assert summary.steps == 2
     res = CliRunner().invoke(cli, ["train-prior", str(corpus), "-o", str(tmp_path / "r2"),
                                    "--seed", str(MAX_SEED + 1)])  # fmt: skip
-    assert res.exit_code == 2 and "--seed" in res.output
+    assert res.exit_code == 1 and "--seed" in res.output
+
+
+def test_fit_dataset_answers_json(corpus, tiny_prior, tmp_path):
+    res = CliRunner().invoke(
+        cli, ["fit-dataset", str(corpus), "-o", str(tmp_path / "d"), "--prior", str(tiny_prior),
+              "--max-steps", "1", "--batch-size", "4", "--window", "20", "--stride", "10",
+              "--json"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout)
+    assert summary["steps"] == 1 and summary["out_dir"] == str(tmp_path / "d")

@@ -13,8 +13,8 @@ import video_files as vf
 from click.testing import CliRunner
 
 from mdvae_cli.cli.main import cli
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.input_kinds import INPUT_KINDS, refine_config
-from mdvae_cli.motion.npz_io import load_motion
 
 
 def run(*args):

@@ -1,4 +1,4 @@
-"""Video-pipeline readers (motion/video_formats.py, video_tracks.py, load_any.py): files written
+"""Video-pipeline readers (formats/video_formats.py, video_tracks.py, load_any.py): files written
 in each pipeline's exact layout read back as the z-up motion they were made from."""
 
 from __future__ import annotations
@@ -10,12 +10,21 @@ import pytest
 import video_files as vf
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.load_any import ALIASES, FORMATS, format_name, load_any, load_one
-from mdvae_cli.motion.video_formats import READERS
-from mdvae_cli.motion.video_tracks import CAMERA_UP, Y_UP, rest_pelvis, up_to_z
+from mdvae_cli.formats.registry import ALIASES, FORMATS, ReadOptions, format_name, read
+from mdvae_cli.formats.video_formats import READERS
+from mdvae_cli.formats.video_tracks import CAMERA_UP, Y_UP, rest_pelvis, up_to_z
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 TOL = 2e-4  # float32 files
+
+
+def load_any(path, fmt=None, **options):
+    """The registry's read with ``--format`` and other options given by name."""
+    return read(path, ReadOptions(format=fmt, **options))
+
+
+def load_one(path, fmt=None, **options):
+    return load_any(path, fmt, **options).single()
 
 
 def same_body(a, b, tol=TOL, trans=True):
@@ -186,9 +195,9 @@ def test_fps_override_and_refusals(tmp_path):
     assert load_one(path, fps=25).fps == 25.0
     with pytest.raises(InputError, match="frame rate"):
         load_one(path, fps=0.01)
-    (tmp_path / "x.bvh").write_text("HIERARCHY")
-    with pytest.raises(InputError, match="mdvae import"):
-        load_any(tmp_path / "x.bvh")
+    (tmp_path / "x.fbx").write_text("Kaydara FBX")
+    with pytest.raises(InputError, match="FBX is not supported: export the take as BVH"):
+        load_any(tmp_path / "x.fbx")
     (tmp_path / "other.pkl").write_bytes(__import__("pickle").dumps({"a": np.zeros(2)}))
     with pytest.raises(InputError, match="not a motion layout"):
         load_any(tmp_path / "other.pkl")
@@ -200,7 +209,7 @@ def test_amass_files_still_read_as_before(make_motion_file):
     path = make_motion_file("take.npz")
     loaded = load_any(path)
     assert loaded.format == "amass" and loaded.kind == "mocap"
-    from mdvae_cli.motion.npz_io import load_motion
+    from mdvae_cli.formats.npz_io import load_motion
 
     ref = load_motion(path)
     np.testing.assert_array_equal(loaded.single().poses, ref.poses)

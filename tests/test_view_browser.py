@@ -12,7 +12,7 @@ import pytest
 
 from benchmarks.chromium import Chromium, file_url, find_chromium
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.motion.npz_io import motion_from_arrays
+from mdvae_cli.formats.npz_io import motion_from_arrays
 from mdvae_cli.view.page import build_view_page, write_view_page
 from mdvae_cli.view.pose import pose_skeleton
 from tests.conftest import motion_arrays

@@ -18,11 +18,10 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.cli.view_cmd import motion_labels
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.npz_io import load_motion, motion_from_arrays
+from mdvae_cli.formats.registry import ReadOptions, read
 from mdvae_cli.geometry.rotations import quat_to_rotmat, rotvec_to_rotmat
-from mdvae_cli.motion import any_file
-from mdvae_cli.motion.any_file import ReadOptions, load_any_motion
 from mdvae_cli.motion.contacts import foot_contacts
-from mdvae_cli.motion.npz_io import load_motion, motion_from_arrays
 from mdvae_cli.view.encode import Blob, decode_array, encode_array, quantise
 from mdvae_cli.view.mesh import decimate_body
 from mdvae_cli.view.page import POS_SCALE, ROT_SCALE, build_view_page
@@ -214,28 +213,24 @@ def test_ten_minutes_of_noisy_motion_fit_well_under_20_mb(body):
 # --- reading any file ------------------------------------------------------------------------
 
 
-def test_load_any_motion_reads_npz_and_can_be_extended(tmp_path, make_motion_file, monkeypatch):
+def test_the_registry_reads_npz_and_refuses_the_rest_in_one_line(tmp_path, make_motion_file):
     path = make_motion_file("a.npz", T=12)
-    assert load_any_motion(path).num_frames == 12
+    assert read(path).single().num_frames == 12
+    assert read(path, ReadOptions(resample=15.0)).single().fps == 15.0
     (tmp_path / "x.txt").write_text("hello")
-    with pytest.raises(InputError, match="not an .npz"):
-        load_any_motion(tmp_path / "x.txt")
+    with pytest.raises(InputError, match="x.txt: not a pickle"):
+        read(tmp_path / "x.txt")
     with pytest.raises(InputError, match="no such file"):
-        load_any_motion(tmp_path / "missing.npz")
-
-    def reader(p, options):
-        return make_motion(T=5)
-
-    monkeypatch.setitem(any_file.READERS, ".fake", reader)
-    (tmp_path / "take.FAKE.gz").write_bytes(b"")
-    assert load_any_motion(tmp_path / "take.FAKE.gz").num_frames == 5
-    assert ".fake" in any_file.readable_suffixes()
+        read(tmp_path / "missing.npz")
+    (tmp_path / "x.c3d").write_bytes(b"\x01P")
+    with pytest.raises(InputError, match="C3D marker files are not supported"):
+        read(tmp_path / "x.c3d")
 
 
 def test_amc_without_skeleton_is_refused(tmp_path):
     (tmp_path / "07_01.amc").write_text(":FULLY-SPECIFIED\n:DEGREES\n1\nroot 0 0 0 0 0 0\n")
     with pytest.raises(InputError, match="no .asf skeleton"):
-        load_any_motion(tmp_path / "07_01.amc", ReadOptions())
+        read(tmp_path / "07_01.amc", ReadOptions())
 
 
 def test_motion_labels_tell_files_apart():

@@ -19,10 +19,10 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.builtin import builtin_body_model
+from mdvae_cli.formats.npz_io import motion_from_arrays
+from mdvae_cli.formats.video_tracks import CAMERA_UP, Y_UP, rest_pelvis, up_to_z
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.npz_io import motion_from_arrays
-from mdvae_cli.motion.video_tracks import CAMERA_UP, Y_UP, rest_pelvis, up_to_z
 
 BODY = builtin_body_model()
 

@@ -10,8 +10,8 @@ import argparse
 import json
 from pathlib import Path
 
+from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
-from mdvae_cli.motion.npz_io import load_motion, save_motion
 from mdvae_cli.train.corpus import read_split
 
 

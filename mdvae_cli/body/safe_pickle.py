@@ -225,6 +225,6 @@ def _densify(matrix: _SparseMatrix) -> np.ndarray:
 def one_line(e: BaseException) -> str:
     """The first line of an exception's message, in words (no exception class names)."""
     if isinstance(e, KeyError) and e.args:
-        return f"no {e.args[0]!r} in it"
+        return f"it refers to {e.args[0]!r}, which it does not hold"
     lines = str(e).strip().splitlines()
     return lines[0] if lines else "no details"

@@ -15,7 +15,14 @@ from mdvae_cli.cli.batch import (
     run_batch,
     strip_gz,
 )
-from mdvae_cli.cli.common import FRACTION, NON_NEGATIVE, SEED, allow_pickle_option, handle_errors
+from mdvae_cli.cli.common import (
+    FRACTION,
+    NON_NEGATIVE,
+    SEED,
+    allow_pickle_option,
+    console,
+    handle_errors,
+)
 from mdvae_cli.cli.motion_input import (
     INPUT_SUFFIXES,
     motion_input_options,
@@ -23,6 +30,7 @@ from mdvae_cli.cli.motion_input import (
     read_input,
 )
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.registry import ReadOptions, write
 from mdvae_cli.motion.noise import (
     PRESETS,
     NoiseSettings,
@@ -30,7 +38,6 @@ from mdvae_cli.motion.noise import (
     add_video_noise,
     file_rng,
 )
-from mdvae_cli.motion.npz_io import save_motion
 
 
 def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
@@ -136,8 +143,12 @@ def add_noise(
                      rename=lambda rel: strip_gz(rel).with_suffix(".npz"))  # fmt: skip
     sources = tuple(job.source for job in jobs)
 
-    def process(job: FileJob) -> None:
-        loaded = read_input(job.source, job.relpath, input_format, input_fps, track, allow_pickle)
+    read_options = ReadOptions(format=input_format, fps=input_fps, track=track,
+                               allow_pickle=allow_pickle)  # fmt: skip
+
+    def process(job: FileJob) -> dict:
+        loaded = read_input(job.source, job.relpath, read_options)
+        frames, outputs = 0, []
         for label, motion, output in outputs_of(loaded, job.output):
             name = job.relpath if label is None else f"{job.relpath.as_posix()}#track{label}"
             rng = file_rng(seed, name)
@@ -153,11 +164,17 @@ def add_noise(
                     spike_frac=settings.spike_frac,
                     spike_rad=settings.spike_rad,
                 )
-            save_motion(noisy, output, forbid=sources)
+            write(noisy, output, forbid=sources)
+            frames, outputs = frames + noisy.num_frames, [*outputs, str(output)]
+        return {"frames": frames, "outputs": outputs}
 
     report = run_batch(jobs, process, "add-noise")
     if as_json:
         emit_json(report.to_dict())
+    elif report.succeeded:
+        total = sum(o.result["frames"] for o in report.succeeded)
+        where = jobs[0].output if len(jobs) == 1 else out
+        console.print(f"wrote {len(report.succeeded)} noisy file(s), {total} frames, to {where}")
     report.exit()
 
 

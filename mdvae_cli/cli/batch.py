@@ -23,7 +23,7 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from mdvae_cli.cli.common import console, progress_bar
+from mdvae_cli.cli.common import console, os_error_words, progress_bar
 from mdvae_cli.errors import InputError, MdvaeError
 from mdvae_cli.fileio import MOTION_SUFFIXES, expand_inputs
 
@@ -64,7 +64,8 @@ class FileOutcome:
         return {
             "file": self.job.relpath.as_posix(),
             "input": str(self.job.source),
-            "output": None if self.job.output is None else str(self.job.output),
+            # a failed file wrote nothing: no output to list
+            "output": None if self.job.output is None or not self.ok else str(self.job.output),
             "ok": self.ok,
             "error": self.error,
             "result": result if self.ok else None,
@@ -150,7 +151,9 @@ def plan_jobs(
         raise InputError(f"no {'/'.join(suffixes)} files found in {names}")
     if out is None:
         return [FileJob(rel, src) for src, rel in items]
-    single = len(inputs) == 1 and Path(inputs[0]).is_file()
+    single = len(items) == 1 and all(Path(p).is_file() for p in inputs)
+    if single and not as_folder and not out.is_dir():
+        refuse_unsupported(out)
 
     if out_suffix is None:
         if single:
@@ -173,6 +176,18 @@ def plan_jobs(
         raise InputError(f"with a folder or several inputs, the output {out} must be a folder")
     rename = rename or strip_gz
     return no_clashes([FileJob(rel, src, out / rename(rel)) for src, rel in items])
+
+
+def refuse_unsupported(out: Path) -> None:
+    """InputError when the output name ``out`` is in a format mdvae does not write (FBX, C3D,
+    ...): it would otherwise be taken for a folder name."""
+    from mdvae_cli.formats.registry import suffix_of, unsupported
+
+    if unsupported(out) is not None:
+        raise InputError(
+            f"cannot write {out}: mdvae does not write {suffix_of(out)[1:].upper()}; write .npz "
+            "or .bvh (Blender, Maya and MotionBuilder import BVH and save it as FBX)"
+        )
 
 
 def refuse_gz(out: Path, suffix: str = ".npz") -> None:
@@ -205,10 +220,20 @@ def no_clashes(jobs: list[FileJob]) -> list[FileJob]:
 
 
 def _message(job: FileJob, exc: BaseException) -> str:
-    text = str(exc) if isinstance(exc, MdvaeError) else f"{type(exc).__name__}: {exc}"
+    if isinstance(exc, MdvaeError):
+        text = str(exc)
+    elif isinstance(exc, OSError):
+        text = os_error_words(exc)
+    else:
+        text = f"{type(exc).__name__}: {exc}"
     text = " ".join(text.split())  # one line
     named = [str(job.source)] + ([str(job.data)] if isinstance(job.data, Path) else [])
-    return text if any(name in text for name in named) else f"{job.source}: {text}"
+    if any(name in text for name in named):
+        return text
+    blamed = text.split(": ", 1)[0]
+    if blamed != text and Path(blamed).is_file():  # another file is at fault (an .asf, a map)
+        return f"{text} (reading {job.source})"
+    return f"{job.source}: {text}"
 
 
 def run_batch(

@@ -52,12 +52,22 @@ def handle_errors(fn: Callable) -> Callable:
             fail("interrupted", code=130)
         except (click.exceptions.Exit, click.ClickException, SystemExit):
             raise
+        except OSError as exc:  # the file system's refusal (name too long, no permission...)
+            if os.environ.get("MDVAE_DEBUG"):
+                raise
+            fail(os_error_words(exc))
         except Exception as exc:
             if os.environ.get("MDVAE_DEBUG"):
                 raise
             fail(f"{type(exc).__name__}: {exc} (set MDVAE_DEBUG=1 for a traceback)")
 
     return wrapper
+
+
+def os_error_words(exc: OSError) -> str:
+    """An OSError as one line in words: ``FILE: File name too long``."""
+    why = exc.strerror or str(exc)
+    return f"{exc.filename}: {why}" if exc.filename is not None else why
 
 
 class Finite(click.ParamType):

@@ -11,7 +11,6 @@ import click
 from mdvae_cli.cli.batch import (
     FileJob,
     emit_json,
-    is_kind,
     json_option,
     print_notes,
     run_batch,
@@ -31,7 +30,7 @@ from mdvae_cli.cli.motion_input import (
     read_input,
     track_output,
 )
-from mdvae_cli.cli.takes import TakeReader, is_take, load_joint_map, plan_take_jobs
+from mdvae_cli.cli.takes import is_take, load_joint_map, plan_take_jobs
 from mdvae_cli.errors import InputError
 
 
@@ -117,12 +116,14 @@ def denoise(
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.export import export_mesh_sequence
+    from mdvae_cli.formats.registry import ReadOptions
+    from mdvae_cli.formats.registry import write as write_motion
     from mdvae_cli.infer.denoise import check_finite, check_length, denoise_motions
     from mdvae_cli.infer.feet import FootLockConfig
     from mdvae_cli.infer.input_kinds import refine_config
     from mdvae_cli.infer.settings import OUTLIER_DOF
     from mdvae_cli.model.denoiser import load_denoiser
-    from mdvae_cli.motion.npz_io import save_motion
+    from mdvae_cli.retarget.take import TakeReader
 
     if overlap >= window:
         raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
@@ -151,19 +152,14 @@ def denoise(
     joint_map = load_joint_map(joint_map_file)
     if asf is not None and not Path(asf).is_file():
         raise InputError(f"no such skeleton file: {asf}")
-    takes = TakeReader(body_model, asf, joint_map) if any(is_take(j.source) for j in jobs) else None
+    takes = TakeReader(body_data, asf, joint_map)
+    options = ReadOptions(format=input_format, fps=input_fps, track=track,
+                          allow_pickle=allow_pickle, body=body_data)  # fmt: skip
+    read_takes: dict[Path, object] = {}  # source -> its take, for writing it back
 
     def read(job: FileJob) -> None:
-        if is_take(job.source):
-            motion = takes(job).motion
-            check_length(motion)
-            print_notes(job.relpath, motion.notes)
-            kinds[job.source] = "mocap" if input_kind == "auto" else input_kind
-            formats[job.source] = "bvh" if is_kind(job.source, ".bvh") else "amc"
-            loaded[job.source] = [(None, motion, job.output)]
-            return
-        f = read_input(job.source, job.relpath, input_format, input_fps, track,
-                       allow_pickle, body_data)  # fmt: skip
+        f = read_input(job.source, job.relpath, options, takes=takes)
+        read_takes[job.source] = f.take
         items, short = [], []
         for label, motion, output in outputs_of(f, job.output):
             try:
@@ -275,10 +271,8 @@ def denoise(
                 target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
                 export_mesh_sequence(motion, body, track_output(target, label), mesh_format,
                                      forbid=sources)  # fmt: skip
-            if is_take(output):
-                takes.write(job, motion, forbid=sources)
-            else:
-                save_motion(motion, output, forbid=sources)
+            write_motion(motion, output, take=read_takes[job.source] if is_take(output) else None,
+                  forbid=sources)  # fmt: skip
             if view_dir is not None:
                 from mdvae_cli.view.page import write_before_after
 
@@ -309,7 +303,7 @@ def denoise(
         emit_json(
             {
                 **write_report.to_dict(),
-                "mode": "optimization" if optimize_steps else "regression",
+                "mode": _mode(optimize_steps, refine_steps, offset),
                 "optimize_steps": optimize_steps,
                 "refine_steps": refine_steps,
                 "refine": first[0].to_dict() if first[0] else None,
@@ -327,6 +321,15 @@ def denoise(
             f"{secs:.2f} s ({total / max(secs, 1e-9):,.0f} frames/s)"
         )
     write_report.exit()
+
+
+def _mode(optimize_steps: int, refine_steps: int, offset: bool) -> str:
+    """The ``--json`` "mode": what ran after the networks' one pass."""
+    if optimize_steps:
+        return "optimization"
+    if refine_steps:
+        return "refinement"
+    return "regression+offset" if offset else "regression"
 
 
 LOOP_NOTE = (

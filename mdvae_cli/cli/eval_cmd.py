@@ -19,8 +19,8 @@ from mdvae_cli.cli.common import (
     handle_errors,
 )
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.motion.load_any import load_one
+from mdvae_cli.fileio import check_regular, expand_inputs
+from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
 
 if TYPE_CHECKING:  # the metrics pose meshes with torch: imported when the command runs
     from mdvae_cli.metrics import EvalResult
@@ -30,6 +30,7 @@ UNITS = {
     "v2v_cm": "cm",
     "v2v_abs_cm": "cm",
     "mpjpe_cm": "cm",
+    "mpjpe_root_cm": "cm",
     "accel_gt": "m/s^2",
     "accel_pred": "m/s^2",
     "accel_error": "m/s^2",
@@ -58,12 +59,14 @@ def pair_files(gt: Path, pred: Path) -> tuple[list[FileJob], list[Path]]:
     if gt.is_dir() != pred.is_dir():
         raise InputError("--gt and --pred must both be files or both be folders")
     if not gt.is_dir():
+        check_regular(gt)
+        check_regular(pred)
         return [FileJob(Path(gt.name), gt, data=pred)], []
-    gt_items = expand_inputs([gt])
+    gt_items = expand_inputs([gt], READ_SUFFIXES)
     if not gt_items:
-        raise InputError(f"no .npz files found in {gt}")
+        raise InputError(f"no motion files ({', '.join(READ_SUFFIXES)}) found in {gt}")
     # a prediction made from take.npz.gz is take.npz: pair them without .gz
-    pred_by_rel = {strip_gz(rel): src for src, rel in expand_inputs([pred])}
+    pred_by_rel = {strip_gz(rel): src for src, rel in expand_inputs([pred], READ_SUFFIXES)}
     jobs = [
         FileJob(rel, src, data=pred_by_rel.get(strip_gz(rel), pred / strip_gz(rel)))
         for src, rel in gt_items
@@ -80,51 +83,80 @@ def _pair(pred: float | None, gt: float | None) -> str:
     return f"{_fmt(pred)} ({_fmt(gt)})"
 
 
-def results_table(rows: list[tuple[str, EvalResult]], mean: EvalResult | None) -> Table:
-    """A rich table: one row per file, then the frame-weighted mean."""
-    table = Table(
-        title="Evaluation", title_justify="left",
-        caption="errors in cm, accelerations in m/s², skate in cm/s; feet: pred (GT)",
-        caption_justify="left",
-    )  # fmt: skip
+#: the table's metric names, in the order of :func:`_cells`
+METRIC_NAMES = ("frames", "V2V", "V2V abs", "MPJPE root", "MPJPE world", "acc GT", "acc pred",
+                "acc err", "skate", "slide %", "penetr.", "float")  # fmt: skip
+_CAPTION = "errors in cm, accelerations in m/s², skate in cm/s; feet: pred (GT)"
+#: the widest console the one-row-per-file table is printed on; narrower: one column per file
+WIDE_TABLE = 150
+
+
+def results_table(
+    rows: list[tuple[str, EvalResult]], mean: EvalResult | None, width: int = 200
+) -> list[Table]:
+    """Rich tables of the results: one row per file then the frame-weighted mean when
+    ``width`` (the console's columns) holds it; else one row per metric, a column per file,
+    as many files per table as fit."""
+    if width >= WIDE_TABLE:
+        return [_wide_table(rows, mean)]
+    named = [*rows, *([("mean (frame-weighted)", mean)] if mean is not None else [])]
+    per = max(1, (width - 14) // 16)
+    tables = []
+    for start in range(0, len(named), per):
+        table = Table(title="Evaluation" if not start else None, title_justify="left",
+                      caption=_CAPTION if start + per >= len(named) else None,
+                      caption_justify="left")  # fmt: skip
+        table.add_column("metric", no_wrap=True)
+        chunk = named[start : start + per]
+        for name, _ in chunk:
+            table.add_column(escape(name), justify="right", overflow="fold", max_width=16)
+        columns = [_cells(r) for _, r in chunk]
+        for i, metric in enumerate(METRIC_NAMES):
+            table.add_row(metric, *(c[i] for c in columns))
+        tables.append(table)
+    return tables
+
+
+def _wide_table(rows: list[tuple[str, EvalResult]], mean: EvalResult | None) -> Table:
+    table = Table(title="Evaluation", title_justify="left", caption=_CAPTION,
+                  caption_justify="left")  # fmt: skip
     table.add_column("file", overflow="fold", min_width=12)
-    names = ("frames", "V2V", "V2V abs", "MPJPE", "acc GT", "acc pred", "acc err", "skate",
-             "slide %", "penetr.", "float")  # fmt: skip
-    for name in names:
+    for name in METRIC_NAMES:
         table.add_column(name, justify="right", no_wrap=True)
-
-    def cells(r: EvalResult) -> list[str]:
-        return [
-            str(r.num_frames),
-            _fmt(r.v2v_cm),
-            _fmt(r.v2v_abs_cm),
-            _fmt(r.mpjpe_cm),
-            _fmt(r.accel_gt),
-            _fmt(r.accel_pred),
-            _fmt(r.accel_error),
-            _pair(r.foot_skate_pred, r.foot_skate_gt),
-            _pair(r.foot_slide_pred, r.foot_slide_gt),
-            _pair(r.penetration_pred, r.penetration_gt),
-            _pair(r.float_pred, r.float_gt),
-        ]
-
     for name, r in rows:
-        table.add_row(escape(name), *cells(r))
+        table.add_row(escape(name), *_cells(r))
     if mean is not None:
         table.add_section()
-        table.add_row("[bold]mean (frame-weighted)[/]", *cells(mean))
+        table.add_row("[bold]mean (frame-weighted)[/]", *_cells(mean))
     return table
+
+
+def _cells(r: EvalResult) -> list[str]:
+    return [
+        str(r.num_frames),
+        _fmt(r.v2v_cm),
+        _fmt(r.v2v_abs_cm),
+        _fmt(r.mpjpe_root_cm),
+        _fmt(r.mpjpe_cm),
+        _fmt(r.accel_gt),
+        _fmt(r.accel_pred),
+        _fmt(r.accel_error),
+        _pair(r.foot_skate_pred, r.foot_skate_gt),
+        _pair(r.foot_slide_pred, r.foot_slide_gt),
+        _pair(r.penetration_pred, r.penetration_gt),
+        _pair(r.float_pred, r.float_gt),
+    ]
 
 
 @click.command("eval")
 @click.option(
     "--gt", "gt", type=click.Path(path_type=Path), required=True,
-    help="Ground-truth .npz file or folder (a file may also be any motion file `mdvae "
-    "denoise` reads).",
+    help="Ground-truth motion file or folder: any file `mdvae denoise` reads (.npz, .bvh, "
+    ".amc, video pipelines' outputs).",
 )  # fmt: skip
 @click.option(
     "--pred", "pred", type=click.Path(path_type=Path), required=True,
-    help="Predicted .npz file or folder (folders are matched to --gt by relative path).",
+    help="Predicted motion file or folder (folders are matched to --gt by relative path).",
 )  # fmt: skip
 @body_model_option
 @click.option(
@@ -141,7 +173,8 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
     Per file, both motions posed by the body model with the ground truth's betas:
       V2V       vertex error, root-relative (each mesh minus its pelvis), cm
       V2V abs   vertex error in world coordinates, cm
-      MPJPE     error of the 22 body joints in world coordinates, cm
+      MPJPE     error of the 22 body joints, cm: root-relative (each skeleton
+                minus its pelvis, as in the literature) and in world coordinates
       acc       mean joint |x[t-1] - 2x[t] + x[t+1]| * fps^2, m/s^2 (GT, pred)
       acc err   mean norm of the difference of accelerations, m/s^2
     Feet, where the ground truth has a foot down (its ankle or ball joint less
@@ -164,14 +197,15 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
 
     jobs, unmatched = pair_files(gt, pred)
     body = as_body_model(load_body_model(body_model))
+    options = ReadOptions(allow_pickle=allow_pickle, body=body.data)
     for path in unmatched:
         console.print(f"[dim]note: {escape(str(path))} has no ground truth; skipped[/]")
 
     def process(job: FileJob) -> EvalResult:
         if not Path(job.data).exists():
             raise InputError(f"{job.source}: no prediction {job.data}")
-        truth = load_one(job.source, allow_pickle=allow_pickle, body=body.data)
-        guess = load_one(job.data, allow_pickle=allow_pickle, body=body.data)
+        truth = read(job.source, options).single()
+        guess = read(job.data, options).single()
         try:
             return evaluate_pair(truth, guess, body, chunk_frames=chunk_frames)
         except InputError as exc:
@@ -190,9 +224,7 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
                         "pred": str(o.job.data),
                         "ok": o.ok,
                         "error": o.error,
-                        # "result" as in every other command's --json; "metrics" kept
                         "result": o.result.to_dict() if o.ok else None,
-                        "metrics": o.result.to_dict() if o.ok else None,
                     }
                     for o in report.outcomes
                 ],
@@ -204,10 +236,10 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
         )
     elif good:
         rows = [(o.job.relpath.as_posix(), o.result) for o in good]
-        table = results_table(rows, mean if len(good) > 1 else None)
         # off a terminal (logs, pipes) rich would cut the table at 80 columns
-        wide = console if console.is_terminal else Console(stderr=True, width=200)
-        wide.print(table)
+        out = console if console.is_terminal else Console(stderr=True, width=200)
+        for table in results_table(rows, mean if len(good) > 1 else None, out.width):
+            out.print(table)
     report.exit()
 
 

@@ -45,25 +45,24 @@ def export_bvh(inputs, out, units, order, body_model, allow_pickle, as_json) -> 
       mdvae export-bvh cleaned/ -o bvh/
     """
     from mdvae_cli.body.formats import load_body_model
-    from mdvae_cli.motion.bvh_write import write_text
-    from mdvae_cli.motion.fit_shape import BodyJoints
-    from mdvae_cli.motion.npz_io import load_motion
-    from mdvae_cli.motion.smpl_bvh import smpl_bvh
+    from mdvae_cli.cli.motion_input import INPUT_SUFFIXES
+    from mdvae_cli.formats.registry import ReadOptions, read, write
 
     single = Path(str(out))
     if single.name.lower().endswith(".bvh.gz") and len(inputs) == 1 and Path(inputs[0]).is_file():
         jobs = [FileJob(Path(Path(inputs[0]).name), Path(inputs[0]), single)]
     else:
-        jobs = plan_jobs(inputs, out, out_suffix=".bvh",
+        jobs = plan_jobs(inputs, out, INPUT_SUFFIXES, out_suffix=".bvh",
                          rename=lambda rel: rel.with_suffix("").with_suffix(".bvh")
                          if rel.suffix.lower() == ".gz" else rel.with_suffix(".bvh"))  # fmt: skip
-    body = BodyJoints(load_body_model(body_model))
+    body = load_body_model(body_model)
+    options = ReadOptions(allow_pickle=allow_pickle, body=body)
     sources = tuple(job.source for job in jobs)
 
     def process(job: FileJob) -> dict:
-        motion = load_motion(job.source, allow_pickle=allow_pickle)
+        motion = read(job.source, options).single()
         print_notes(job.relpath, motion.notes)
-        write_text(job.output, smpl_bvh(motion, body, units, order), forbid=sources)
+        write(motion, job.output, body=body, forbid=sources, bvh_units=units, bvh_order=order)
         return {"frames": motion.num_frames, "fps": motion.fps}
 
     report = run_batch(jobs, process, "export-bvh")

@@ -9,7 +9,8 @@ import click
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
 from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.cli.motion_input import INPUT_SUFFIXES
+from mdvae_cli.formats.registry import ReadOptions, read
 
 
 @click.command("export-mesh")
@@ -44,12 +45,13 @@ def export_mesh(inputs, out, fmt, every, body_model, allow_pickle, as_json) -> N
     """
     from mdvae_cli.export import as_body_model, export_mesh_sequence
 
-    jobs = plan_jobs(inputs, out, out_suffix=None)
+    jobs = plan_jobs(inputs, out, INPUT_SUFFIXES, out_suffix=None)
     body = as_body_model(load_body_model(body_model))
+    options = ReadOptions(allow_pickle=allow_pickle, body=body.data)
     sources = tuple(job.source for job in jobs)
 
     def process(job: FileJob) -> dict[str, int]:
-        motion = load_motion(job.source, allow_pickle=allow_pickle)
+        motion = read(job.source, options).single()
         print_notes(job.relpath, motion.notes)
         written = export_mesh_sequence(motion, body, job.output, fmt, every=every, forbid=sources)
         return {"meshes": len(written)}

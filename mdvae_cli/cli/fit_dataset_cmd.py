@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from mdvae_cli.cli.batch import emit_json
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
@@ -15,7 +16,7 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
-from mdvae_cli.cli.train import apply_overrides, run_options, start_config
+from mdvae_cli.cli.train import apply_overrides, run_options, start_config, summary_dict
 from mdvae_cli.errors import InputError
 
 
@@ -138,6 +139,7 @@ def fit_dataset(
     max_steps,
     threads,
     body_model,
+    as_json,
     **overrides,
 ) -> None:
     """Fit the denoiser to noisy motion files, unsupervised (no clean data needed).
@@ -200,30 +202,48 @@ def fit_dataset(
         named = ", ".join(k for k, v in fixed.items() if v is not None)
         raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
     with progress_bar() as progress:
-        tasks: dict[str, object] = {}
-        labels = {"fit": "fitting", "targets": "refining targets", "distill": "distilling"}
-        logged: dict[str, int] = {}
+        summary = run(cfg, out_dir, resume=resume, progress=FitReporter(progress),
+                      max_steps=max_steps)  # fmt: skip
+    if as_json:
+        emit_json(summary_dict(summary))
+    else:
+        _print_summary(summary, out_dir)
 
-        def tick(info: dict) -> None:
-            stage = info["stage"]
-            if stage not in tasks:
-                tasks[stage] = progress.add_task(labels[stage], total=info["steps"], info="")
-            if stage == "fit":
-                text = (
-                    f"loss {info['loss']:.2f} rec {info['rec']:.2f} "
-                    f"kl_z {info['kl_z']:.2f} err {info['err_cm']:.1f} cm"
-                )
-            elif stage == "distill":
-                text = f"loss {info['loss']:.3f} state {info['state']:.3f}"
-            else:
-                text = "windows"
-            progress.update(tasks[stage], total=info["steps"], completed=info["step"], info=text)
-            part = 20 * info["step"] // max(1, info["steps"])
-            if not console.is_terminal and part > logged.get(stage, 0):  # batch jobs' logs
-                logged[stage] = part  # a line every 5 % of a stage
-                console.print(f"{labels[stage]} {info['step']}/{info['steps']} {text}")
 
-        summary = run(cfg, out_dir, resume=resume, progress=tick, max_steps=max_steps)
+class FitReporter:
+    """fit-dataset's progress: a bar per stage (fitting, refining targets, distilling), and
+    off a terminal (batch jobs' logs) a line every 5 % of a stage."""
+
+    LABELS = {"fit": "fitting", "targets": "refining targets", "distill": "distilling"}
+
+    def __init__(self, progress):
+        self.progress = progress
+        self.tasks: dict[str, object] = {}
+        self.logged: dict[str, int] = {}
+
+    def __call__(self, info: dict) -> None:
+        stage = info["stage"]
+        label = self.LABELS[stage]
+        if stage not in self.tasks:
+            self.tasks[stage] = self.progress.add_task(label, total=info["steps"], info="")
+        if stage == "fit":
+            text = (
+                f"loss {info['loss']:.2f} rec {info['rec']:.2f} "
+                f"kl_z {info['kl_z']:.2f} err {info['err_cm']:.1f} cm"
+            )
+        elif stage == "distill":
+            text = f"loss {info['loss']:.3f} state {info['state']:.3f}"
+        else:
+            text = "windows"
+        self.progress.update(self.tasks[stage], total=info["steps"], completed=info["step"],
+                             info=text)  # fmt: skip
+        part = 20 * info["step"] // max(1, info["steps"])
+        if not console.is_terminal and part > self.logged.get(stage, 0):
+            self.logged[stage] = part
+            console.print(f"{label} {info['step']}/{info['steps']} {text}")
+
+
+def _print_summary(summary, out_dir) -> None:
     elbo = (
         f"loss {summary.first_loss:.3f} -> {summary.last_loss:.3f}"
         if not math.isnan(summary.first_loss)  # ELBO steps were taken in this run

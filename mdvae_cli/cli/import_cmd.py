@@ -23,13 +23,14 @@ from mdvae_cli.cli.batch import (
 )
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, console, handle_errors
 from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice
+from mdvae_cli.cli.takes import load_joint_map
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.motion import cmu, corpus_plan, hdm05
 from mdvae_cli.motion.motion import check_fps
 
 #: what folders are searched for: mocap to retarget, and video pipelines' outputs (files given
-#: by name may be of any format ``motion.load_any`` reads, AMASS .npz included)
+#: by name may be of any format ``formats.registry`` reads, AMASS .npz included)
 SUFFIXES = (".bvh", ".amc", ".pkl", ".pk", ".pt", ".pth", ".npy")
 
 
@@ -160,11 +161,17 @@ def _print_summary(summary: dict) -> None:
     "-j", "--jobs", "jobs_n", type=click.IntRange(min=1), default=1, show_default=True,
     help="Worker processes (one CPU core each).",
 )  # fmt: skip
+@click.option(
+    "--joint-map", "joint_map_file", type=click.Path(path_type=Path, dir_okay=False),
+    help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them "
+    '(SMPL joint -> yours, e.g. {"left_hip": "LeftUpLeg"}).',
+)  # fmt: skip
 @body_model_option
 @json_option
 @handle_errors
 def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, split_file,
-                   input_format, track, jobs_n, body_model, as_json) -> None:  # fmt: skip
+                   input_format, track, jobs_n, joint_map_file, body_model,
+                   as_json) -> None:  # fmt: skip
     """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton,
     and the output files of video pose pipelines (WHAM, GVHMR, TRAM, 4D-Humans/PHALP, VIBE,
     PARE, HybrIK, ROMP/BEV, SLAHMR) or AIST++ pickles as AMASS-style .npz.
@@ -192,6 +199,36 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     for option, rate in (("--fps", out_fps), ("--source-fps", source_fps)):
         if rate is not None:
             check_fps(rate, option)
+    inputs, asf = _skeleton_inputs(inputs, asf)
+    jobs, skipped, spec = _plan(inputs, out, out_arg, asf, source_fps, corpus, split_file)
+
+    from mdvae_cli.retarget.retarget import RetargetSettings
+
+    settings = RetargetSettings(floor=floor).validate()
+    joint_map = load_joint_map(joint_map_file)
+    args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track,
+            joint_map)  # fmt: skip
+    report = _run(jobs, args, jobs_n)
+    rows = [o.result for o in report.succeeded]
+    summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps,
+               **corpus_plan.error_summary(rows)}  # fmt: skip
+    if corpus:
+        summary["splits"] = corpus_plan.split_summary(rows, out_fps)
+        summary["walking"] = cmu.walking_summary(rows)
+        summary["acknowledgement"] = cmu.ACKNOWLEDGEMENT
+    summary["elapsed_s"] = round(time.perf_counter() - started, 1)
+    if corpus:
+        _write_json(out / "split.json", corpus_plan.split_document(rows, spec, out_fps))
+        _write_json(out / "summary.json", summary)
+    if as_json:
+        emit_json(summary)
+    elif len(jobs) > 1 or report.succeeded or corpus:  # one file that failed: its error says it
+        _print_summary(summary)
+    report.exit()
+
+
+def _skeleton_inputs(inputs, asf):
+    """The inputs less an ``.asf`` among them, and the skeleton (that ``.asf`` or --asf)."""
     asf_inputs = [p for p in inputs if is_kind(p, ".asf")]
     inputs = [p for p in inputs if not is_kind(p, ".asf")]
     if asf_inputs:
@@ -202,8 +239,14 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
         raise InputError(f"no such skeleton file: {asf}")
     if not inputs and asf_inputs:
         raise InputError(f"{asf_inputs[0]} is a skeleton only: give the .amc motions too")
+    return inputs, asf
 
+
+def _plan(inputs, out: Path, out_arg, asf, source_fps, corpus: bool, split_file):
+    """The import's jobs, the corpus files skipped (with why) and the split spec (None
+    without --corpus); InputError before anything is read."""
     skipped: list[dict] = []
+    spec = None
     if corpus:
         if not inputs or not all(p.is_dir() for p in inputs):
             raise InputError("--corpus takes corpus folders (CMU and/or HDM05)")
@@ -230,12 +273,14 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     if len(set(outputs)) != len(outputs):
         dup = next(o for o in outputs if outputs.count(o) > 1)
         raise InputError(f"two inputs would both be written to {dup}; import them separately")
+    return jobs, skipped, spec
 
+
+def _run(jobs: list[FileJob], args: tuple, jobs_n: int):
+    """Import every job (in ``jobs_n`` worker processes when more than one), a line per good
+    file. -> the batch report"""
     from mdvae_cli.cli.import_worker import FileImporter
-    from mdvae_cli.motion.retarget import RetargetSettings
 
-    settings = RetargetSettings(floor=floor).validate()
-    args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track)
     pool = None
     if jobs_n > 1 and len(jobs) > 1:
         pool = ProcessPoolExecutor(min(jobs_n, len(jobs)), mp_context=get_context("spawn"),
@@ -255,26 +300,10 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
                       f"{r['fps']:g} fps, {what}", soft_wrap=True, highlight=False)  # fmt: skip
 
     try:
-        report = run_batch(jobs, process, "import", quiet=True, on_success=show)
+        return run_batch(jobs, process, "import", quiet=True, on_success=show)
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
-    rows = [o.result for o in report.succeeded]
-    summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps,
-               **corpus_plan.error_summary(rows)}  # fmt: skip
-    if corpus:
-        summary["splits"] = corpus_plan.split_summary(rows, out_fps)
-        summary["walking"] = cmu.walking_summary(rows)
-        summary["acknowledgement"] = cmu.ACKNOWLEDGEMENT
-    summary["elapsed_s"] = round(time.perf_counter() - started, 1)
-    if corpus:
-        _write_json(out / "split.json", corpus_plan.split_document(rows, spec, out_fps))
-        _write_json(out / "summary.json", summary)
-    if as_json:
-        emit_json(summary)
-    elif len(jobs) > 1 or report.succeeded or corpus:  # one file that failed: its error says it
-        _print_summary(summary)
-    report.exit()
 
 
 COMMANDS = [import_command]

@@ -9,22 +9,15 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.cli.batch import FileJob, is_kind
+from mdvae_cli.cli.batch import FileJob
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.registry import TAKE_SUFFIXES, ReadOptions, read, suffix_of, write
 from mdvae_cli.motion import cmu
-from mdvae_cli.motion.any_file import find_asf
-from mdvae_cli.motion.asf import AsfSkeleton, load_asf
 from mdvae_cli.motion.corpus_plan import CorpusItem
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.npz_io import save_motion
-from mdvae_cli.motion.retarget import (
-    BodyJoints,
-    fit_betas,
-    import_motion,
-    load_source,
-    skeleton_key,
-    walking_speed,
-)
+from mdvae_cli.retarget.fit_shape import skeleton_key
+from mdvae_cli.retarget.retarget import walking_speed
+from mdvae_cli.retarget.take import TakeReader
 
 
 class FileImporter:
@@ -32,39 +25,33 @@ class FileImporter:
     Built once per process (each ``--jobs`` worker builds its own)."""
 
     def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf,
-                 input_format=None, track=None):  # fmt: skip
+                 input_format=None, track=None, joint_map=None):  # fmt: skip
         torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
-        self.body = BodyJoints(load_body_model(body_model))
+        self.takes = TakeReader(load_body_model(body_model), asf, joint_map)
+        self.body = self.takes.body
         self.format, self.track = input_format, track
         self.out, self.fps, self.settings = out, fps, settings
-        self.source_fps, self.scale, self.asf = source_fps, scale, asf
-        self.skeletons: dict[Path, AsfSkeleton] = {}
-        self.betas: dict[str, np.ndarray] = {}
+        self.source_fps, self.scale = source_fps, scale
 
     def __call__(self, job: FileJob) -> dict:
-        if job.data is None and not (is_kind(job.source, ".bvh") or is_kind(job.source, ".amc")):
-            return self.import_estimates(job)
         item: CorpusItem | None = job.data
-        skeleton, fps = (item.skeleton, item.fps) if item else (None, self.source_fps)
-        if item is None and is_kind(job.source, ".amc"):
-            skeleton = self.asf or find_asf(job.source)
-            if skeleton is None:
-                raise InputError(f"{job.source}: no skeleton found next to it; pass --asf FILE")
-        if skeleton is not None:
-            if skeleton not in self.skeletons:
-                self.skeletons[skeleton] = load_asf(skeleton)
-            skeleton = self.skeletons[skeleton]
-        src = load_source(job.source, skeleton, fps=fps, scale=self.scale)
-        key = skeleton_key(src)
-        if key not in self.betas:
-            self.betas[key] = fit_betas(src, self.body)
-        meta: dict = {"file": job.relpath.as_posix(), "skeleton_key": key}
+        is_take = suffix_of(job.source) in TAKE_SUFFIXES
+        if item is None and not is_take:
+            return self.import_estimates(job)
+        meta: dict = {"file": job.relpath.as_posix()}
         if item is not None:
             donor = f"{cmu.DONOR_SUBJECT}.asf" if item.donor else None
             meta.update(subject=item.subject, trial=item.trial, split=item.split,
                         description=item.description, donor_skeleton=donor)  # fmt: skip
-        result = import_motion(src, self.body, self.fps, self.betas[key], self.settings, meta)
+        options = ReadOptions(
+            fps=item.fps if item else self.source_fps, body=self.body.data, scale=self.scale,
+            skeleton=item.skeleton if item else None, resample=self.fps,
+            retarget=self.settings, metadata=meta,
+        )  # fmt: skip
+        take = read(job.source, options, takes=self.takes).take
+        src, result = take.source, take.retarget
         motion = result.motion
+        key = skeleton_key(src)
         arrays = (motion.root_orient, motion.pose_body, motion.trans, motion.betas)
         if not all(np.isfinite(a).all() for a in arrays) or not np.isfinite(result.mean_error):
             hint = f" (is --scale {self.scale:g} metres per file unit right?)" if self.scale else ""
@@ -72,7 +59,7 @@ class FileImporter:
                 f"{job.source}: the retarget to the body gave non-finite values{hint}; "
                 "nothing written"
             )
-        save_motion(motion, job.output, forbid=(job.source,))
+        write(motion, job.output, forbid=(job.source,))
         out = job.output  # relative to the output folder, or the output file's own path
         out = out.relative_to(self.out) if out != self.out and out.is_relative_to(self.out) else out
         row = {
@@ -95,20 +82,21 @@ class FileImporter:
 
     def import_estimates(self, job: FileJob) -> dict:
         """A motion file that needs no retarget (a video pipeline's output, an AMASS-style
-        file): read upright (``motion.load_any``), resampled to the output rate, floor at
+        file): read upright (``formats.registry``), resampled to the output rate, floor at
         z = 0 (``--floor none`` keeps the file's heights), one output per track."""
         from mdvae_cli.cli.motion_input import outputs_of, read_input
         from mdvae_cli.motion.resample import resample_motion
 
-        loaded = read_input(job.source, job.relpath, self.format, self.source_fps, self.track,
-                            body=self.body.data)  # fmt: skip
+        options = ReadOptions(format=self.format, fps=self.source_fps, track=self.track,
+                              body=self.body.data)  # fmt: skip
+        loaded = read_input(job.source, job.relpath, options)
         frames, fps, outputs = 0, None, []
         for _, motion, output in outputs_of(loaded, job.output):
             source_fps = motion.fps
             motion = resample_motion(motion, self.fps) if self.fps else motion
             if self.settings.floor != "none":
                 motion = motion.with_body(trans=motion.trans - [0.0, 0.0, self.floor(motion)])
-            save_motion(motion, output, forbid=(job.source,))
+            write(motion, output, forbid=(job.source,))
             frames, fps = frames + motion.num_frames, motion.fps
             outputs.append(output.as_posix())
         return {
@@ -126,7 +114,7 @@ class FileImporter:
         """The height of the ground under the motion's soles (the lower envelope of each
         frame's lowest foot vertex, ``retarget.fit_ground`` without tilt), metres."""
         from mdvae_cli.export import pose_motion_chunks
-        from mdvae_cli.motion.retarget import fit_ground
+        from mdvae_cli.retarget.retarget import fit_ground
 
         lowest = []
         for _, out in pose_motion_chunks(motion, self.body.data, vertices=True):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from mdvae_cli import __version__
@@ -17,9 +19,33 @@ from mdvae_cli.cli import (
     train,
     view_cmd,
 )
+from mdvae_cli.cli.common import fail
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class OneLineErrors(click.Group):
+    """The ``mdvae`` group: a bad option value, a missing argument or an unknown option is one
+    ``error: ...`` line naming the command's help, with exit code 1 (as every other refusal),
+    instead of Click's usage block with exit code 2."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.UsageError as exc:
+            if type(exc).__name__ == "NoArgsIsHelpError":  # bare ``mdvae``: the help (Click 8.2)
+                click.echo(exc.format_message())
+                sys.exit(0)
+            where = exc.ctx.command_path if exc.ctx is not None else "mdvae"
+            fail(f"{exc.format_message()} (see {where} -h)")
+        except click.exceptions.Abort:
+            fail("interrupted", code=130)
+        except click.ClickException as exc:
+            fail(exc.format_message())
+        sys.exit(code if isinstance(code, int) else 0)
+
+
+@click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="mdvae")
 def cli() -> None:
     """Clean up human motion-capture files with a learned motion prior (Motion-DVAE).
@@ -30,9 +56,9 @@ def cli() -> None:
       mdvae denoise noisy.npz -o cleaned.npz
       mdvae eval --gt clean.npz --pred cleaned.npz
 
-    Files are AMASS-style .npz (poses, trans, betas, mocap_framerate). The file commands
-    (add-noise, denoise, eval, export-mesh, import) take files or folders; folders are
-    mirrored into the output folder.
+    Files are AMASS-style .npz (poses, trans, betas, mocap_framerate), BVH and ASF/AMC takes,
+    or the outputs of video pose pipelines (WHAM, GVHMR, ...). Every file command takes files
+    or folders (folders are mirrored into the output folder) and answers --json.
     """
 
 

@@ -16,17 +16,18 @@ import click
 
 from mdvae_cli.cli.batch import print_notes
 from mdvae_cli.cli.common import POSITIVE
-from mdvae_cli.motion.load_any import (
+from mdvae_cli.formats.registry import (
     ALIASES,
     FORMATS,
-    MOTION_FILE_SUFFIXES,
+    READ_SUFFIXES,
     LoadedFile,
-    load_any,
+    ReadOptions,
+    read,
 )
 from mdvae_cli.motion.motion import Motion
 
 #: what folders are searched for by the commands that read any motion file
-INPUT_SUFFIXES = MOTION_FILE_SUFFIXES
+INPUT_SUFFIXES = READ_SUFFIXES
 
 
 FORMATS_HELP = (
@@ -67,11 +68,10 @@ def motion_input_options(fn: Callable) -> Callable:
     )(fn)
 
 
-def read_input(
-    path: Path, relpath: Path, fmt, fps, track, allow_pickle: bool = False, body=None
-) -> LoadedFile:
-    """:func:`load_any` with the command's options, printing the file's notes."""
-    loaded = load_any(path, fmt, fps=fps, track=track, allow_pickle=allow_pickle, body=body)
+def read_input(path: Path, relpath: Path, options: ReadOptions, takes=None) -> LoadedFile:
+    """``formats.registry.read`` with the command's options, printing the file's notes.
+    takes: a ``retarget.take.TakeReader`` shared over the command's files."""
+    loaded = read(path, options, takes=takes)
     print_notes(relpath, loaded.notes)
     for label, motion in loaded.tracks:
         where = relpath if label is None else Path(f"{relpath.as_posix()} track {label}")

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from mdvae_cli.cli.batch import print_notes, refuse_gz
+from mdvae_cli.cli.batch import emit_json, json_option, print_notes, refuse_gz
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     SEED,
@@ -76,6 +76,7 @@ from mdvae_cli.errors import InputError
 )
 @body_model_option
 @allow_pickle_option
+@json_option
 @handle_errors
 def sample(
     start,
@@ -89,6 +90,7 @@ def sample(
     particles,
     body_model,
     allow_pickle,
+    as_json,
 ) -> None:
     """Generate motion from the Motion-DVAE prior alone.
 
@@ -103,9 +105,9 @@ def sample(
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
+    from mdvae_cli.formats.registry import ReadOptions, read, write
     from mdvae_cli.infer.sample import motion_floor, sample_motion
     from mdvae_cli.model.prior_model import load_prior
-    from mdvae_cli.motion.npz_io import load_motion, save_motion
     from mdvae_cli.weights import default_weights
 
     if out.endswith(("/", os.sep)) or Path(out).is_dir():
@@ -114,10 +116,11 @@ def sample(
     refuse_gz(out)
     if Path(start).is_file() and out.resolve() == Path(start).resolve():
         raise InputError(f"refusing to overwrite the input file {out}: choose another -o")
-    motion = load_motion(start, allow_pickle=allow_pickle)
+    body_data = load_body_model(body_model)
+    motion = read(start, ReadOptions(allow_pickle=allow_pickle, body=body_data)).single()
     print_notes(Path(start.name), motion.notes)
     prior, _ = load_prior(prior_path if prior_path is not None else default_weights("prior"))
-    body = BodyModel(load_body_model(body_model))
+    body = BodyModel(body_data)
     with progress_bar(transient=True) as progress:
         task = progress.add_task("sampling", total=None, visible=False, info="")
 
@@ -138,8 +141,11 @@ def sample(
         kept = result.extras["mocap_time_length"]
         result.extras["mocap_time_length"] = np.array(frames / result.fps, dtype=kept.dtype)
     print_notes(Path(out.name), result.notes)
-    save_motion(result, out, forbid=(start,))
-    console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
+    write(result, out, forbid=(start,))
+    if as_json:
+        emit_json({"output": str(out), "frames": frames, "fps": result.fps, "seed": seed})
+    else:
+        console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
 
 
 COMMANDS = [sample]

@@ -1,23 +1,30 @@
-"""Mocap takes (BVH, ASF/AMC) in file commands: which output form each input gets, and a
-reader that keeps what writing a take back needs (torch is loaded only when a take is read)."""
+"""Mocap takes (BVH, ASF/AMC) in file commands: which output form each input gets, and the
+``--joint-map`` file."""
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
 from pathlib import Path
 
-from mdvae_cli.cli.batch import FileJob, is_kind, no_clashes, plan_jobs, refuse_gz, strip_gz
+from mdvae_cli.cli.batch import (
+    FileJob,
+    is_kind,
+    no_clashes,
+    plan_jobs,
+    refuse_gz,
+    refuse_unsupported,
+    strip_gz,
+)
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import write_atomic
-from mdvae_cli.motion.load_any import MOTION_FILE_SUFFIXES
+from mdvae_cli.fileio import check_regular
+from mdvae_cli.formats.registry import READ_SUFFIXES, TAKE_SUFFIXES
 
 #: what ``mdvae denoise`` reads: AMASS-style .npz, mocap takes, video pipelines' outputs
-DENOISE_SUFFIXES = (*MOTION_FILE_SUFFIXES, ".bvh", ".amc")
+DENOISE_SUFFIXES = READ_SUFFIXES
 
 #: the output form of each input form: takes come back in their own, everything else as .npz
-_FORM = {**{s: ".npz" for s in MOTION_FILE_SUFFIXES}, ".bvh": ".bvh", ".amc": ".amc"}
+_FORM = {**{s: ".npz" for s in READ_SUFFIXES}, **{s: s for s in TAKE_SUFFIXES}}
 
 
 def is_take(path: Path | None) -> bool:
@@ -37,10 +44,11 @@ def output_name(relpath: Path) -> Path:
 
 def _wrong_form(src: Path, form: str, wants: str) -> str:
     """Why ``src`` (of ``form``) cannot be written as ``wants`` (.bvh or .amc), in one line."""
-    what = {".bvh": "a BVH", ".amc": "an AMC", ".npz": "an .npz"}
+    what = {".bvh": "a BVH", ".amc": "an AMC"}
+    kind = f"{what[form]} take" if form in what else f"a {strip_gz(src).suffix.lower()} file"
     forms = ".npz" if form == ".npz" else f"{form} or .npz"
     hint = " (mdvae export-bvh turns an .npz into BVH on the SMPL skeleton)"
-    return (f"{src} is {what[form]} file, not {what[wants]} take: write it as {forms}"
+    return (f"{src} is {kind}, not {what[wants]} take: write it as {forms}"
             + (hint if wants == ".bvh" and form == ".npz" else ""))  # fmt: skip
 
 
@@ -51,7 +59,9 @@ def plan_take_jobs(inputs, out) -> list[FileJob]:
     take."""
     as_folder = str(out).endswith(("/", os.sep))
     out = Path(out)
-    if len(inputs) == 1 and Path(inputs[0]).is_file() and not as_folder and not out.is_dir():
+    one = len({Path(p).resolve() for p in inputs}) == 1
+    if one and Path(inputs[0]).is_file() and not as_folder and not out.is_dir():
+        refuse_unsupported(out)
         src = Path(inputs[0])
         name = out.name.lower()
         ends = (".bvh.gz", ".bvh", ".amc.gz", ".amc", ".npz")
@@ -67,80 +77,28 @@ def plan_take_jobs(inputs, out) -> list[FileJob]:
                      rename=output_name)  # fmt: skip
 
 
+#: bytes a ``--joint-map`` file may hold
+MAX_JOINT_MAP = 1 << 20
+
+
 def load_joint_map(path: Path | str | None) -> dict[str, str] | None:
     """A ``--joint-map`` JSON file: {"left_hip": "LeftUpLeg", ...} (SMPL joint -> source)."""
     if path is None:
         return None
+    check_regular(Path(path))
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_JOINT_MAP + 1)
+        if len(raw) > MAX_JOINT_MAP:
+            raise InputError(f"{path}: over {MAX_JOINT_MAP >> 10} kB; a joint map is a few lines")
+        data = json.loads(raw.decode("utf-8-sig"))
+    except RecursionError:
+        raise InputError(f"{path}: nested too deep; a joint map is one flat JSON object") from None
     except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot read the joint map ({exc})") from None
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise InputError(f"{path}: cannot read the joint map ({why})") from None
     if not isinstance(data, dict) or not all(
         isinstance(k, str) and isinstance(v, str) for k, v in data.items()
     ):
         raise InputError(f'{path}: a joint map is a JSON object {{"left_hip": "LeftUpLeg", ...}}')
     return data
-
-
-class TakeReader:
-    """Reads takes for a command: the body's joints once, each ASF once, betas once per
-    skeleton; keeps every take read (by input path) for writing back."""
-
-    def __init__(self, body_model, asf: Path | None, joint_map: dict | None):
-        self.body_model, self.asf, self.joint_map = body_model, asf, joint_map
-        self._body = None
-        self.skeletons: dict = {}
-        self.betas: dict = {}
-        self.takes: dict = {}
-        self.found_asf: dict = {}  # AMC input -> the skeleton found next to it
-
-    @property
-    def body(self):
-        if self._body is None:
-            from mdvae_cli.body.formats import load_body_model
-            from mdvae_cli.motion.fit_shape import BodyJoints
-
-            self._body = BodyJoints(load_body_model(self.body_model))
-        return self._body
-
-    def __call__(self, job: FileJob):
-        """Read and retarget one take.  -> motion.take.Take"""
-        from mdvae_cli.cli.import_worker import find_asf
-        from mdvae_cli.motion.asf import load_asf
-        from mdvae_cli.motion.fit_shape import fit_betas, skeleton_key
-        from mdvae_cli.motion.retarget import load_source
-        from mdvae_cli.motion.take import read_take
-
-        skeleton = None
-        if is_kind(job.source, ".amc"):
-            skeleton = self.asf or find_asf(job.source)
-            if skeleton is None:
-                raise InputError(f"{job.source}: no skeleton found next to it; pass --asf FILE")
-            if self.asf is None:
-                self.found_asf[job.source] = skeleton
-            if skeleton not in self.skeletons:
-                self.skeletons[skeleton] = load_asf(skeleton)
-            skeleton = self.skeletons[skeleton]
-        src = load_source(job.source, skeleton, joint_map=self.joint_map)
-        key = skeleton_key(src)
-        if key not in self.betas:
-            try:
-                self.betas[key] = fit_betas(src, self.body)
-            except InputError as exc:
-                raise InputError(f"{job.source}: {exc}") from None
-        take = read_take(job.source, self.body, betas=self.betas[key], source=src)
-        self.takes[job.source] = take
-        return take
-
-    def write(self, job: FileJob, cleaned, forbid: tuple = ()) -> None:
-        """Write the cleaned SMPL motion of ``job``'s take back on its own skeleton. An AMC
-        take whose skeleton was found next to it gets a copy of that ``.asf`` next to its
-        output when none of that name is there, so the output reads on its own."""
-        from mdvae_cli.motion.take import write_take
-
-        write_take(self.takes[job.source], cleaned, job.output, self.body, forbid=forbid)
-        asf = self.found_asf.get(job.source)
-        if asf is not None and is_kind(job.output, ".amc"):
-            copy = Path(job.output).parent / Path(asf).name
-            if not copy.exists():
-                write_atomic(copy, lambda tmp: shutil.copyfile(asf, tmp), forbid=forbid)

@@ -3,6 +3,7 @@ config a run starts from, command-line overrides."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Callable
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import click
 
+from mdvae_cli.cli.batch import emit_json
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
@@ -99,7 +101,8 @@ def apply_overrides(
 
 
 def run_options(fn: Callable) -> Callable:
-    """The options train-prior and fit-dataset share: --config, --seed, --device, --threads."""
+    """The options train-prior and fit-dataset share: --config, --seed, --device, --threads,
+    --json."""
     for option in reversed(
         [
             click.option(
@@ -113,6 +116,12 @@ def run_options(fn: Callable) -> Callable:
             click.option(
                 "--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256)."
             ),
+            click.option(
+                "--json",
+                "as_json",
+                is_flag=True,
+                help="Print the run's summary as JSON on stdout (for pipelines).",
+            ),  # fmt: skip
         ]
     ):
         fn = option(fn)
@@ -271,8 +280,9 @@ def run_options(fn: Callable) -> Callable:
 @body_model_option
 @handle_errors
 def train_prior(
-    data, run_dir, split_file, config_file, resume, max_steps, threads, body_model, **overrides
-) -> None:
+    data, run_dir, split_file, config_file, resume, max_steps, threads, body_model, as_json,
+    **overrides,
+) -> None:  # fmt: skip
     """Train the Motion-DVAE prior on clean AMASS-layout motion files or folders.
 
     Motions are resampled to 30 Hz and cut into windows; the state normaliser is fitted on the
@@ -326,12 +336,21 @@ def train_prior(
             progress=StepReporter(progress, "training"),
             max_steps=max_steps,
         )
+    if as_json:
+        emit_json(summary_dict(summary))
+        return
     best = summary.best_val_loss
     best_text = f"{best:.4f}" if math.isfinite(best) else "none (not finite)"
     console.print(
         f"trained {summary.steps} steps in {summary.seconds:.0f} s on {summary.train_windows} "
         f"windows; best val loss {best_text}; run in {summary.run_dir}"
     )
+
+
+def summary_dict(summary) -> dict:
+    """A run's summary dataclass for ``--json`` (numbers that are not finite as null)."""
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in dataclasses.asdict(summary).items()}  # fmt: skip
 
 
 def parse_speeds(text: str) -> list[float]:

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import click
 
-from mdvae_cli.cli.batch import emit_json, json_option, print_notes
+from mdvae_cli.cli.batch import FileJob, emit_json, json_option, print_notes, run_batch
 from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import expand_inputs
 
 
 def motion_labels(paths: list[Path]) -> list[str]:
@@ -23,25 +24,37 @@ def motion_labels(paths: list[Path]) -> list[str]:
     return [f"{i + 1}: {p.name}" for i, p in enumerate(paths)]
 
 
-def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle):
-    """(label, Motion) for each input file, read by :func:`load_any_motion`."""
+def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path):
+    """The report of reading every input file (folders: every motion file below them, in
+    order) with a progress bar, and (label, Motion) for each file read: its first track, said
+    in a note when it holds several. A file that cannot be read is one ``error:`` line."""
     from mdvae_cli.cli.takes import load_joint_map
-    from mdvae_cli.motion.any_file import ReadOptions, load_any_motion
+    from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
+    from mdvae_cli.retarget.take import TakeReader
 
     if asf is not None and not Path(asf).is_file():
         raise InputError(f"no such skeleton file: {asf}")
-    options = ReadOptions(
-        allow_pickle=allow_pickle,
-        body=body_data,
-        skeleton=None if asf is None else Path(asf),
-        joint_map=load_joint_map(joint_map_file),
-    )
-    items = []
-    for path, label in zip(inputs, motion_labels(list(inputs)), strict=True):
-        motion = load_any_motion(path, options)
-        print_notes(Path(label), motion.notes)
-        items.append((label, motion))
-    return items
+    joint_map = load_joint_map(joint_map_file)
+    options = ReadOptions(allow_pickle=allow_pickle, body=body_data, joint_map=joint_map,
+                          skeleton=None if asf is None else Path(asf))  # fmt: skip
+    takes = TakeReader(body_data, options.skeleton, joint_map)
+    files = [src for src, _ in expand_inputs(inputs, READ_SUFFIXES, skip=(out,))]
+    if not files:
+        raise InputError(f"no motion files found in {', '.join(str(p) for p in inputs)}")
+    jobs = [FileJob(Path(label), src) for src, label in zip(files, motion_labels(files),
+                                                                strict=True)]  # fmt: skip
+
+    def one(job: FileJob):
+        loaded = read(job.source, options, takes=takes)
+        label, motion = loaded.tracks[0]
+        notes = [*loaded.notes, *motion.notes]
+        if len(loaded.tracks) > 1:
+            notes.append(f"{len(loaded.tracks)} people tracked: showing track {label}")
+        print_notes(job.relpath, notes)
+        return motion
+
+    report = run_batch(jobs, one, "reading", quiet=True)
+    return report, [(o.job.relpath.as_posix(), o.result) for o in report.succeeded]
 
 
 def check_output(out: Path, suffixes: tuple[str, ...], inputs) -> None:
@@ -92,7 +105,8 @@ def take_options(fn):
 def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle, as_json):
     """Write one self-contained HTML page that plays motions side by side or overlaid.
 
-    INPUTS are motion files in any format mdvae reads (.npz, .bvh, .amc; .gz too), e.g. a
+    INPUTS are motion files in any format mdvae reads (.npz, .bvh, .amc, video pipelines'
+    outputs; .gz too) or folders of them (every motion file below, in order), e.g. a
     noisy take, its cleaned version and the ground truth. The page works offline in any
     current browser, with no server: play / pause, a timeline to scrub, speed, an orbiting
     camera (drag, wheel), side-by-side or overlay, skeleton and a low-poly body mesh, foot
@@ -111,11 +125,13 @@ def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle
     out = Path(out)
     check_output(out, (".html", ".htm"), inputs)
     body_data = load_body_model(body_model)
-    items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle)
+    report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out)
+    if not items:
+        report.exit()
     page = build_view_page(items, BodyModel(body_data), mesh=mesh, title=title)
     write_view_page(page, out, forbid=tuple(inputs))
     summary = {"output": str(out), "bytes": page.num_bytes, "mesh": page.mesh,
-               "motions": page.motions}  # fmt: skip
+               "motions": page.motions, **_read_counts(report)}  # fmt: skip
     if as_json:
         emit_json(summary)
     else:
@@ -124,6 +140,13 @@ def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle
             f"wrote {out} ({page.num_bytes / 1e6:.2f} MB, {len(items)} motion(s), {frames} frames"
             f"{', skeleton only' if not page.mesh else ''})"
         )
+    report.exit()
+
+
+def _read_counts(report) -> dict:
+    """The files that could not be read (they are left out of the output), for --json."""
+    errors = [{"file": str(o.job.source), "error": o.error} for o in report.failed]
+    return {"failed": len(report.failed), "errors": errors}
 
 
 @click.command("plot")
@@ -154,15 +177,17 @@ def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle
 @take_options
 @body_model_option
 @allow_pickle_option
+@json_option
 @handle_errors
 def plot(
     inputs, out, joints, series, frames, width, title, asf, joint_map_file, body_model,
-    allow_pickle,
+    allow_pickle, as_json,
 ):  # fmt: skip
     """Draw a static before/after figure: joint curves over time, foot contacts and a
     filmstrip of a few frames for every motion (for reports).
 
-    INPUTS are motion files in any format mdvae reads, drawn in this order and colour.
+    INPUTS are motion files in any format mdvae reads (or folders of them), drawn in this
+    order and colour.
     Written with no plotting library: a PNG, or an SVG when -o ends in .svg.
 
     \b
@@ -182,11 +207,19 @@ def plot(
         width=width, title=title,
     ).validate()  # fmt: skip
     body_data = load_body_model(body_model)
-    items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle)
+    report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out)
+    if not items:
+        report.exit()
     canvas = draw_figure(items, BodyModel(body_data), spec, svg=out.suffix.lower() == ".svg")
     data = canvas.to_bytes()
     write_atomic(out, lambda tmp: tmp.write_bytes(data), forbid=tuple(inputs))
-    console.print(f"wrote {out} ({canvas.width} x {canvas.height}, {len(data) / 1e3:.0f} kB)")
+    if as_json:
+        emit_json({"output": str(out), "bytes": len(data), "width": canvas.width,
+                   "height": canvas.height, "motions": [label for label, _ in items],
+                   **_read_counts(report)})  # fmt: skip
+    else:
+        console.print(f"wrote {out} ({canvas.width} x {canvas.height}, {len(data) / 1e3:.0f} kB)")
+    report.exit()
 
 
 COMMANDS = [view, plot]

@@ -21,7 +21,7 @@ from __future__ import annotations
 import torch
 
 from mdvae_cli.infer.settings import RefineConfig
-from mdvae_cli.motion.state import POSE, ROOT, TRANS
+from mdvae_cli.model.state import POSE, ROOT, TRANS
 
 
 def noise_precision(

@@ -25,9 +25,11 @@ from mdvae_cli.infer.guard import guard
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
+from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor
-from mdvae_cli.motion.chunks import MODEL_FPS
+from mdvae_cli.model.state import BodyParams, state_to_params
+from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import (
@@ -36,8 +38,6 @@ from mdvae_cli.motion.resample import (
     resample_motion,
     resample_times,
 )
-from mdvae_cli.motion.state import BodyParams, state_to_params
-from mdvae_cli.motion.windows import uncanonicalize
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
 

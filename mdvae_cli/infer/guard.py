@@ -20,7 +20,7 @@ from __future__ import annotations
 import torch
 
 from mdvae_cli.filters import savgol_smooth
-from mdvae_cli.motion.state import POSE, ROOT
+from mdvae_cli.model.state import POSE, ROOT
 
 #: a window falls back when its output is this many noise variances from its input
 GUARD_RATIO = 2.0

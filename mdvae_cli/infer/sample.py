@@ -8,12 +8,12 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.model.chunks import MODEL_FPS, chunk_states, motion_to_params
 from mdvae_cli.model.prior_model import PriorModel
-from mdvae_cli.motion.chunks import MODEL_FPS, chunk_states, motion_to_params
+from mdvae_cli.model.state import BodyParams, state_to_params
+from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import resample_motion
-from mdvae_cli.motion.state import BodyParams, state_to_params
-from mdvae_cli.motion.windows import uncanonicalize
 
 FOOT_JOINTS = (7, 8, 10, 11)  # ankles and feet of the 22 body joints
 #: default joint speed limit (m/s): every joint is slower in 99.9 % of the CMU train frames

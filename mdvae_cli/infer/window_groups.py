@@ -11,11 +11,11 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import filter_motions, savgol_smooth
+from mdvae_cli.model.chunks import chunk_state_pair, chunk_states, motion_to_params
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, observe
-from mdvae_cli.motion.chunks import chunk_state_pair, chunk_states, motion_to_params
+from mdvae_cli.model.state import BodyParams
+from mdvae_cli.model.windows import CanonicalFrame, window_starts
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.state import BodyParams
-from mdvae_cli.motion.windows import CanonicalFrame, window_starts
 
 
 @dataclass

@@ -90,4 +90,13 @@ def load_weights(module: torch.nn.Module, state: dict[str, torch.Tensor], path: 
              if keys]  # fmt: skip
     if parts:
         raise InputError(f"{path}: weights do not match its config: {', '.join(parts)}")
+    for key in own:
+        tensor = state[key]
+        if tensor.is_complex() or not (tensor.is_floating_point() or tensor.dtype == torch.bool
+                                       or not torch.is_floating_point(own[key])):  # fmt: skip
+            raise InputError(f"{path}: weight {key!r} is {tensor.dtype}, not real numbers; the "
+                             "checkpoint is damaged")  # fmt: skip
+        if tensor.is_floating_point() and not torch.isfinite(tensor).all():
+            raise InputError(f"{path}: weight {key!r} holds NaN or infinite values; the "
+                             "checkpoint is damaged (use the shipped weights)")  # fmt: skip
     module.load_state_dict(state)

@@ -7,7 +7,7 @@ import math
 from dataclasses import asdict, dataclass, fields, is_dataclass
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.state import STATE_DIM
+from mdvae_cli.model.state import STATE_DIM
 
 
 def require_number(

@@ -26,7 +26,7 @@ from mdvae_cli.model.config import ModelConfig, require_bool, require_int, requi
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
 from mdvae_cli.model.prior_model import PriorModel, model_tensors
-from mdvae_cli.motion.state import state_to_params
+from mdvae_cli.model.state import state_to_params
 from mdvae_cli.weights import default_weights
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from mdvae_cli.motion.state import STATE_DIM
+from mdvae_cli.model.state import STATE_DIM
 
 
 class Normalizer(nn.Module):

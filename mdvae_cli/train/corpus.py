@@ -14,12 +14,12 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.motion.chunks import MODEL_FPS, chunk_states, motion_to_params
+from mdvae_cli.formats.npz_io import load_motion
+from mdvae_cli.model.chunks import MODEL_FPS, chunk_states, motion_to_params
+from mdvae_cli.model.state import BodyParams
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion, resample_times, time_warp
-from mdvae_cli.motion.state import BodyParams
 
 
 @dataclass

@@ -30,7 +30,7 @@ from mdvae_cli.infer.window_groups import WindowGroup
 from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.model.optim import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
-from mdvae_cli.motion.state import VELOCITY_DIMS
+from mdvae_cli.model.state import VELOCITY_DIMS
 
 
 @dataclass

@@ -19,9 +19,11 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError, diverged
 from mdvae_cli.fileio import expand_inputs
+from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.elbo_fit import fit_denoiser
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows
 from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
+from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.config import (
     check_config_keys,
     require_bool,
@@ -31,10 +33,8 @@ from mdvae_cli.model.config import (
 )
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, save_denoiser
 from mdvae_cli.model.prior_model import load_prior
-from mdvae_cli.motion.chunks import MODEL_FPS
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.motion import Motion, slice_frames
-from mdvae_cli.motion.npz_io import load_motion
 from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.train.corpus import outside
 from mdvae_cli.train.distill import DistillConfig, Targets, distill, refine_targets

@@ -11,7 +11,7 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.model.losses import gaussian_kl
 from mdvae_cli.model.prior_model import PriorModel
-from mdvae_cli.motion.state import VELOCITY_DIMS, state_to_params
+from mdvae_cli.model.state import VELOCITY_DIMS, state_to_params
 from mdvae_cli.train.corpus import WindowSet
 
 

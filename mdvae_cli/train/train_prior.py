@@ -21,7 +21,7 @@ from mdvae_cli.model.config import require_int
 from mdvae_cli.model.losses import kl_weight
 from mdvae_cli.model.optim import clipped_step, cosine_lr, set_lr
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
-from mdvae_cli.motion.state import VELOCITY_DIMS
+from mdvae_cli.model.state import VELOCITY_DIMS
 from mdvae_cli.train.corpus import WindowSet, load_windows, outside, select_files
 from mdvae_cli.train.distributed import (
     gather_strings,

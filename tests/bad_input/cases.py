@@ -201,6 +201,18 @@ def _crc_mismatch(case: Path) -> bytes:
     return bytes(data)
 
 
+def _encrypted(case: Path) -> bytes:
+    """A good motion file whose members say they are encrypted (general-purpose flag bit 0, in
+    the local and the central headers): what a password-protected zip looks like."""
+    data = bytearray(F.good_motion())
+    for signature, flags in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
+        at = data.find(signature)
+        while at >= 0:
+            data[at + flags] |= 0x01
+            at = data.find(signature, at + 4)
+    return bytes(data)
+
+
 def _rename(old: str, new: str) -> Callable[[dict], dict]:
     return lambda m: {(new if k == old else k): v for k, v in m.items()}
 
@@ -342,6 +354,15 @@ NPZ = [
     Defect("npz", "split-nan",
            _motion(poses=None, root_orient=np.full((T, 3), np.nan), pose_body=np.zeros((T, 63))),
            r"'root_orient' contains NaN"),
+    # shapes and types that used to be accepted (issue 33)
+    Defect("npz", "betas-3d", _motion(betas=np.zeros((2, 3, 4))),
+           r"'betas' has shape \(2, 3, 4\); expected \(S,\), \(1, S\) or one row per frame",
+           commands=ALL),
+    Defect("npz", "betas-rows", _motion(betas=np.zeros((T + 3, 16))),
+           r"'betas' has shape \(11, 16\)"),
+    Defect("npz", "poses-timedelta", _motion(poses=np.zeros((T, 66), "timedelta64[s]")),
+           r"'poses' is not numeric \(dtype timedelta64\[s\]\)", commands=ALL),
+    Defect("npz", "encrypted", _encrypted, r"member 'poses\.npy' is encrypted", commands=ALL),
 ]
 # fmt: on
 
@@ -511,6 +532,9 @@ AMC = [
            r"the root holds an angle of 1e\+30 degrees"),
     Defect("amc", "position-huge", _amc("root 0 17 0 0 0 0", "root 1e30 17 0 0 0 0"),
            r"the root position reaches .* m; the file is corrupt"),
+    Defect("amc", "no-bone-lines",
+           lambda c: b":FULLY-SPECIFIED\n:DEGREES\n1\n2\n3\n4\n5\n6\n7\n8\n",
+           r"frame numbers but no bone lines", commands=ALL),
     Defect("amc", "gz-not-gzip", lambda c: F.amc_text(frames=32).encode(),
            r"not a readable \.gz file", suffix=".amc.gz"),
 ]
@@ -630,6 +654,13 @@ CHECKPOINT = [
            r"'w' holds pickled Python objects", commands=ALL),
     Defect("checkpoint", "denoiser-weights", lambda c: F.checkpoint_with(c, None, None, drop=3),
            r"weights do not match its config: 3 missing", commands=("denoise",)),
+    Defect("checkpoint", "weights-inf",
+           lambda c: F.checkpoint_with(c, None, None, change=lambda a: np.full_like(a, np.inf)),
+           r"weight '.*' holds NaN or infinite values; the checkpoint is damaged",
+           commands=("denoise",)),
+    Defect("checkpoint", "weights-complex",
+           lambda c: F.checkpoint_with(c, None, None, "prior", change=lambda a: a + 1j),
+           r"weight '.*' is torch\.complex\d+, not real numbers", commands=("sample",)),
     Defect("checkpoint", "prior-weights",
            lambda c: F.checkpoint_with(c, None, None, "prior", drop=3),
            r"weights do not match its config: 3 missing", commands=("sample",)),
@@ -648,6 +679,21 @@ def _hybrik(**changes) -> Builder:
 def _wham_cut(n: int) -> Builder:
     """The first ``n`` bytes of a WHAM output (a joblib stream): a truncated file."""
     return lambda c: F.wham_bytes()[:n]
+
+
+def _wham_ids(ids: np.ndarray) -> Builder:
+    """A WHAM output of 12 frames whose ``frame_ids`` are ``ids``."""
+
+    def make(case: Path) -> bytes:
+        from tests import video_files
+
+        path = case / "wham.tmp"
+        video_files.write_wham(path, {0: (video_files.clip(12, seed=6), ids)})
+        data = path.read_bytes()
+        path.unlink()
+        return data
+
+    return make
 
 
 _REFUSED = r"refusing to load '.*' from the pickle .*nothing was run"
@@ -691,6 +737,22 @@ VIDEO = [
            lambda c: F.npy_bytes(np.array([F.Payload(c / MARKER)], object)), _REFUSED,
            commands=ALL),
     Defect("video-npy", "plain-array", lambda c: F.npy_bytes(np.zeros((4, 3))), _LAYOUT),
+    # issue 33: invalid data that used to be accepted, limits that must hold while reading,
+    # and formats mdvae does not read, named with the way forward
+    Defect("video-pkl", "zero-matrices", _hybrik(pred_thetas=np.zeros((12, 216), np.float32)),
+           r"'pred_thetas' holds matrices that are not rotations \(determinant 0", commands=ALL),
+    Defect("video-pkl", "frame-ids-jump", _wham_ids(np.array([0, *range(2, 12), 10**9])),
+           r"frame ids 0\.\.1000000000 for 12 frames", commands=ALL),
+    Defect("video-pkl", "frame-ids-nan", _wham_ids(np.full(12, np.nan)),
+           r"frame ids that are NaN, infinite or not whole numbers"),
+    Defect("video-pkl", "frame-ids-repeated", _wham_ids(np.zeros(12, np.int64)),
+           r"12 frames but only 1 distinct frame ids"),
+    Defect("video-pkl", "empty-fbx", lambda c: b"", r"bad\.fbx: FBX is not supported: export the "
+           r"take as BVH", suffix=".fbx", commands=ALL),
+    Defect("video-pkl", "c3d", lambda c: b"\x02\x50" + b"\0" * 510,
+           r"bad\.c3d: C3D marker files are not supported", suffix=".c3d", commands=ALL),
+    Defect("video-pkl", "a-video", lambda c: b"\0\0\0\x18ftypmp42",
+           r"bad\.mp4: a video, not a motion file: run a video pose pipeline", suffix=".mp4"),
 ]
 # fmt: on
 

@@ -325,11 +325,17 @@ WEIGHTS = Path(__file__).resolve().parents[2] / "mdvae_cli" / "weights"
 
 
 def checkpoint_with(
-    case: Path, weights: bytes | None, meta: str | None, kind: str = "denoiser", drop: int = 0
+    case: Path,
+    weights: bytes | None,
+    meta: str | None,
+    kind: str = "denoiser",
+    drop: int = 0,
+    change=None,
 ) -> bytes:
     """A checkpoint ``case/in/bad.npz`` + ``bad.json``: the shipped ``kind`` checkpoint with
     its weights' bytes or its metadata's text replaced (None keeps the shipped one) and its
-    first ``drop`` tensors left out. Writes the .json, returns the .npz bytes."""
+    first ``drop`` tensors left out (``change``: a function that replaces the first one).
+    Writes the .json, returns the .npz bytes."""
     (case / "in").mkdir(exist_ok=True)
     shipped = WEIGHTS / f"{kind}.npz"
     if meta is None:
@@ -339,6 +345,9 @@ def checkpoint_with(
         return weights
     with np.load(shipped) as npz:
         arrays = {f"{k}.npy": npz[k] for k in npz.files[drop:]}
+    if change is not None:  # change(first weight) -> its replacement
+        first = next(iter(arrays))
+        arrays[first] = change(arrays[first])
     return npz_bytes(arrays)
 
 

@@ -14,10 +14,10 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES, SMPL_PARENTS
+from mdvae_cli.formats.bvh_write import bvh_text, rotmat_to_euler
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
-from mdvae_cli.motion.bvh_write import bvh_text, rotmat_to_euler
-from mdvae_cli.motion.fit_shape import BodyJoints
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.retarget.fit_shape import BodyJoints
 
 _N = NUM_BODY_JOINTS
 

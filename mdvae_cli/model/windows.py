@@ -17,7 +17,7 @@ from mdvae_cli.geometry.rotations import (
     rotvec_unwrap,
     rotvec_wrap,
 )
-from mdvae_cli.motion.state import BodyParams
+from mdvae_cli.model.state import BodyParams
 
 
 def rotation_about_z(yaw: torch.Tensor) -> torch.Tensor:

@@ -10,8 +10,8 @@
   collars the source lacks): a fixed offset in the frame of a source joint, taken from the
   body's rest pose once its shape is known.
 
-Plain numpy, no torch and no files: used by :mod:`mdvae_cli.motion.fit_shape` and
-:mod:`mdvae_cli.motion.retarget`.
+Plain numpy, no torch and no files: used by :mod:`mdvae_cli.retarget.fit_shape` and
+:mod:`mdvae_cli.retarget.retarget`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import numpy as np
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.source import SourceMotion
+from mdvae_cli.formats.source import SourceMotion
 
 _N = NUM_BODY_JOINTS
 _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}

@@ -1,7 +1,7 @@
 """Readers for the output files of video pose pipelines: what each stores, as RawTracks.
 
-Each reader takes the file's contents as plain containers (``body.safe_data.load_data``) and
-returns one :class:`RawTrack` per person, in the file's own frame; ``motion.video_tracks`` makes
+Each reader takes the file's contents as plain containers (``formats.safe_data.load_data``) and
+returns one :class:`RawTrack` per person, in the file's own frame; ``formats.video_tracks`` makes
 them upright Motions. The keys, rotation forms and frames read are in docs/formats.md ("Video
 pipelines"); the sources of each layout in ``video_formats.md`` of the shared data.
 
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.video_layout import (
+from mdvae_cli.formats.video_layout import (
     array,
     cam_extras,
     framed,
@@ -27,8 +27,8 @@ from mdvae_cli.motion.video_layout import (
     smpl_matrices,
     track_items,
 )
-from mdvae_cli.motion.video_people import read_phalp, read_romp, read_slahmr
-from mdvae_cli.motion.video_tracks import (
+from mdvae_cli.formats.video_people import read_phalp, read_romp, read_slahmr
+from mdvae_cli.formats.video_tracks import (
     CAMERA_UP,
     Y_UP,
     RawTrack,
@@ -228,7 +228,7 @@ def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack
     world, notes = None, []
     camera = None if path is None else path.parent.parent / "camera.npy"
     if camera is not None and camera.is_file() and frames is not None:
-        from mdvae_cli.body.data_files import load_data
+        from mdvae_cli.formats.data_files import load_data
 
         cam = load_data(camera)
         cam = cam.item() if isinstance(cam, np.ndarray) and cam.dtype.hasobject else cam

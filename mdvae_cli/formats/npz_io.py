@@ -12,8 +12,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
-from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, check_fps
-from mdvae_cli.motion.npz_values import (
+from mdvae_cli.formats.npz_values import (
     ANGLE,
     BETA,
     DISTANCE,
@@ -23,6 +22,7 @@ from mdvae_cli.motion.npz_values import (
     real_array,
     safe_keys,
 )
+from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, check_fps
 from mdvae_cli.npz_archive import NpzArchive, write_npz
 
 FPS_KEYS = ("mocap_framerate", "mocap_frame_rate")
@@ -67,7 +67,7 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
         )
     if isinstance(source, io.BytesIO):
         source.seek(0)
-    with NpzArchive(source, path, pickle_option="--allow-pickle") as npz:
+    with NpzArchive(source, path, "--allow-pickle", max_member=MAX_MEMBER) as npz:
         data = {key: npz.read(key, allow_pickle) for key in npz.keys}  # in the archive's order
         compressed = npz.compressed
     motion = motion_from_arrays(data, path)
@@ -75,13 +75,23 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     return motion
 
 
+#: bytes one array of a motion file may take (a 10-minute SMPL-X take at 120 Hz: 57 MB)
+MAX_MEMBER = 512 << 20
+#: bytes a ``.npz.gz`` may expand to (a guard against decompression bombs)
+MAX_GUNZIP = 512 << 20
+
+
 def _gunzip(path: Path) -> io.BytesIO:
-    """A ``.gz`` file's decompressed bytes; InputError when it is not gzip data."""
+    """A ``.gz`` file's decompressed bytes; InputError when it is not gzip data or expands
+    past MAX_GUNZIP (read in steps: the limit holds while reading)."""
     try:
         with gzip.open(path, "rb") as fh:
-            return io.BytesIO(fh.read())
+            raw = fh.read(MAX_GUNZIP + 1)
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(f"{path}: not a readable .gz file ({exc})") from None
+    if len(raw) > MAX_GUNZIP:
+        raise InputError(f"{path}: expands past {MAX_GUNZIP >> 20} MiB when unzipped; refused")
+    return io.BytesIO(raw)
 
 
 def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>") -> Motion:
@@ -118,6 +128,9 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     betas_rows = None
     if "betas" in data:
         betas = real_array("betas", data["betas"], path, BETA)
+        if betas.ndim > 2 or (betas.ndim == 2 and betas.shape[0] not in (1, T)):
+            raise InputError(f"{path}: 'betas' has shape {betas.shape}; expected (S,), (1, S) "
+                             f"or one row per frame ({T}, S)")  # fmt: skip
         if betas.ndim == 2 and betas.shape[0] == T:  # one shape vector per frame
             betas_rows = data["betas"]
             spread = float(np.ptp(betas, axis=0).max(initial=0.0))

@@ -2,7 +2,7 @@
 
 :func:`load_data` tells the container from the file's first bytes (:func:`sniff`: a pickle or a
 joblib stream, zlib/gzip-compressed or not, a torch zip or legacy file, ``.npy``, ``.npz``) and
-reads it through the restricted unpickler of :mod:`mdvae_cli.body.safe_data`; every failure is
+reads it through the restricted unpickler of :mod:`mdvae_cli.formats.safe_data`; every failure is
 one :class:`InputError` line in the user's words.
 """
 
@@ -18,12 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from mdvae_cli.body.safe_data import TORCH_MAGIC, load_torch_legacy, load_torch_zip, unpickle
 from mdvae_cli.body.safe_pickle import one_line
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import check_regular
+from mdvae_cli.formats.safe_data import TORCH_MAGIC, load_torch_legacy, load_torch_zip, unpickle
 
 #: bytes a compressed pickle may expand to (a guard against decompression bombs)
-MAX_DECOMPRESSED = 4 << 30
+MAX_DECOMPRESSED = 512 << 20
 
 
 def _read_npy(f: Any, label: str) -> np.ndarray:
@@ -92,10 +93,15 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
     path = Path(path)
     label = str(path)
     if data is None:
+        check_regular(path)
         try:
-            data = path.read_bytes()
+            with open(path, "rb") as fh:
+                data = fh.read(MAX_DECOMPRESSED + 1)
         except OSError as exc:
             raise InputError(f"{label}: cannot read ({exc.strerror or exc})") from None
+        if len(data) > MAX_DECOMPRESSED:
+            raise InputError(f"{label}: over {MAX_DECOMPRESSED >> 20} MiB; a pose pipeline's "
+                             "output for one video is far smaller (check the file)")  # fmt: skip
     try:
         return _load(data, label, depth=0)
     except InputError:
@@ -120,8 +126,21 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
         raise InputError(f"{label}: {what}") from None
     except Exception as exc:  # noqa: BLE001 - any parsing failure is a bad file
         raise InputError(
-            f"{label}: not a readable pickle/torch/npy file ({type(exc).__name__}: {one_line(exc)})"
+            f"{label}: not a readable pickle/torch/npy file (damaged: {one_line(exc)})"
         ) from None
+
+
+def _check_members(zf: zipfile.ZipFile, label: str) -> None:
+    """InputError for an encrypted member or one that unzips past MAX_DECOMPRESSED (zipfile
+    reads no more than a member's stated size, so the limit holds while reading)."""
+    total = 0
+    for info in zf.infolist():
+        if info.flag_bits & 0x1:
+            raise InputError(f"{label}: member {info.filename!r} is encrypted (password-protected)")
+        total += info.file_size
+        if total > MAX_DECOMPRESSED:
+            raise InputError(f"{label}: its members unzip past {MAX_DECOMPRESSED >> 20} MiB; a "
+                             "pose pipeline's output for one video is far smaller")  # fmt: skip
 
 
 def _load(data: bytes, label: str, depth: int) -> Any:
@@ -132,6 +151,7 @@ def _load(data: bytes, label: str, depth: int) -> Any:
         return _read_npy(io.BytesIO(data), label)
     if kind == "zip":
         with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            _check_members(zf, label)
             names = zf.namelist()
             if any(n == "data.pkl" or n.endswith("/data.pkl") for n in names):
                 return load_torch_zip(zf, label)

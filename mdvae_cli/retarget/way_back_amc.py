@@ -1,6 +1,6 @@
 """The way back for ASF/AMC takes: a cleaned SMPL motion onto the take's own skeleton.
 
-As for BVH (``motion.way_back``): each bone that drives an SMPL joint turns by the same
+As for BVH (``retarget.way_back``): each bone that drives an SMPL joint turns by the same
 world-space change as that joint did after cleaning, ``G'_b = D_j G_b``, from the file's own
 rotations; bones the SMPL proxy does not cover (fingers, thumbs, hip joints, a lower back, toes
 or clavicles nothing drives) keep their values and follow their parent; the root moves as the
@@ -10,7 +10,7 @@ two SMPL spine joints share one source bone) turns the least it can to take that
 the SMPL joint went (on CMU's noisy takes: 1.4 mm closer on 05_01, unchanged elsewhere).
 
 An ASF bone can only turn about its own ``dof`` axes, so its values are solved for its new
-rotation (``motion.dof_solve``), nearest to the file's values:
+rotation (``retarget.dof_solve``), nearest to the file's values:
 
 * three rotation dofs reach any rotation exactly (Euler angles in the bone's frame, the branch
   nearest the file's values);
@@ -32,14 +32,14 @@ import numpy as np
 import torch
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.asfamc import AmcLayout, dof_rotation, rotation_columns
+from mdvae_cli.formats.bvh_write import rotmat_to_euler
+from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
-from mdvae_cli.motion.asfamc import AmcLayout, dof_rotation, rotation_columns
-from mdvae_cli.motion.bvh_write import rotmat_to_euler
-from mdvae_cli.motion.dof_solve import closest_angles
-from mdvae_cli.motion.fit_shape import BodyJoints
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.source import SourceMotion
-from mdvae_cli.motion.way_back import _fk, drivers, pelvis_point, smpl_change, smpl_globals
+from mdvae_cli.retarget.dof_solve import closest_angles
+from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.way_back import _fk, drivers, pelvis_point, smpl_change, smpl_globals
 
 
 def _unit(layout: AmcLayout) -> float:
@@ -62,7 +62,7 @@ def _listed(layout: AmcLayout, name: str | None) -> list[tuple[int, str]]:
 def amc_pose(src: SourceMotion, layout: AmcLayout, values: dict[str, np.ndarray]):
     """World-aligned local rotations (T, J, 3, 3), world rotations (T, J, 3, 3) and joint
     positions (T, J, 3; file units, ASF axes) of ``values`` (bone -> (T, n), the frames of
-    ``src``), as :func:`~mdvae_cli.motion.asfamc.load_amc` reads them."""
+    ``src``), as :func:`~mdvae_cli.formats.asfamc.load_amc` reads them."""
     T, J = next(iter(values.values())).shape[0], src.num_joints
     L = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
     t = np.tile(src.offsets / layout.metres_per_unit, (T, 1, 1))

@@ -1,12 +1,12 @@
 """What the video-pipeline readers share: typed access to a result's arrays and the SMPL
-layouts they come in (``motion.video_formats``, ``motion.video_people``)."""
+layouts they come in (``formats.video_formats``, ``formats.video_people``)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.video_tracks import matrices_to_rotvecs, rotmats, rotvecs, to_rotmat
+from mdvae_cli.formats.video_tracks import matrices_to_rotvecs, rotmats, rotvecs, to_rotmat
 
 
 def array(d: dict, key: str, label: str) -> np.ndarray:

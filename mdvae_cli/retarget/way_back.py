@@ -17,13 +17,13 @@ import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.bvh import BvhLayout, _positions
+from mdvae_cli.formats.bvh_write import rotmat_to_euler
+from mdvae_cli.formats.source import SourceMotion, euler_to_rotmat
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
-from mdvae_cli.motion.bvh import BvhLayout, _positions
-from mdvae_cli.motion.bvh_write import rotmat_to_euler
-from mdvae_cli.motion.fit_shape import BodyJoints
-from mdvae_cli.motion.joint_map import JointMap
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.source import SourceMotion, euler_to_rotmat
+from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.joint_map import JointMap
 
 _N = NUM_BODY_JOINTS
 _SPINE = (0, 3, 6, 9, 12, 15)

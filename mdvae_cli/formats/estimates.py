@@ -1,16 +1,10 @@
-"""Load any motion file the tool reads: AMASS-style ``.npz`` and the output files of video pose
+"""Motion files that need no retarget: AMASS-style ``.npz`` and the outputs of video pose
 pipelines (WHAM, GVHMR, TRAM, 4D-Humans/PHALP, VIBE, PARE, HybrIK, ROMP/BEV, SLAHMR) and AIST++
-pickles, each as upright Motions (z up, metres), one per person track.
+pickles, each read into upright Motions (z up, metres), one per person track.
 
-    loaded = load_any("wham_output.pkl")              # format from the extension and contents
-    loaded = load_any("take.pt", fmt="gvhmr", fps=25)  # name the format / frame rate
-    for label, motion in loaded.tracks: ...            # label None for a one-person file
-    motion = load_one("take.npz")                      # exactly one motion (else InputError)
-
-Every command that reads motion (denoise, import, eval, add-noise, ...) goes through
-:func:`load_any`. Pickles and torch files are read with the restricted unpickler
-(``body.safe_data``): arrays, tensors and plain containers only, anything else refused in one
-line. BVH and ASF/AMC are retargeted by ``mdvae import`` instead (they need a skeleton solve).
+``formats.registry.read`` calls these; pickles and torch files are read with the restricted
+unpickler (``formats.safe_data``): arrays, tensors and plain containers only, anything else
+refused in one line.
 """
 
 from __future__ import annotations
@@ -19,18 +13,16 @@ import gzip
 import io
 import zipfile
 import zlib
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.motion import Motion, check_fps
-from mdvae_cli.motion.npz_io import load_motion
+from mdvae_cli.formats.loaded import LoadedFile
+from mdvae_cli.formats.npz_io import load_motion
 
 #: every format name ``--format`` takes ("amass": AMASS-style .npz; the others are the readers
-#: of ``motion.video_formats``, imported when needed: they need torch, listing them does not)
+#: of ``formats.video_formats``, imported when needed: they need torch, listing them does not)
 FORMATS = ("amass", "wham", "gvhmr", "tram", "phalp", "vibe", "hybrik", "romp", "slahmr", "aistpp")
 #: other names ``--format`` accepts
 ALIASES = {
@@ -42,38 +34,10 @@ ALIASES = {
     "hybrik-x": "hybrik",
     "aist++": "aistpp",
 }
-#: file names a folder is searched for (``.gz`` versions too)
-MOTION_FILE_SUFFIXES = (".npz", ".pkl", ".pk", ".pt", ".pth", ".npy", ".pickle", ".joblib")
 #: formats whose files come from a video pipeline (denoise picks its settings for video)
 _MOCAP_FORMATS = ("amass", "aistpp")
 #: npz keys that mark a downstream conversion of GVHMR output into an AMASS-style file
 _GVHMR_NPZ_KEY = "smpl_params_incam_global_orient"
-
-
-@dataclass
-class LoadedFile:
-    """What :func:`load_any` read from one file.
-
-    path: the file; format: its format name (FORMATS, or "gvhmr-npz"); kind: "video" for a
-    video pipeline's estimates, "mocap" otherwise (denoise settings follow it); tracks:
-    ``(label, motion)`` per person, label None when the file holds one motion; notes: remarks
-    about the file as a whole.
-    """
-
-    path: Path
-    format: str
-    kind: str
-    tracks: list[tuple[str | None, Motion]]
-    notes: list[str] = field(default_factory=list)
-
-    def single(self) -> Motion:
-        """The one motion of the file; InputError when it holds several tracks."""
-        if len(self.tracks) != 1:
-            labels = ", ".join(str(lab) for lab, _ in self.tracks)
-            raise InputError(
-                f"{self.path}: holds {len(self.tracks)} tracks ({labels}); pick one with --track ID"
-            )
-        return self.tracks[0][1]
 
 
 def format_name(fmt: str | None) -> str | None:
@@ -88,46 +52,22 @@ def format_name(fmt: str | None) -> str | None:
     return name
 
 
-def load_any(
-    path: Path | str,
-    fmt: str | None = None,
-    *,
-    fps: float | None = None,
-    track: str | None = None,
-    allow_pickle: bool = False,
-    body: BodyModelData | None = None,
-) -> LoadedFile:
-    """Read a motion file of any supported format (module docstring).
-
-    fmt: a FORMATS name (or alias) to skip detection; fps: the frame rate to use (video
-    outputs store none: default 30; for other files it overrides the file's); track: keep only
-    the track with this label; allow_pickle: AMASS npz files with pickled objects (runs their
-    code: trusted files only); body: the body model whose rest pelvis places converted
-    translations (default: the built-in body). Raises InputError (one line) for anything
-    unreadable.
-    """
-    path = Path(path)
-    name = format_name(fmt)
-    if fps is not None:
-        check_fps(float(fps), "--fps")
-    if not path.exists():
-        raise InputError(f"no such file: {path}")
-    if path.is_dir():
-        raise InputError(f"{path} is a folder, expected a motion file")
-    kind = path.name.lower().removesuffix(".gz").rsplit(".", 1)[-1]
-    if name is None and kind in ("bvh", "amc", "asf"):
-        raise InputError(
-            f"{path}: a .{kind} file; convert it first with `mdvae import {path} -o imported/`"
-        )
-    data = None
-    if name is None and kind == "npz":
-        keys = _npz_keys(path)
-        data_npz = keys & {"sequence_results", "results", "cam_R", "track_mask"}
+def read_npz_file(path: Path, name, fps, track, allow_pickle: bool, body) -> LoadedFile:
+    """An ``.npz``: AMASS-style (``name`` "amass" or None), or a video pipeline's (SLAHMR,
+    TRAM: told apart by their keys when ``name`` is None)."""
+    if name is None:
+        data_npz = _npz_keys(path) & {"sequence_results", "results", "cam_R", "track_mask"}
         name = None if data_npz else "amass"
     if name == "amass":
         return _load_amass(path, fps, track, allow_pickle)
-    from mdvae_cli.body.data_files import load_data
-    from mdvae_cli.motion.video_formats import detect
+    return read_data_file(path, name, fps, track, body)
+
+
+def read_data_file(path: Path, name, fps, track, body) -> LoadedFile:
+    """A video pipeline's output (or AIST++) of any container, its format ``name`` or (None)
+    told from its contents."""
+    from mdvae_cli.formats.data_files import load_data
+    from mdvae_cli.formats.video_formats import detect
 
     data = load_data(path)
     name = name or detect(data)
@@ -144,17 +84,18 @@ def load_any(
     return _load_video(path, name, data, fps, track, body)
 
 
-def load_one(path: Path | str, fmt: str | None = None, **kwargs) -> Motion:
-    """The one motion of a file (:func:`load_any`, then :meth:`LoadedFile.single`)."""
-    return load_any(path, fmt, **kwargs).single()
-
-
 def _npz_keys(path: Path) -> set[str]:
-    """The array names of an npz (gzipped or not), without loading any of them."""
+    """The array names of an npz (gzipped or not), without loading any of them; a gzipped one
+    is expanded no further than MAX_DECOMPRESSED."""
+    from mdvae_cli.formats.data_files import MAX_DECOMPRESSED
+
     try:
         if path.suffix.lower() == ".gz":
             with gzip.open(path, "rb") as fh:
-                source = io.BytesIO(fh.read())
+                raw = fh.read(MAX_DECOMPRESSED + 1)
+            if len(raw) > MAX_DECOMPRESSED:
+                return set()  # load_motion refuses it
+            source = io.BytesIO(raw)
         else:
             source = path
         with zipfile.ZipFile(source) as zf:
@@ -181,8 +122,8 @@ def _load_amass(path: Path, fps: float | None, track: str | None, allow_pickle: 
 
 
 def _load_video(path, name, data, fps, track, body) -> LoadedFile:
-    from mdvae_cli.motion.video_formats import READERS, VIDEO_FPS, read_tram
-    from mdvae_cli.motion.video_tracks import track_to_motion
+    from mdvae_cli.formats.video_formats import READERS, VIDEO_FPS, read_tram
+    from mdvae_cli.formats.video_tracks import track_to_motion
 
     if isinstance(data, np.ndarray) and data.dtype.hasobject and data.ndim == 0:
         data = data.item()  # np.save of a dict

@@ -14,8 +14,8 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES, BodyModelData
-from mdvae_cli.motion.joint_map import JointMap, build_joint_map
-from mdvae_cli.motion.source import SourceMotion
+from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.retarget.joint_map import JointMap, build_joint_map
 
 _N = NUM_BODY_JOINTS
 _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}

@@ -1,4 +1,4 @@
-"""Acclaim motion files (``.amc``) on their ``.asf`` skeleton (``motion.asf``), as used by the
+"""Acclaim motion files (``.amc``) on their ``.asf`` skeleton (``formats.asf``), as used by the
 CMU mocap database.
 
 Conventions (Acclaim, as CMU writes them):
@@ -10,7 +10,7 @@ Conventions (Acclaim, as CMU writes them):
 :func:`load_amc` returns a :class:`SourceMotion` whose joints are the root, every bone (placed at
 the bone's start) and an ``<bone>_end`` tip for each leaf bone. It keeps the file's
 :class:`AmcLayout` (header, frame numbers, each frame's bones and values as written) so that
-``motion.amc_write`` can write the take again on its own skeleton.
+``formats.amc_write`` can write the take again on its own skeleton.
 """
 
 from __future__ import annotations
@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.asf import (
+from mdvae_cli.formats.asf import (
     AsfSkeleton,
     axis_frame,
     load_asf,
 )
-from mdvae_cli.motion.source import (
+from mdvae_cli.formats.source import (
     SourceMotion,
     check_angles,
     euler_to_rotmat,
@@ -241,6 +241,8 @@ def load_amc(
     layout = {"root": len(skeleton.root_order)}
     layout.update({name: len(b.dofs) for name, b in skeleton.bones.items()})
     file_values, amc_degrees, amc_notes, kept = _read_amc_values(text, layout, path)
+    if not any(kept[3]):  # the bones each frame lists: none in any frame
+        raise InputError(f"{path}: frame numbers but no bone lines: the AMC holds no motion")
     degrees = skeleton.degrees if amc_degrees is None else amc_degrees
     T = T_file = kept[-1]
     if max_frames is not None:

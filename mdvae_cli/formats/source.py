@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import check_regular
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotmat, rotmat_to_quat
 from mdvae_cli.motion.motion import MAX_ANGLE_DEG, MAX_DISTANCE_M
 
@@ -56,7 +57,7 @@ class SourceMotion:
             files whose non-root joints carry moving position channels (the SMPL FBX rig's
             pelvis); None when every offset is fixed.
         layout: what a writer needs to write the file again on its own skeleton (the parsed
-            BVH, see ``motion.bvh_write.BvhLayout``); None when not kept.
+            BVH, see ``formats.bvh_write.BvhLayout``); None when not kept.
     """
 
     names: tuple[str, ...]
@@ -138,28 +139,36 @@ def euler_to_rotmat(angles: np.ndarray, axes: str) -> np.ndarray:
     return out
 
 
+#: bytes a text mocap file (BVH, ASF, AMC) may hold, unzipped
+MAX_TEXT = 256 << 20
+#: the UTF-8 byte-order mark some Windows exporters put first
+_BOM = b"\xef\xbb\xbf"
+
+
 def read_text(path: Path | str, errors: str = "replace") -> str:
     """A text file's contents, gunzipped when it ends in ``.gz``; InputError when unreadable.
     errors: how bytes that are not UTF-8 are decoded ("surrogateescape" keeps them, so that
     text written back with the same setting has the file's bytes)."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"no such file: {path}")
-    if path.is_dir():
-        raise InputError(f"{path} is a folder, expected a file")
+    check_regular(path)
     try:
         if path.suffix == ".gz":
             with gzip.open(path, "rb") as fh:
-                raw = fh.read()
+                raw = fh.read(MAX_TEXT + 1)  # the limit holds while unzipping
         else:
-            raw = path.read_bytes()
+            with open(path, "rb") as fh:
+                raw = fh.read(MAX_TEXT + 1)
     except (OSError, EOFError, zlib.error) as exc:
         gz = path.suffix == ".gz" and not isinstance(exc, PermissionError)
         what = "not a readable .gz file" if gz else "cannot read"
-        raise InputError(f"{path}: {what} ({exc})") from None
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise InputError(f"{path}: {what} ({why})") from None
+    if len(raw) > MAX_TEXT:
+        raise InputError(f"{path}: over {MAX_TEXT >> 20} MiB of text (unzipped); a mocap take "
+                         "is far smaller: split it, or check the file")  # fmt: skip
     if b"\0" in raw[:4096]:
         raise InputError(f"{path}: binary data, not a text mocap file")
-    return raw.decode("utf-8", errors=errors)
+    return raw.removeprefix(_BOM).decode("utf-8", errors=errors)
 
 
 def guess_length_unit(

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.source import (
+from mdvae_cli.formats.source import (
     BVH_UNIT_GUESSES,
     CMU_UNIT,
     SourceMotion,

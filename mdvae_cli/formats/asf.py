@@ -7,7 +7,7 @@ Conventions (Acclaim, as CMU writes them):
 * A bone runs from its parent's tip along ``direction`` (world axes, rest pose) for ``length``.
 * ``axis a b c XYZ`` gives the bone's local frame ``C = Rz(c) Ry(b) Rx(a)`` (X applied first).
 
-The motions that move such a skeleton are read by :mod:`mdvae_cli.motion.asfamc`."""
+The motions that move such a skeleton are read by :mod:`mdvae_cli.formats.asfamc`."""
 
 from __future__ import annotations
 
@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.motion import MAX_DISTANCE_M
-from mdvae_cli.motion.source import (
+from mdvae_cli.formats.source import (
     euler_to_rotmat,
     guess_length_unit,
     read_text,
     skeleton_height,
 )
+from mdvae_cli.motion.motion import MAX_DISTANCE_M
 
 _DOF_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz", "l")
 

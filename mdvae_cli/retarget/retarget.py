@@ -2,14 +2,14 @@
 
 Pipeline, all frames at once in torch:
 
-1. **Joint map** (:func:`~mdvae_cli.motion.joint_map.build_joint_map`): source joints are found
+1. **Joint map** (:func:`~mdvae_cli.retarget.joint_map.build_joint_map`): source joints are found
    by name for the SMPL joints with a clear anatomical counterpart (*direct* joints: hips,
    knees, ankles, toe bases, shoulders, elbows, wrists); the others (pelvis, spine1-3, neck,
    head, collars) are *attached* points: a fixed offset in the frame of a source joint, taken
    from the body's rest pose.
 2. **Canonical axes**: the source world is turned (a signed axis permutation read off the rest
    pose) so that up is +y, the body's left +x and forward +z, SMPL's own frame.
-3. **Betas** (:func:`~mdvae_cli.motion.fit_shape.fit_betas`): the body's shape is fitted once
+3. **Betas** (:func:`~mdvae_cli.retarget.fit_shape.fit_betas`): the body's shape is fitted once
    per skeleton so that its rest bone lengths (legs, arms, hip and shoulder widths, torso and
    neck) match the source's.
 4. **Solve**: each SMPL joint's rotation starts from its source joint's global rotation,
@@ -19,7 +19,8 @@ Pipeline, all frames at once in torch:
 5. **Output**: SMPL y-up is turned into AMASS z-up, the floor is put at z = 0 (from the soles
    of the body's feet) and the result is a :class:`Motion` with the mean joint error.
 
-Steps 1-2 live in :mod:`mdvae_cli.motion.joint_map`, step 3 in :mod:`mdvae_cli.motion.fit_shape`;
+Steps 1-2 live in :mod:`mdvae_cli.retarget.joint_map`, step 3 in
+:mod:`mdvae_cli.retarget.fit_shape`;
 their public names are re-exported here.
 """
 
@@ -33,12 +34,14 @@ import numpy as np
 import torch
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.asf import AsfSkeleton
+from mdvae_cli.formats.asfamc import load_amc
+from mdvae_cli.formats.bvh import load_bvh
+from mdvae_cli.formats.source import SourceMotion, resample_source
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec
-from mdvae_cli.motion.asf import AsfSkeleton
-from mdvae_cli.motion.asfamc import load_amc
-from mdvae_cli.motion.bvh import load_bvh
-from mdvae_cli.motion.fit_shape import BodyJoints, fit_betas, skeleton_key
-from mdvae_cli.motion.joint_map import (
+from mdvae_cli.motion.motion import Motion, check_fps
+from mdvae_cli.retarget.fit_shape import BodyJoints, fit_betas, skeleton_key
+from mdvae_cli.retarget.joint_map import (
     JointMap,
     attach_offsets,
     build_joint_map,
@@ -46,16 +49,14 @@ from mdvae_cli.motion.joint_map import (
     canonicalise,
     normalise_name,
 )
-from mdvae_cli.motion.motion import Motion, check_fps
-from mdvae_cli.motion.pose_solve import (
+from mdvae_cli.retarget.pose_solve import (
     _N,
     _fk,
     _min_rotation,
     rest_corrections,
     solve_pose,
 )
-from mdvae_cli.motion.source import SourceMotion, resample_source
-from mdvae_cli.motion.upright import canonical_axes, stature_unit, upright_rest
+from mdvae_cli.retarget.upright import canonical_axes, stature_unit, upright_rest
 
 __all__ = [
     "Y_UP_TO_Z_UP",

@@ -1,6 +1,6 @@
 """Writing BVH files: Euler angles back out of rotation matrices, and the file itself.
 
-A file read by :func:`mdvae_cli.motion.bvh.load_bvh` keeps its :class:`BvhLayout` (the header
+A file read by :func:`mdvae_cli.formats.bvh.load_bvh` keeps its :class:`BvhLayout` (the header
 verbatim, the channel layout, every frame as read); :func:`write_bvh` writes new channel values
 under that same header, so hierarchy, names, offsets, channel order and frame time stay the
 file's own. :func:`bvh_text` builds a file from scratch (``mdvae export-bvh``).
@@ -88,7 +88,7 @@ def write_text(path: Path | str, text: str, forbid: tuple[Path, ...] = ()) -> No
 
 def write_bvh(layout, data: np.ndarray, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:
     """Write every frame ``data`` (F, C) under the file's own header (``layout``: a
-    :class:`~mdvae_cli.motion.bvh.BvhLayout`), atomically."""
+    :class:`~mdvae_cli.formats.bvh.BvhLayout`), atomically."""
     write_text(path, motion_text(layout.header, data, layout.frame_time), forbid=forbid)
 
 

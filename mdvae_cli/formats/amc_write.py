@@ -1,7 +1,7 @@
 """Writing AMC files: new values under the file's own header, frame numbers and bone lines.
 
-A take read by :func:`mdvae_cli.motion.asfamc.load_amc` keeps its
-:class:`~mdvae_cli.motion.asfamc.AmcLayout`; :func:`write_amc` writes new values with it: the
+A take read by :func:`mdvae_cli.formats.asfamc.load_amc` keeps its
+:class:`~mdvae_cli.formats.asfamc.AmcLayout`; :func:`write_amc` writes new values with it: the
 header verbatim, every frame under its own number, each frame's bones in the order it listed
 them (a bone a frame left out stays out), with the file's line ending. A value that changed by
 less than half the last written decimal is written exactly as the file had it; a new one with
@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mdvae_cli.motion.asfamc import AmcLayout
-from mdvae_cli.motion.bvh_write import write_text
+from mdvae_cli.formats.asfamc import AmcLayout
+from mdvae_cli.formats.bvh_write import write_text
 
 #: decimals of new values in degrees or in length units (0.000001 deg, 0.000001 unit)
 DECIMALS = 6

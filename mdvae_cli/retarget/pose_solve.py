@@ -1,6 +1,6 @@
 """Solving SMPL joint rotations from a source skeleton's posed joint positions: rest-pose
 corrections between the two skeletons, forward kinematics, and the per-frame pose solve that
-``motion.retarget`` runs."""
+``retarget.retarget`` runs."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, skew
-from mdvae_cli.motion.joint_map import (
+from mdvae_cli.retarget.joint_map import (
     JointMap,
 )
 

@@ -4,7 +4,7 @@ containers (dict, list, tuple), nothing else.
 
 Video pipelines save their results as pickles (WHAM, VIBE, PARE, PHALP through joblib; HybrIK
 and AIST++ with ``pickle``; GVHMR with ``torch.save``; TRAM and ROMP as object arrays in
-``np.save``/``np.savez``). ``body.data_files.load_data`` opens all of them with the unpickler
+``np.save``/``np.savez``). ``formats.data_files.load_data`` opens all of them with the unpickler
 here, which knows a short list of globals, each replaced by a stand-in that builds data:
 
 * numpy arrays, dtypes and scalars (``numpy.core``/``numpy._core`` ``multiarray._reconstruct``,

@@ -1,6 +1,6 @@
 """Readers for the video-pipeline outputs that hold several people frame by frame or as a batch:
 4D-Humans/PHALP (per-frame lists grouped by track id), ROMP/BEV (``sequence_results``) and
-SLAHMR (tracks stacked along a first axis). See ``motion.video_formats`` for the others."""
+SLAHMR (tracks stacked along a first axis). See ``formats.video_formats`` for the others."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.video_layout import (
+from mdvae_cli.formats.video_layout import (
     array,
     cam_extras,
     frames_of,
@@ -17,7 +17,7 @@ from mdvae_cli.motion.video_layout import (
     smpl_matrices,
     track_items,
 )
-from mdvae_cli.motion.video_tracks import CAMERA_UP, RawTrack, rotvecs, to_rotmat
+from mdvae_cli.formats.video_tracks import CAMERA_UP, RawTrack, rotvecs, to_rotmat
 
 
 def read_phalp(data: dict, label: str) -> list[RawTrack]:

@@ -1,6 +1,6 @@
 """Per-person tracks of video-pipeline estimates -> upright Motions (z-up, metres, AMASS layout).
 
-A pipeline reader (``motion.video_formats``) fills a :class:`RawTrack` with what the file holds,
+A pipeline reader (``formats.video_formats``) fills a :class:`RawTrack` with what the file holds,
 in the file's own frame; :func:`track_to_motion` turns it into a :class:`Motion`:
 
 * **frame**: every source frame is mapped to the AMASS convention (z up) by the smallest
@@ -138,7 +138,13 @@ def rotmats(m: np.ndarray, joints: int, what: str, label: str) -> np.ndarray:
     a = pose_values(m, what, label)
     if a.ndim < 2 or a[0].size != joints * 9:
         raise InputError(f"{label}: '{what}' has shape {a.shape}, expected (T, {joints}, 3, 3)")
-    return a.reshape(a.shape[0], joints, 3, 3)
+    a = a.reshape(a.shape[0], joints, 3, 3)
+    det = np.linalg.det(a) if a.size else np.ones(0)
+    if np.any(np.abs(det - 1.0) > 0.5):  # drift is orthonormalised away; zeros are no rotation
+        worst = float(det.reshape(-1)[np.argmax(np.abs(det - 1.0))])
+        raise InputError(f"{label}: '{what}' holds matrices that are not rotations "
+                         f"(determinant {worst:.3g}, a rotation's is 1)")  # fmt: skip
+    return a
 
 
 def matrices_to_rotvecs(m: np.ndarray) -> np.ndarray:
@@ -236,23 +242,42 @@ def _mean_up(root_orient: np.ndarray) -> float:
     return float(to_rotmat(root_orient)[:, 2, 1].mean())
 
 
+def _frame_ids(ids, source, label) -> np.ndarray:
+    """(T,) int64 frame numbers; InputError for ids that are not finite whole numbers."""
+    ids = np.asarray(ids).reshape(-1)
+    if ids.dtype.kind not in "iuf" or ids.size == 0:
+        raise InputError(f"{source}: track {label}: frame ids of type {ids.dtype} (expected "
+                         "whole numbers)")  # fmt: skip
+    if ids.dtype.kind == "f":
+        if not np.isfinite(ids).all() or np.any(ids != np.round(ids)):
+            raise InputError(f"{source}: track {label}: frame ids that are NaN, infinite or "
+                             "not whole numbers")  # fmt: skip
+        if np.abs(ids).max() > 2**53:
+            raise InputError(f"{source}: track {label}: frame ids beyond any video's length")
+    return ids.astype(np.int64)
+
+
 def _fill_gaps(ids, root, pose_body, trans, extra, extras, source, label):
     """Make frames consecutive: sort by frame id, drop repeated ids, fill gaps (module
     docstring). -> root, pose_body, trans, extra, extras, mask ((T', 22) or None), ids (T',)"""
-    ids = np.asarray(ids).reshape(-1).astype(np.int64)
+    ids = _frame_ids(ids, source, label)
     T = root.shape[0]
     if ids.shape[0] != T:
         raise InputError(f"{source}: track {label}: {ids.shape[0]} frame ids for {T} frames")
     order = np.argsort(ids, kind="stable")
     keep = order[np.concatenate([[True], np.diff(ids[order]) > 0])]
+    if 2 * len(keep) < T:
+        raise InputError(f"{source}: track {label}: {T} frames but only {len(keep)} distinct "
+                         "frame ids; the ids are not frame numbers")  # fmt: skip
     ids = ids[keep]
-    full = np.arange(ids[0], ids[-1] + 1)
-    if len(keep) == T and len(full) == T and np.all(keep == np.arange(T)):
-        return root, pose_body, trans, extra, extras, None, ids
-    if len(full) > 20 * len(ids) + 1000:
+    span = int(ids[-1]) - int(ids[0]) + 1  # checked before the frames are allocated
+    if span > 20 * len(ids) + 1000:
         raise InputError(
             f"{source}: track {label}: frame ids {ids[0]}..{ids[-1]} for {len(ids)} frames"
         )
+    full = np.arange(ids[0], ids[-1] + 1)
+    if len(keep) == T and len(full) == T and np.all(keep == np.arange(T)):
+        return root, pose_body, trans, extra, extras, None, ids
     pos = np.interp(full, ids, np.arange(len(ids)))
     observed = np.isin(full, ids)
 

@@ -7,9 +7,9 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.model.state import BodyParams, params_to_state
+from mdvae_cli.model.windows import CanonicalFrame, canonical_frame, canonicalize
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.state import BodyParams, params_to_state
-from mdvae_cli.motion.windows import CanonicalFrame, canonical_frame, canonicalize
 
 MODEL_FPS = 30.0
 

@@ -21,8 +21,8 @@ from dataclasses import replace
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.motion.joint_map import JointMap, canonical_rotation
-from mdvae_cli.motion.source import BVH_UNIT_GUESSES, SourceMotion, guess_length_unit
+from mdvae_cli.formats.source import BVH_UNIT_GUESSES, SourceMotion, guess_length_unit
+from mdvae_cli.retarget.joint_map import JointMap, canonical_rotation
 
 #: hip -> knee -> ankle plus pelvis -> head along the spine on SMPL's mean body, whose
 #: stature is 1.70 m (built-in body, measured once)

@@ -2,7 +2,7 @@
 a motion; one frame rate; one gender as text; key names that are safe to write back.
 
 Each check raises InputError with one line naming the file, the key and the problem; used by
-:mod:`mdvae_cli.motion.npz_io`.
+:mod:`mdvae_cli.formats.npz_io`.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def real_array(key: str, arr: np.ndarray, path: Path, limit: Limit | None = None
     arr = np.asarray(arr)
     if np.iscomplexobj(arr):
         raise InputError(f"{path}: '{key}' holds complex numbers; expected real numbers")
-    if not np.issubdtype(arr.dtype, np.number):
+    if arr.dtype.kind not in "iuf":  # timedelta, datetime, text, bool, objects
         raise InputError(f"{path}: '{key}' is not numeric (dtype {arr.dtype})")
     arr = np.asarray(arr, dtype=np.float64)
     if not np.all(np.isfinite(arr)):

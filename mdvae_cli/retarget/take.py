@@ -1,0 +1,205 @@
+"""A mocap take (BVH, ASF/AMC) read for cleaning and written back on its own skeleton.
+
+:func:`read_take` retargets the take onto the SMPL body at its own frame rate (one SMPL frame
+per file frame) and keeps what writing it again needs; :func:`write_take` carries a cleaned
+version of that SMPL motion back onto the file's skeleton (``retarget.way_back``) and writes it
+in the file's own form.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mdvae_cli.body.data import BodyModelData
+from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import write_atomic
+from mdvae_cli.formats.amc_write import write_amc
+from mdvae_cli.formats.asf import AsfSkeleton, load_asf
+from mdvae_cli.formats.bvh_write import write_bvh
+from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.motion import cmu
+from mdvae_cli.motion.motion import Motion
+from mdvae_cli.retarget.fit_shape import BodyJoints, fit_betas, skeleton_key
+from mdvae_cli.retarget.retarget import RetargetResult, import_motion, load_source
+from mdvae_cli.retarget.way_back import write_back_data
+from mdvae_cli.retarget.way_back_amc import write_back_amc
+
+#: take suffixes (``.gz`` variants too); each is written back in its own form
+TAKE_SUFFIXES = (".bvh", ".amc")
+
+
+@dataclass
+class Take:
+    """A take as read: the source motion (with its file layout) and its retarget onto SMPL."""
+
+    path: Path
+    source: SourceMotion
+    retarget: RetargetResult
+    body: BodyJoints | None = None  #: the body it was retargeted onto
+    skeleton_file: Path | None = None  #: an AMC take's .asf, when found next to it
+
+    @property
+    def motion(self) -> Motion:
+        """The SMPL motion (AMASS layout, z up), one frame per file frame."""
+        return self.retarget.motion
+
+
+def read_take(
+    path: Path | str,
+    body: BodyJoints,
+    skeleton: AsfSkeleton | Path | str | None = None,
+    joint_map: dict[str, str] | None = None,
+    scale: float | None = None,
+    fps: float | None = None,
+    betas: np.ndarray | None = None,
+    source: SourceMotion | None = None,
+    rate: float | None = None,
+    settings=None,
+    metadata: dict | None = None,
+) -> Take:
+    """Read a BVH or AMC take and retarget it onto ``body`` at the take's own frame rate.
+
+    skeleton: the ASF of an AMC take. joint_map: SMPL joint -> source joint names the
+    skeleton's names do not reveal. scale: metres per file unit (default: guessed). fps: the
+    take's true rate when its file is wrong. betas: the body shape (default: fitted).
+    source: the take already read with :func:`load_source` (the other arguments but body and
+    betas are then unused). rate: resample to this rate first (None: the take's own);
+    settings: ``RetargetSettings``; metadata: kept with the motion (default: the file name).
+    """
+    path = Path(path)
+    src = source or load_source(path, skeleton, fps=fps, scale=scale, joint_map=joint_map)
+    if betas is None:
+        try:
+            betas = fit_betas(src, body)
+        except InputError as exc:
+            raise InputError(f"{path}: {exc}") from None
+    try:
+        meta = metadata if metadata is not None else {"file": path.name}
+        rt = import_motion(src, body, fps=rate, betas=betas, settings=settings, metadata=meta)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    if not np.isfinite(rt.mean_error):
+        raise InputError(f"{path}: the retarget to the body gave non-finite values")
+    return Take(path=path, source=src, retarget=rt, body=body)
+
+
+def write_take(
+    take: Take, cleaned: Motion, out: Path | str, body: BodyJoints | None = None,
+    forbid: tuple = (),
+) -> None:  # fmt: skip
+    """Write ``cleaned`` (the take's SMPL motion after cleaning) on the take's own skeleton,
+    in the take's own form: a BVH take as BVH (``.bvh`` or ``.bvh.gz``), an AMC take as AMC
+    (``.amc`` or ``.amc.gz``; its ASF is unchanged). body: default the one it was read with.
+    An AMC take whose skeleton was found next to it gets a copy of that ``.asf`` next to its
+    output when none of that name is there, so the output reads on its own."""
+    out = Path(out)
+    body = body if body is not None else take.body
+    name = out.name.lower().removesuffix(".gz")
+    form = take.source.info.get("format")
+    if form not in ("bvh", "amc") or not name.endswith(f".{form}"):
+        raise InputError(f"{out}: a {form} take is written back as .{form}, or as .npz")
+    if form == "bvh":
+        data = write_back_data(take.source, take.retarget, take.motion, cleaned, body)
+        if not np.isfinite(data).all():
+            raise InputError(f"{take.path}: the way back gave non-finite values; nothing written")
+        write_bvh(take.source.layout, data, out, forbid=forbid)
+        return
+    try:
+        values = write_back_amc(take.source, take.retarget, take.motion, cleaned, body)
+    except InputError as exc:
+        raise InputError(f"{take.path}: {exc}; nothing written") from None
+    write_amc(take.source.layout, values, out, forbid=forbid)
+    if take.skeleton_file is not None:
+        copy = out.parent / take.skeleton_file.name
+        if not copy.exists():
+            asf = take.skeleton_file
+            write_atomic(copy, lambda tmp: shutil.copyfile(asf, tmp), forbid=forbid)
+
+
+def find_asf(path: Path) -> Path | None:
+    """The skeleton next to an AMC file: ``<subject>.asf`` (CMU naming), else the folder's only
+    ``.asf`` (``.asf.gz`` too); None when there is none or several."""
+    path = Path(path)
+    ids = cmu.trial_of(path)
+    if ids is not None:
+        for name in (f"{ids[0]}.asf", f"{ids[0]}.asf.gz"):
+            if (path.parent / name).is_file():
+                return path.parent / name
+    found = [
+        p for p in sorted(path.parent.iterdir())
+        if p.is_file() and p.name.lower().removesuffix(".gz").endswith(".asf")
+    ]  # fmt: skip
+    return found[0] if len(found) == 1 else None
+
+
+class TakeReader:
+    """Reads takes for a command: the body's joints once, each ASF once, the body shape once
+    per skeleton.
+
+    body: the body model (None: the built-in one). asf: the skeleton of every AMC take (None:
+    each one's found next to it). joint_map: SMPL joint -> source joint names.
+    """
+
+    def __init__(self, body: BodyModelData | None = None, asf: Path | None = None,
+                 joint_map: dict[str, str] | None = None):  # fmt: skip
+        self.body_data, self.asf, self.joint_map = body, asf, joint_map
+        self._body: BodyJoints | None = None
+        self.skeletons: dict[Path, AsfSkeleton] = {}
+        self.betas: dict[str, np.ndarray] = {}
+
+    @property
+    def body(self) -> BodyJoints:
+        """The body's joints (built on first use)."""
+        if self._body is None:
+            from mdvae_cli.body.builtin import builtin_body_model
+
+            data = self.body_data if self.body_data is not None else builtin_body_model()
+            self._body = BodyJoints(data)
+        return self._body
+
+    def skeleton(
+        self, path: Path, given: Path | None = None
+    ) -> tuple[AsfSkeleton | None, Path | None]:
+        """The parsed skeleton of a take (None for BVH) and the ``.asf`` found next to it
+        (None when ``given``, given to the reader, or not an AMC take)."""
+        if not path.name.lower().removesuffix(".gz").endswith(".amc"):
+            return None, None
+        found = given or self.asf or find_asf(path)
+        if found is None:
+            raise InputError(f"{path}: no .asf skeleton found next to it; pass --asf FILE")
+        if found not in self.skeletons:
+            self.skeletons[found] = load_asf(found)
+        return self.skeletons[found], (None if given or self.asf else Path(found))
+
+    def read(
+        self,
+        path: Path,
+        fps: float | None = None,
+        scale: float | None = None,
+        rate: float | None = None,
+        settings=None,
+        metadata: dict | None = None,
+        skeleton: Path | None = None,
+    ) -> Take:
+        """Read one take and retarget it (:func:`read_take`); ``rate``: resample to this rate
+        first (None: the take's own), with ``settings`` (``RetargetSettings``); metadata: kept
+        with the motion, with the skeleton's key added; skeleton: this take's ``.asf``."""
+        path = Path(path)
+        skeleton, found = self.skeleton(path, skeleton)
+        src = load_source(path, skeleton, fps=fps, scale=scale, joint_map=self.joint_map)
+        key = skeleton_key(src)
+        if key not in self.betas:
+            try:
+                self.betas[key] = fit_betas(src, self.body)
+            except InputError as exc:
+                raise InputError(f"{path}: {exc}") from None
+        if metadata is not None:
+            metadata = {**metadata, "skeleton_key": key}
+        take = read_take(path, self.body, betas=self.betas[key], source=src, rate=rate,
+                         settings=settings, metadata=metadata)  # fmt: skip
+        take.skeleton_file = found
+        return take
