@@ -114,7 +114,7 @@ def test_the_shipped_denoiser_does_not_make_short_noisy_takes_worse():
             assert after < before, (n, start, before, after)
 
 
-@pytest.mark.parametrize("flag, expected", [([], True), (["--no-guard"], False)])
+@pytest.mark.parametrize("flag, expected", [(["--guard"], True), ([], False)])
 def test_cli_reports_fallbacks_in_json(tmp_path, flag, expected):
     walk = load_motion(REPO / "examples/walk.npz")
     noisy = add_pose_noise(slice_frames(walk, 0, 12), 0.15, np.random.default_rng(3))

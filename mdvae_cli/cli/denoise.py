@@ -61,6 +61,7 @@ def denoise(
     mirror,
     feet,
     guard,
+    blend,
     loop,
     mesh_dir,
     mesh_format,
@@ -198,6 +199,7 @@ def denoise(
     fallbacks: dict[tuple[Path, int], list[list[float]]] = {}
     # the guard goes with the offset or refinement (--no-offset is the paper's mode untouched)
     guarding = {kind: guard and r is not None for kind, (r, _) in chosen.items()}
+    blends: dict[tuple[Path, int], object] = {}
     cycles: dict[tuple[Path, int], bool] = {}
     if good:
         from mdvae_cli.infer.loop import looks_like_loop
@@ -244,6 +246,8 @@ def denoise(
                 feet=FootLockConfig() if feet == "lock" else None,
                 guard=guard_on,
                 loops=[cycles[item] for item in keys],
+                blend=blend and refine is not None,
+                on_blend=lambda k, report: blends.__setitem__(keys[k], report),
                 on_fallback=lambda k, a, b: fallbacks.setdefault(keys[k], []).append(
                     [round(a, 3), round(b, 3)]
                 ),
@@ -280,9 +284,16 @@ def denoise(
                                     label)  # fmt: skip
                 write_before_after(source_motion, motion, job, page, body, forbid=sources)
             if not as_json:  # --json has them under "fallbacks"
-                print_notes(job.relpath, [n for n in motion.notes if "smoothed instead" in n])
+                print_notes(job.relpath, [n for n in motion.notes if n.startswith("guard:")])
+            stretches = fallbacks.get((job.source, i), [])
+            duration = max((motion.num_frames - 1) / motion.fps, 1e-9)
+            kept = blends.get((job.source, i))
             tracks.append({"track": label, "output": str(output), "frames": motion.num_frames,
-                           "fallbacks": fallbacks.get((job.source, i), []),
+                           "fallbacks": stretches,
+                           "fallback_share": round(min(sum(b - a for a, b in stretches)
+                                                       / duration, 1.0), 4),
+                           "input_share": None if kept is None else round(kept.input_share, 4),
+                           "spike_share": None if kept is None else round(kept.spike_share, 4),
                            "loop": cycles.get((job.source, i), False)})  # fmt: skip
         return {
             "frames": sum(t["frames"] for t in tracks),
@@ -290,6 +301,8 @@ def denoise(
             "format": formats[job.source],
             "input_kind": kinds[job.source],
             "fallbacks": [f for t in tracks for f in t["fallbacks"]],
+            "fallback_share": _frame_mean(tracks, "fallback_share"),
+            "input_share": _frame_mean(tracks, "input_share"),
             "loop": any(t["loop"] for t in tracks),
             "tracks": tracks,
         }
@@ -311,16 +324,38 @@ def denoise(
                 "mirror": mirror,
                 "feet": feet,
                 "guard": any(guarding.values()),
+                "blend": blend and any(r is not None for r, _ in chosen.values()),
             }
         )
     elif write_report.succeeded:
-        total = sum(o.result["frames"] for o in write_report.succeeded)
-        secs = sum(o.result["seconds"] for o in write_report.succeeded)
+        done = [o.result for o in write_report.succeeded]
+        total = sum(r["frames"] for r in done)
+        secs = sum(r["seconds"] for r in done)
         console.print(
-            f"denoised {len(write_report.succeeded)} file(s), {total} frames in "
-            f"{secs:.2f} s ({total / max(secs, 1e-9):,.0f} frames/s)"
+            f"denoised {len(done)} file(s), {total} frames in {secs:.2f} s "
+            f"({total / max(secs, 1e-9):,.0f} frames/s){_kept_words(done)}"
         )
     write_report.exit()
+
+
+def _frame_mean(items: list[dict], key: str) -> float | None:
+    """The frame-weighted mean of ``key`` over tracks or files (None where none has it)."""
+    have = [(t[key], t["frames"]) for t in items if t.get(key) is not None]
+    if not have:
+        return None
+    return round(sum(v * n for v, n in have) / max(sum(n for _, n in have), 1), 4)
+
+
+def _kept_words(done: list[dict]) -> str:
+    """What the summary line says of the blend and the guard."""
+    words = ""
+    kept = _frame_mean(done, "input_share")
+    if kept is not None:
+        words += f"; kept as it came where its noise explains no change: {100 * kept:.0f} %"
+    fell = _frame_mean(done, "fallback_share")
+    if fell:
+        words += f"; guard: {100 * fell:.1f} % of frames are the input smoothed"
+    return words
 
 
 def _mode(optimize_steps: int, refine_steps: int, offset: bool) -> str:

@@ -102,13 +102,25 @@ OPTIONS = [
         "treated as a loop, and said so; --no-loop never.",
     ),
     click.option(
-        "--guard/--no-guard",
+        "--blend/--no-blend",
         default=True,
         show_default=True,
-        help="Where a denoised stretch moved further from the input than the input's own noise "
-        "explains (likely worse than the input: a kind of motion the prior never saw, or a take of "
-        "a few frames), use the input smoothed instead and say so (notes, --json "
-        '"fallbacks"). Not with --no-offset, which is the paper\'s regression mode untouched.',
+        help="Put back what of the input's difference from the denoised motion its own noise "
+        "does not explain, joint by joint and second by second: a clean take (or a clean "
+        "stretch, or a joint that is clean) comes back as it came, a noisy one cleaned, and a "
+        "spike in the input is replaced. The share kept is in the summary and in --json "
+        '("input_share"). Not with --no-offset, which is the paper\'s regression mode '
+        "untouched.",
+    ),
+    click.option(
+        "--guard/--no-guard",
+        default=False,
+        show_default=True,
+        help="The last resort: where a denoised stretch moved further from the input than the "
+        "input's own noise explains, use the input smoothed instead, and say so once per take "
+        '(summary line, --json "fallbacks" and "fallback_share"). Off by default: --blend '
+        "already leans on the input there, and costs no accuracy on unseen kinds of motion. "
+        "Not with --no-offset.",
     ),
     click.option(
         "--outliers",

@@ -18,10 +18,12 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import rotvec_slerp
+from mdvae_cli.filters import gaussian_filter_motion
+from mdvae_cli.geometry.rotations import rotvec_slerp, rotvec_unwrap, rotvec_wrap
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.guard import guard
+from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
@@ -32,12 +34,7 @@ from mdvae_cli.model.state import BodyParams, state_to_params
 from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.resample import (
-    interp_linear,
-    interp_rotvec,
-    resample_motion,
-    resample_times,
-)
+from mdvae_cli.motion.resample import interp_cubic, resample_motion, resample_times
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
 
@@ -200,16 +197,35 @@ def blend_windows(num_frames: int, starts: list[int], windows: list[BodyParams])
 
 
 def to_input_rate(params30: BodyParams, source: Motion) -> BodyParams:
-    """Sample a 30 Hz result at the source's own frame times (same frame count as the input)."""
+    """Sample a 30 Hz result at the source's own frame times (same frame count as the input),
+    by cubic curves through the 30 Hz samples (Catmull-Rom, on unwrapped axis-angles), so that
+    a high-rate take comes back as smooth motion at its own rate, not as 30 Hz samples joined
+    by straight lines; frames past the last 30 Hz sample carry its motion on (no frozen tail).
+    """
     if abs(source.fps - MODEL_FPS) < 1e-9:
         return params30
-    T30 = params30.trans.shape[0]
-    src = np.clip(np.arange(source.num_frames) * (MODEL_FPS / source.fps), 0, T30 - 1)
+    src = np.arange(source.num_frames) * (MODEL_FPS / source.fps)
+
+    def rotations(r: torch.Tensor) -> torch.Tensor:
+        unwrapped = rotvec_unwrap(r.double(), dim=0).numpy()
+        return rotvec_wrap(torch.as_tensor(interp_cubic(unwrapped, src)))
+
     return BodyParams(
-        torch.as_tensor(interp_rotvec(params30.root_orient.double().numpy(), src)),
-        torch.as_tensor(interp_rotvec(params30.pose_body.double().numpy(), src)),
-        torch.as_tensor(interp_linear(params30.trans.double().numpy(), src)),
+        rotations(params30.root_orient),
+        rotations(params30.pose_body),
+        torch.as_tensor(interp_cubic(params30.trans.double().numpy(), src)),
     )
+
+
+def to_model_rate(motion: Motion) -> Motion:
+    """The motion at 30 Hz as the denoiser reads it. A faster take is first smoothed over
+    about one 30 Hz frame (a Gaussian of 0.4 of the rate ratio, in its own frames), so that
+    the 30 Hz samples average the frames between them instead of picking one of each few
+    (which keeps all of its noise and aliases its motion)."""
+    ratio = motion.fps / MODEL_FPS
+    if ratio > 1.0 + 1e-6:
+        motion = gaussian_filter_motion(motion, 0.4 * ratio)
+    return resample_motion(motion, MODEL_FPS)
 
 
 def assemble(
@@ -256,6 +272,8 @@ def denoise_motions(
     on_fallback: Callable[[int, float, float], None] | None = None,
     loops: Sequence[bool] | None = None,
     feet: FootLockConfig | None = None,
+    blend: bool = False,
+    on_blend: Callable[[int, BlendReport], None] | None = None,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -276,15 +294,31 @@ def denoise_motions(
     ``on_fallback(motion index, start s, end s)`` (times in the motion's own clock).
     ``loops``: per motion, whether it is a cycle to denoise as one (``infer.loop``: tiled three
     times, the middle copy kept and closed at the seam).
+    With ``blend`` (``mdvae denoise``'s default), the part of each input's difference from
+    its result that the input's own noise does not explain is put back
+    (``infer.noise_blend``): a clean take comes back as it came, a noisy one cleaned; each
+    motion's :class:`BlendReport` goes to ``on_blend(motion index, report)``.
     With ``feet``, the results' feet are then held still on the floor where they are down
     (``infer.feet.lock_feet``, each input as its source).
     """
     if feet is not None:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            progress, refine, mirror, guard, on_fallback, loops,
+            progress, refine, mirror, guard, on_fallback, loops, blend=blend, on_blend=on_blend,
         )  # fmt: skip
         return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
+    if blend:
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror, guard, on_fallback, loops,
+        )  # fmt: skip
+        out = []
+        for i, (m, src) in enumerate(zip(cleaned, motions, strict=True)):
+            blended, report = blend_motion(src, m)
+            out.append(blended)
+            if on_blend is not None:
+                on_blend(i, report)
+        return out
     if loops is not None and any(loops):
         return _denoise_cycles(
             motions, list(loops), denoiser, body, window, stride, optimize_steps, lr,
@@ -308,7 +342,7 @@ def denoise_motions(
             for a, b in zip(both[:n], both[n:], strict=True)
         ]
     refining = refine is not None and refine.active
-    motions30 = [resample_motion(m, MODEL_FPS) for m in motions]
+    motions30 = [to_model_rate(m) for m in motions]
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
     observed = optimize_steps > 0 or refining or guard
     fallbacks: list[tuple[int, int]] | None = [] if guard else None
@@ -335,16 +369,35 @@ def denoise_motions(
                 for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
             ]  # fmt: skip
         out = assemble(motions, motions30, groups, preds)
-    for mi, start in sorted(fallbacks or []):
-        n = min(window + 1, motions30[mi].num_frames)
-        a, b = start / MODEL_FPS, (start + n - 1) / MODEL_FPS
+    for mi, stretches in fallback_stretches(fallbacks or [], motions30, window).items():
+        seconds = sum(b - a for a, b in stretches)
+        duration = max((motions30[mi].num_frames - 1) / MODEL_FPS, 1e-9)
+        where = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in stretches)
         out[mi].notes = [  # a new list: the input's is not to change
             *out[mi].notes,
-            f"{a:.2f}-{b:.2f} s: the denoised motion moved further from the input than its "
-            "noise explains; that stretch is the input smoothed instead",
+            f"guard: {100 * min(seconds / duration, 1.0):.0f} % of the take ({where}) moved "
+            "further from the input than its noise explains and is the input smoothed instead",
         ]
         if on_fallback is not None:
-            on_fallback(mi, a, b)
+            for a, b in stretches:
+                on_fallback(mi, a, b)
+    return out
+
+
+def fallback_stretches(
+    fallbacks: list[tuple[int, int]], motions30: list[Motion], window: int
+) -> dict[int, list[tuple[float, float]]]:
+    """The guard's fallen-back windows (motion index, 30 Hz start) as merged stretches of
+    seconds per motion (overlapping windows make one stretch)."""
+    out: dict[int, list[tuple[float, float]]] = {}
+    for mi, start in sorted(fallbacks):
+        n = min(window + 1, motions30[mi].num_frames)
+        a, b = start / MODEL_FPS, (start + n - 1) / MODEL_FPS
+        spans = out.setdefault(mi, [])
+        if spans and a <= spans[-1][1]:
+            spans[-1] = (spans[-1][0], max(spans[-1][1], b))
+        else:
+            spans.append((a, b))
     return out
 
 

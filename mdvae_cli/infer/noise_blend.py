@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
+from mdvae_cli.motion.motion import Motion
 
 #: the median of a chi-square variable with one degree of freedom over its mean
 _CHI2_MEDIAN = 0.4549
@@ -53,10 +54,12 @@ FAST_MARGIN = 3.0
 
 @dataclass
 class BlendReport:
-    """How far a motion leans on the denoiser: the mean gain g over rotations (0 = the input
-    as it came, 1 = the denoiser's output), and the share of frames taken as input spikes."""
+    """How much of a motion came back as it came: ``input_share`` is the mean share of the
+    input's slow difference from the denoiser's output that was put back (0 = the denoiser's
+    motion, 1 = the input's), ``spike_share`` the share of frames where the input had a spike
+    (the denoiser's frame taken there)."""
 
-    mean_gain: float
+    input_share: float
     spike_share: float
 
 
@@ -185,3 +188,25 @@ def blend_translation(
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M)
     kept, share = keep_unexplained((source - denoised)[:, None, :], noise, spikes, fps)
     return denoised + kept[:, 0], share[:, 0]
+
+
+def blend_motion(source: Motion, denoised: Motion) -> tuple[Motion, BlendReport]:
+    """``denoised`` (the denoiser's output at the source's frame times) with what the
+    source's own noise does not explain put back, and how much was.
+
+    -> (the blended motion: a copy of ``denoised`` with new body parameters, its report)"""
+    if source.num_frames < 4:  # too short to tell noise from motion: the denoiser's
+        return denoised, BlendReport(0.0, 0.0)
+    rot_src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
+    rot_den = np.concatenate([denoised.root_orient[:, None], denoised.pose_body], axis=1)
+    rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps)
+    trans, _ = blend_translation(
+        np.asarray(source.trans, np.float64), np.asarray(denoised.trans, np.float64), source.fps
+    )
+    dtype = denoised.pose_body.dtype
+    out = denoised.with_body(
+        root_orient=rot[:, 0].astype(dtype),
+        pose_body=rot[:, 1:].astype(dtype),
+        trans=trans.astype(denoised.trans.dtype),
+    )
+    return out, BlendReport(float(share.mean()), float(spikes.any(axis=1).mean()))

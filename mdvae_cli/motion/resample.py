@@ -30,6 +30,26 @@ def interp_linear(values: np.ndarray, src: np.ndarray) -> np.ndarray:
     return values[i0] * (1.0 - w) + values[i1] * w
 
 
+def interp_cubic(values: np.ndarray, src: np.ndarray) -> np.ndarray:
+    """Cubic (Catmull-Rom) interpolation along axis 0 at fractional indices; past the last
+    sample the last step's velocity carries on, before the first the first one's.
+    (T, ...), (T',) -> (T', ...)"""
+    T = len(values)
+    if T < 2:
+        return np.repeat(values[:1], len(src), axis=0)
+    # one extra sample at each end, continuing the end steps, so every segment has 4 points
+    padded = np.concatenate([2 * values[:1] - values[1:2], values, 2 * values[-1:] - values[-2:-1]])
+    i = np.clip(np.floor(src).astype(int), 0, T - 2)
+    t = (src - i).reshape(-1, *([1] * (values.ndim - 1)))
+    p0, p1, p2, p3 = padded[i], padded[i + 1], padded[i + 2], padded[i + 3]
+    return 0.5 * (
+        2 * p1
+        + (p2 - p0) * t
+        + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t**2
+        + (3 * (p1 - p2) + p3 - p0) * t**3
+    )
+
+
 def interp_rotvec(rotvecs: np.ndarray, src: np.ndarray) -> np.ndarray:
     """Slerp axis-angles along axis 0 at fractional indices.  (T, ..., 3), (T',) -> (T', ..., 3)"""
     i0 = np.clip(np.floor(src).astype(int), 0, len(rotvecs) - 1)
