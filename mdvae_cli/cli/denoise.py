@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import copy
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -119,15 +119,12 @@ def denoise(
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.formats.registry import ReadOptions
     from mdvae_cli.formats.registry import write as write_motion
-    from mdvae_cli.infer.denoise import check_finite, check_length, denoise_motions
-    from mdvae_cli.infer.feet import FootLockConfig
-    from mdvae_cli.infer.input_kinds import refine_config
+    from mdvae_cli.infer.denoise import check_finite, check_length
+    from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise, loops_of
     from mdvae_cli.infer.settings import OUTLIER_DOF
     from mdvae_cli.model.denoiser import load_denoiser
     from mdvae_cli.retarget.take import TakeReader
 
-    if overlap >= window:
-        raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
     if outliers and lam is not None and lam != OUTLIER_DOF:
         raise InputError(f"--outliers is --lam {OUTLIER_DOF:g}; give one of them")
     lam = OUTLIER_DOF if outliers else lam
@@ -143,6 +140,15 @@ def denoise(
     if view_dir is not None and Path(view_dir).exists() and not Path(view_dir).is_dir():
         raise InputError(f"--view {view_dir} is a file; give a folder")
     lr = 3e-4 if lr is None else lr
+    if overlap >= window:
+        raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
+    base = DenoiseSettings(
+        refine_steps=refine_steps, refine_lr=refine_lr, offset=offset, lam=lam,
+        offset_std=refine_offset, trans_offset_std=trans_offset, blend=blend, guard=guard,
+        feet=feet, loop=loop, mirror=mirror, optimize_steps=optimize_steps, lr=lr, seed=seed,
+        window=window, overlap=overlap,
+    )  # fmt: skip
+    per_kind = lambda kind: replace(base, input_kind=kind)  # noqa: E731
     mesh_format = mesh_format or "ply"
     jobs = plan_take_jobs(inputs, out)
     sources = tuple(job.source for job in jobs)
@@ -183,13 +189,9 @@ def denoise(
     if good:
         denoiser, _ = load_denoiser(denoiser_path)
         body = BodyModel(body_data)
-    stride = window - overlap
     chosen: dict[str, tuple] = {}
     for kind in sorted({kinds[j.source] for j in good}):
-        chosen[kind] = refine_config(
-            kind, steps=refine_steps, lr=refine_lr, offset=offset, lam=lam,
-            offset_std=refine_offset, trans_offset_std=trans_offset,
-        )  # fmt: skip
+        chosen[kind] = per_kind(kind).refine_row()
     for kind, (_, c) in chosen.items():
         if kind != "mocap" and not as_json:
             console.print(f"[dim]note: {kind} input: λ = {c['lam']:g}, offset scales "
@@ -198,20 +200,17 @@ def denoise(
     timings: dict[Path, float] = {}
     fallbacks: dict[tuple[Path, int], list[list[float]]] = {}
     # the guard goes with the offset or refinement (--no-offset is the paper's mode untouched)
-    guarding = {kind: guard and r is not None for kind, (r, _) in chosen.items()}
+    guarding = {kind: guard and r is not None for kind, (r, _) in chosen.items()}  # for --json
     blends: dict[tuple[Path, int], object] = {}
     cycles: dict[tuple[Path, int], bool] = {}
     if good:
-        from mdvae_cli.infer.loop import looks_like_loop
-
         for j in good:
             for i, (_, motion, _) in enumerate(loaded[j.source]):
-                cycles[(j.source, i)] = loop if loop is not None else looks_like_loop(motion)
+                cycles[(j.source, i)] = loops_of([motion], base)[0]
                 if loop is None and cycles[(j.source, i)] and not as_json:  # --json: "loop"
                     print_notes(j.relpath, [LOOP_NOTE])
 
-    def run(group: list[FileJob], refine, guard_on: bool) -> None:
-        model = copy.deepcopy(denoiser) if optimize_steps else denoiser
+    def run(group: list[FileJob], settings: DenoiseSettings) -> None:
         items = [(j, i) for j in group for i in range(len(loaded[j.source]))]
         keys = [(j.source, i) for j, i in items]
         motions = [loaded[j.source][i][1] for j, i in items]
@@ -231,22 +230,13 @@ def denoise(
                     info=f"loss {info['loss']:.2f}",
                 )
 
-            cleaned = denoise_motions(
+            cleaned = denoise(
                 motions,
-                model,
+                settings,
+                denoiser,
                 body,
-                window,
-                stride,
-                optimize_steps=optimize_steps,
-                lr=lr,
-                seed=seed,
                 progress=tick,
-                refine=refine,
-                mirror=mirror,
-                feet=FootLockConfig() if feet == "lock" else None,
-                guard=guard_on,
                 loops=[cycles[item] for item in keys],
-                blend=blend and refine is not None,
                 on_blend=lambda k, report: blends.__setitem__(keys[k], report),
                 on_fallback=lambda k, a, b: fallbacks.setdefault(keys[k], []).append(
                     [round(a, 3), round(b, 3)]
@@ -260,10 +250,10 @@ def denoise(
                 frames, 1
             )
 
-    for kind, (refine, _) in chosen.items():
+    for kind in chosen:
         of_kind = [j for j in good if kinds[j.source] == kind]
         for group in [[j] for j in of_kind] if per_file and optimize_steps else [of_kind]:
-            run(group, refine, guarding[kind])
+            run(group, per_kind(kind))
 
     def write(job: FileJob) -> dict:
         tracks = []

@@ -1,0 +1,149 @@
+"""Every choice ``mdvae denoise`` makes, in one place: :class:`DenoiseSettings` (its defaults
+are the command's) and :func:`denoise`, which applies them to motions as the command does.
+
+The command builds a ``DenoiseSettings`` from its options; a Python user builds one directly:
+
+    clean = denoise(motions, DenoiseSettings())                       # the command's default
+    paper = denoise(motions, DenoiseSettings(offset=False))           # the paper's regression mode
+    best = denoise(motions, DenoiseSettings(refine_steps=50, mirror=True))
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.errors import InputError
+from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.feet import FootLockConfig
+from mdvae_cli.infer.input_kinds import refine_config
+from mdvae_cli.infer.loop import looks_like_loop
+from mdvae_cli.infer.noise_blend import BlendReport
+from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.model.denoiser import Denoiser
+from mdvae_cli.motion.motion import Motion
+
+FEET = ("lock", "off")
+
+
+@dataclass(frozen=True)
+class DenoiseSettings:
+    """What to do to a motion (``mdvae denoise --help`` explains each option).
+
+    input_kind: "mocap" or "video" (the settings row the offset and refinement start from;
+    the command picks it from the file); refine_steps, refine_lr: ``--refine N``,
+    ``--refine-lr``; offset: the closed-form slow offset (False with refine_steps = 0 is the
+    paper's regression mode untouched: no offset, blend or guard); lam, offset_std,
+    trans_offset_std: override the kind's row (None keeps it); blend: put back what the
+    input's own noise does not explain; guard: fall back to the smoothed input where the
+    output moved further than the noise explains; feet: "lock" or "off"; loop: True / False,
+    or None to detect cycles; mirror: average with the mirror image's result;
+    optimize_steps, lr, seed: optimisation mode; window, overlap: the windows (30 Hz frames).
+    """
+
+    input_kind: str = "mocap"
+    refine_steps: int = 0
+    refine_lr: float = 0.1
+    offset: bool = True
+    lam: float | None = None
+    offset_std: float | None = None
+    trans_offset_std: float | None = None
+    blend: bool = True
+    guard: bool = False
+    feet: str = "lock"
+    loop: bool | None = None
+    mirror: bool = False
+    optimize_steps: int = 0
+    lr: float = 3e-4
+    seed: int = 0
+    window: int = 60
+    overlap: int = 15
+
+    def __post_init__(self) -> None:
+        if self.feet not in FEET:
+            raise InputError(f"feet must be one of {', '.join(FEET)}, got {self.feet!r}")
+        if not 0 <= self.overlap < self.window:
+            raise InputError(
+                f"the overlap ({self.overlap}) must be smaller than the window ({self.window})"
+            )
+        if self.refine_steps < 0 or self.optimize_steps < 0:
+            raise InputError("refine_steps and optimize_steps must be >= 0")
+
+    def refine(self) -> RefineConfig | None:
+        """The offset / refinement settings (None: the paper's plain forward pass)."""
+        cfg, _ = self.refine_row()
+        return cfg
+
+    def refine_row(self) -> tuple[RefineConfig | None, dict]:
+        """:meth:`refine` and the settings row it came from (for reports)."""
+        return refine_config(
+            self.input_kind, steps=self.refine_steps, lr=self.refine_lr, offset=self.offset,
+            lam=self.lam, offset_std=self.offset_std, trans_offset_std=self.trans_offset_std,
+        )  # fmt: skip
+
+    @property
+    def untouched(self) -> bool:
+        """The paper's regression mode: no offset, no refinement, so no blend and no guard."""
+        return self.refine() is None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def loops_of(motions: list[Motion], settings: DenoiseSettings) -> list[bool]:
+    """Which motions to denoise as cycles: the setting, or each motion's own ends."""
+    if settings.loop is not None:
+        return [settings.loop] * len(motions)
+    return [looks_like_loop(m) for m in motions]
+
+
+def denoise(
+    motions: list[Motion],
+    settings: DenoiseSettings | None = None,
+    denoiser: Denoiser | None = None,
+    body: BodyModel | None = None,
+    *,
+    loops: list[bool] | None = None,
+    progress: Callable[[dict], None] | None = None,
+    on_fallback: Callable[[int, float, float], None] | None = None,
+    on_blend: Callable[[int, BlendReport], None] | None = None,
+) -> list[Motion]:
+    """Denoise motions as ``mdvae denoise`` does with ``settings`` (default: its defaults).
+
+    denoiser / body: None loads the shipped weights / the built-in body. ``loops``: which
+    motions are cycles (None: :func:`loops_of`). Optimisation mode fine-tunes a copy of the
+    denoiser, never the one passed. The callbacks: see ``infer.denoise.denoise_motions``.
+    """
+    import copy
+
+    settings = settings or DenoiseSettings()
+    if denoiser is None:
+        from mdvae_cli.model.denoiser import load_denoiser
+
+        denoiser, _ = load_denoiser(None)
+    if body is None:
+        from mdvae_cli.body.formats import load_body_model
+
+        body = BodyModel(load_body_model(None))
+    refine = settings.refine()
+    model = copy.deepcopy(denoiser) if settings.optimize_steps else denoiser
+    return denoise_motions(
+        motions,
+        model,
+        body,
+        settings.window,
+        settings.window - settings.overlap,
+        optimize_steps=settings.optimize_steps,
+        lr=settings.lr,
+        seed=settings.seed,
+        progress=progress,
+        refine=refine,
+        mirror=settings.mirror,
+        guard=settings.guard and refine is not None,
+        on_fallback=on_fallback,
+        loops=loops if loops is not None else loops_of(motions, settings),
+        feet=FootLockConfig() if settings.feet == "lock" else None,
+        blend=settings.blend and refine is not None,
+        on_blend=on_blend,
+    )
