@@ -13,11 +13,12 @@ SHIFT = 0.01  # what the stub denoiser adds to every body value
 
 
 def take(T: int = 90, rest: int = 0, seed: int = 0) -> Motion:
-    """A smooth 30 Hz take whose first ``rest`` frames are a T-pose (every body joint at
+    """A smooth 30 Hz take whose first ``rest`` frames are a T-pose (every body joint near
     zero); a per-frame extra rides along."""
     m = motion_from_arrays(motion_arrays(T=T, width=156, seed=seed))
     m.pose_body[:, 15:17] += [0.0, 0.0, 1.2]  # arms down: no take is near a T-pose
     m.pose_body[:rest] = 0.0
+    m.pose_body[:rest, 2:6] = 0.12  # a rig's T-pose on the body: near zero, not exactly
     m.extras["frame_ids"] = np.arange(T, dtype=np.int64)
     m.notes = ["read from a test"]
     return m
@@ -68,6 +69,12 @@ def test_a_take_starting_still_or_normally_gives_zero():
     zero = take()
     zero.pose_body[:] *= 0.01  # every frame near zero: no jump out of it
     assert leading_rest_frames(zero) == 0
+    spike = take()
+    spike.pose_body[0] += 0.8  # a glitch at frame 0, no rest pose: the denoiser's to clean
+    assert leading_rest_frames(spike) == 0
+    slow = take()
+    slow.pose_body[:30] *= np.linspace(0, 1, 30)[:, None, None]  # eases out of a T-pose
+    assert leading_rest_frames(slow) == 0
     (out,) = keep_rest_frames([m], stub_denoise)
     assert stub_denoise.seen == [m.num_frames]
     np.testing.assert_array_equal(out.pose_body, m.pose_body + SHIFT)

@@ -27,14 +27,17 @@ from mdvae_cli.motion.motion import Motion, slice_frames
 
 #: at most this many leading frames are taken for a rest pose
 MAX_REST_FRAMES = 10
-#: a body joint turned less than this (rad) from zero is at rest (T-pose on the SMPL body)
-REST_ANGLE = 0.05
+#: a body joint turned less than this (rad) from zero is at rest (T-pose on the SMPL body):
+#: a rig's T-pose retargeted onto the body leaves its joints up to 0.1-0.25 rad from zero
+#: (shared real BVH takes with their frame 0 set to their rest pose)
+REST_ANGLE = 0.3
 #: two frames whose body joints differ by less than this (rad) are the same pose
 SAME_ANGLE = 1e-4
 #: the jump out of a rest pose: at least this (rad, the joint that turns most) ...
 MIN_JUMP = 0.3
-#: ... and at least this many times the take's median frame-to-frame step
-JUMP_RATIO = 10.0
+#: ... and at least this many times the take's median frame-to-frame step (a fast 30 Hz take
+#: jumps out of its T-pose by 7x its median step)
+JUMP_RATIO = 5.0
 
 
 def joint_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
