@@ -98,3 +98,23 @@ def test_several_motions_each_cut_on_its_own():
     assert [o.num_frames for o in out] == [90, 60]
     assert out[0].pose_body[:2].tobytes() == a.pose_body[:2].tobytes()
     np.testing.assert_array_equal(out[1].trans, b.trans + SHIFT)
+
+
+def test_with_the_shipped_denoiser_the_t_pose_stays_and_the_take_is_denoised():
+    from mdvae_cli.body.formats import load_body_model
+    from mdvae_cli.body.skinning import BodyModel
+    from mdvae_cli.infer.denoise import denoise_motions
+    from mdvae_cli.infer.settings import RefineConfig
+    from mdvae_cli.model.denoiser import load_denoiser
+
+    den, _ = load_denoiser(None)
+    body = BodyModel(load_body_model(None))
+    m = take(T=60, rest=1)
+    (out,) = keep_rest_frames(
+        [m], lambda ms: denoise_motions(ms, den, body, refine=RefineConfig(steps=0), guard=True)
+    )
+    assert out.num_frames == 60 and out.fps == m.fps
+    assert out.pose_body[0].tobytes() == m.pose_body[0].tobytes()
+    assert out.trans[0].tobytes() == m.trans[0].tobytes()
+    assert not np.allclose(out.pose_body[1:], m.pose_body[1:])  # the take went through it
+    assert out.notes[-1] == "frame 0: a rest pose, kept as it came"
