@@ -113,9 +113,10 @@ def test_add_noise_video_preset_and_its_errors(tmp_path, make_motion_file):
         assert code == 1 and message in one_error(err), (args, err)
 
 
-def test_import_a_pipeline_file_puts_it_on_the_floor(tmp_path):
+def test_import_a_pipeline_file_with_floor_puts_it_on_the_floor(tmp_path):
     src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (vf.clip(30, seed=7), None)})
-    code, out, err = run("import", src, "-o", tmp_path / "take.npz", "--json", "--fps", "30")
+    code, out, err = run("import", src, "-o", tmp_path / "take.npz", "--json", "--fps", "30",
+                         "--floor", "plane")  # fmt: skip
     assert code == 0, err
     doc = json.loads(out)
     assert doc["by_format"]["wham"]["files"] == 1
@@ -124,6 +125,44 @@ def test_import_a_pipeline_file_puts_it_on_the_floor(tmp_path):
 
     low = min(float(o.vertices[..., 2].min()) for _, o in pose_motion_chunks(take, vf.BODY))
     assert abs(low) < 0.03  # the lowest foot point of the take at z = 0
+
+
+def lowest_point(motion) -> float:
+    from mdvae_cli.export import pose_motion_chunks
+
+    return min(float(o.vertices[..., 2].min()) for _, o in pose_motion_chunks(motion, vf.BODY))
+
+
+def test_a_gvhmr_file_keeps_its_heights_and_frames_by_every_path(tmp_path):
+    """``import`` then ``denoise``, or ``denoise`` of the file itself: the same heights and
+    frames, those the pipeline wrote (a body floating 25 cm up stays there); ``--floor`` on
+    either puts it on the floor."""
+    m = vf.clip(40, seed=5, fps=25.0)
+    m.trans[:, 2] += 0.25
+    src = vf.write_gvhmr(tmp_path / "hmr4d_results.pt", m)
+    code, _, err = run("import", src, "-o", tmp_path / "take.npz", "--source-fps", "25")
+    assert code == 0, err
+    imported = load_motion(tmp_path / "take.npz")
+    assert imported.num_frames == 40 and imported.fps == 25.0  # the file's own frames
+    np.testing.assert_allclose(imported.trans, m.trans, atol=1e-4)  # the file's own heights
+    paths = {"import": tmp_path / "take.npz", "direct": src}
+    for name, path in paths.items():
+        code, out, err = run("denoise", path, "-o", tmp_path / f"{name}.npz", "--fps", "25",
+                             "--json")  # fmt: skip
+        assert code == 0, err
+        assert json.loads(out)["files"][0]["result"]["input_kind"] == "video"
+    a, b = load_motion(tmp_path / "import.npz"), load_motion(tmp_path / "direct.npz")
+    assert a.num_frames == b.num_frames == 40 and a.fps == b.fps == 25.0
+    np.testing.assert_allclose(a.trans, b.trans, atol=1e-3)  # within 1 mm
+    assert abs(a.trans[:, 2].mean() - m.trans[:, 2].mean()) < 0.02
+    assert lowest_point(b) > 0.15  # floating as the file has it
+    for name, path in paths.items():
+        code, _, err = run("denoise", path, "-o", tmp_path / f"{name}_floor.npz", "--fps", "25",
+                           "--floor")  # fmt: skip
+        assert code == 0, err
+    a, b = load_motion(tmp_path / "import_floor.npz"), load_motion(tmp_path / "direct_floor.npz")
+    np.testing.assert_allclose(a.trans, b.trans, atol=1e-3)
+    assert abs(lowest_point(b)) < 0.05
 
 
 def test_eval_reads_a_pipeline_file_as_ground_truth(tmp_path):

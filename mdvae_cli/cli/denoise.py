@@ -60,6 +60,7 @@ def denoise(
     input_kind,
     mirror,
     feet,
+    floor,
     guard,
     blend,
     loop,
@@ -116,6 +117,7 @@ def denoise(
     """
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
+    from mdvae_cli.cli.motion_input import on_floor
     from mdvae_cli.export import export_mesh_sequence
     from mdvae_cli.formats.registry import ReadOptions
     from mdvae_cli.formats.registry import write as write_motion
@@ -169,6 +171,8 @@ def denoise(
         read_takes[job.source] = f.take
         items, short = [], []
         for label, motion, output in outputs_of(f, job.output):
+            if floor:
+                motion = on_floor(motion, body_data)
             try:
                 check_length(motion)
             except InputError as exc:

@@ -168,6 +168,13 @@ OPTIONS = [
         "error by 6-8 %, for ~0.14 ms a frame (docs/benchmarks.md). off: the feet as denoised.",
     ),
     click.option(
+        "--floor",
+        is_flag=True,
+        help="Put each input on the floor first: the ground under its soles moved to z = 0 (as "
+        "mdvae import --floor flat does). Off by default: heights stay as the file has them (a "
+        "video pipeline's file as the pipeline wrote it, the same as after mdvae import).",
+    ),
+    click.option(
         "--mesh-dir",
         type=click.Path(path_type=Path),
         help="Also write the cleaned mesh sequence here (one input: into the folder itself; "

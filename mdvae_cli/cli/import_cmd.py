@@ -114,8 +114,9 @@ def _print_summary(summary: dict) -> None:
     help="Output folder (inputs mirrored below it), or an .npz for a single input file.",
 )  # fmt: skip
 @click.option(
-    "--fps", type=NON_NEGATIVE, default=30.0, show_default=True,
-    help="Frame rate of the output; 0 keeps the source's.",
+    "--fps", type=NON_NEGATIVE, default=None,
+    help="Frame rate of the output; 0 keeps the source's. [default: 30 for mocap takes; a "
+    "video pipeline's file keeps its own frames, as mdvae denoise reads it]",
 )  # fmt: skip
 @click.option(
     "--asf", type=click.Path(path_type=Path, dir_okay=False),
@@ -131,9 +132,11 @@ def _print_summary(summary: dict) -> None:
     help="Metres per file unit (default: ASF units; BVH guessed from the skeleton's height).",
 )  # fmt: skip
 @click.option(
-    "--floor", type=click.Choice(["plane", "flat", "none"]), default="plane", show_default=True,
+    "--floor", type=click.Choice(["plane", "flat", "none"]), default=None,
     help="Put the ground under the soles at z=0, levelling a slightly tilted capture floor "
-    "(plane), only shift heights (flat), or keep the source's heights (none).",
+    "(plane), only shift heights (flat), or keep the source's heights (none). [default: plane "
+    "for mocap takes; a video pipeline's file keeps the heights the pipeline wrote, as mdvae "
+    "denoise reads it]",
 )  # fmt: skip
 @click.option(
     "--corpus", "--cmu-corpus", "corpus", is_flag=True,
@@ -181,9 +184,11 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     body joints are solved per frame to match the source's joint positions. Output: z-up,
     floor at z=0, gender "neutral", resampled to --fps, with a 'source' record (JSON) of where
     it came from. The mean joint position error of the retarget is printed per file. A video
-    pipeline's SMPL-family estimates need no retarget: they are made upright (z up), resampled
-    and put on the floor, one output per person track (docs/formats.md); --source-fps gives
-    their frame rate (they store none: 30 is assumed).
+    pipeline's SMPL-family estimates need no retarget: they are made upright (z up), one output
+    per person track (docs/formats.md), with the frames and heights the pipeline wrote (the
+    same motion mdvae denoise reads from the file itself; --fps resamples them, --floor plane
+    puts them on the floor); --source-fps gives their frame rate (they store none: 30 is
+    assumed).
 
     \b
     Examples:
@@ -195,7 +200,8 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     """
     started = time.perf_counter()
     out_arg, out = out, Path(out)  # as typed: a trailing slash makes it a folder (plan_jobs)
-    out_fps = fps if fps > 0 else None
+    out_fps = 30.0 if fps is None else (fps if fps > 0 else None)  # mocap takes
+    estimate_fps = None if fps is None else out_fps  # video estimates: their own by default
     for option, rate in (("--fps", out_fps), ("--source-fps", source_fps)):
         if rate is not None:
             check_fps(rate, option)
@@ -204,10 +210,10 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
 
     from mdvae_cli.retarget.retarget import RetargetSettings
 
-    settings = RetargetSettings(floor=floor).validate()
+    settings = RetargetSettings(floor=floor or "plane").validate()
     joint_map = load_joint_map(joint_map_file)
     args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track,
-            joint_map)  # fmt: skip
+            joint_map, estimate_fps, floor)  # fmt: skip
     report = _run(jobs, args, jobs_n)
     rows = [o.result for o in report.succeeded]
     summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps,

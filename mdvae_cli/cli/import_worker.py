@@ -14,7 +14,6 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.formats.registry import TAKE_SUFFIXES, ReadOptions, read, suffix_of, write
 from mdvae_cli.motion import cmu
 from mdvae_cli.motion.corpus_plan import CorpusItem
-from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.fit_shape import skeleton_key
 from mdvae_cli.retarget.retarget import walking_speed
 from mdvae_cli.retarget.take import TakeReader
@@ -25,13 +24,17 @@ class FileImporter:
     Built once per process (each ``--jobs`` worker builds its own)."""
 
     def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf,
-                 input_format=None, track=None, joint_map=None):  # fmt: skip
+                 input_format=None, track=None, joint_map=None, estimate_fps=None,
+                 estimate_floor=None):  # fmt: skip
         torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
         self.takes = TakeReader(load_body_model(body_model), asf, joint_map)
         self.body = self.takes.body
         self.format, self.track = input_format, track
         self.out, self.fps, self.settings = out, fps, settings
         self.source_fps, self.scale = source_fps, scale
+        # files that need no retarget (video estimates): their own frames and heights unless
+        # --fps / --floor are given
+        self.estimate_fps, self.estimate_floor = estimate_fps, estimate_floor
 
     def __call__(self, job: FileJob) -> dict:
         item: CorpusItem | None = job.data
@@ -82,9 +85,10 @@ class FileImporter:
 
     def import_estimates(self, job: FileJob) -> dict:
         """A motion file that needs no retarget (a video pipeline's output, an AMASS-style
-        file): read upright (``formats.registry``), resampled to the output rate, floor at
-        z = 0 (``--floor none`` keeps the file's heights), one output per track."""
-        from mdvae_cli.cli.motion_input import outputs_of, read_input
+        file): read upright (``formats.registry``), one output per track, at the file's own
+        frames and heights (as ``mdvae denoise`` reads it) unless ``--fps`` (resampled) or
+        ``--floor plane|flat`` (the ground under the soles at z = 0) is given."""
+        from mdvae_cli.cli.motion_input import on_floor, outputs_of, read_input
         from mdvae_cli.motion.resample import resample_motion
 
         options = ReadOptions(format=self.format, fps=self.source_fps, track=self.track,
@@ -93,9 +97,10 @@ class FileImporter:
         frames, fps, outputs = 0, None, []
         for _, motion, output in outputs_of(loaded, job.output):
             source_fps = motion.fps
-            motion = resample_motion(motion, self.fps) if self.fps else motion
-            if self.settings.floor != "none":
-                motion = motion.with_body(trans=motion.trans - [0.0, 0.0, self.floor(motion)])
+            if self.estimate_fps:
+                motion = resample_motion(motion, self.estimate_fps)
+            if self.estimate_floor in ("plane", "flat"):
+                motion = on_floor(motion, self.body.data, self.settings.max_tilt)
             write(motion, output, forbid=(job.source,))
             frames, fps = frames + motion.num_frames, motion.fps
             outputs.append(output.as_posix())
@@ -109,17 +114,3 @@ class FileImporter:
             "retarget_error_direct_mm": 0.0,
             "tracks": len(outputs),
         }
-
-    def floor(self, motion: Motion) -> float:
-        """The height of the ground under the motion's soles (the lower envelope of each
-        frame's lowest foot vertex, ``retarget.fit_ground`` without tilt), metres."""
-        from mdvae_cli.export import pose_motion_chunks
-        from mdvae_cli.retarget.retarget import fit_ground
-
-        lowest = []
-        for _, out in pose_motion_chunks(motion, self.body.data, vertices=True):
-            v = out.vertices[:, self.body.foot_ids].double().numpy()
-            i = v[..., 2].argmin(axis=1)
-            lowest.append(v[np.arange(len(v)), i])
-        p = np.concatenate(lowest)
-        return float(fit_ground(p[:, [0, 2, 1]], self.settings.max_tilt, tilt=False)[0])

@@ -91,3 +91,32 @@ def track_output(output: Path, label: str | None) -> Path:
 def outputs_of(loaded: LoadedFile, output: Path) -> list[tuple[str | None, Motion, Path]]:
     """Each track of a file with its output path."""
     return [(label, m, track_output(output, label)) for label, m in loaded.tracks]
+
+
+def floor_height(motion: Motion, body, max_tilt: float = 0.035) -> float:
+    """The height (m) of the ground under a motion's soles: the lower envelope of each frame's
+    lowest foot vertex (``retarget.retarget.fit_ground`` without tilt), the motion posed on
+    ``body`` (a BodyModelData)."""
+    import numpy as np
+
+    from mdvae_cli.export import pose_motion_chunks
+    from mdvae_cli.retarget.fit_shape import BodyJoints
+    from mdvae_cli.retarget.retarget import fit_ground
+
+    feet = BodyJoints(body).foot_ids
+    lowest = []
+    for _, out in pose_motion_chunks(motion, body, vertices=True):
+        v = out.vertices[:, feet].double().numpy()
+        i = v[..., 2].argmin(axis=1)
+        lowest.append(v[np.arange(len(v)), i])
+    p = np.concatenate(lowest)
+    return float(fit_ground(p[:, [0, 2, 1]], max_tilt, tilt=False)[0])
+
+
+def on_floor(motion: Motion, body, max_tilt: float = 0.035) -> Motion:
+    """A copy of ``motion`` moved up or down so that the ground under its soles
+    (:func:`floor_height`) is at z = 0, with a note saying by how much (``--floor``)."""
+    h = floor_height(motion, body, max_tilt)
+    out = motion.with_body(trans=motion.trans - [0.0, 0.0, h])
+    out.notes.append(f"put on the floor (--floor): heights {-100 * h:+.1f} cm")
+    return out

@@ -109,6 +109,8 @@ def _load_amass(path: Path, fps: float | None, track: str | None, allow_pickle: 
     if track is not None:
         raise InputError(f"{path}: --track applies to files of several people; this one holds one")
     fmt, kind, notes = "amass", "mocap", []
+    if _imported_from_video(motion):  # mdvae import's output of a video file: video settings
+        kind = "video"
     if _GVHMR_NPZ_KEY in motion.extras:
         fmt, kind = "gvhmr-npz", "video"
         notes.append(
@@ -119,6 +121,16 @@ def _load_amass(path: Path, fps: float | None, track: str | None, allow_pickle: 
         motion.notes.append(f"frame rate {fps:g} Hz (--fps), the file says {motion.fps:g}")
         motion.fps = float(fps)
     return LoadedFile(path, fmt, kind, [(None, motion)], notes)
+
+
+def _imported_from_video(motion) -> bool:
+    """Whether an AMASS-style motion is ``mdvae import``'s output of a video pipeline's file:
+    its ``source_format`` extra names a video format."""
+    fmt = motion.extras.get("source_format")
+    if not isinstance(fmt, np.ndarray) or fmt.ndim != 0 or fmt.dtype.kind not in "US":
+        return False
+    name = str(fmt.item() if fmt.dtype.kind == "U" else fmt.item().decode("utf-8", "replace"))
+    return name in FORMATS and name not in _MOCAP_FORMATS
 
 
 def _load_video(path, name, data, fps, track, body) -> LoadedFile:

@@ -8,6 +8,12 @@ on both sides; what small mismatch remains between the middle copy's start and t
 is spread linearly over the cycle, so that the last frame leads into the first exactly as any
 two frames do.
 
+A take is a loop only when its ends meet twice over: in rotations, relative to its own
+frame-to-frame steps, and in joint positions, within an absolute few centimetres (a take
+that ends 13 cm from where it started is no loop, however fast it moves between). The root
+may move on by the loop's displacement only when the take travels steadily (a walk cycle);
+a take that wanders and comes back nearly where it started must come back exactly.
+
 Pure numpy on Motion values.
 """
 
@@ -18,6 +24,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
+from mdvae_cli.body.data import SMPL_PARENTS, BodyModelData
 from mdvae_cli.filters import savgol_smooth
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
 from mdvae_cli.motion.motion import Motion
@@ -26,6 +33,11 @@ from mdvae_cli.motion.motion import Motion
 LOOP_STEPS = 2.0
 #: copies of a loop denoised together (the middle one is kept)
 COPIES = 3
+#: a loop's first and last poses meet within this mean joint distance (m)
+LOOP_DISTANCE = 0.05
+#: a take travels steadily when its root ends at least this share of its (horizontal) path
+#: length from where it started
+STEADY_TRAVEL = 0.5
 
 
 def _rotations(motion: Motion) -> np.ndarray:
@@ -41,21 +53,74 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return rel.norm(dim=-1).mean(dim=-1).numpy()
 
 
-def looks_like_loop(motion: Motion, steps: float = LOOP_STEPS) -> bool:
-    """Whether the last frame meets the first: its pose (every joint's rotation, the root's
-    heading included) is within ``steps`` typical frame-to-frame steps of the first's, both
-    measured on the motion smoothed over 9 frames (local quadratics). Takes under 4 frames are
-    never loops."""
+def looks_like_loop(
+    motion: Motion, steps: float = LOOP_STEPS, body: BodyModelData | None = None
+) -> bool:
+    """Whether the last frame meets the first (module docstring), both measured on the
+    motion smoothed over 9 frames (local quadratics): its pose (every joint's rotation, the
+    root's heading included) is within ``steps`` typical frame-to-frame steps of the first's,
+    and within LOOP_DISTANCE in joint positions (:func:`end_gaps`, posed on ``body``, None:
+    the built-in body). Takes under 4 frames are never loops."""
     if motion.num_frames < 4:
         return False
     # judged on the motion smoothed over 9 frames (local quadratics, which keep a cycle's ends
     # where they are): on a noisy take every frame-to-frame step is mostly noise, and any two
     # poses would look a step or two apart
     T = motion.num_frames
-    rot = savgol_smooth(_rotations(motion), min(9, T - 1 + T % 2), 2)
+    window = min(9, T - 1 + T % 2)
+    rot = savgol_smooth(_rotations(motion), window, 2)
     step = float(np.median(_angle(rot[:-1], rot[1:])))
     gap = float(_angle(rot[-1:], rot[:1])[0])
-    return gap <= steps * max(step, 1e-4)
+    if gap > steps * max(step, 1e-4):
+        return False
+    if body is None:
+        from mdvae_cli.body.builtin import builtin_body_model
+
+        body = builtin_body_model()
+    trans = savgol_smooth(np.asarray(motion.trans, dtype=np.float64), window, 2)
+    joints = rest_joints(body, np.asarray(motion.betas, dtype=np.float64))
+    return max(end_gaps(rot, trans, joints)) <= LOOP_DISTANCE
+
+
+def rest_joints(body: BodyModelData, betas: np.ndarray) -> np.ndarray:
+    """The body's 22 rest joints for shape ``betas`` (extra coefficients dropped, missing ones
+    zero).  betas: (S,) -> (22, 3)"""
+    S = min(body.num_betas, betas.shape[-1])
+    verts = body.v_template + body.shapedirs[..., :S] @ betas[:S]
+    return body.J_regressor[:22] @ verts
+
+
+def posed_joints(rot: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """Forward kinematics of the 22 body joints, root at the origin.
+
+    rot: (N, 22, 3) axis-angles (root first); joints: (22, 3) rest joints -> (N, 22, 3)
+    """
+    R = rotvec_to_rotmat(torch.as_tensor(rot, dtype=torch.float64)).numpy()  # (N, 22, 3, 3)
+    world_R = [R[:, 0]]
+    pos = [np.zeros((R.shape[0], 3))]
+    for j in range(1, 22):
+        p = SMPL_PARENTS[j]
+        pos.append(pos[p] + world_R[p] @ (joints[j] - joints[p]))
+        world_R.append(world_R[p] @ R[:, j])
+    return np.stack(pos, axis=1)
+
+
+def end_gaps(rot: np.ndarray, trans: np.ndarray, joints: np.ndarray) -> tuple[float, float]:
+    """How far apart a take's ends are (m): (the mean distance of the first and last poses'
+    joints, the root's translation removed; how far the root ends from where it started,
+    less the loop's displacement when the take travels steadily: its root ends at least
+    STEADY_TRAVEL of its horizontal path length from its start).
+
+    rot: (T, 22, 3) axis-angles; trans: (T, 3) root translation (z up); joints: (22, 3) rest
+    joints
+    """
+    ends = posed_joints(rot[[0, -1]], joints)
+    pose_gap = float(np.linalg.norm(ends[1] - ends[0], axis=-1).mean())
+    moved = trans[-1] - trans[0]
+    path = float(np.linalg.norm(np.diff(trans[:, :2], axis=0), axis=-1).sum())
+    steady = float(np.linalg.norm(moved[:2])) >= STEADY_TRAVEL * max(path, 1e-9)
+    root_gap = abs(float(moved[2])) if steady else float(np.linalg.norm(moved))
+    return pose_gap, root_gap
 
 
 def displacement(motion: Motion) -> np.ndarray:

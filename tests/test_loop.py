@@ -1,0 +1,62 @@
+"""Loop detection (``infer.loop.looks_like_loop``): the ends must meet in joint positions too."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import motion_arrays
+
+from mdvae_cli.body.builtin import builtin_body_model
+from mdvae_cli.formats.npz_io import motion_from_arrays
+from mdvae_cli.infer.loop import end_gaps, looks_like_loop, posed_joints, rest_joints
+
+T = 60
+t = np.arange(T) / 30.0
+phase = 2 * np.pi * t / 2.0  # one period over the 60 frames: frame 60 would equal frame 0
+
+
+def cycle(trans: np.ndarray):
+    """A 60-frame cycle of the body joints (root upright) on the root path ``trans`` (T, 3)."""
+    m = motion_from_arrays(motion_arrays(T=T, width=72))
+    pose = 0.4 * np.sin(phase[:, None, None] + np.arange(21)[None, :, None] * 0.3)
+    root = np.tile([[np.pi / 2, 0.0, 0.0]], (T, 1))
+    pose = np.broadcast_to(pose, (T, 21, 3)).copy()
+    return m.with_body(root_orient=root, pose_body=pose, trans=trans)
+
+
+def test_an_in_place_cycle_and_a_walk_cycle_are_loops():
+    bounce = 0.9 + 0.02 * np.cos(2 * phase)
+    in_place = np.stack([0.05 * np.sin(phase), 0.05 * np.cos(phase) - 0.05, bounce], 1)
+    assert looks_like_loop(cycle(in_place))
+    walk = np.stack([1.2 * t, 0.02 * np.sin(phase), bounce], 1)
+    assert looks_like_loop(cycle(walk))
+
+
+def test_a_take_whose_ends_are_13_cm_apart_is_not_a_loop():
+    """The poses meet (same rotations at both ends), but the root wanders and ends 13 cm from
+    where it started: dance2's case."""
+    wander = 0.5 * np.sin(2 * np.pi * t / t[-1])[:, None] * [1.0, 0.6, 0.0]  # 0 at both ends
+    drift = (t / t[-1])[:, None] * [0.13, 0.0, 0.0]
+    trans = wander + drift + [0.0, 0.0, 0.9]
+    m = cycle(trans)
+    pose_gap, root_gap = end_gaps(
+        np.concatenate([m.root_orient[:, None], m.pose_body], 1),
+        m.trans,
+        rest_joints(builtin_body_model(), m.betas),
+    )
+    assert pose_gap < 0.05 and abs(root_gap - 0.13) < 0.01
+    assert not looks_like_loop(m)
+    m.trans[:, 2] += 0.13 * t / t[-1] - drift[:, 0]  # ends 13 cm higher instead: no loop either
+    assert not looks_like_loop(m)
+
+
+def test_posed_joints_turn_with_the_root():
+    joints = rest_joints(builtin_body_model(), np.zeros(10))
+    rest = posed_joints(np.zeros((1, 22, 3)), joints)[0]
+    np.testing.assert_allclose(rest, joints - joints[0], atol=1e-12)
+    turned = np.zeros((1, 22, 3))
+    turned[0, 0] = [0.0, 0.0, np.pi / 2]  # a quarter turn about z: (x, y) -> (-y, x)
+    np.testing.assert_allclose(
+        posed_joints(turned, joints)[0],
+        (rest @ np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1]])),
+        atol=1e-12,
+    )
