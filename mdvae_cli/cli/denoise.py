@@ -240,7 +240,7 @@ def denoise(
                 denoiser,
                 body,
                 progress=tick,
-                loops=[cycles[item] for item in keys],
+                loops=None if loop is None else [loop] * len(motions),
                 on_blend=lambda k, report: blends.__setitem__(keys[k], report),
                 on_fallback=lambda k, a, b: fallbacks.setdefault(keys[k], []).append(
                     [round(a, 3), round(b, 3)]

@@ -20,6 +20,7 @@ from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.input_kinds import refine_config
 from mdvae_cli.infer.loop import looks_like_loop
 from mdvae_cli.infer.noise_blend import BlendReport
+from mdvae_cli.infer.rest_pose import keep_rest_frames
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
@@ -39,7 +40,8 @@ class DenoiseSettings:
     input's own noise does not explain; guard: fall back to the smoothed input where the
     output moved further than the noise explains; feet: "lock" or "off"; loop: True / False,
     or None to detect cycles; mirror: average with the mirror image's result;
-    optimize_steps, lr, seed: optimisation mode; window, overlap: the windows (30 Hz frames).
+    optimize_steps, lr, seed: optimisation mode; window, overlap: the windows (30 Hz frames);
+    rest_pose: leading rest-pose frames (an exporter's T-pose frame 0) kept as they came.
     """
 
     input_kind: str = "mocap"
@@ -59,6 +61,7 @@ class DenoiseSettings:
     seed: int = 0
     window: int = 60
     overlap: int = 15
+    rest_pose: bool = True
 
     def __post_init__(self) -> None:
         if self.feet not in FEET:
@@ -128,22 +131,27 @@ def denoise(
         body = BodyModel(load_body_model(None))
     refine = settings.refine()
     model = copy.deepcopy(denoiser) if settings.optimize_steps else denoiser
-    return denoise_motions(
-        motions,
-        model,
-        body,
-        settings.window,
-        settings.window - settings.overlap,
-        optimize_steps=settings.optimize_steps,
-        lr=settings.lr,
-        seed=settings.seed,
-        progress=progress,
-        refine=refine,
-        mirror=settings.mirror,
-        guard=settings.guard and refine is not None,
-        on_fallback=on_fallback,
-        loops=loops if loops is not None else loops_of(motions, settings),
-        feet=FootLockConfig() if settings.feet == "lock" else None,
-        blend=settings.blend and refine is not None,
-        on_blend=on_blend,
-    )
+
+    def run(ms: list[Motion]) -> list[Motion]:
+        return denoise_motions(
+            ms,
+            model,
+            body,
+            settings.window,
+            settings.window - settings.overlap,
+            optimize_steps=settings.optimize_steps,
+            lr=settings.lr,
+            seed=settings.seed,
+            progress=progress,
+            refine=refine,
+            mirror=settings.mirror,
+            guard=settings.guard and refine is not None,
+            on_fallback=on_fallback,
+            # cycles are judged on the motions as denoised (rest-pose frames cut off)
+            loops=loops if loops is not None else loops_of(ms, settings),
+            feet=FootLockConfig() if settings.feet == "lock" else None,
+            blend=settings.blend and refine is not None,
+            on_blend=on_blend,
+        )
+
+    return keep_rest_frames(motions, run) if settings.rest_pose else run(motions)
