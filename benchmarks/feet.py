@@ -38,7 +38,7 @@ from mdvae_cli.infer.input_kinds import refine_config
 from mdvae_cli.infer.leg_ik import LegModel, pose_legs
 from mdvae_cli.metrics import EvalResult
 from mdvae_cli.model.denoiser import Denoiser, load_denoiser
-from mdvae_cli.motion.contacts import contacts_of_feet
+from mdvae_cli.motion.contacts import contacts_of_feet, foot_of_joints
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.train.corpus import read_split
 
@@ -88,6 +88,33 @@ def contacts_found(motions: Sequence[Motion], body: BodyModel, cfg: FootLockConf
         feet = feet_of(pose_legs(m, LegModel.build(body, m.betas))[0])
         out.append(detect_contacts(feet, m.fps, cfg))
     return out
+
+
+def knee_bends(motion: Motion, body: BodyModel, betas: np.ndarray | None = None) -> np.ndarray:
+    """Each knee's bend angle (0 = straight), degrees, from hip, knee and ankle as posed with the
+    shape ``betas`` (default the motion's).  -> (T, 2) left, right"""
+    pos = pose_legs(motion, LegModel.build(body, motion.betas if betas is None else betas))[0]
+    thigh, shank = pos[:, :, 1] - pos[:, :, 0], pos[:, :, 2] - pos[:, :, 1]
+    cos = (thigh * shank).sum(-1) / np.maximum(
+        np.linalg.norm(thigh, axis=-1) * np.linalg.norm(shank, axis=-1), 1e-12
+    )
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def stance_knee_error(
+    gt: Sequence[Motion], pred: Sequence[Motion], body: BodyModel, truth: Sequence[np.ndarray]
+) -> tuple[float, float]:
+    """Knees of legs whose foot is down in the ground truth (``truth``: its (T, 4) contacts):
+    the mean |bend angle - the truth's| (degrees), and the share of those knees held straight
+    (bend under 2 degrees) where the truth's bends over 5.  -> (error, share)"""
+    errors, straight = [], []
+    for g, p, c in zip(gt, pred, truth, strict=True):
+        down = foot_of_joints(c)
+        bend_gt, bend = knee_bends(g, body)[down], knee_bends(p, body, g.betas)[down]
+        errors.append(np.abs(bend - bend_gt))
+        straight.append((bend < 2.0)[bend_gt > 5.0])
+    e, s = np.concatenate(errors), np.concatenate(straight)
+    return float(e.mean()) if e.size else 0.0, float(s.mean()) if s.size else 0.0
 
 
 def _seconds(fn) -> float:

@@ -14,6 +14,7 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.export import pose_motion_chunks
 from mdvae_cli.infer import leg_ik
 from mdvae_cli.infer.feet import (
+    SUNK_TOL,
     FootLockConfig,
     clean_contacts,
     contact_runs,
@@ -196,7 +197,9 @@ def test_lock_brings_a_sliding_foot_to_rest_and_leaves_the_rest(body):
     speed = lambda f: np.linalg.norm(np.diff(f[..., :2], axis=0), axis=-1) * FPS  # noqa: E731
     assert np.allclose(speed(before)[:40], 0.1, atol=1e-4)
     assert speed(after)[3:38].max() < 0.002  # was 10 cm/s: now still
-    assert np.abs(soles_after[:40] - soles_before[:40]).max() < 2e-3  # kept on the floor
+    # kept on the floor (the knee keeps most of its bend: the swing about the hip leaves the
+    # soles a little off)
+    assert np.abs(soles_after[:40] - soles_before[:40]).max() < 2.5e-3
     # only hips, knees and ankles change, and only near the contact (fade 0.2 s = 6 frames)
     changed = np.abs(locked.pose_body - m.pose_body).max(axis=2)
     assert (changed[:40][:, LEG_ROWS] > 0).all(1).sum() >= 38  # (not where already on anchor)
@@ -225,7 +228,10 @@ def test_a_foot_under_the_floor_is_lifted_onto_it(body):
     locked = lock_feet(m, body)
     _, before = feet_and_soles(m, body)
     _, after = feet_and_soles(locked, body)
-    assert before.min() < -0.04 and after.min() > -0.003
+    # sunk more than SUNK_TOL: lifted onto the floor (the knee bends as far as that needs);
+    # less: left within SUNK_TOL (a knee is not turned for a few millimetres)
+    assert before.min() < -0.04 and after[before < -SUNK_TOL].min() > -0.001
+    assert after.min() > -SUNK_TOL
     assert np.array_equal(after[before > 0.001], before[before > 0.001])
 
 

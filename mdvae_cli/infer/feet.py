@@ -41,6 +41,7 @@ import numpy as np
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_smooth
 from mdvae_cli.infer.leg_ik import (
+    CHUNK_FRAMES,
     LEGS,
     LegModel,
     leg_chain,
@@ -48,8 +49,8 @@ from mdvae_cli.infer.leg_ik import (
     pose_legs,
     rotvec_to_rotmat_np,
     sole_heights,
+    swing_ik,
     to_rotvecs,
-    two_bone_ik,
 )
 from mdvae_cli.motion.contacts import (
     FOOT_SIDE,
@@ -60,6 +61,8 @@ from mdvae_cli.motion.contacts import (
 )
 from mdvae_cli.motion.motion import Motion
 
+#: a foot this far (m) under the floor is lifted onto it, its knee bending as far as needed
+SUNK_TOL = 0.005
 #: per leg (left, right): its (ankle, ball) columns of FOOT_JOINTS
 LEG_COLUMNS = ((0, 2), (1, 3))
 
@@ -90,7 +93,9 @@ class FootLockConfig:
     trust_below: float = 0.02
     distrust_above: float = 0.08
     reference_smooth_s: float = 0.05
-    passes: int = 2
+    passes: int = 1
+    knee_stiffness: float = 0.3
+    bend_stiffness: float = 0.3
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
@@ -103,6 +108,8 @@ class FootLockConfig:
             raise ValueError(f"keep must be in [0, 1], got {self.keep}")
         if not self.distrust_above > self.trust_below:
             raise ValueError("distrust_above must be larger than trust_below")
+        if not (self.knee_stiffness > 0 and self.bend_stiffness >= 0):
+            raise ValueError("knee_stiffness must be > 0 and bend_stiffness >= 0")
         if self.passes < 1:
             raise ValueError(f"passes must be >= 1, got {self.passes}")
 
@@ -121,22 +128,34 @@ def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
+def last_true(c: np.ndarray) -> np.ndarray:
+    """For each frame, the last frame at or before it where ``c`` is True (-1 if none), each
+    column on its own.  (T, K) bool -> (T, K) int"""
+    t = np.arange(len(c))[:, None]
+    return np.maximum.accumulate(np.where(c, t, -1), axis=0)
+
+
+def next_true(c: np.ndarray) -> np.ndarray:
+    """For each frame, the first frame at or after it where ``c`` is True (T if none), each
+    column on its own.  (T, K) bool -> (T, K) int"""
+    T = len(c)
+    t = np.arange(T)[:, None]
+    return np.minimum.accumulate(np.where(c, t, T)[::-1], axis=0)[::-1]
+
+
 def clean_contacts(contacts: np.ndarray, min_frames: int, max_gap: int, extend: int) -> np.ndarray:
     """Fill gaps of up to ``max_gap`` frames between two contacts, drop contacts shorter than
     ``min_frames``, then extend the others by ``extend`` frames at both ends; each column on its
-    own.  (T, K) bool -> (T, K) bool"""
-    out = np.array(contacts, dtype=bool)
-    T = out.shape[0]
-    for k in range(out.shape[1]):
-        runs = contact_runs(out[:, k])
-        for (_, stop), (start, _) in zip(runs[:-1], runs[1:], strict=True):
-            if start - stop <= max_gap:
-                out[stop:start, k] = True
-        for start, stop in contact_runs(out[:, k]):
-            out[start:stop, k] = False
-            if stop - start >= min_frames:
-                out[max(start - extend, 0) : min(stop + extend, T), k] = True
-    return out
+    own, with no loop over frames or runs.  (T, K) bool -> (T, K) bool"""
+    c = np.array(contacts, dtype=bool)
+    T = len(c)
+    t = np.arange(T)[:, None]
+    before, after = last_true(c), next_true(c)
+    c |= (before >= 0) & (after < T) & (after - before - 1 <= max_gap)
+    run = next_true(~c) - last_true(~c) - 1  # in a run: its length
+    c &= run >= min_frames
+    before, after = last_true(c), next_true(c)
+    return ((before >= 0) & (t - before <= extend)) | ((after < T) & (after - t <= extend))
 
 
 def detect_contacts(feet: np.ndarray, fps: float, cfg: FootLockConfig) -> np.ndarray:
@@ -165,29 +184,32 @@ def fade_weights(contacts: np.ndarray, blend: int) -> np.ndarray:
     ``blend + 1`` frames away (smoothstep); where two runs are that close, they share the frame
     (weights normalised to sum 1).
     """
-    T, K = np.shape(contacts)
-    w = np.zeros((T, K, 2))
-    t = np.arange(T)
-    for k in range(K):
-        for start, stop in contact_runs(contacts[:, k]):
-            after = _smoothstep(1 - (t - (stop - 1)) / (blend + 1)) * (t >= stop)
-            before = _smoothstep(1 - (start - t) / (blend + 1)) * (t < start)
-            w[:, k, 0] = np.maximum(w[:, k, 0], after)
-            w[:, k, 1] = np.maximum(w[:, k, 1], before)
-            w[start:stop, k] = 1.0
+    c = np.asarray(contacts, dtype=bool)
+    T = len(c)
+    t = np.arange(T)[:, None]
+    before, after = last_true(c), next_true(c)
+    w = np.stack(
+        [
+            np.where(before >= 0, _smoothstep(1 - (t - before) / (blend + 1)), 0.0),
+            np.where(after < T, _smoothstep(1 - (after - t) / (blend + 1)), 0.0),
+        ],
+        axis=-1,
+    )
     total = w.sum(-1, keepdims=True)
-    share = ~np.asarray(contacts, dtype=bool)[..., None] & (total > 1)
+    share = ~c[..., None] & (total > 1)
     return np.where(share, w / np.maximum(total, 1e-12), w)
 
 
 def run_means(values: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     """Each contact run's mean value, on the run's frames (``values`` elsewhere).
     values (T, K, D), contacts (T, K) bool -> (T, K, D)"""
-    out = np.array(values, dtype=np.float64)
-    for k in range(out.shape[1]):
-        for start, stop in contact_runs(contacts[:, k]):
-            out[start:stop, k] = out[start:stop, k].mean(0)
-    return out
+    values = np.asarray(values, dtype=np.float64)
+    c = np.asarray(contacts, dtype=bool)
+    start, stop = last_true(~c) + 1, next_true(~c)  # in a run: its [start, stop)
+    sums = np.concatenate([np.zeros((1, *values.shape[1:])), np.cumsum(values, axis=0)])
+    k = np.arange(c.shape[1])[None, :]
+    mean = (sums[stop, k] - sums[start, k]) / np.maximum(stop - start, 1)[..., None]
+    return np.where(c[..., None], mean, values)
 
 
 def hold_targets(
@@ -201,15 +223,18 @@ def hold_targets(
     before it and the start of the run after it, times their weights.
     -> (T, K, 3); equal to ``positions`` where ``weights`` are 0.
     """
-    T, K = np.shape(contacts)
     inside = np.asarray(contacts, dtype=bool)
+    T = len(inside)
     shift = np.where(inside[..., None], goals - positions, 0.0)
-    ends = np.zeros((T, K, 2, 3))  # the shift at the end of the run before, the start of the next
-    for k in range(K):
-        runs = contact_runs(inside[:, k])
-        for i, (start, stop) in enumerate(runs):
-            ends[stop : runs[i + 1][0] if i + 1 < len(runs) else T, k, 0] = shift[stop - 1, k]
-            ends[runs[i - 1][1] if i else 0 : start, k, 1] = shift[start, k]
+    k = np.arange(inside.shape[1])[None, :]
+    before, after = last_true(inside), next_true(inside)
+    ends = np.stack(
+        [
+            np.where((before >= 0)[..., None], shift[np.maximum(before, 0), k], 0.0),
+            np.where((after < T)[..., None], shift[np.minimum(after, T - 1), k], 0.0),
+        ],
+        axis=-2,
+    )  # the shift at the end of the run before, the start of the next
     return positions + np.where(inside[..., None], shift, (weights[..., None] * ends).sum(-2))
 
 
@@ -236,12 +261,13 @@ def feet_of(pos: np.ndarray) -> np.ndarray:
 
 
 def input_trust(source: Motion, model: LegModel, cfg: FootLockConfig) -> tuple[float, np.ndarray]:
-    """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed.
-    model: the legs of the input's shape.  -> (trust, (T, 4, 3))"""
-    src = feet_of(pose_legs(source, model)[0])
+    """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed
+    (left as they are when the trust is 0). model: the legs of the input's shape.
+    -> (trust, (T, 4, 3))"""
+    src = feet_of(pose_legs(source, model, soles=False)[0])
     span = cfg.distrust_above - cfg.trust_below
     trust = float(np.clip((cfg.distrust_above - input_jitter(src)) / span, 0.0, 1.0))
-    if len(src) > 1:
+    if trust > 0 and len(src) > 1:
         src = gaussian_smooth(src, cfg.reference_smooth_s * source.fps)
     return trust, src
 
@@ -256,7 +282,8 @@ def lock_feet(
 
     source: the input ``motion`` was made from (same frames), or None. Returns a copy; hips,
     knees and ankles change only near contacts and where a foot is under the floor, and only on
-    legs that have a target there.
+    legs that have a target there. Vectorised over frames, the legs solved ``CHUNK_FRAMES`` at a
+    time (memory flat on long takes).
     """
     cfg = cfg or FootLockConfig()
     if source is not None and source.num_frames != motion.num_frames:
@@ -278,31 +305,69 @@ def lock_feet(
             source, model if same else LegModel.build(body, source.betas), cfg
         )
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
+    sunk = soles < floor - SUNK_TOL  # (T, 2) a foot under the floor: its knee bends freely
     under = (soles < floor)[:, list(FOOT_SIDE)]  # a foot under the floor: both its joints
     held = contacts | (weights.sum(-1) > 0) | under
     f = np.flatnonzero(held.any(1))
     columns = np.asarray(LEG_COLUMNS)
-    legs_held = held[f][:, columns]  # (B, 2, 2)
-    root = rotvec_to_rotmat_np(motion.root_orient[f])
-    pelvis = motion.trans[f] + model.pelvis
-    legs = leg_rotations(motion, f)
-    flexion = motion.pose_body[f][:, [LEGS[0][1] - 1, LEGS[1][1] - 1], 0]
     free = ~contacts[f]
-    new, sub_pos, sub_soles = legs, pos[f], soles[f]
-    for _ in range(cfg.passes):
-        # each joint's height above its foot's lowest sole point, as posed now
-        clearance = feet_of(sub_pos)[..., 2] - sub_soles[:, list(FOOT_SIDE)]
+    # each joint's height above its foot's lowest sole point, as posed (then as the last pass
+    # left it)
+    clearance = feet[f, :, 2] - soles[f][:, list(FOOT_SIDE)]
+    new_rotvecs = None
+    for i in range(cfg.passes):
         heights = feet[..., 2].copy()
         heights[f] = floor + clearance
         goals[..., 2] = heights
         goal = trust * reference + (1 - trust) * goals
         targets = hold_targets(feet, contacts, goal, weights)[f]
         targets[..., 2] = np.where(free, np.maximum(targets[..., 2], heights[f]), targets[..., 2])
-        new = two_bone_ik(root, legs, pelvis, model.bones, targets[:, columns], legs_held, flexion)
-        sub_pos, G = leg_chain(root, new, pelvis, model.bones)
-        sub_soles = sole_heights(sub_pos, G, model)
+        last = i == cfg.passes - 1
+        clearance, new_rotvecs = _solve_legs(
+            motion, model, f, targets[:, columns], held[f][:, columns], sunk[f], cfg, last
+        )
     out = motion.pose_body.copy()
-    b, leg = np.nonzero(legs_held.any(-1))  # frames where each leg has a target
+    b, leg = np.nonzero(held[f][:, columns].any(-1))  # frames where each leg has a target
     joints = np.asarray(LEGS)[leg, :3] - 1  # pose_body rows of hip, knee, ankle
-    out[f[b, None], joints] = to_rotvecs(new[b, leg, :3], motion.pose_body[f[b, None], joints])
+    out[f[b, None], joints] = new_rotvecs[b, leg]
     return motion.with_body(pose_body=out)
+
+
+def _solve_legs(
+    motion: Motion,
+    model: LegModel,
+    frames: np.ndarray,
+    targets: np.ndarray,
+    held: np.ndarray,
+    sunk: np.ndarray,
+    cfg: FootLockConfig,
+    rotvecs: bool,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The leg IK (:func:`swing_ik`) on ``frames`` of ``motion``, ``CHUNK_FRAMES`` at a time.
+    With ``rotvecs`` (the last pass), the new rotations as axis-angles; else the clearance the
+    next pass needs.
+
+    targets: (B, 2, 2, 3), held: (B, 2, 2) bool, per leg (ankle, ball); sunk: (B, 2) bool, legs
+    whose foot is under the floor (their knees bend as far as needed). -> the foot joints'
+    heights above their soles as posed after it (B, 4), and with ``rotvecs`` the new hip, knee
+    and ankle axis-angles (B, 2, 3, 3) on the branch of the motion's own (else None; the
+    clearance is then left unset)."""
+    B = len(frames)
+    clearance = np.empty((B, 4))
+    out = np.empty((B, 2, 3, 3)) if rotvecs else None
+    rows = np.asarray(LEGS)[:, :3] - 1  # pose_body rows of hip, knee, ankle per leg
+    for s in range(0, B, CHUNK_FRAMES):
+        sl = slice(s, min(s + CHUNK_FRAMES, B))
+        f = frames[sl]
+        root = rotvec_to_rotmat_np(np.asarray(motion.root_orient[f], dtype=np.float64))
+        pelvis = motion.trans[f] + model.pelvis
+        legs = leg_rotations(motion, f)
+        flexion = motion.pose_body[f][:, rows[:, 1], 0]
+        new = swing_ik(root, legs, pelvis, model.bones, targets[sl], held[sl], flexion,
+                       cfg.knee_stiffness, np.where(sunk[sl], 0.0, cfg.bend_stiffness))  # fmt: skip
+        if out is not None:
+            out[sl] = to_rotvecs(new[:, :, :3], motion.pose_body[f][:, rows])
+        else:
+            pos, G = leg_chain(root, new, pelvis, model.bones)
+            clearance[sl] = feet_of(pos)[..., 2] - sole_heights(pos, G, model)[:, list(FOOT_SIDE)]
+    return clearance, out
