@@ -14,7 +14,6 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.export import pose_motion_chunks
 from mdvae_cli.infer import leg_ik
 from mdvae_cli.infer.feet import (
-    SUNK_TOL,
     FootLockConfig,
     clean_contacts,
     contact_runs,
@@ -196,7 +195,9 @@ def test_lock_brings_a_sliding_foot_to_rest_and_leaves_the_rest(body):
     after, soles_after = feet_and_soles(locked, body)
     speed = lambda f: np.linalg.norm(np.diff(f[..., :2], axis=0), axis=-1) * FPS  # noqa: E731
     assert np.allclose(speed(before)[:40], 0.1, atol=1e-4)
-    assert speed(after)[3:38].max() < 0.002  # was 10 cm/s: now still
+    # was 10 cm/s: now still (the balls within 3 mm/s: the foot's length is kept where the
+    # ankle, its knee keeping its bend, lands a little off its goal)
+    assert speed(after)[3:38, :2].max() < 1e-5 and speed(after)[3:38].max() < 0.003
     # kept on the floor (the knee keeps most of its bend: the swing about the hip leaves the
     # soles a little off)
     assert np.abs(soles_after[:40] - soles_before[:40]).max() < 2.5e-3
@@ -225,14 +226,16 @@ def test_a_foot_under_the_floor_is_lifted_onto_it(body):
     m.trans[:, 2] = on_floor + 0.05 * np.sin(np.arange(60) / 5)  # bobbing 5 cm up and down
     m.trans[10:20, 0] = m.trans[10, 0]  # but still for 10 frames, on the floor: a contact
     m.trans[10:20, 2] = on_floor
-    locked = lock_feet(m, body)
+    cfg = FootLockConfig(sunk_tol=0.02)
+    locked = lock_feet(m, body, cfg)
     _, before = feet_and_soles(m, body)
     _, after = feet_and_soles(locked, body)
-    # sunk more than SUNK_TOL: lifted onto the floor (the knee bends as far as that needs);
-    # less: left within SUNK_TOL (a knee is not turned for a few millimetres)
-    assert before.min() < -0.04 and after[before < -SUNK_TOL].min() > -0.001
-    assert after.min() > -SUNK_TOL
-    assert np.array_equal(after[before > 0.001], before[before > 0.001])
+    # sunk more than sunk_tol: lifted onto the floor (the knee bends as far as that needs);
+    # less: left within sunk_tol (the knee keeps its bend rather than turn for a few mm)
+    assert before.min() < -0.04 and after[before < -cfg.sunk_tol].min() > -0.001
+    assert after.min() > -cfg.sunk_tol
+    above = before > 0.001  # (next to the contact, its tiny correction fades out)
+    assert np.abs(after[above] - before[above]).max() < 1e-4
 
 
 def test_a_clean_input_keeps_its_own_feet(body):

@@ -61,8 +61,6 @@ from mdvae_cli.motion.contacts import (
 )
 from mdvae_cli.motion.motion import Motion
 
-#: a foot this far (m) under the floor is lifted onto it, its knee bending as far as needed
-SUNK_TOL = 0.005
 #: per leg (left, right): its (ankle, ball) columns of FOOT_JOINTS
 LEG_COLUMNS = ((0, 2), (1, 3))
 
@@ -94,12 +92,15 @@ class FootLockConfig:
     distrust_above: float = 0.08
     reference_smooth_s: float = 0.05
     passes: int = 1
-    knee_stiffness: float = 0.3
-    bend_stiffness: float = 0.3
+    knee_stiffness: float = 0.5
+    bend_stiffness: float = 0.5
+    sunk_tol: float = math.inf
+    keep_smooth_s: float = 0.1
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
-                     "trust_below", "reference_smooth_s"):  # fmt: skip
+                     "trust_below", "reference_smooth_s", "sunk_tol",
+                     "keep_smooth_s"):  # fmt: skip
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not (self.height_tol > 0 and self.speed_tol > 0):
@@ -297,7 +298,10 @@ def lock_feet(
     floor = estimate_floor(soles, foot_of_joints(contacts))
     anchors = run_means(feet[..., :2], contacts)
     goals = feet.copy()
-    goals[..., :2] = anchors + cfg.keep * (feet[..., :2] - anchors)
+    kept = feet[..., :2]
+    if len(feet) > 1 and cfg.keep_smooth_s > 0:
+        kept = gaussian_smooth(kept, cfg.keep_smooth_s * motion.fps)
+    goals[..., :2] = anchors + cfg.keep * (kept - anchors)
     trust, reference = 0.0, feet
     if source is not None:
         same = np.array_equal(source.betas, motion.betas)
@@ -305,7 +309,7 @@ def lock_feet(
             source, model if same else LegModel.build(body, source.betas), cfg
         )
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
-    sunk = soles < floor - SUNK_TOL  # (T, 2) a foot under the floor: its knee bends freely
+    sunk = soles < floor - cfg.sunk_tol  # (T, 2) a foot under the floor: its knee bends freely
     under = (soles < floor)[:, list(FOOT_SIDE)]  # a foot under the floor: both its joints
     held = contacts | (weights.sum(-1) > 0) | under
     f = np.flatnonzero(held.any(1))

@@ -325,8 +325,7 @@ def swing_ik(
     follows most of it, a nearly straight one hardly turns and is never pulled straight). The
     hip then turns (smallest rotation) to point the leg at the ankle's target, kept at its
     horizontal place where the leg's reach allows (the miss goes to the height), and the ankle
-    turns to point the foot at the ball's target (its horizontal place, as far as the foot
-    reaches), or keeps the foot's world orientation.
+    turns to point the foot at the ball's target, or keeps the foot's world orientation.
     -> (B, 2, 4, 3, 3) the new local rotations (the ball's own unchanged).
     """
     pos, G = leg_chain(root, legs, pelvis, bones)
@@ -354,8 +353,7 @@ def swing_ik(
     knee_world = R0 @ hip_local @ knee_local
     turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
     toe = (turned @ bones[:, 3, :, None])[..., 0]  # ankle -> ball, turned with the shank
-    foot = on_sphere(targets[:, :, 1] - (hip + aim_at), np.linalg.norm(toe, axis=-1))
-    aim = swing(toe, foot) @ turned
+    aim = swing(toe, targets[:, :, 1] - (hip + aim_at)) @ turned
     foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
     ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
     return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)
