@@ -313,3 +313,78 @@ def test_feet_benchmark_runs_on_two_clips(body):
 
 def _joints(motion: Motion, body: BodyModel) -> np.ndarray:
     return np.concatenate([o.joints.double().numpy() for _, o in pose_motion_chunks(motion, body)])
+
+
+# --------------------------------------------------------------------------------------------
+# knees that keep their bend, long takes
+
+
+def knee_bend_degrees(motion: Motion, body: BodyModel) -> np.ndarray:
+    """Each knee's bend (angle between thigh and shank), degrees.  -> (T, 2)"""
+    pos, _ = leg_ik.pose_legs(motion, leg_ik.LegModel.build(body, motion.betas), soles=False)
+    thigh, shank = pos[:, :, 1] - pos[:, :, 0], pos[:, :, 2] - pos[:, :, 1]
+    cos = (thigh * shank).sum(-1) / np.linalg.norm(thigh, axis=-1) / np.linalg.norm(shank, axis=-1)
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+def test_a_bent_stance_knee_stays_bent_while_the_foot_stops_sliding(body):
+    # a denoised-looking stance: knees bent ~23 degrees, feet sliding at 10 cm/s, the pelvis
+    # bobbing 1 cm (the height goal asks each frame for a slightly longer or shorter leg)
+    m = crouch(60)
+    m.pose_body[:, [0, 1], 0] = -0.15
+    m.pose_body[:, [3, 4], 0] = 0.3
+    m.pose_body[:, [6, 7], 0] = -0.15
+    m.trans[:, 0] = 0.1 / FPS * np.arange(60)
+    m.trans[:, 2] = 0.01 * np.sin(np.arange(60) / 3)
+    m.trans[:, 2] -= feet_and_soles(m, body)[1].min()
+    locked = lock_feet(m, body, FootLockConfig(keep=0.0))
+    before, after = knee_bend_degrees(m, body), knee_bend_degrees(locked, body)
+    assert np.allclose(before, 22.9, atol=0.1)  # (the rest leg bends ~6 degrees)
+    # within 1.5 degrees of its bend; the two-bone turn that met the height goals exactly
+    # moved it by up to ~6 degrees here, and straightened it where the goal was out of reach
+    assert np.abs(after - before).max() < 1.5 and after.min() > 21.4
+    feet_before, _ = feet_and_soles(m, body)
+    feet_after, _ = feet_and_soles(locked, body)
+    speed = lambda f: np.linalg.norm(np.diff(f[..., :2], axis=0), axis=-1) * FPS  # noqa: E731
+    assert speed(feet_before)[5:55].min() > 0.09
+    # ankles nailed; the balls, the foot aimed from an ankle that the knee lets ride ~1 cm up
+    # and down with the pelvis, slide at under a third of their speed before
+    assert speed(feet_after)[5:55, :2].max() < 1e-4 and speed(feet_after)[5:55].max() < 0.035
+
+
+def test_swing_ik_keeps_the_knee_for_a_horizontal_move_and_lands_on_the_target(body):
+    m = crouch(20)
+    model = leg_ik.LegModel.build(body, m.betas)
+    root, legs, pelvis = chain_of(m, model)
+    pos, _ = leg_ik.leg_chain(root, legs, pelvis, model.bones)
+    shift = np.zeros((20, 1, 1, 3))
+    shift[..., 0] = np.linspace(-0.08, 0.08, 20)[:, None, None]  # up to 8 cm forward or back
+    targets = pos[:, :, 2:] + shift
+    held = np.ones((20, 2, 2), dtype=bool)
+    new = leg_ik.swing_ik(root, legs, pelvis, model.bones, targets, held, m.pose_body[:, [3, 4], 0],
+                          stiffness=0.5, bend_stiffness=0.5)  # fmt: skip
+    after, _ = leg_ik.leg_chain(root, new, pelvis, model.bones)
+    # the knee's own rotation turns by the damped step only: the ankle moves on (nearly) a
+    # sphere about the hip, so the step is small; horizontally the ankle is on its target
+    knee_turn = np.abs(leg_ik.rotmat_to_rotvec_np(legs[:, :, 1].swapaxes(-1, -2) @ new[:, :, 1]))
+    assert knee_turn.max() < np.radians(1.0)
+    assert np.abs(after[:, :, 2, :2] - targets[:, :, 0, :2]).max() < 1e-6
+    assert np.abs(after[:, :, 2, 2] - targets[:, :, 0, 2]).max() < 0.005  # the miss: height
+
+
+def tiled(piece: Motion, n: int) -> Motion:
+    return Motion(root_orient=np.tile(piece.root_orient, (n, 1)),
+                  pose_body=np.tile(piece.pose_body, (n, 1, 1)),
+                  trans=np.tile(piece.trans, (n, 1)), betas=piece.betas, fps=piece.fps)  # fmt: skip
+
+
+def test_a_long_take_is_locked_as_its_pieces_are(body):
+    # 230 copies of a 3 s piece (a sliding contact, then a jump): 20,700 frames, more than two
+    # chunks of the leg solve and a jitter read on samples; each copy locked as in a short take
+    piece = sliding_then_jumping(body)
+    short, long = tiled(piece, 3), tiled(piece, 230)
+    assert long.num_frames > 2 * leg_ik.CHUNK_FRAMES
+    ref = lock_feet(short, body, source=short).pose_body[90:180]
+    out = lock_feet(long, body, source=long).pose_body
+    for k in (1, 45, 91, 182, 228):  # 91 and 182 hold the chunks' edges (8192, 16384)
+        assert np.abs(out[90 * k : 90 * (k + 1)] - ref).max() < 1e-9, k

@@ -248,8 +248,15 @@ def input_jitter(feet: np.ndarray) -> float:
     feet (T, 4, 3) -> metres"""
     if len(feet) < 3:
         return 0.0
-    d2 = feet[:-2] - 2 * feet[1:-1] + feet[2:]
+    return _jitter(feet[:-2] - 2 * feet[1:-1] + feet[2:])
+
+
+def _jitter(d2: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(d2, axis=-1)) / math.sqrt(6))
+
+
+#: a long take's jitter is read on this many triples of consecutive frames, spread evenly
+JITTER_TRIPLES = 4096
 
 
 # --------------------------------------------------------------------------------------------
@@ -261,14 +268,34 @@ def feet_of(pos: np.ndarray) -> np.ndarray:
     return pos[:, :, 2:].transpose(0, 2, 1, 3).reshape(-1, 4, 3)
 
 
-def input_trust(source: Motion, model: LegModel, cfg: FootLockConfig) -> tuple[float, np.ndarray]:
+def input_trust(
+    source: Motion, model: LegModel, cfg: FootLockConfig
+) -> tuple[float, np.ndarray | None]:
     """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed
-    (left as they are when the trust is 0). model: the legs of the input's shape.
-    -> (trust, (T, 4, 3))"""
-    src = feet_of(pose_legs(source, model, soles=False)[0])
+    (None when the trust is 0: a noisy take's legs are posed only on ``JITTER_TRIPLES``
+    triples of frames, enough for the median). model: the legs of the input's shape.
+    -> (trust, (T, 4, 3) or None)"""
+    T = source.num_frames
+    if T > 3 * JITTER_TRIPLES:
+        starts = np.linspace(0, T - 3, JITTER_TRIPLES).astype(int)
+        frames = (starts[:, None] + np.arange(3)).reshape(-1)
+        root = rotvec_to_rotmat_np(np.asarray(source.root_orient[frames], dtype=np.float64))
+        pos, _ = leg_chain(
+            root, leg_rotations(source, frames), source.trans[frames] + model.pelvis, model.bones
+        )
+        f = feet_of(pos).reshape(JITTER_TRIPLES, 3, 4, 3)
+        jitter = _jitter(f[:, 0] - 2 * f[:, 1] + f[:, 2])
+        src = None
+    else:
+        src = feet_of(pose_legs(source, model, soles=False)[0])
+        jitter = input_jitter(src)
     span = cfg.distrust_above - cfg.trust_below
-    trust = float(np.clip((cfg.distrust_above - input_jitter(src)) / span, 0.0, 1.0))
-    if trust > 0 and len(src) > 1:
+    trust = float(np.clip((cfg.distrust_above - jitter) / span, 0.0, 1.0))
+    if trust == 0:
+        return 0.0, None
+    if src is None:
+        src = feet_of(pose_legs(source, model, soles=False)[0])
+    if len(src) > 1:
         src = gaussian_smooth(src, cfg.reference_smooth_s * source.fps)
     return trust, src
 
@@ -302,7 +329,7 @@ def lock_feet(
     if len(feet) > 1 and cfg.keep_smooth_s > 0:
         kept = gaussian_smooth(kept, cfg.keep_smooth_s * motion.fps)
     goals[..., :2] = anchors + cfg.keep * (kept - anchors)
-    trust, reference = 0.0, feet
+    trust, reference = 0.0, None
     if source is not None:
         same = np.array_equal(source.betas, motion.betas)
         trust, reference = input_trust(
@@ -323,7 +350,7 @@ def lock_feet(
         heights = feet[..., 2].copy()
         heights[f] = floor + clearance
         goals[..., 2] = heights
-        goal = trust * reference + (1 - trust) * goals
+        goal = goals if reference is None else trust * reference + (1 - trust) * goals
         targets = hold_targets(feet, contacts, goal, weights)[f]
         targets[..., 2] = np.where(free, np.maximum(targets[..., 2], heights[f]), targets[..., 2])
         last = i == cfg.passes - 1
