@@ -305,8 +305,10 @@ def test_feet_benchmark_runs_on_two_clips(body):
     assert set(result.detection) == {
         "denoised motion (what `--feet lock` uses)", "noisy input, same settings"
     }  # fmt: skip
-    md = markdown([result], "header")
+    assert result.knee_lock[0] >= 0 and 0 <= result.knee_off[1] <= 1
+    md = markdown({"sway": [result]}, "header")
     assert "| 0.10 | `--feet lock` |" in md and "skate / GT skate" in md
+    assert "| sway | 0.10 |" in md and "stance knee error" in md
     cfg, use_input = parse_variant("keep=0,passes=1,input=0")
     assert cfg.keep == 0 and cfg.passes == 1 and not use_input
 
