@@ -284,6 +284,7 @@ def summary_table(by_split: dict[str, Sequence[SigmaResult]]) -> str:
 
 def split_markdown(split: str, results: Sequence[SigmaResult]) -> list[str]:
     """A split's detailed tables: metrics, issue 20's targets, contact detection, time."""
+    cfg = FootLockConfig()
     frames = sum(r.frames for r in results)
     lock_s = sum(r.lock_s for r in results)
     den_s = sum(r.denoise_s for r in results)
@@ -306,9 +307,10 @@ def split_markdown(split: str, results: Sequence[SigmaResult]) -> list[str]:
         "",
         targets_table(results),
         "",
-        "Contacts the lock finds (its settings: smoothed 0.05 s, under 5 cm above the joint's "
-        "floor level, slower than 1 m/s, cleaned and extended), precision / recall against the "
-        "ground truth's (the shared rule: 5 cm, 0.2 m/s, unsmoothed):",
+        f"Contacts the lock finds (its settings: smoothed {cfg.smooth_s:g} s, under "
+        f"{100 * cfg.height_tol:g} cm above the joint's floor level, slower than "
+        f"{cfg.speed_tol:g} m/s, cleaned and extended), precision / recall against the ground "
+        "truth's (the shared rule: 5 cm, 0.2 m/s, unsmoothed):",
         "",
         detection_table(results),
         "",

@@ -54,7 +54,6 @@ from mdvae_cli.infer.leg_ik import (
 )
 from mdvae_cli.motion.contacts import (
     FOOT_SIDE,
-    HEIGHT_TOL,
     contacts_of_feet,
     estimate_floor,
     foot_of_joints,
@@ -81,8 +80,8 @@ class FootLockConfig:
     """
 
     smooth_s: float = 0.05
-    height_tol: float = HEIGHT_TOL
-    speed_tol: float = 1.0
+    height_tol: float = 0.07
+    speed_tol: float = 0.8
     min_contact_s: float = 0.1
     max_gap_s: float = 0.07
     extend_s: float = 0.034
