@@ -362,8 +362,12 @@ def compare_variants(
     variants: Sequence[str],
     seed: int = 0,
 ) -> str:
-    """A table: V2V, skate, penetration, float of ``--feet off``, the defaults and each variant."""
+    """A table: V2V, skate, penetration, float and stance knee error of ``--feet off``, the
+    defaults and each variant."""
     gt = [c.motion for c in clips]
+    truth = [
+        contacts_of_feet(feet_of(pose_legs(m, LegModel.build(body, m.betas))[0]), m.fps) for m in gt
+    ]
     rows = []
     for sigma in sigmas:
         noisy = common.add_noise(clips, sigma, seed)
@@ -378,12 +382,14 @@ def compare_variants(
         scores = common.evaluate_clips(gt, preds, body)
         g = scores["`--feet off`"]
         rows.append([f"{sigma:.2f}", "ground truth", "-", _f(g.foot_skate_gt),
-                     _f(g.penetration_gt, ".3f"), _f(g.float_gt, ".3f")])  # fmt: skip
+                     _f(g.penetration_gt, ".3f"), _f(g.float_gt, ".3f"), "-"])  # fmt: skip
         for name, e in scores.items():
+            knee = stance_knee_error(gt, preds[name], body, truth)[0]
             rows.append([f"{sigma:.2f}", name, _f(e.v2v_cm, ".3f"), _f(e.foot_skate_pred),
-                         _f(e.penetration_pred, ".3f"), _f(e.float_pred, ".3f")])  # fmt: skip
+                         _f(e.penetration_pred, ".3f"), _f(e.float_pred, ".3f"),
+                         f"{knee:.2f}"])  # fmt: skip
     header = ["σ (rad)", "lock settings", "V2V (cm)", "foot skate (cm/s)", "penetration (cm)",
-              "float (cm)"]  # fmt: skip
+              "float (cm)", "stance knee error (°)"]  # fmt: skip
     return common.markdown_table(header, rows)
 
 
