@@ -5,9 +5,12 @@ it was made from (same frames):
 
 1. **Contacts.** The motion's foot joints, smoothed in time (Gaussian, ``smooth_s``), go
    through the shared definition (:func:`mdvae_cli.motion.contacts.contacts_of_feet`: a foot
-   joint low and slow), with a speed threshold (``speed_tol``, 1 m/s) above the one for clean
-   motion (0.3 m/s), because a denoised foot that should stand still slides (by 19 to 48 cm/s
-   on average on clean to very noisy clips). Gaps up to ``max_gap_s`` are filled, contacts
+   joint low and slow), with a height band (``height_tol``, 7 cm) and a speed threshold
+   (``speed_tol``, 0.8 m/s) above the ones for clean motion (5 cm, 0.2 m/s), because a
+   denoised foot that should stand still slides (by 19 to 48 cm/s on average on clean to very
+   noisy clips) and wavers in height; both were set on held-out dance, kicks and acrobatics as
+   well as walks, erring toward a missed contact (a little skate) rather than a wrong one (a
+   foot held where the truth moves it). Gaps up to ``max_gap_s`` are filled, contacts
    shorter than ``min_contact_s`` dropped, and each contact is extended by ``extend_s`` at both
    ends (a foot that slides as it lands or lifts is caught there too). Contacts are found on
    the denoised motion, not on a noisy input, whose feet shake too much (docs/model.md, "Feet
@@ -16,19 +19,28 @@ it was made from (same frames):
    points where the feet are down.
 3. **Goals in contact.** A foot joint (ankle or ball) is held at one anchor per contact run,
    its mean horizontal position over the run, keeping ``keep`` of its own horizontal movement
-   about it; its height puts the foot's lowest sole point on the floor. When the input is
+   about it (smoothed over ``keep_smooth_s``: its drift, not its jitter); its height puts the
+   foot's lowest sole point on the floor. When the input is
    given and clean (its foot joints' jitter, :func:`input_jitter`, under ``trust_below``), the
    goal is instead the input's own foot joints (lightly smoothed): a clean take keeps the feet
    it came with, rolling from heel to toe; between ``trust_below`` and ``distrust_above`` the
    two goals are blended.
 4. **Fades.** A run's correction fades out over ``blend_s`` before and after it (smoothstep),
    in the swing: a fade inside the contact would be sliding itself. Anywhere else, a foot
-   whose sole is under the floor is lifted onto it.
-5. **Leg IK** (:func:`mdvae_cli.infer.leg_ik.two_bone_ik`): hips, knees and ankles turn, in
-   closed form, to put the joints on their targets; ``passes`` times, each with the soles as
-   the pass before left them. Frames more than ``blend_s`` from a contact (with no foot under
-   the floor), legs without a target, and every joint but hips, knees and ankles keep their
-   exact values.
+   whose sole is under the floor gets a goal on it.
+5. **Leg IK that keeps the knee's bend** (:func:`mdvae_cli.infer.leg_ik.swing_ik`): each held
+   leg swings about its hip to put the ankle over its goal, the knee bent as the motion has it;
+   the knee turns only by a damped least-squares step (``knee_stiffness``, ``bend_stiffness``:
+   metres of miss worth a radian of knee), so a nearly straight knee is never pulled straight
+   and the part of a goal the bend cannot reach is left as a small height miss. A foot more
+   than ``sunk_tol`` under the floor may bend its knee as far as lifting it needs (off by
+   default: lifting noisy sinks cost more knee accuracy than it gained). The ankle turns to
+   point the foot at the ball's goal. ``passes`` times, each with the soles as the pass before
+   left them. Frames more than ``blend_s`` from a contact (with no foot under the floor), legs
+   without a target, and every joint but hips, knees and ankles keep their exact values.
+
+Every step is vectorised over frames (no Python loop over frames or contact runs); the legs
+are posed and solved ``CHUNK_FRAMES`` at a time, so memory stays flat on long takes.
 """
 
 from __future__ import annotations
@@ -75,8 +87,12 @@ class FootLockConfig:
     before and after it; keep: the share of its own horizontal movement a held joint keeps
     (0 = nailed to its anchor); trust_below, distrust_above (m): the input's foot jitter under
     which its own feet are the goal, and over which they are ignored; reference_smooth_s: std
-    of the Gaussian on the input's feet used as goal; passes: IK passes (the second puts the
-    soles on the floor as posed by the first).
+    of the Gaussian on the input's feet used as goal; passes: IK passes (a second puts the
+    soles on the floor as posed by the first); knee_stiffness, bend_stiffness (m/rad): how far
+    an ankle may miss a goal further from (nearer to) the hip than the knee's bend gives,
+    rather than straighten (bend) the knee by a radian; sunk_tol (m): a foot deeper than this
+    under the floor bends its knee as far as needed to be lifted (default: never);
+    keep_smooth_s: std of the Gaussian on the movement a held joint keeps (``keep``).
     """
 
     smooth_s: float = 0.05
@@ -372,18 +388,16 @@ def _solve_legs(
     sunk: np.ndarray,
     cfg: FootLockConfig,
     rotvecs: bool,
-) -> tuple[np.ndarray, np.ndarray | None]:
+) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The leg IK (:func:`swing_ik`) on ``frames`` of ``motion``, ``CHUNK_FRAMES`` at a time.
-    With ``rotvecs`` (the last pass), the new rotations as axis-angles; else the clearance the
-    next pass needs.
 
     targets: (B, 2, 2, 3), held: (B, 2, 2) bool, per leg (ankle, ball); sunk: (B, 2) bool, legs
-    whose foot is under the floor (their knees bend as far as needed). -> the foot joints'
-    heights above their soles as posed after it (B, 4), and with ``rotvecs`` the new hip, knee
-    and ankle axis-angles (B, 2, 3, 3) on the branch of the motion's own (else None; the
-    clearance is then left unset)."""
+    whose foot is deeper than ``sunk_tol`` under the floor (their knees bend as far as needed).
+    -> with ``rotvecs`` (the last pass): (None, the new hip, knee and ankle axis-angles
+    (B, 2, 3, 3) on the branch of the motion's own); else (the foot joints' heights above their
+    soles as posed after it (B, 4), None), for the next pass."""
     B = len(frames)
-    clearance = np.empty((B, 4))
+    clearance = None if rotvecs else np.empty((B, 4))
     out = np.empty((B, 2, 3, 3)) if rotvecs else None
     rows = np.asarray(LEGS)[:, :3] - 1  # pose_body rows of hip, knee, ankle per leg
     for s in range(0, B, CHUNK_FRAMES):
