@@ -13,15 +13,14 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.export import pose_motion_chunks
 from mdvae_cli.infer import leg_ik
-from mdvae_cli.infer.feet import (
-    FootLockConfig,
+from mdvae_cli.infer.contact_runs import (
     clean_contacts,
     contact_runs,
     fade_weights,
     hold_targets,
-    input_jitter,
-    lock_feet,
+    run_means,
 )
+from mdvae_cli.infer.feet import FootLockConfig, input_jitter, lock_feet
 from mdvae_cli.motion.contacts import foot_vertex_ids
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import load_motion, save_motion
@@ -106,6 +105,53 @@ def test_hold_targets_holds_the_goal_and_leaves_far_frames():
     # next to the run the correction is nearly all there, then fades
     shifts = targets[20:24, 0, 0] - pos[20:24, 0, 0]
     assert shifts[0] < 0 and np.all(np.diff(np.abs(shifts)) < 0)
+
+
+def _naive_fades_means_targets(c, blend, values, goals):
+    """Per-run loops (the plain reading of the docstrings) for the vectorised helpers."""
+    T, K = c.shape
+    t = np.arange(T)
+    smooth = lambda u: np.clip(u, 0, 1) ** 2 * (3 - 2 * np.clip(u, 0, 1))  # noqa: E731
+    w, means = np.zeros((T, K, 2)), values.copy()
+    shift = np.where(c[..., None], goals - values, 0.0)
+    ends = np.zeros((T, K, 2, 3))
+    for k in range(K):
+        runs = contact_runs(c[:, k])
+        for i, (start, stop) in enumerate(runs):
+            w[:, k, 0] = np.maximum(
+                w[:, k, 0], smooth(1 - (t - stop + 1) / (blend + 1)) * (t >= stop)
+            )
+            w[:, k, 1] = np.maximum(w[:, k, 1], smooth(1 - (start - t) / (blend + 1)) * (t < start))
+            w[start:stop, k] = 1.0
+            means[start:stop, k] = values[start:stop, k].mean(0)
+            ends[stop : runs[i + 1][0] if i + 1 < len(runs) else T, k, 0] = shift[stop - 1, k]
+            ends[runs[i - 1][1] if i else 0 : start, k, 1] = shift[start, k]
+    total = w.sum(-1, keepdims=True)
+    w = np.where(~c[..., None] & (total > 1), w / np.maximum(total, 1e-12), w)
+    targets = values + np.where(c[..., None], shift, (w[..., None] * ends).sum(-2))
+    return w, means, targets
+
+
+def test_run_helpers_match_per_run_loops_on_a_long_take():
+    rng = np.random.default_rng(5)
+    T = 5000  # ~1,000 runs per column
+    c = rng.random((T, 4)) < 0.6
+    values, goals = rng.normal(size=(T, 4, 3)), rng.normal(size=(T, 4, 3))
+    w, means, targets = _naive_fades_means_targets(c, 6, values, goals)
+    assert np.allclose(fade_weights(c, 6), w, atol=1e-12)
+    assert np.allclose(run_means(values, c), means, atol=1e-9)
+    assert np.allclose(hold_targets(values, c, goals, w), targets, atol=1e-12)
+    cleaned = clean_contacts(c, min_frames=3, max_gap=2, extend=2)
+    for k in range(4):  # gaps of <= 2 filled, then runs >= 3 kept and extended by 2
+        filled = c[:, k].copy()
+        runs = contact_runs(filled)
+        for (_, stop), (start, _) in zip(runs[:-1], runs[1:], strict=True):
+            filled[stop:start] |= start - stop <= 2
+        want = np.zeros(T, dtype=bool)
+        for start, stop in contact_runs(filled):
+            if stop - start >= 3:
+                want[max(start - 2, 0) : stop + 2] = True
+        assert np.array_equal(cleaned[:, k], want)
 
 
 def test_input_jitter_reads_white_noise_and_ignores_still_feet():
