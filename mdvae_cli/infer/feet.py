@@ -92,7 +92,7 @@ class FootLockConfig:
     soles on the floor as posed by the first); knee_stiffness, bend_stiffness (m/rad): how far
     an ankle may miss a goal further from (nearer to) the hip than the knee's bend gives,
     rather than straighten (bend) the knee by a radian; sunk_tol (m): a foot deeper than this
-    under the floor bends its knee as far as needed to be lifted (default: never);
+    under the floor bends its knee as far as needed to be lifted (None, the default: never);
     keep_smooth_s: std of the Gaussian on the movement a held joint keeps (``keep``).
     """
 
@@ -110,13 +110,12 @@ class FootLockConfig:
     passes: int = 1
     knee_stiffness: float = 0.5
     bend_stiffness: float = 0.5
-    sunk_tol: float = math.inf
+    sunk_tol: float | None = None
     keep_smooth_s: float = 0.1
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
-                     "trust_below", "reference_smooth_s", "sunk_tol",
-                     "keep_smooth_s"):  # fmt: skip
+                     "trust_below", "reference_smooth_s", "keep_smooth_s"):  # fmt: skip
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not (self.height_tol > 0 and self.speed_tol > 0):
@@ -127,6 +126,8 @@ class FootLockConfig:
             raise ValueError("distrust_above must be larger than trust_below")
         if not (self.knee_stiffness > 0 and self.bend_stiffness >= 0):
             raise ValueError("knee_stiffness must be > 0 and bend_stiffness >= 0")
+        if self.sunk_tol is not None and not self.sunk_tol >= 0:
+            raise ValueError(f"sunk_tol must be >= 0 or None, got {self.sunk_tol}")
         if self.passes < 1:
             raise ValueError(f"passes must be >= 1, got {self.passes}")
 
@@ -248,7 +249,8 @@ def lock_feet(
             source, model if same else LegModel.build(body, source.betas), cfg
         )
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
-    sunk = soles < floor - cfg.sunk_tol  # (T, 2) a foot under the floor: its knee bends freely
+    # (T, 2) a foot deep under the floor: its knee bends as far as lifting it needs
+    sunk = soles < floor - (math.inf if cfg.sunk_tol is None else cfg.sunk_tol)
     under = (soles < floor)[:, list(FOOT_SIDE)]  # a foot under the floor: both its joints
     held = contacts | (weights.sum(-1) > 0) | under
     f = np.flatnonzero(held.any(1))
