@@ -36,7 +36,14 @@ import torch
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.infer.denoise import denoise_motions
-from mdvae_cli.infer.feet import FootLockConfig, detect_contacts, feet_of, lock_feet
+from mdvae_cli.infer.feet import (
+    FootLockConfig,
+    detect_contacts,
+    feet_of,
+    for_noise,
+    input_trust,
+    lock_feet,
+)
 from mdvae_cli.infer.input_kinds import refine_config
 from mdvae_cli.infer.leg_ik import LegModel, pose_legs
 from mdvae_cli.metrics import EvalResult
@@ -88,12 +95,22 @@ def precision_recall(found: list[np.ndarray], truth: list[np.ndarray]) -> tuple[
     return tp / max(tp + fp, 1), tp / max(tp + fn, 1)
 
 
-def contacts_found(motions: Sequence[Motion], body: BodyModel, cfg: FootLockConfig) -> list:
-    """The contacts the lock would find on each motion.  -> list of (T, 4) bool"""
+def contacts_found(
+    motions: Sequence[Motion],
+    body: BodyModel,
+    cfg: FootLockConfig,
+    sources: Sequence[Motion] | None = None,
+) -> list:
+    """The contacts the lock would find on each motion (with ``sources``, its settings for
+    each source's noise, as :func:`lock_feet` does).  -> list of (T, 4) bool"""
     out = []
-    for m in motions:
+    for i, m in enumerate(motions):
+        c = cfg
+        if sources is not None:
+            src = sources[i]
+            c = for_noise(cfg, input_trust(src, LegModel.build(body, src.betas), cfg)[2])
         feet = feet_of(pose_legs(m, LegModel.build(body, m.betas))[0])
-        out.append(detect_contacts(feet, m.fps, cfg))
+        out.append(detect_contacts(feet, m.fps, c))
     return out
 
 
@@ -170,9 +187,11 @@ def run_sigma(
         lock=scores["lock"],
         detection={
             "denoised motion (what `--feet lock` uses)": precision_recall(
-                contacts_found(off, body, cfg), truth
+                contacts_found(off, body, cfg, noisy), truth
             ),
-            "noisy input, same settings": precision_recall(contacts_found(noisy, body, cfg), truth),
+            "noisy input, same settings": precision_recall(
+                contacts_found(noisy, body, cfg, noisy), truth
+            ),
         },
         denoise_s=denoise_s,
         lock_s=lock_s,
@@ -308,9 +327,12 @@ def split_markdown(split: str, results: Sequence[SigmaResult]) -> list[str]:
         targets_table(results),
         "",
         f"Contacts the lock finds (its settings: smoothed {cfg.smooth_s:g} s, under "
-        f"{100 * cfg.height_tol:g} cm above the joint's floor level, slower than "
-        f"{cfg.speed_tol:g} m/s, cleaned and extended), precision / recall against the ground "
-        "truth's (the shared rule: 5 cm, 0.2 m/s, unsmoothed):",
+        f"{100 * cfg.height_tol:g} cm above the joint's floor level and slower than "
+        f"{cfg.speed_tol:g} m/s, going to {100 * cfg.noisy_height_tol:g} cm and "
+        f"{cfg.noisy_speed_tol:g} m/s as the input's foot jitter goes from "
+        f"{100 * cfg.noisy_from:g} to {100 * cfg.noisy_to:g} cm; cleaned and extended), "
+        "precision / recall against the ground truth's (the shared rule: 5 cm, 0.2 m/s, "
+        "unsmoothed):",
         "",
         detection_table(results),
         "",

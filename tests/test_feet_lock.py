@@ -20,7 +20,7 @@ from mdvae_cli.infer.contact_runs import (
     hold_targets,
     run_means,
 )
-from mdvae_cli.infer.feet import FootLockConfig, input_jitter, lock_feet
+from mdvae_cli.infer.feet import FootLockConfig, for_noise, input_jitter, lock_feet
 from mdvae_cli.motion.contacts import foot_vertex_ids
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.npz_io import load_motion, save_motion
@@ -162,6 +162,19 @@ def test_input_jitter_reads_white_noise_and_ignores_still_feet():
     assert input_jitter(noisy) == pytest.approx(0.01 * 1.538, rel=0.05)  # median of chi(3)
 
 
+def test_a_noisier_input_gets_wider_contact_thresholds():
+    cfg = FootLockConfig()
+    assert for_noise(cfg, 0.0) == cfg and for_noise(cfg, cfg.noisy_from) == cfg
+    loud = for_noise(cfg, 1.0)
+    assert (loud.height_tol, loud.speed_tol, loud.keep) == (
+        cfg.noisy_height_tol, cfg.noisy_speed_tol, cfg.noisy_keep
+    )  # fmt: skip
+    half = for_noise(cfg, (cfg.noisy_from + cfg.noisy_to) / 2)
+    assert half.height_tol == pytest.approx((cfg.height_tol + cfg.noisy_height_tol) / 2)
+    assert half.keep == pytest.approx((cfg.keep + cfg.noisy_keep) / 2)
+    assert half.smooth_s == cfg.smooth_s  # the rest as it was
+
+
 def test_config_is_checked():
     with pytest.raises(ValueError, match="keep"):
         FootLockConfig(keep=1.5)
@@ -169,6 +182,8 @@ def test_config_is_checked():
         FootLockConfig(blend_s=-1)
     with pytest.raises(ValueError, match="distrust_above"):
         FootLockConfig(trust_below=0.1, distrust_above=0.05)
+    with pytest.raises(ValueError, match="noisy_to"):
+        FootLockConfig(noisy_from=0.2, noisy_to=0.1)
 
 
 # --------------------------------------------------------------------------------------------

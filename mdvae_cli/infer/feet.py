@@ -10,9 +10,14 @@ it was made from (same frames):
    denoised foot that should stand still slides (by 19 to 48 cm/s on average on clean to very
    noisy clips) and wavers in height; both were set on held-out dance, kicks and acrobatics as
    well as walks, erring toward a missed contact (a little skate) rather than a wrong one (a
-   foot held where the truth moves it). Gaps up to ``max_gap_s`` are filled, contacts
-   shorter than ``min_contact_s`` dropped, and each contact is extended by ``extend_s`` at both
-   ends (a foot that slides as it lands or lifts is caught there too). Contacts are found on
+   foot held where the truth moves it). With the input given, the noisier its feet
+   (:func:`input_jitter` from ``noisy_from`` to ``noisy_to``), the wider both thresholds and
+   the smaller ``keep`` (to their ``noisy_`` values, :func:`for_noise`): a noisier input's
+   denoised feet slide and waver more where the truth stands, and the vertex error the
+   denoising leaves is larger than a wrong contact's. Gaps up to ``max_gap_s`` are filled,
+   contacts shorter than ``min_contact_s`` dropped, and each contact is extended by
+   ``extend_s`` at both ends (a foot that slides as it lands or lifts is caught there too).
+   Contacts are found on
    the denoised motion, not on a noisy input, whose feet shake too much (docs/model.md, "Feet
    and floor").
 2. **Floor**: :func:`mdvae_cli.motion.contacts.estimate_floor`, from the motion's lowest sole
@@ -46,7 +51,7 @@ are posed and solved ``CHUNK_FRAMES`` at a time, so memory stays flat on long ta
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -93,7 +98,9 @@ class FootLockConfig:
     an ankle may miss a goal further from (nearer to) the hip than the knee's bend gives,
     rather than straighten (bend) the knee by a radian; sunk_tol (m): a foot deeper than this
     under the floor bends its knee as far as needed to be lifted (None, the default: never);
-    keep_smooth_s: std of the Gaussian on the movement a held joint keeps (``keep``).
+    keep_smooth_s: std of the Gaussian on the movement a held joint keeps (``keep``);
+    noisy_from, noisy_to (m): the input's foot jitter over which height_tol, speed_tol and keep
+    go linearly to noisy_height_tol, noisy_speed_tol and noisy_keep (:func:`for_noise`).
     """
 
     smooth_s: float = 0.05
@@ -112,6 +119,11 @@ class FootLockConfig:
     bend_stiffness: float = 0.5
     sunk_tol: float | None = None
     keep_smooth_s: float = 0.1
+    noisy_from: float = 0.12
+    noisy_to: float = 0.22
+    noisy_height_tol: float = 0.1
+    noisy_speed_tol: float = 1.2
+    noisy_keep: float = 0.0
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
@@ -122,6 +134,10 @@ class FootLockConfig:
             raise ValueError("height_tol and speed_tol must be > 0")
         if not 0 <= self.keep <= 1:
             raise ValueError(f"keep must be in [0, 1], got {self.keep}")
+        if not (self.noisy_to > self.noisy_from and 0 <= self.noisy_keep <= 1):
+            raise ValueError("noisy_to must be larger than noisy_from, noisy_keep in [0, 1]")
+        if not (self.noisy_height_tol > 0 and self.noisy_speed_tol > 0):
+            raise ValueError("noisy_height_tol and noisy_speed_tol must be > 0")
         if not self.distrust_above > self.trust_below:
             raise ValueError("distrust_above must be larger than trust_below")
         if not (self.knee_stiffness > 0 and self.bend_stiffness >= 0):
@@ -183,11 +199,11 @@ def feet_of(pos: np.ndarray) -> np.ndarray:
 
 def input_trust(
     source: Motion, model: LegModel, cfg: FootLockConfig
-) -> tuple[float, np.ndarray | None]:
+) -> tuple[float, np.ndarray | None, float]:
     """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed
     (None when the trust is 0: a noisy take's legs are posed only on ``JITTER_TRIPLES``
-    triples of frames, enough for the median). model: the legs of the input's shape.
-    -> (trust, (T, 4, 3) or None)"""
+    triples of frames, enough for the median), and their jitter (:func:`input_jitter`, m).
+    model: the legs of the input's shape.  -> (trust, (T, 4, 3) or None, jitter)"""
     T = source.num_frames
     if T > 3 * JITTER_TRIPLES:
         starts = np.linspace(0, T - 3, JITTER_TRIPLES).astype(int)
@@ -205,12 +221,29 @@ def input_trust(
     span = cfg.distrust_above - cfg.trust_below
     trust = float(np.clip((cfg.distrust_above - jitter) / span, 0.0, 1.0))
     if trust == 0:
-        return 0.0, None
+        return 0.0, None, jitter
     if src is None:
         src = feet_of(pose_legs(source, model, soles=False)[0])
     if len(src) > 1:
         src = gaussian_smooth(src, cfg.reference_smooth_s * source.fps)
-    return trust, src
+    return trust, src, jitter
+
+
+def for_noise(cfg: FootLockConfig, jitter: float) -> FootLockConfig:
+    """The settings for an input whose feet shake by ``jitter`` (m): from ``noisy_from`` to
+    ``noisy_to`` the contact thresholds and ``keep`` go linearly to their ``noisy_`` values
+    (the noisier the input, the more the denoised feet slide and waver where the truth stands,
+    and the more vertex error the denoising leaves for a wrong contact to hide in)."""
+    a = float(np.clip((jitter - cfg.noisy_from) / (cfg.noisy_to - cfg.noisy_from), 0.0, 1.0))
+    if a == 0:
+        return cfg
+    mix = lambda low, high: (1 - a) * low + a * high  # noqa: E731
+    return replace(
+        cfg,
+        height_tol=mix(cfg.height_tol, cfg.noisy_height_tol),
+        speed_tol=mix(cfg.speed_tol, cfg.noisy_speed_tol),
+        keep=mix(cfg.keep, cfg.noisy_keep),
+    )
 
 
 def lock_feet(
@@ -230,6 +263,13 @@ def lock_feet(
     if source is not None and source.num_frames != motion.num_frames:
         raise ValueError(f"{motion.num_frames} frames to lock, {source.num_frames} in the input")
     model = LegModel.build(body, motion.betas)
+    trust, reference = 0.0, None
+    if source is not None:
+        same = np.array_equal(source.betas, motion.betas)
+        trust, reference, jitter = input_trust(
+            source, model if same else LegModel.build(body, source.betas), cfg
+        )
+        cfg = for_noise(cfg, jitter)
     pos, soles = pose_legs(motion, model)
     feet = feet_of(pos)
     contacts = detect_contacts(feet, motion.fps, cfg)
@@ -242,12 +282,6 @@ def lock_feet(
     if len(feet) > 1 and cfg.keep_smooth_s > 0:
         kept = gaussian_smooth(kept, cfg.keep_smooth_s * motion.fps)
     goals[..., :2] = anchors + cfg.keep * (kept - anchors)
-    trust, reference = 0.0, None
-    if source is not None:
-        same = np.array_equal(source.betas, motion.betas)
-        trust, reference = input_trust(
-            source, model if same else LegModel.build(body, source.betas), cfg
-        )
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
     # (T, 2) a foot deep under the floor: its knee bends as far as lifting it needs
     sunk = soles < floor - (math.inf if cfg.sunk_tol is None else cfg.sunk_tol)
