@@ -17,9 +17,8 @@ it was made from (same frames):
    denoising leaves is larger than a wrong contact's. Gaps up to ``max_gap_s`` are filled,
    contacts shorter than ``min_contact_s`` dropped, and each contact is extended by
    ``extend_s`` at both ends (a foot that slides as it lands or lifts is caught there too).
-   Contacts are found on
-   the denoised motion, not on a noisy input, whose feet shake too much (docs/model.md, "Feet
-   and floor").
+   Contacts are found on the denoised motion, not on a noisy input, whose feet shake too much
+   (docs/model.md, "Feet and floor").
 2. **Floor**: :func:`mdvae_cli.motion.contacts.estimate_floor`, from the motion's lowest sole
    points where the feet are down.
 3. **Goals in contact.** A foot joint (ankle or ball) is held at one anchor per contact run,
