@@ -5,42 +5,60 @@ it was made from (same frames):
 
 1. **Contacts.** The motion's foot joints, smoothed in time (Gaussian, ``smooth_s``), go
    through the shared definition (:func:`mdvae_cli.motion.contacts.contacts_of_feet`: a foot
-   joint low and slow), with a speed threshold (``speed_tol``, 1 m/s) above the one for clean
-   motion (0.3 m/s), because a denoised foot that should stand still slides (by 19 to 48 cm/s
-   on average on clean to very noisy clips). Gaps up to ``max_gap_s`` are filled, contacts
-   shorter than ``min_contact_s`` dropped, and each contact is extended by ``extend_s`` at both
-   ends (a foot that slides as it lands or lifts is caught there too). Contacts are found on
-   the denoised motion, not on a noisy input, whose feet shake too much (docs/model.md, "Feet
-   and floor").
+   joint low and slow), with a height band (``height_tol``, 7 cm) and a speed threshold
+   (``speed_tol``, 0.8 m/s) above the ones for clean motion (5 cm, 0.2 m/s), because a
+   denoised foot that should stand still slides (by 19 to 48 cm/s on average on clean to very
+   noisy clips) and wavers in height; both were set on held-out dance, kicks and acrobatics as
+   well as walks, erring toward a missed contact (a little skate) rather than a wrong one (a
+   foot held where the truth moves it). With the input given, the noisier its feet
+   (:func:`input_jitter` from ``noisy_from`` to ``noisy_to``), the wider both thresholds and
+   the smaller ``keep`` (to their ``noisy_`` values, :func:`for_noise`): a noisier input's
+   denoised feet slide and waver more where the truth stands, and the vertex error the
+   denoising leaves is larger than a wrong contact's. Gaps up to ``max_gap_s`` are filled,
+   contacts shorter than ``min_contact_s`` dropped, and each contact is extended by
+   ``extend_s`` at both ends (a foot that slides as it lands or lifts is caught there too).
+   Contacts are found on the denoised motion, not on a noisy input, whose feet shake too much
+   (docs/model.md, "Feet and floor").
 2. **Floor**: :func:`mdvae_cli.motion.contacts.estimate_floor`, from the motion's lowest sole
    points where the feet are down.
 3. **Goals in contact.** A foot joint (ankle or ball) is held at one anchor per contact run,
    its mean horizontal position over the run, keeping ``keep`` of its own horizontal movement
-   about it; its height puts the foot's lowest sole point on the floor. When the input is
+   about it (smoothed over ``keep_smooth_s``: its drift, not its jitter); its height puts the
+   foot's lowest sole point on the floor. When the input is
    given and clean (its foot joints' jitter, :func:`input_jitter`, under ``trust_below``), the
    goal is instead the input's own foot joints (lightly smoothed): a clean take keeps the feet
    it came with, rolling from heel to toe; between ``trust_below`` and ``distrust_above`` the
    two goals are blended.
 4. **Fades.** A run's correction fades out over ``blend_s`` before and after it (smoothstep),
    in the swing: a fade inside the contact would be sliding itself. Anywhere else, a foot
-   whose sole is under the floor is lifted onto it.
-5. **Leg IK** (:func:`mdvae_cli.infer.leg_ik.two_bone_ik`): hips, knees and ankles turn, in
-   closed form, to put the joints on their targets; ``passes`` times, each with the soles as
-   the pass before left them. Frames more than ``blend_s`` from a contact (with no foot under
-   the floor), legs without a target, and every joint but hips, knees and ankles keep their
-   exact values.
+   whose sole is under the floor gets a goal on it.
+5. **Leg IK that keeps the knee's bend** (:func:`mdvae_cli.infer.leg_ik.swing_ik`): each held
+   leg swings about its hip to put the ankle over its goal, the knee bent as the motion has it;
+   the knee turns only by a damped least-squares step (``knee_stiffness``, ``bend_stiffness``:
+   metres of miss worth a radian of knee), so a nearly straight knee is never pulled straight
+   and the part of a goal the bend cannot reach is left as a small height miss. A foot more
+   than ``sunk_tol`` under the floor may bend its knee as far as lifting it needs (off by
+   default: lifting noisy sinks cost more knee accuracy than it gained). The ankle turns to
+   point the foot at the ball's goal. ``passes`` times, each with the soles as the pass before
+   left them. Frames more than ``blend_s`` from a contact (with no foot under the floor), legs
+   without a target, and every joint but hips, knees and ankles keep their exact values.
+
+Every step is vectorised over frames (no Python loop over frames or contact runs); the legs
+are posed and solved ``CHUNK_FRAMES`` at a time, so memory stays flat on long takes.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_smooth
+from mdvae_cli.infer.contact_runs import clean_contacts, fade_weights, hold_targets, run_means
 from mdvae_cli.infer.leg_ik import (
+    CHUNK_FRAMES,
     LEGS,
     LegModel,
     leg_chain,
@@ -48,12 +66,11 @@ from mdvae_cli.infer.leg_ik import (
     pose_legs,
     rotvec_to_rotmat_np,
     sole_heights,
+    swing_ik,
     to_rotvecs,
-    two_bone_ik,
 )
 from mdvae_cli.motion.contacts import (
     FOOT_SIDE,
-    HEIGHT_TOL,
     contacts_of_feet,
     estimate_floor,
     foot_of_joints,
@@ -75,13 +92,19 @@ class FootLockConfig:
     before and after it; keep: the share of its own horizontal movement a held joint keeps
     (0 = nailed to its anchor); trust_below, distrust_above (m): the input's foot jitter under
     which its own feet are the goal, and over which they are ignored; reference_smooth_s: std
-    of the Gaussian on the input's feet used as goal; passes: IK passes (the second puts the
-    soles on the floor as posed by the first).
+    of the Gaussian on the input's feet used as goal; passes: IK passes (a second puts the
+    soles on the floor as posed by the first); knee_stiffness, bend_stiffness (m/rad): how far
+    an ankle may miss a goal further from (nearer to) the hip than the knee's bend gives,
+    rather than straighten (bend) the knee by a radian; sunk_tol (m): a foot deeper than this
+    under the floor bends its knee as far as needed to be lifted (None, the default: never);
+    keep_smooth_s: std of the Gaussian on the movement a held joint keeps (``keep``);
+    noisy_from, noisy_to (m): the input's foot jitter over which height_tol, speed_tol and keep
+    go linearly to noisy_height_tol, noisy_speed_tol and noisy_keep (:func:`for_noise`).
     """
 
     smooth_s: float = 0.05
-    height_tol: float = HEIGHT_TOL
-    speed_tol: float = 1.0
+    height_tol: float = 0.07
+    speed_tol: float = 0.8
     min_contact_s: float = 0.1
     max_gap_s: float = 0.07
     extend_s: float = 0.034
@@ -90,19 +113,36 @@ class FootLockConfig:
     trust_below: float = 0.02
     distrust_above: float = 0.08
     reference_smooth_s: float = 0.05
-    passes: int = 2
+    passes: int = 1
+    knee_stiffness: float = 0.5
+    bend_stiffness: float = 0.5
+    sunk_tol: float | None = None
+    keep_smooth_s: float = 0.1
+    noisy_from: float = 0.12
+    noisy_to: float = 0.22
+    noisy_height_tol: float = 0.1
+    noisy_speed_tol: float = 1.2
+    noisy_keep: float = 0.0
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
-                     "trust_below", "reference_smooth_s"):  # fmt: skip
+                     "trust_below", "reference_smooth_s", "keep_smooth_s"):  # fmt: skip
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not (self.height_tol > 0 and self.speed_tol > 0):
             raise ValueError("height_tol and speed_tol must be > 0")
         if not 0 <= self.keep <= 1:
             raise ValueError(f"keep must be in [0, 1], got {self.keep}")
+        if not (self.noisy_to > self.noisy_from and 0 <= self.noisy_keep <= 1):
+            raise ValueError("noisy_to must be larger than noisy_from, noisy_keep in [0, 1]")
+        if not (self.noisy_height_tol > 0 and self.noisy_speed_tol > 0):
+            raise ValueError("noisy_height_tol and noisy_speed_tol must be > 0")
         if not self.distrust_above > self.trust_below:
             raise ValueError("distrust_above must be larger than trust_below")
+        if not (self.knee_stiffness > 0 and self.bend_stiffness >= 0):
+            raise ValueError("knee_stiffness must be > 0 and bend_stiffness >= 0")
+        if self.sunk_tol is not None and not self.sunk_tol >= 0:
+            raise ValueError(f"sunk_tol must be >= 0 or None, got {self.sunk_tol}")
         if self.passes < 1:
             raise ValueError(f"passes must be >= 1, got {self.passes}")
 
@@ -112,31 +152,6 @@ class FootLockConfig:
 
 # --------------------------------------------------------------------------------------------
 # contacts over time
-
-
-def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
-    """The runs of True in a (T,) bool array, as [start, stop) pairs in order."""
-    c = np.concatenate([[False], np.asarray(contact, dtype=bool), [False]])
-    edges = np.flatnonzero(np.diff(c.astype(np.int8)))
-    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-
-
-def clean_contacts(contacts: np.ndarray, min_frames: int, max_gap: int, extend: int) -> np.ndarray:
-    """Fill gaps of up to ``max_gap`` frames between two contacts, drop contacts shorter than
-    ``min_frames``, then extend the others by ``extend`` frames at both ends; each column on its
-    own.  (T, K) bool -> (T, K) bool"""
-    out = np.array(contacts, dtype=bool)
-    T = out.shape[0]
-    for k in range(out.shape[1]):
-        runs = contact_runs(out[:, k])
-        for (_, stop), (start, _) in zip(runs[:-1], runs[1:], strict=True):
-            if start - stop <= max_gap:
-                out[stop:start, k] = True
-        for start, stop in contact_runs(out[:, k]):
-            out[start:stop, k] = False
-            if stop - start >= min_frames:
-                out[max(start - extend, 0) : min(stop + extend, T), k] = True
-    return out
 
 
 def detect_contacts(feet: np.ndarray, fps: float, cfg: FootLockConfig) -> np.ndarray:
@@ -152,67 +167,6 @@ def detect_contacts(feet: np.ndarray, fps: float, cfg: FootLockConfig) -> np.nda
     )
 
 
-def _smoothstep(u: np.ndarray) -> np.ndarray:
-    u = np.clip(u, 0.0, 1.0)
-    return u * u * (3 - 2 * u)
-
-
-def fade_weights(contacts: np.ndarray, blend: int) -> np.ndarray:
-    """How much of each contact's correction a frame gets.  (T, K) bool -> (T, K, 2)
-
-    [..., 0]: of the last run that ended before the frame, [..., 1]: of the next one to start
-    after it; both 1 inside a run. Out of contact, each falls from 1 next to its run to 0 at
-    ``blend + 1`` frames away (smoothstep); where two runs are that close, they share the frame
-    (weights normalised to sum 1).
-    """
-    T, K = np.shape(contacts)
-    w = np.zeros((T, K, 2))
-    t = np.arange(T)
-    for k in range(K):
-        for start, stop in contact_runs(contacts[:, k]):
-            after = _smoothstep(1 - (t - (stop - 1)) / (blend + 1)) * (t >= stop)
-            before = _smoothstep(1 - (start - t) / (blend + 1)) * (t < start)
-            w[:, k, 0] = np.maximum(w[:, k, 0], after)
-            w[:, k, 1] = np.maximum(w[:, k, 1], before)
-            w[start:stop, k] = 1.0
-    total = w.sum(-1, keepdims=True)
-    share = ~np.asarray(contacts, dtype=bool)[..., None] & (total > 1)
-    return np.where(share, w / np.maximum(total, 1e-12), w)
-
-
-def run_means(values: np.ndarray, contacts: np.ndarray) -> np.ndarray:
-    """Each contact run's mean value, on the run's frames (``values`` elsewhere).
-    values (T, K, D), contacts (T, K) bool -> (T, K, D)"""
-    out = np.array(values, dtype=np.float64)
-    for k in range(out.shape[1]):
-        for start, stop in contact_runs(contacts[:, k]):
-            out[start:stop, k] = out[start:stop, k].mean(0)
-    return out
-
-
-def hold_targets(
-    positions: np.ndarray, contacts: np.ndarray, goals: np.ndarray, weights: np.ndarray
-) -> np.ndarray:
-    """Where each foot joint should be: on its goal in contact, fading back around it.
-
-    positions: (T, K, 3) the joints as they are; contacts: (T, K) bool; goals: (T, K, 3) where
-    they should be at the contact frames; weights: (T, K, 2) from :func:`fade_weights`.
-    Out of contact, a frame moves by the correction (goal - position) at the end of the run
-    before it and the start of the run after it, times their weights.
-    -> (T, K, 3); equal to ``positions`` where ``weights`` are 0.
-    """
-    T, K = np.shape(contacts)
-    inside = np.asarray(contacts, dtype=bool)
-    shift = np.where(inside[..., None], goals - positions, 0.0)
-    ends = np.zeros((T, K, 2, 3))  # the shift at the end of the run before, the start of the next
-    for k in range(K):
-        runs = contact_runs(inside[:, k])
-        for i, (start, stop) in enumerate(runs):
-            ends[stop : runs[i + 1][0] if i + 1 < len(runs) else T, k, 0] = shift[stop - 1, k]
-            ends[runs[i - 1][1] if i else 0 : start, k, 1] = shift[start, k]
-    return positions + np.where(inside[..., None], shift, (weights[..., None] * ends).sum(-2))
-
-
 def input_jitter(feet: np.ndarray) -> float:
     """How much a take's foot joints shake: the median over frames and joints of
     |x[t-1] - 2 x[t] + x[t+1]| / sqrt(6), in metres. White noise of std s per axis gives 1.54 s
@@ -222,8 +176,15 @@ def input_jitter(feet: np.ndarray) -> float:
     feet (T, 4, 3) -> metres"""
     if len(feet) < 3:
         return 0.0
-    d2 = feet[:-2] - 2 * feet[1:-1] + feet[2:]
+    return _jitter(feet[:-2] - 2 * feet[1:-1] + feet[2:])
+
+
+def _jitter(d2: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(d2, axis=-1)) / math.sqrt(6))
+
+
+#: a long take's jitter is read on this many triples of consecutive frames, spread evenly
+JITTER_TRIPLES = 4096
 
 
 # --------------------------------------------------------------------------------------------
@@ -235,15 +196,53 @@ def feet_of(pos: np.ndarray) -> np.ndarray:
     return pos[:, :, 2:].transpose(0, 2, 1, 3).reshape(-1, 4, 3)
 
 
-def input_trust(source: Motion, model: LegModel, cfg: FootLockConfig) -> tuple[float, np.ndarray]:
-    """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed.
-    model: the legs of the input's shape.  -> (trust, (T, 4, 3))"""
-    src = feet_of(pose_legs(source, model)[0])
+def input_trust(
+    source: Motion, model: LegModel, cfg: FootLockConfig
+) -> tuple[float, np.ndarray | None, float]:
+    """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed
+    (None when the trust is 0: a noisy take's legs are posed only on ``JITTER_TRIPLES``
+    triples of frames, enough for the median), and their jitter (:func:`input_jitter`, m).
+    model: the legs of the input's shape.  -> (trust, (T, 4, 3) or None, jitter)"""
+    T = source.num_frames
+    if T > 3 * JITTER_TRIPLES:
+        starts = np.linspace(0, T - 3, JITTER_TRIPLES).astype(int)
+        frames = (starts[:, None] + np.arange(3)).reshape(-1)
+        root = rotvec_to_rotmat_np(np.asarray(source.root_orient[frames], dtype=np.float64))
+        pos, _ = leg_chain(
+            root, leg_rotations(source, frames), source.trans[frames] + model.pelvis, model.bones
+        )
+        f = feet_of(pos).reshape(JITTER_TRIPLES, 3, 4, 3)
+        jitter = _jitter(f[:, 0] - 2 * f[:, 1] + f[:, 2])
+        src = None
+    else:
+        src = feet_of(pose_legs(source, model, soles=False)[0])
+        jitter = input_jitter(src)
     span = cfg.distrust_above - cfg.trust_below
-    trust = float(np.clip((cfg.distrust_above - input_jitter(src)) / span, 0.0, 1.0))
+    trust = float(np.clip((cfg.distrust_above - jitter) / span, 0.0, 1.0))
+    if trust == 0:
+        return 0.0, None, jitter
+    if src is None:
+        src = feet_of(pose_legs(source, model, soles=False)[0])
     if len(src) > 1:
         src = gaussian_smooth(src, cfg.reference_smooth_s * source.fps)
-    return trust, src
+    return trust, src, jitter
+
+
+def for_noise(cfg: FootLockConfig, jitter: float) -> FootLockConfig:
+    """The settings for an input whose feet shake by ``jitter`` (m): from ``noisy_from`` to
+    ``noisy_to`` the contact thresholds and ``keep`` go linearly to their ``noisy_`` values
+    (the noisier the input, the more the denoised feet slide and waver where the truth stands,
+    and the more vertex error the denoising leaves for a wrong contact to hide in)."""
+    a = float(np.clip((jitter - cfg.noisy_from) / (cfg.noisy_to - cfg.noisy_from), 0.0, 1.0))
+    if a == 0:
+        return cfg
+    mix = lambda low, high: (1 - a) * low + a * high  # noqa: E731
+    return replace(
+        cfg,
+        height_tol=mix(cfg.height_tol, cfg.noisy_height_tol),
+        speed_tol=mix(cfg.speed_tol, cfg.noisy_speed_tol),
+        keep=mix(cfg.keep, cfg.noisy_keep),
+    )
 
 
 def lock_feet(
@@ -256,12 +255,20 @@ def lock_feet(
 
     source: the input ``motion`` was made from (same frames), or None. Returns a copy; hips,
     knees and ankles change only near contacts and where a foot is under the floor, and only on
-    legs that have a target there.
+    legs that have a target there. Vectorised over frames, the legs solved ``CHUNK_FRAMES`` at a
+    time (memory flat on long takes).
     """
     cfg = cfg or FootLockConfig()
     if source is not None and source.num_frames != motion.num_frames:
         raise ValueError(f"{motion.num_frames} frames to lock, {source.num_frames} in the input")
     model = LegModel.build(body, motion.betas)
+    trust, reference = 0.0, None
+    if source is not None:
+        same = np.array_equal(source.betas, motion.betas)
+        trust, reference, jitter = input_trust(
+            source, model if same else LegModel.build(body, source.betas), cfg
+        )
+        cfg = for_noise(cfg, jitter)
     pos, soles = pose_legs(motion, model)
     feet = feet_of(pos)
     contacts = detect_contacts(feet, motion.fps, cfg)
@@ -270,39 +277,73 @@ def lock_feet(
     floor = estimate_floor(soles, foot_of_joints(contacts))
     anchors = run_means(feet[..., :2], contacts)
     goals = feet.copy()
-    goals[..., :2] = anchors + cfg.keep * (feet[..., :2] - anchors)
-    trust, reference = 0.0, feet
-    if source is not None:
-        same = np.array_equal(source.betas, motion.betas)
-        trust, reference = input_trust(
-            source, model if same else LegModel.build(body, source.betas), cfg
-        )
+    kept = feet[..., :2]
+    if len(feet) > 1 and cfg.keep_smooth_s > 0:
+        kept = gaussian_smooth(kept, cfg.keep_smooth_s * motion.fps)
+    goals[..., :2] = anchors + cfg.keep * (kept - anchors)
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
+    # (T, 2) a foot deep under the floor: its knee bends as far as lifting it needs
+    sunk = soles < floor - (math.inf if cfg.sunk_tol is None else cfg.sunk_tol)
     under = (soles < floor)[:, list(FOOT_SIDE)]  # a foot under the floor: both its joints
     held = contacts | (weights.sum(-1) > 0) | under
     f = np.flatnonzero(held.any(1))
     columns = np.asarray(LEG_COLUMNS)
-    legs_held = held[f][:, columns]  # (B, 2, 2)
-    root = rotvec_to_rotmat_np(motion.root_orient[f])
-    pelvis = motion.trans[f] + model.pelvis
-    legs = leg_rotations(motion, f)
-    flexion = motion.pose_body[f][:, [LEGS[0][1] - 1, LEGS[1][1] - 1], 0]
     free = ~contacts[f]
-    new, sub_pos, sub_soles = legs, pos[f], soles[f]
-    for _ in range(cfg.passes):
-        # each joint's height above its foot's lowest sole point, as posed now
-        clearance = feet_of(sub_pos)[..., 2] - sub_soles[:, list(FOOT_SIDE)]
+    # each joint's height above its foot's lowest sole point, as posed (then as the last pass
+    # left it)
+    clearance = feet[f, :, 2] - soles[f][:, list(FOOT_SIDE)]
+    new_rotvecs = None
+    for i in range(cfg.passes):
         heights = feet[..., 2].copy()
         heights[f] = floor + clearance
         goals[..., 2] = heights
-        goal = trust * reference + (1 - trust) * goals
+        goal = goals if reference is None else trust * reference + (1 - trust) * goals
         targets = hold_targets(feet, contacts, goal, weights)[f]
         targets[..., 2] = np.where(free, np.maximum(targets[..., 2], heights[f]), targets[..., 2])
-        new = two_bone_ik(root, legs, pelvis, model.bones, targets[:, columns], legs_held, flexion)
-        sub_pos, G = leg_chain(root, new, pelvis, model.bones)
-        sub_soles = sole_heights(sub_pos, G, model)
+        last = i == cfg.passes - 1
+        clearance, new_rotvecs = _solve_legs(
+            motion, model, f, targets[:, columns], held[f][:, columns], sunk[f], cfg, last
+        )
     out = motion.pose_body.copy()
-    b, leg = np.nonzero(legs_held.any(-1))  # frames where each leg has a target
+    b, leg = np.nonzero(held[f][:, columns].any(-1))  # frames where each leg has a target
     joints = np.asarray(LEGS)[leg, :3] - 1  # pose_body rows of hip, knee, ankle
-    out[f[b, None], joints] = to_rotvecs(new[b, leg, :3], motion.pose_body[f[b, None], joints])
+    out[f[b, None], joints] = new_rotvecs[b, leg]
     return motion.with_body(pose_body=out)
+
+
+def _solve_legs(
+    motion: Motion,
+    model: LegModel,
+    frames: np.ndarray,
+    targets: np.ndarray,
+    held: np.ndarray,
+    sunk: np.ndarray,
+    cfg: FootLockConfig,
+    rotvecs: bool,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The leg IK (:func:`swing_ik`) on ``frames`` of ``motion``, ``CHUNK_FRAMES`` at a time.
+
+    targets: (B, 2, 2, 3), held: (B, 2, 2) bool, per leg (ankle, ball); sunk: (B, 2) bool, legs
+    whose foot is deeper than ``sunk_tol`` under the floor (their knees bend as far as needed).
+    -> with ``rotvecs`` (the last pass): (None, the new hip, knee and ankle axis-angles
+    (B, 2, 3, 3) on the branch of the motion's own); else (the foot joints' heights above their
+    soles as posed after it (B, 4), None), for the next pass."""
+    B = len(frames)
+    clearance = None if rotvecs else np.empty((B, 4))
+    out = np.empty((B, 2, 3, 3)) if rotvecs else None
+    rows = np.asarray(LEGS)[:, :3] - 1  # pose_body rows of hip, knee, ankle per leg
+    for s in range(0, B, CHUNK_FRAMES):
+        sl = slice(s, min(s + CHUNK_FRAMES, B))
+        f = frames[sl]
+        root = rotvec_to_rotmat_np(np.asarray(motion.root_orient[f], dtype=np.float64))
+        pelvis = motion.trans[f] + model.pelvis
+        legs = leg_rotations(motion, f)
+        flexion = motion.pose_body[f][:, rows[:, 1], 0]
+        new = swing_ik(root, legs, pelvis, model.bones, targets[sl], held[sl], flexion,
+                       cfg.knee_stiffness, np.where(sunk[sl], 0.0, cfg.bend_stiffness))  # fmt: skip
+        if out is not None:
+            out[sl] = to_rotvecs(new[:, :, :3], motion.pose_body[f][:, rows])
+        else:
+            pos, G = leg_chain(root, new, pelvis, model.bones)
+            clearance[sl] = feet_of(pos)[..., 2] - sole_heights(pos, G, model)[:, list(FOOT_SIDE)]
+    return clearance, out

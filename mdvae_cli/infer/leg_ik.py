@@ -28,18 +28,25 @@ LEGS = ((1, 4, 7, 10), (2, 5, 8, 11))
 SOLE_BAND = 0.03
 #: how far (rad) a knee may bend backward of straight before IK prefers the other solution
 HYPEREXTENSION = 0.05
+#: frames posed at once (bounded memory on long takes: a chunk's rotations take ~10 MB)
+CHUNK_FRAMES = 8192
 
 
 def rotvec_to_rotmat_np(rotvec: np.ndarray) -> np.ndarray:
     """Rodrigues' formula in numpy.  (..., 3) -> (..., 3, 3)"""
-    theta = np.linalg.norm(rotvec, axis=-1)[..., None, None]
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    theta = np.sqrt((rotvec * rotvec).sum(-1))
     small = theta < 1e-8
-    k = rotvec / np.where(small[..., 0], 1.0, theta[..., 0])
-    K = np.zeros((*rotvec.shape[:-1], 3, 3))
-    K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -k[..., 2], k[..., 1], -k[..., 0]
-    K[..., 1, 0], K[..., 2, 0], K[..., 2, 1] = k[..., 2], -k[..., 1], k[..., 0]
+    x, y, z = np.moveaxis(rotvec / np.where(small, 1.0, theta)[..., None], -1, 0)
     sin, cos = np.where(small, 0.0, np.sin(theta)), np.where(small, 1.0, np.cos(theta))
-    return np.eye(3) + sin * K + (1 - cos) * (K @ K)
+    c1 = 1 - cos
+    xs, ys, zs = x * sin, y * sin, z * sin
+    xy, xz, yz = x * y * c1, x * z * c1, y * z * c1
+    R = np.empty((*rotvec.shape[:-1], 3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = cos + x * x * c1, xy - zs, xz + ys
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = xy + zs, cos + y * y * c1, yz - xs
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = xz - ys, yz + xs, cos + z * z * c1
+    return R
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -154,27 +161,39 @@ def leg_chain(
     return pos, rot
 
 
-def pose_legs(motion: Motion, model: LegModel) -> tuple[np.ndarray, np.ndarray]:
-    """A motion's leg joints and soles.  -> positions (T, 2, 4, 3), soles (T, 2): the height of
-    each foot's lowest sole vertex (z-up metres)."""
-    root = rotvec_to_rotmat_np(np.asarray(motion.root_orient, dtype=np.float64))
-    pos, G = leg_chain(root, leg_rotations(motion), motion.trans + model.pelvis, model.bones)
-    return pos, sole_heights(pos, G, model)
+def pose_legs(
+    motion: Motion, model: LegModel, soles: bool = True, chunk: int = CHUNK_FRAMES
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """A motion's leg joints and soles, ``chunk`` frames at a time (memory stays flat on long
+    takes).  -> positions (T, 2, 4, 3), soles (T, 2): the height of each foot's lowest sole
+    vertex (z-up metres), or None with ``soles=False``."""
+    T = motion.num_frames
+    pos = np.empty((T, 2, 4, 3))
+    low = np.empty((T, 2)) if soles else None
+    for s in range(0, T, chunk):
+        sl = slice(s, min(s + chunk, T))
+        root = rotvec_to_rotmat_np(np.asarray(motion.root_orient[sl], dtype=np.float64))
+        pelvis = motion.trans[sl] + model.pelvis
+        pos[sl], G = leg_chain(root, leg_rotations(motion, sl), pelvis, model.bones)
+        if low is not None:
+            low[sl] = sole_heights(pos[sl], G, model)
+    return pos, low
 
 
-def sole_heights(pos: np.ndarray, G: np.ndarray, model: LegModel, chunk: int = 4096) -> np.ndarray:
+def sole_heights(pos: np.ndarray, G: np.ndarray, model: LegModel) -> np.ndarray:
     """Height of each foot's lowest sole vertex.  pos (B, 2, 4, 3), G (B, 2, 4, 3, 3) -> (B, 2)
 
-    Computed ``chunk`` frames at a time (the vertices of a chunk take chunk x 4 x F floats)."""
+    Only the joints that skin the sole (ankle and ball on SMPL bodies) are used; call it on
+    chunks of frames (the vertices of B frames take B x F floats per joint)."""
     out = np.empty(pos.shape[:2])
     for leg in range(2):
-        # z of sum_i w_i (R_i (v - J_i) + o_i) over the joints i
-        local = model.soles[leg][None] - model.joints[leg][:, None]  # (4, F, 3)
-        weighted = (local * model.weights[leg].T[..., None]).transpose(0, 2, 1)  # (4, 3, F)
-        for s in range(0, len(pos), chunk):
-            sl = slice(s, s + chunk)
-            z = (G[sl, leg, :, 2:3] @ weighted)[:, :, 0].sum(1)  # (b, F)
-            out[sl, leg] = (z + pos[sl, leg, :, 2] @ model.weights[leg].T).min(-1)
+        w = model.weights[leg]
+        used = np.flatnonzero(w.any(0))
+        # z of sum_i w_i (R_i (v - J_i) + o_i) over the joints i that skin the sole
+        local = model.soles[leg][None] - model.joints[leg][used][:, None]  # (U, F, 3)
+        weighted = (local * w[:, used].T[..., None]).transpose(0, 2, 1)  # (U, 3, F)
+        z = G[:, leg, used, 2].reshape(len(G), -1) @ weighted.reshape(-1, weighted.shape[-1])
+        out[:, leg] = (z + pos[:, leg, used, 2] @ w[:, used].T).min(-1)
     return out
 
 
@@ -251,6 +270,90 @@ def two_bone_ik(
     knee_world = R0 @ hip_local @ knee_local
     turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
     aim = swing((turned @ bones[:, 3, :, None])[..., 0], targets[:, :, 1] - goal) @ turned
+    foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
+    ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
+    return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)
+
+
+def turn_about(v: np.ndarray, n: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """``v`` turned by ``phi`` about the unit axis ``n`` (Rodrigues).  (..., 3), (..., 3),
+    (...,) -> (..., 3)"""
+    cos, sin = np.cos(phi)[..., None], np.sin(phi)[..., None]
+    return v * cos + cross(n, v) * sin + n * ((n * v).sum(-1, keepdims=True) * (1 - cos))
+
+
+def on_sphere(rel: np.ndarray, radius: np.ndarray, limit: float = math.inf) -> np.ndarray:
+    """The point at ``radius`` from the origin nearest ``rel`` in the horizontal (z-up): its
+    horizontal place kept and its height moved, on the side of the horizontal plane that
+    ``rel`` is on; where the sphere does not reach that far out (or the move would be more
+    than ``limit`` times the radial one), the point on the ray to ``rel`` instead.
+    rel (..., 3), radius (...,) -> (..., 3)"""
+    dist = np.linalg.norm(rel, axis=-1)
+    radial = rel * (radius / np.maximum(dist, 1e-12))[..., None]
+    out2 = rel[..., 0] ** 2 + rel[..., 1] ** 2
+    z = np.copysign(np.sqrt(np.maximum(radius**2 - out2, 0.0)), rel[..., 2])
+    level = np.concatenate([rel[..., :2], z[..., None]], axis=-1)
+    ok = out2 < radius**2
+    if math.isfinite(limit):
+        ok &= np.abs(z - rel[..., 2]) <= limit * np.abs(dist - radius) + 1e-9
+    return np.where(ok[..., None], level, radial)
+
+
+def swing_ik(
+    root: np.ndarray,
+    legs: np.ndarray,
+    pelvis: np.ndarray,
+    bones: np.ndarray,
+    targets: np.ndarray,
+    held: np.ndarray,
+    flexion: np.ndarray,
+    stiffness: float | np.ndarray,
+    bend_stiffness: float | np.ndarray = 0.0,
+) -> np.ndarray:
+    """Put ankles and balls of the feet on targets by swinging each leg about its hip, its
+    knee bent as it was unless a target is off the reach that bend gives.
+
+    root, legs, pelvis, bones, targets, held, flexion: as :func:`two_bone_ik`; stiffness (m/rad):
+    how far an ankle may miss a target further than the leg reaches rather than straighten the
+    knee by one radian; bend_stiffness: the same for a target nearer than that (0: the knee
+    bends as far as the target needs, as a foot under the floor is lifted); both floats or
+    (B, 2) arrays. Per leg,
+    closed form: the knee turns about its hinge by the damped least-squares step on
+    (hip-ankle distance - target distance)^2 + (stiffness x turn)^2, linearised at the knee as
+    it is, and never further than the turn that reaches the target exactly (the larger the
+    slope of reach against bend, the larger the share of the miss the knee takes: a bent knee
+    follows most of it, a nearly straight one hardly turns and is never pulled straight). The
+    hip then turns (smallest rotation) to point the leg at the ankle's target, kept at its
+    horizontal place where the leg's reach allows (the miss goes to the height), and the ankle
+    turns to point the foot at the ball's target, or keeps the foot's world orientation.
+    -> (B, 2, 4, 3, 3) the new local rotations (the ball's own unchanged).
+    """
+    pos, G = leg_chain(root, legs, pelvis, bones)
+    hip, knee, ankle, ball = (pos[:, :, i] for i in range(4))
+    hold_ankle, hold_ball = held[..., 0, None], held[..., 1, None]
+    moved = np.where(hold_ball, ankle + targets[:, :, 1] - ball, ankle)
+    goal = np.where(hold_ankle, targets[:, :, 0], moved)
+    n = G[:, :, 1, :, 0]
+    thigh, shank = knee - hip, ankle - knee
+    reach = np.linalg.norm(goal - hip, axis=-1)
+    exact = knee_turn(thigh, shank, n, reach, flexion)
+    leg = ankle - hip
+    now = np.linalg.norm(leg, axis=-1)
+    slope = (leg * cross(n, shank)).sum(-1) / np.maximum(now, 1e-12)  # d reach / d turn
+    cost = np.where(reach > now, stiffness, bend_stiffness)
+    step = (reach - now) * slope / np.maximum(slope**2 + cost**2, 1e-12)
+    phi = np.where(cost > 0, np.clip(step, np.minimum(exact, 0.0), np.maximum(exact, 0.0)), exact)
+    x_axis = np.zeros_like(n)
+    x_axis[..., 0] = phi
+    knee_local = legs[:, :, 1] @ rotvec_to_rotmat_np(x_axis)
+    turned_leg = thigh + turn_about(shank, n, phi)
+    aim_at = on_sphere(goal - hip, np.linalg.norm(turned_leg, axis=-1), limit=2.0)
+    R0 = root[:, None]
+    hip_local = R0.swapaxes(-1, -2) @ swing(turned_leg, aim_at) @ R0 @ legs[:, :, 0]
+    knee_world = R0 @ hip_local @ knee_local
+    turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
+    toe = (turned @ bones[:, 3, :, None])[..., 0]  # ankle -> ball, turned with the shank
+    aim = swing(toe, targets[:, :, 1] - (hip + aim_at)) @ turned
     foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
     ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
     return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)

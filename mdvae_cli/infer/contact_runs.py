@@ -1,0 +1,116 @@
+"""Contact runs over time, vectorised: which frames of a (T, K) bool array are held, cleaned,
+faded and pulled to a goal, for foot locking (:mod:`mdvae_cli.infer.feet`).
+
+Every function works on whole arrays: a frame finds the last and the next contact frame
+(:func:`last_true`, :func:`next_true`: a running maximum or minimum of indices), and a run's
+length, mean or end correction follows from those, so no Python loop runs over frames or runs
+(a 72,000-frame take has thousands of runs).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def contact_runs(contact: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of True in a (T,) bool array, as [start, stop) pairs in order."""
+    c = np.concatenate([[False], np.asarray(contact, dtype=bool), [False]])
+    edges = np.flatnonzero(np.diff(c.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def last_true(c: np.ndarray) -> np.ndarray:
+    """For each frame, the last frame at or before it where ``c`` is True (-1 if none), each
+    column on its own.  (T, K) bool -> (T, K) int"""
+    t = np.arange(len(c))[:, None]
+    return np.maximum.accumulate(np.where(c, t, -1), axis=0)
+
+
+def next_true(c: np.ndarray) -> np.ndarray:
+    """For each frame, the first frame at or after it where ``c`` is True (T if none), each
+    column on its own.  (T, K) bool -> (T, K) int"""
+    T = len(c)
+    t = np.arange(T)[:, None]
+    return np.minimum.accumulate(np.where(c, t, T)[::-1], axis=0)[::-1]
+
+
+def clean_contacts(contacts: np.ndarray, min_frames: int, max_gap: int, extend: int) -> np.ndarray:
+    """Fill gaps of up to ``max_gap`` frames between two contacts, drop contacts shorter than
+    ``min_frames``, then extend the others by ``extend`` frames at both ends; each column on its
+    own, with no loop over frames or runs.  (T, K) bool -> (T, K) bool"""
+    c = np.array(contacts, dtype=bool)
+    T = len(c)
+    t = np.arange(T)[:, None]
+    before, after = last_true(c), next_true(c)
+    c |= (before >= 0) & (after < T) & (after - before - 1 <= max_gap)
+    run = next_true(~c) - last_true(~c) - 1  # in a run: its length
+    c &= run >= min_frames
+    before, after = last_true(c), next_true(c)
+    return ((before >= 0) & (t - before <= extend)) | ((after < T) & (after - t <= extend))
+
+
+def _smoothstep(u: np.ndarray) -> np.ndarray:
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * (3 - 2 * u)
+
+
+def fade_weights(contacts: np.ndarray, blend: int) -> np.ndarray:
+    """How much of each contact's correction a frame gets.  (T, K) bool -> (T, K, 2)
+
+    [..., 0]: of the last run that ended before the frame, [..., 1]: of the next one to start
+    after it; both 1 inside a run. Out of contact, each falls from 1 next to its run to 0 at
+    ``blend + 1`` frames away (smoothstep); where two runs are that close, they share the frame
+    (weights normalised to sum 1).
+    """
+    c = np.asarray(contacts, dtype=bool)
+    T = len(c)
+    t = np.arange(T)[:, None]
+    before, after = last_true(c), next_true(c)
+    w = np.stack(
+        [
+            np.where(before >= 0, _smoothstep(1 - (t - before) / (blend + 1)), 0.0),
+            np.where(after < T, _smoothstep(1 - (after - t) / (blend + 1)), 0.0),
+        ],
+        axis=-1,
+    )
+    total = w.sum(-1, keepdims=True)
+    share = ~c[..., None] & (total > 1)
+    return np.where(share, w / np.maximum(total, 1e-12), w)
+
+
+def run_means(values: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """Each contact run's mean value, on the run's frames (``values`` elsewhere).
+    values (T, K, D), contacts (T, K) bool -> (T, K, D)"""
+    values = np.asarray(values, dtype=np.float64)
+    c = np.asarray(contacts, dtype=bool)
+    start, stop = last_true(~c) + 1, next_true(~c)  # in a run: its [start, stop)
+    sums = np.concatenate([np.zeros((1, *values.shape[1:])), np.cumsum(values, axis=0)])
+    k = np.arange(c.shape[1])[None, :]
+    mean = (sums[stop, k] - sums[start, k]) / np.maximum(stop - start, 1)[..., None]
+    return np.where(c[..., None], mean, values)
+
+
+def hold_targets(
+    positions: np.ndarray, contacts: np.ndarray, goals: np.ndarray, weights: np.ndarray
+) -> np.ndarray:
+    """Where each foot joint should be: on its goal in contact, fading back around it.
+
+    positions: (T, K, 3) the joints as they are; contacts: (T, K) bool; goals: (T, K, 3) where
+    they should be at the contact frames; weights: (T, K, 2) from :func:`fade_weights`.
+    Out of contact, a frame moves by the correction (goal - position) at the end of the run
+    before it and the start of the run after it, times their weights.
+    -> (T, K, 3); equal to ``positions`` where ``weights`` are 0.
+    """
+    inside = np.asarray(contacts, dtype=bool)
+    T = len(inside)
+    shift = np.where(inside[..., None], goals - positions, 0.0)
+    k = np.arange(inside.shape[1])[None, :]
+    before, after = last_true(inside), next_true(inside)
+    ends = np.stack(
+        [
+            np.where((before >= 0)[..., None], shift[np.maximum(before, 0), k], 0.0),
+            np.where((after < T)[..., None], shift[np.minimum(after, T - 1), k], 0.0),
+        ],
+        axis=-2,
+    )  # the shift at the end of the run before, the start of the next
+    return positions + np.where(inside[..., None], shift, (weights[..., None] * ends).sum(-2))
