@@ -31,7 +31,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
+from mdvae_cli.geometry.rotations import (
+    quat_multiply,
+    quat_to_rotvec,
+    rotvec_to_quat,
+    rotvec_unwrap,
+)
 from mdvae_cli.motion.motion import Motion
 
 #: the median of a chi-square variable with one degree of freedom over its mean
@@ -168,13 +173,14 @@ def blend_rotations(
     difference put back (T, J): 0 = the denoiser's, 1 = the input's; spikes (T, J))
     """
     src = torch.as_tensor(source, dtype=torch.float64)
-    R_den = rotvec_to_rotmat(torch.as_tensor(denoised, dtype=torch.float64))
-    residual = rotmat_to_rotvec(R_den.transpose(-1, -2) @ rotvec_to_rotmat(src)).numpy()
+    q_den = rotvec_to_quat(torch.as_tensor(denoised, dtype=torch.float64))
+    q_den_inv = q_den * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
+    residual = quat_to_rotvec(quat_multiply(q_den_inv, rotvec_to_quat(src))).numpy()
     unwrapped = rotvec_unwrap(src, dim=0).numpy()
     noise = noise_variance(unwrapped)  # (J,)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
     kept, share = keep_unexplained(residual, noise, spikes, fps)
-    out = rotmat_to_rotvec(R_den @ rotvec_to_rotmat(torch.as_tensor(kept))).numpy()
+    out = quat_to_rotvec(quat_multiply(q_den, rotvec_to_quat(torch.as_tensor(kept)))).numpy()
     return out, share, spikes
 
 
