@@ -19,7 +19,13 @@ import torch
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import gaussian_filter_motion
-from mdvae_cli.geometry.rotations import rotvec_slerp, rotvec_unwrap, rotvec_wrap
+from mdvae_cli.geometry.rotations import (
+    quat_slerp,
+    quat_to_rotvec,
+    rotvec_to_quat,
+    rotvec_unwrap,
+    rotvec_wrap,
+)
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.guard import guard
@@ -175,25 +181,33 @@ def refine_batches(group: WindowGroup, cfg: RefineConfig) -> range:
 
 def blend_windows(num_frames: int, starts: list[int], windows: list[BodyParams]) -> BodyParams:
     """Stitch windows (each (L, ...)) into one (T, ...) sequence; overlaps cross-fade linearly
-    (slerp for rotations) from the earlier window to the later one."""
-    root = torch.zeros(num_frames, 3)
-    pose = torch.zeros(num_frames, 21, 3)
+    (slerp for rotations) from the earlier window to the later one.
+
+    Rotations are blended as quaternions, converted once for all windows and once back."""
+    order = sorted(range(len(starts)), key=lambda i: starts[i])
+    rot = [torch.cat([w.root_orient[:, None], w.pose_body], dim=1) for w in windows]
+    lengths = {r.shape[0] for r in rot}
+    if len(lengths) == 1:  # one conversion for every window
+        quats = list(rotvec_to_quat(torch.stack(rot)).unbind(0))
+    else:
+        quats = [rotvec_to_quat(r) for r in rot]
+    q = torch.zeros(num_frames, 22, 4, dtype=quats[0].dtype)
     trans = torch.zeros(num_frames, 3)
     written = 0
-    for s, w in sorted(zip(starts, windows, strict=True), key=lambda sw: sw[0]):
-        L = w.trans.shape[0]
+    for i in order:
+        s, wq, wt = starts[i], quats[i], windows[i].trans
+        L = wt.shape[0]
         ov = max(0, min(written - s, L))
         if ov:
             a = torch.arange(1, ov + 1, dtype=torch.float32) / (ov + 1)
             sl = slice(s, s + ov)
-            root[sl] = rotvec_slerp(root[sl], w.root_orient[:ov], a[:, None].expand(ov, 1)[:, 0])
-            pose[sl] = rotvec_slerp(pose[sl], w.pose_body[:ov], a[:, None].expand(ov, 21))
-            trans[sl] = trans[sl] * (1 - a[:, None]) + w.trans[:ov] * a[:, None]
-        root[s + ov : s + L] = w.root_orient[ov:]
-        pose[s + ov : s + L] = w.pose_body[ov:]
-        trans[s + ov : s + L] = w.trans[ov:]
+            q[sl] = quat_slerp(q[sl], wq[:ov], a[:, None].to(q.dtype))
+            trans[sl] = trans[sl] * (1 - a[:, None]) + wt[:ov] * a[:, None]
+        q[s + ov : s + L] = wq[ov:]
+        trans[s + ov : s + L] = wt[ov:]
         written = max(written, s + L)
-    return BodyParams(root, pose, trans)
+    rotvecs = quat_to_rotvec(q).to(windows[0].pose_body.dtype)
+    return BodyParams(rotvecs[:, 0], rotvecs[:, 1:], trans)
 
 
 def to_input_rate(params30: BodyParams, source: Motion) -> BodyParams:
