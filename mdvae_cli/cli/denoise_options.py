@@ -160,12 +160,13 @@ OPTIONS = [
         type=click.Choice(["lock", "off"]),
         default="lock",
         show_default=True,
-        help="lock: where a foot is down (a foot joint low and slow), hold it still on the floor "
-        "with a small turn of the hip, knee and ankle, and lift a foot that dips under the "
-        "floor; frames away from contacts are left as denoised, and a clean take keeps its own "
-        "feet. On noisy test clips (0.10-0.20 rad) foot skate falls from 23-39 to 3-8 cm/s "
-        "(the truth's: 4.3), floor penetration from 0.37-0.56 to 0.13-0.26 cm, and the vertex "
-        "error by 6-8 %, for ~0.14 ms a frame (docs/benchmarks.md). off: the feet as denoised.",
+        help="lock: where a foot is clearly planted (a foot joint low and slow; the rule "
+        "widens with the input's noise), hold it still by swinging its leg about the hip, the "
+        "knee keeping its bend; frames away from contacts are left as denoised, and a clean take "
+        "keeps its own feet. On noisy clips (0.10-0.20 rad) foot skate falls from 5.5-9 times "
+        "the truth's to 0.6-0.7 times on the test walks (1.2-1.9 on unseen kinds of motion), "
+        "the vertex error by 8-9 % (1-3 %), for ~0.02-0.08 ms a frame (docs/benchmarks.md, "
+        '"Feet and floor"). off: the feet as denoised.",
     ),
     click.option(
         "--floor",
