@@ -166,7 +166,7 @@ OPTIONS = [
         "keeps its own feet. On noisy clips (0.10-0.20 rad) foot skate falls from 5.5-9 times "
         "the truth's to 0.6-0.7 times on the test walks (1.2-1.9 on unseen kinds of motion), "
         "the vertex error by 8-9 % (1-3 %), for ~0.02-0.08 ms a frame (docs/benchmarks.md, "
-        '"Feet and floor"). off: the feet as denoised.",
+        '"Feet and floor"). off: the feet as denoised.',
     ),
     click.option(
         "--floor",
