@@ -26,6 +26,7 @@ Pure numpy/torch math on arrays of one motion: rotations (T, J, 3) axis-angle, t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,8 +42,9 @@ from mdvae_cli.motion.motion import Motion
 
 #: the median of a chi-square variable with one degree of freedom over its mean
 _CHI2_MEDIAN = 0.4549
-#: variance of the third difference of unit white noise: C(6, 3)
-_THIRD_DIFF_GAIN = 20.0
+#: the order of the differences the noise is read from (white noise of unit variance gives
+#: differences of variance C(2n, n): 20 for the third)
+NOISE_ORDER = 3
 #: the stretch over which the denoiser's change is measured (seconds)
 BLEND_SECONDS = 1.0
 #: a frame this many noise levels away from its neighbours' midpoint (and back) is a spike
@@ -73,12 +75,12 @@ def noise_variance(values: np.ndarray) -> np.ndarray:
 
     values: (T, C, ...) -> (C, ...) (per channel, the median over time and the remaining
     trailing axis when there is one per channel); zeros for T < 4."""
-    if values.shape[0] < 4:
+    if values.shape[0] < NOISE_ORDER + 1:
         return np.zeros(values.shape[1:-1] if values.ndim > 2 else values.shape[1:])
-    d3 = np.diff(values, n=3, axis=0) ** 2
+    d3 = np.diff(values, n=NOISE_ORDER, axis=0) ** 2
     if values.ndim > 2:  # pool the components of a channel (x, y, z)
         d3 = np.moveaxis(d3, -1, 1).reshape(-1, *values.shape[1:-1])
-    return np.median(d3, axis=0) / (_THIRD_DIFF_GAIN * _CHI2_MEDIAN)
+    return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
 
 
 def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
