@@ -144,6 +144,7 @@ def denoise(
     lr = 3e-4 if lr is None else lr
     if overlap >= window:
         raise InputError(f"--overlap ({overlap}) must be smaller than --window ({window})")
+    blend = not outliers if blend is None else blend  # --outliers weighs spikes itself
     base = DenoiseSettings(
         refine_steps=refine_steps, refine_lr=refine_lr, offset=offset, lam=lam,
         offset_std=refine_offset, trans_offset_std=trans_offset, blend=blend, guard=guard,
