@@ -169,3 +169,21 @@ def test_cli_says_how_much_was_kept(tmp_path):
     assert "kept as it came" in res.output
     res = CliRunner().invoke(cli, [*args, "--no-blend", "--json"])
     assert json.loads(res.stdout)["files"][0]["result"]["input_share"] is None
+
+
+def test_video_estimates_get_the_slow_band_alone():
+    """A residual of pure frame-to-frame jitter (nothing slow): the slow-band-only blend puts
+    none of it back, the full blend (mocap) some, where the noise level is underestimated."""
+    from mdvae_cli.infer.input_kinds import kind_settings
+    from mdvae_cli.infer.noise_blend import keep_unexplained
+
+    assert kind_settings("mocap").blend_fast and not kind_settings("video").blend_fast
+    rng = np.random.default_rng(0)
+    jitter = rng.normal(0, 0.05, (300, 2, 3))
+    jitter -= np.concatenate([jitter[:1], jitter[:-1]])  # differenced: no slow content
+    quiet = np.full(2, 1e-6)  # a noise estimate far too low: every bit looks unexplained
+    none = np.zeros((300, 2), dtype=bool)
+    slow_only, _ = keep_unexplained(jitter, quiet, none, 30.0, with_fast=False)
+    both, _ = keep_unexplained(jitter, quiet, none, 30.0, with_fast=True)
+    assert np.abs(slow_only).mean() < 0.3 * np.abs(both).mean()
+    np.testing.assert_allclose(both, jitter, atol=1e-4)  # all of it, both bands

@@ -288,6 +288,7 @@ def denoise_motions(
     feet: FootLockConfig | None = None,
     blend: bool = False,
     on_blend: Callable[[int, BlendReport], None] | None = None,
+    blend_fast: bool = True,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -311,7 +312,8 @@ def denoise_motions(
     With ``blend`` (``mdvae denoise``'s default), the part of each input's difference from
     its result that the input's own noise does not explain is put back
     (``infer.noise_blend``): a clean take comes back as it came, a noisy one cleaned; each
-    motion's :class:`BlendReport` goes to ``on_blend(motion index, report)``.
+    motion's :class:`BlendReport` goes to ``on_blend(motion index, report)``; ``blend_fast``
+    False puts back the slow band alone (video estimates, whose jitter is not white).
     With ``feet``, the results' feet are then held still on the floor where they are down
     (``infer.feet.lock_feet``, each input as its source).
     """
@@ -319,6 +321,7 @@ def denoise_motions(
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
             progress, refine, mirror, guard, on_fallback, loops, blend=blend, on_blend=on_blend,
+            blend_fast=blend_fast,
         )  # fmt: skip
         return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
     if blend:
@@ -328,7 +331,7 @@ def denoise_motions(
         )  # fmt: skip
         out = []
         for i, (m, src) in enumerate(zip(cleaned, motions, strict=True)):
-            blended, report = blend_motion(src, m)
+            blended, report = blend_motion(src, m, blend_fast)
             out.append(blended)
             if on_blend is not None:
                 on_blend(i, report)

@@ -17,7 +17,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
-from mdvae_cli.infer.input_kinds import refine_config
+from mdvae_cli.infer.input_kinds import kind_settings, refine_config
 from mdvae_cli.infer.loop import looks_like_loop
 from mdvae_cli.infer.noise_blend import BlendReport
 from mdvae_cli.infer.rest_pose import keep_rest_frames
@@ -152,6 +152,7 @@ def denoise(
             feet=FootLockConfig() if settings.feet == "lock" else None,
             blend=settings.blend and refine is not None,
             on_blend=on_blend,
+            blend_fast=kind_settings(settings.input_kind).blend_fast,
         )
 
     return keep_rest_frames(motions, run) if settings.rest_pose else run(motions)

@@ -142,14 +142,19 @@ def kept_share(residual_sq: np.ndarray, noise_var: np.ndarray, width: int) -> np
 
 
 def keep_unexplained(
-    residual: np.ndarray, noise_var: np.ndarray, spikes: np.ndarray, fps: float
+    residual: np.ndarray,
+    noise_var: np.ndarray,
+    spikes: np.ndarray,
+    fps: float,
+    with_fast: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """What of the input's difference from the denoiser's output to keep: the part its noise
     does not explain, band by band (a slow band, where the denoiser's own errors sit, and a
     fast one, where white noise sits), and nothing at the input's spikes.
 
-    residual: (T, C, 3) input minus output; noise_var: (C,); spikes: (T, C) bool ->
-    (kept residual (T, C, 3), the slow band's kept share (T, C))"""
+    residual: (T, C, 3) input minus output; noise_var: (C,); spikes: (T, C) bool; with_fast:
+    False keeps none of the fast band -> (kept residual (T, C, 3), the slow band's kept share
+    (T, C))"""
     r = np.where(spikes[..., None], 0.0, residual)
     kernel = gaussian_kernel(BAND_SECONDS * fps)
     slow = smooth_in_time(r, kernel)
@@ -161,12 +166,14 @@ def keep_unexplained(
     slow_noise = SLOW_MARGIN * noise_var * (kernel**2).sum()
     fast_noise = FAST_MARGIN * noise_var * ((delta - kernel) ** 2).sum()
     keep_slow = kept_share((slow**2).mean(-1), slow_noise, width)
+    if not with_fast:
+        return keep_slow[..., None] * slow, keep_slow
     keep_fast = kept_share((fast**2).mean(-1), fast_noise, width)
     return keep_slow[..., None] * slow + keep_fast[..., None] * fast, keep_slow
 
 
 def blend_rotations(
-    source: np.ndarray, denoised: np.ndarray, fps: float
+    source: np.ndarray, denoised: np.ndarray, fps: float, fast: bool = True
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each joint's denoised rotation with the part of the input's difference from it that
     the input's noise does not explain put back.
@@ -181,35 +188,39 @@ def blend_rotations(
     unwrapped = rotvec_unwrap(src, dim=0).numpy()
     noise = noise_variance(unwrapped)  # (J,)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
-    kept, share = keep_unexplained(residual, noise, spikes, fps)
+    kept, share = keep_unexplained(residual, noise, spikes, fps, fast)
     out = quat_to_rotvec(quat_multiply(q_den, rotvec_to_quat(torch.as_tensor(kept)))).numpy()
     return out, share, spikes
 
 
 def blend_translation(
-    source: np.ndarray, denoised: np.ndarray, fps: float
+    source: np.ndarray, denoised: np.ndarray, fps: float, fast: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """The root translation, blended as :func:`blend_rotations` does.
 
     source, denoised: (T, 3) -> (blended (T, 3), slow share put back (T,))"""
     noise = noise_variance(source[:, None, :])  # (1,)
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M)
-    kept, share = keep_unexplained((source - denoised)[:, None, :], noise, spikes, fps)
+    kept, share = keep_unexplained((source - denoised)[:, None, :], noise, spikes, fps, fast)
     return denoised + kept[:, 0], share[:, 0]
 
 
-def blend_motion(source: Motion, denoised: Motion) -> tuple[Motion, BlendReport]:
+def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[Motion, BlendReport]:
     """``denoised`` (the denoiser's output at the source's frame times) with what the
-    source's own noise does not explain put back, and how much was.
+    source's own noise does not explain put back (``fast``: the fast band too), and how much
+    was.
 
     -> (the blended motion: a copy of ``denoised`` with new body parameters, its report)"""
     if source.num_frames < 4:  # too short to tell noise from motion: the denoiser's
         return denoised, BlendReport(0.0, 0.0)
     rot_src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
     rot_den = np.concatenate([denoised.root_orient[:, None], denoised.pose_body], axis=1)
-    rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps)
+    rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps, fast)
     trans, _ = blend_translation(
-        np.asarray(source.trans, np.float64), np.asarray(denoised.trans, np.float64), source.fps
+        np.asarray(source.trans, np.float64),
+        np.asarray(denoised.trans, np.float64),
+        source.fps,
+        fast,
     )
     dtype = denoised.pose_body.dtype
     out = denoised.with_body(
