@@ -15,7 +15,8 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.formats.npz_io import load_motion, save_motion
-from mdvae_cli.infer.denoise import denoise_motions, to_input_rate, to_model_rate
+from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
 from mdvae_cli.infer.noise_blend import (
     blend_motion,
     blend_rotations,

@@ -18,17 +18,15 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.filters import gaussian_filter_motion
 from mdvae_cli.geometry.rotations import (
     quat_slerp,
     quat_to_rotvec,
     rotvec_to_quat,
-    rotvec_unwrap,
-    rotvec_wrap,
 )
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
-from mdvae_cli.infer.guard import guard
+from mdvae_cli.infer.guard import fallback_stretches, guard
+from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
@@ -40,7 +38,7 @@ from mdvae_cli.model.state import BodyParams, state_to_params
 from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.resample import interp_cubic, resample_motion, resample_times
+from mdvae_cli.motion.resample import resample_times
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
 
@@ -210,38 +208,6 @@ def blend_windows(num_frames: int, starts: list[int], windows: list[BodyParams])
     return BodyParams(rotvecs[:, 0], rotvecs[:, 1:], trans)
 
 
-def to_input_rate(params30: BodyParams, source: Motion) -> BodyParams:
-    """Sample a 30 Hz result at the source's own frame times (same frame count as the input),
-    by cubic curves through the 30 Hz samples (Catmull-Rom, on unwrapped axis-angles), so that
-    a high-rate take comes back as smooth motion at its own rate, not as 30 Hz samples joined
-    by straight lines; frames past the last 30 Hz sample carry its motion on (no frozen tail).
-    """
-    if abs(source.fps - MODEL_FPS) < 1e-9:
-        return params30
-    src = np.arange(source.num_frames) * (MODEL_FPS / source.fps)
-
-    def rotations(r: torch.Tensor) -> torch.Tensor:
-        unwrapped = rotvec_unwrap(r.double(), dim=0).numpy()
-        return rotvec_wrap(torch.as_tensor(interp_cubic(unwrapped, src)))
-
-    return BodyParams(
-        rotations(params30.root_orient),
-        rotations(params30.pose_body),
-        torch.as_tensor(interp_cubic(params30.trans.double().numpy(), src)),
-    )
-
-
-def to_model_rate(motion: Motion) -> Motion:
-    """The motion at 30 Hz as the denoiser reads it. A faster take is first smoothed over
-    about one 30 Hz frame (a Gaussian of 0.4 of the rate ratio, in its own frames), so that
-    the 30 Hz samples average the frames between them instead of picking one of each few
-    (which keeps all of its noise and aliases its motion)."""
-    ratio = motion.fps / MODEL_FPS
-    if ratio > 1.0 + 1e-6:
-        motion = gaussian_filter_motion(motion, 0.4 * ratio)
-    return resample_motion(motion, MODEL_FPS)
-
-
 def assemble(
     motions: list[Motion],
     motions30: list[Motion],
@@ -398,23 +364,6 @@ def denoise_motions(
         if on_fallback is not None:
             for a, b in stretches:
                 on_fallback(mi, a, b)
-    return out
-
-
-def fallback_stretches(
-    fallbacks: list[tuple[int, int]], motions30: list[Motion], window: int
-) -> dict[int, list[tuple[float, float]]]:
-    """The guard's fallen-back windows (motion index, 30 Hz start) as merged stretches of
-    seconds per motion (overlapping windows make one stretch)."""
-    out: dict[int, list[tuple[float, float]]] = {}
-    for mi, start in sorted(fallbacks):
-        n = min(window + 1, motions30[mi].num_frames)
-        a, b = start / MODEL_FPS, (start + n - 1) / MODEL_FPS
-        spans = out.setdefault(mi, [])
-        if spans and a <= spans[-1][1]:
-            spans[-1] = (spans[-1][0], max(spans[-1][1], b))
-        else:
-            spans.append((a, b))
     return out
 
 

@@ -20,7 +20,9 @@ from __future__ import annotations
 import torch
 
 from mdvae_cli.filters import savgol_smooth
+from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.state import POSE, ROOT
+from mdvae_cli.motion.motion import Motion
 
 #: a window falls back when its output is this many noise variances from its input
 GUARD_RATIO = 2.0
@@ -84,3 +86,20 @@ def guard(x_hat: torch.Tensor, obs: torch.Tensor, ratio: float = GUARD_RATIO):
     out = x_hat.clone()
     out[bad] = fallback_states(obs[bad])
     return out, bad
+
+
+def fallback_stretches(
+    fallbacks: list[tuple[int, int]], motions30: list[Motion], window: int
+) -> dict[int, list[tuple[float, float]]]:
+    """The guard's fallen-back windows (motion index, 30 Hz start) as merged stretches of
+    seconds per motion (overlapping windows make one stretch)."""
+    out: dict[int, list[tuple[float, float]]] = {}
+    for mi, start in sorted(fallbacks):
+        n = min(window + 1, motions30[mi].num_frames)
+        a, b = start / MODEL_FPS, (start + n - 1) / MODEL_FPS
+        spans = out.setdefault(mi, [])
+        if spans and a <= spans[-1][1]:
+            spans[-1] = (spans[-1][0], max(spans[-1][1], b))
+        else:
+            spans.append((a, b))
+    return out

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from mdvae_cli.filters import gaussian_coefficients
 from mdvae_cli.geometry.rotations import (
     quat_multiply,
     quat_to_rotvec,
@@ -114,13 +115,6 @@ def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.
     return out
 
 
-def gaussian_kernel(sigma_frames: float) -> np.ndarray:
-    """Normalised Gaussian weights over +-3 sigma.  -> (2r + 1,)"""
-    r = max(1, int(np.ceil(3.0 * sigma_frames)))
-    w = np.exp(-0.5 * (np.arange(-r, r + 1) / max(sigma_frames, 1e-6)) ** 2)
-    return w / w.sum()
-
-
 def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """Convolve along axis 0 with edge values repeated.  x: (T, ...) -> (T, ...)"""
     r = len(kernel) // 2
@@ -156,7 +150,7 @@ def keep_unexplained(
     False keeps none of the fast band -> (kept residual (T, C, 3), the slow band's kept share
     (T, C))"""
     r = np.where(spikes[..., None], 0.0, residual)
-    kernel = gaussian_kernel(BAND_SECONDS * fps)
+    kernel = gaussian_coefficients(BAND_SECONDS * fps)
     slow = smooth_in_time(r, kernel)
     fast = r - slow
     # white noise's variance in each band, per unit of input noise variance
