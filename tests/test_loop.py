@@ -60,3 +60,19 @@ def test_posed_joints_turn_with_the_root():
         (rest @ np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1]])),
         atol=1e-12,
     )
+
+
+def test_angle_matches_the_rotation_matrix_route():
+    """The quaternion route gives the angle of R_a^T R_b (float noise), any angle up to pi."""
+    import torch
+
+    from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+    from mdvae_cli.infer.loop import _angle
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(50, 22, 3)) * rng.uniform(0, 1.5, size=(50, 22, 1))
+    b = a + rng.normal(size=(50, 22, 3)) * rng.choice([1e-5, 0.01, 1.0], size=(50, 22, 1))
+    ra = rotvec_to_rotmat(torch.as_tensor(a))
+    rb = rotvec_to_rotmat(torch.as_tensor(b))
+    ref = rotmat_to_rotvec(ra.transpose(-1, -2) @ rb).norm(dim=-1).mean(-1).numpy()
+    np.testing.assert_allclose(_angle(a, b), ref, rtol=1e-6, atol=1e-9)

@@ -26,7 +26,11 @@ import torch
 
 from mdvae_cli.body.data import SMPL_PARENTS, BodyModelData
 from mdvae_cli.filters import savgol_smooth
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
+from mdvae_cli.geometry.rotations import (
+    rotvec_to_quat,
+    rotvec_to_rotmat,
+    rotvec_unwrap,
+)
 from mdvae_cli.motion.motion import Motion
 
 #: a take is a loop when its last pose is this close to its first, in frame-to-frame steps
@@ -46,11 +50,16 @@ def _rotations(motion: Motion) -> np.ndarray:
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Mean rotation angle between two sets of axis-angles (..., 22, 3) -> (...)"""
-    ra = rotvec_to_rotmat(torch.as_tensor(a, dtype=torch.float64))
-    rb = rotvec_to_rotmat(torch.as_tensor(b, dtype=torch.float64))
-    rel = rotmat_to_rotvec(ra.transpose(-1, -2) @ rb)
-    return rel.norm(dim=-1).mean(dim=-1).numpy()
+    """Mean rotation angle between two sets of axis-angles (..., 22, 3) -> (...)
+
+    Through quaternions (the angle of conj(q_a) q_b is 2 atan2(|v|, |w|)): the same angle as
+    the norm of ``rotmat_to_rotvec(R_a^T R_b)``, a quarter of the work on a long take."""
+    qa = rotvec_to_quat(torch.as_tensor(a, dtype=torch.float64))
+    qb = rotvec_to_quat(torch.as_tensor(b, dtype=torch.float64))
+    wa, va, wb, vb = qa[..., 0], qa[..., 1:], qb[..., 0], qb[..., 1:]
+    w = wa * wb + (va * vb).sum(-1)
+    v = wa[..., None] * vb - wb[..., None] * va - torch.linalg.cross(va, vb)
+    return (2 * torch.atan2(v.norm(dim=-1), w.abs())).mean(dim=-1).numpy()
 
 
 def looks_like_loop(
