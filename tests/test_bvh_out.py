@@ -157,6 +157,18 @@ def test_way_back_without_change_gives_the_file_back(tmp_path, joints):
     np.testing.assert_allclose(data, take.source.layout.data, atol=1e-6)
 
 
+def test_way_back_in_chunks_is_the_way_back_in_one_piece(tmp_path, joints):
+    """Frames are carried back a chunk at a time (flat memory on long takes): the same file
+    as in one piece, whatever the chunk."""
+    path = write_rig(tmp_path / "take.bvh")
+    take = read_take(path, joints)
+    cleaned = take.motion.with_body(pose_body=take.motion.pose_body * 0.9)
+    args = (take.source, take.retarget, take.motion, cleaned, joints)
+    whole = write_back_data(*args, chunk=10_000)
+    for chunk in (1, 7, 64):
+        np.testing.assert_allclose(write_back_data(*args, chunk=chunk), whole, atol=1e-9)
+
+
 def _change(take, data):
     layout = take.source.layout
     L0, _, _, P0 = file_pose(take.source, layout, layout.data)

@@ -21,7 +21,7 @@ from mdvae_cli.formats.bvh import BvhLayout, _positions
 from mdvae_cli.formats.bvh_write import rotmat_to_euler
 from mdvae_cli.formats.source import SourceMotion, euler_to_rotmat
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
-from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.joint_map import JointMap
 
@@ -77,15 +77,18 @@ def smpl_change(rt, original: Motion, cleaned: Motion, body: BodyJoints, scale: 
     M = np.asarray(rt.to_output)
     Go, Po = smpl_globals(original, body)
     Gc, Pc = smpl_globals(cleaned, body)
-    D = np.einsum("ab,tjbc,tjdc,de->tjae", M.T, Gc, Go, M)
+    D = M.T @ (Gc @ np.swapaxes(Go, -1, -2)) @ M  # matmuls: einsum's 4-operand loop is slow
     return D, (Pc[:, 0] - Po[:, 0]) @ M / scale
 
 
-def pelvis_point(rt, D: np.ndarray, shift: np.ndarray, anchor: np.ndarray, scale: float):
+def pelvis_point(
+    rt, D: np.ndarray, shift: np.ndarray, anchor: np.ndarray, scale: float, frames=slice(None)
+):
     """Where the source pelvis joint goes (T, 3; file units and axes): the point the SMPL
     pelvis was fitted to moves by the pelvis's ``shift`` and turns with it (``D[:, 0]``), and
-    the source pelvis joint (at ``anchor`` (T, 3) before) keeps its place relative to it."""
-    target = ((rt.targets[:, 0] + rt.drop) @ np.asarray(rt.to_output)) / scale
+    the source pelvis joint (at ``anchor`` (T, 3) before) keeps its place relative to it.
+    frames: which of the take's frames ``D``, ``shift`` and ``anchor`` hold (default: all)."""
+    target = ((rt.targets[frames, 0] + rt.drop) @ np.asarray(rt.to_output)) / scale
     arm = target - anchor
     return target + shift - (D[:, 0] @ arm[..., None])[..., 0]
 
@@ -139,18 +142,33 @@ def write_back_data(
     original: Motion,
     cleaned: Motion,
     body: BodyJoints,
+    chunk: int = 4096,
 ) -> np.ndarray:
     """The file's channel values (F, C) with the change from ``original`` to ``cleaned`` (SMPL
     motions of the same frames as ``src``, e.g. a retarget result's motion and its denoised
     version) carried onto the file's own skeleton.  rt: the :class:`RetargetResult` of
-    ``src`` (its joint map and axes). Rows the reader skipped are kept as they were."""
+    ``src`` (its joint map and axes). Rows the reader skipped are kept as they were. Frames
+    are carried ``chunk`` at a time (each frame on its own: the same result, flat memory)."""
     layout: BvhLayout = src.layout
     if layout is None:
         raise InputError("this motion was not read from a BVH file; it cannot be written back")
-    data = layout.data[layout.rows]
-    T = data.shape[0]
+    T = len(layout.rows)
     if original.num_frames != T or cleaned.num_frames != T:
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
+    out = layout.data.copy()
+    for i in range(0, T, chunk):  # frames are independent: memory flat in the take's length
+        frames = slice(i, min(i + chunk, T))
+        part = (slice_frames(m, frames.start, frames.stop) for m in (original, cleaned))
+        out[layout.rows[frames]] = _write_back_rows(src, rt, *part, body, frames)
+    return out
+
+
+def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: slice):
+    """:func:`write_back_data` on the take's ``frames`` (``original`` and ``cleaned`` hold
+    those frames alone). -> the file's channel values of those rows (n, C)"""
+    layout: BvhLayout = src.layout
+    data = layout.data[layout.rows[frames]]
+    T = data.shape[0]
     scale = layout.metres_per_unit
     D, shift = smpl_change(rt, original, cleaned, body, scale)
 
@@ -169,13 +187,12 @@ def write_back_data(
     # the pelvis point (the SMPL pelvis's target) moves by the SMPL pelvis's change and turns
     # with the pelvis; the channels that carry the source pelvis take up the difference
     a = int(rt.jmap.anchor["pelvis"])
-    new_a = pelvis_point(rt, D, shift, P[:, a], scale)
+    new_a = pelvis_point(rt, D, shift, P[:, a], scale, frames)
     c = _carrier(src, layout, a)
     t2 = t.copy()
     Gp = np.broadcast_to(np.eye(3), (T, 3, 3)) if c == 0 else G2[:, src.parents[c]]
     t2[:, c] = t[:, c] + (np.swapaxes(Gp, -1, -2) @ (new_a - P[:, a])[..., None])[..., 0]
 
-    out = layout.data.copy()
     new = data.copy()
     for j in range(src.num_joints):
         rot = layout.joint_columns(j, "r")
@@ -194,5 +211,4 @@ def write_back_data(
             for col, axis in layout.joint_columns(j, "t"):
                 k = "xyz".index(axis)  # the file's value, moved as the joint moved
                 new[:, col] = data[:, col] + P2[:, j, k] - P[:, j, k]
-    out[layout.rows] = new
-    return out
+    return new
