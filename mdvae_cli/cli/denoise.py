@@ -166,8 +166,10 @@ def denoise(
     options = ReadOptions(format=input_format, fps=input_fps, track=track,
                           allow_pickle=allow_pickle, body=body_data)  # fmt: skip
     read_takes: dict[Path, object] = {}  # source -> its take, for writing it back
+    waited: dict[Path, float] = {}  # source -> seconds spent reading and writing it
 
     def read(job: FileJob) -> None:
+        start = time.perf_counter()
         f = read_input(job.source, job.relpath, options, takes=takes)
         read_takes[job.source] = f.take
         items, short = [], []
@@ -188,6 +190,7 @@ def denoise(
         kinds[job.source] = f.kind if input_kind == "auto" else input_kind
         formats[job.source] = f.format
         loaded[job.source] = items
+        waited[job.source] = time.perf_counter() - start
 
     report = run_batch(jobs, read, "reading", quiet=True)
     good = [o.job for o in report.succeeded]
@@ -261,7 +264,7 @@ def denoise(
             run(group, per_kind(kind))
 
     def write(job: FileJob) -> dict:
-        tracks = []
+        start, tracks = time.perf_counter(), []
         for i, (label, source_motion, output) in enumerate(loaded[job.source]):
             motion = results[(job.source, i)]
             check_finite(motion)
@@ -292,7 +295,10 @@ def denoise(
                            "loop": cycles.get((job.source, i), False)})  # fmt: skip
         return {
             "frames": sum(t["frames"] for t in tracks),
-            "seconds": round(timings[job.source], 4),
+            # the time the user waited: reading, denoising and writing
+            "seconds": round(
+                timings[job.source] + waited[job.source] + time.perf_counter() - start, 4
+            ),
             "format": formats[job.source],
             "input_kind": kinds[job.source],
             "fallbacks": [f for t in tracks for f in t["fallbacks"]],
