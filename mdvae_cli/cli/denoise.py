@@ -226,7 +226,11 @@ def denoise(
         with progress_bar(transient=True) as progress:
             tasks = {
                 stage: progress.add_task(label, total=1, visible=False, info="")
-                for stage, label in (("optimize", "optimising"), ("refine", "refining"))
+                for stage, label in (
+                    ("optimize", "optimising"),
+                    ("refine", "refining"),
+                    ("denoise", "denoising"),
+                )
             }
 
             def tick(info: dict) -> None:
@@ -235,7 +239,7 @@ def denoise(
                     visible=True,
                     completed=info["step"],
                     total=info["steps"],
-                    info=f"loss {info['loss']:.2f}",
+                    info=f"loss {info['loss']:.2f}" if "loss" in info else info["phase"],
                 )
 
             cleaned = denoise(

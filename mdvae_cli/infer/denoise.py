@@ -18,18 +18,14 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import (
-    quat_slerp,
-    quat_to_rotvec,
-    rotvec_to_quat,
-)
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.guard import fallback_stretches, guard
-from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
+from mdvae_cli.infer.native_rate import to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.stitch import assemble
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
 from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.denoiser import Denoiser
@@ -177,64 +173,6 @@ def refine_batches(group: WindowGroup, cfg: RefineConfig) -> range:
     return range(0, len(group) if group.moves else 0, cfg.batch_windows)
 
 
-def blend_windows(num_frames: int, starts: list[int], windows: list[BodyParams]) -> BodyParams:
-    """Stitch windows (each (L, ...)) into one (T, ...) sequence; overlaps cross-fade linearly
-    (slerp for rotations) from the earlier window to the later one.
-
-    Rotations are blended as quaternions, converted once for all windows and once back."""
-    order = sorted(range(len(starts)), key=lambda i: starts[i])
-    rot = [torch.cat([w.root_orient[:, None], w.pose_body], dim=1) for w in windows]
-    lengths = {r.shape[0] for r in rot}
-    if len(lengths) == 1:  # one conversion for every window
-        quats = list(rotvec_to_quat(torch.stack(rot)).unbind(0))
-    else:
-        quats = [rotvec_to_quat(r) for r in rot]
-    q = torch.zeros(num_frames, 22, 4, dtype=quats[0].dtype)
-    trans = torch.zeros(num_frames, 3)
-    written = 0
-    for i in order:
-        s, wq, wt = starts[i], quats[i], windows[i].trans
-        L = wt.shape[0]
-        ov = max(0, min(written - s, L))
-        if ov:
-            a = torch.arange(1, ov + 1, dtype=torch.float32) / (ov + 1)
-            sl = slice(s, s + ov)
-            q[sl] = quat_slerp(q[sl], wq[:ov], a[:, None].to(q.dtype))
-            trans[sl] = trans[sl] * (1 - a[:, None]) + wt[:ov] * a[:, None]
-        q[s + ov : s + L] = wq[ov:]
-        trans[s + ov : s + L] = wt[ov:]
-        written = max(written, s + L)
-    rotvecs = quat_to_rotvec(q).to(windows[0].pose_body.dtype)
-    return BodyParams(rotvecs[:, 0], rotvecs[:, 1:], trans)
-
-
-def assemble(
-    motions: list[Motion],
-    motions30: list[Motion],
-    groups: list[WindowGroup],
-    predictions: list[BodyParams],
-) -> list[Motion]:
-    """Blend every motion's windows and write the results into copies of the input motions."""
-    per_motion: dict[int, list[tuple[int, BodyParams]]] = {}
-    for g, pred in zip(groups, predictions, strict=True):
-        for k, (mi, s) in enumerate(g.owners):
-            one = BodyParams(pred.root_orient[k], pred.pose_body[k], pred.trans[k])
-            per_motion.setdefault(mi, []).append((s, one))
-    out = []
-    for mi, (motion, m30) in enumerate(zip(motions, motions30, strict=True)):
-        items = per_motion[mi]
-        p30 = blend_windows(m30.num_frames, [s for s, _ in items], [w for _, w in items])
-        p = to_input_rate(p30, motion)
-        out.append(
-            motion.with_body(
-                root_orient=p.root_orient.double().numpy(),
-                pose_body=p.pose_body.double().numpy(),
-                trans=p.trans.double().numpy(),
-            )
-        )
-    return out
-
-
 def denoise_motions(
     motions: list[Motion],
     denoiser: Denoiser,
@@ -268,7 +206,9 @@ def denoise_motions(
     in optimisation mode, adapted to as well) and the result is the midpoint of the two
     estimates, mirrored back: the learned prior is not exactly mirror-symmetric, so the two
     differ, and their average is a prior made symmetric. Twice the work.
-    ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}.
+    ``progress`` receives {"stage": "optimize" | "refine", "step", "steps", "loss"}, and
+    {"stage": "denoise", "step", "steps", "phase"} as each phase of the whole is done (the
+    windows denoised, stitched, blended, feet locked: a long take's progress inside it).
     With ``guard`` (``mdvae denoise``'s default), a window whose output moved further from
     its input than the input's noise explains falls back to the smoothed input
     (``infer.guard``); each such window is said in its motion's notes and passed to
@@ -286,14 +226,17 @@ def denoise_motions(
     if feet is not None:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            progress, refine, mirror, guard, on_fallback, loops, blend=blend, on_blend=on_blend,
-            blend_fast=blend_fast,
+            _more(progress, 1), refine, mirror, guard, on_fallback, loops, blend=blend,
+            on_blend=on_blend, blend_fast=blend_fast,
         )  # fmt: skip
-        return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
+        out = [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
+        done = CORE_PHASES + blend + 1
+        _phase(progress, "feet locked", done, done)
+        return out
     if blend:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            progress, refine, mirror, guard, on_fallback, loops,
+            _more(progress, 1), refine, mirror, guard, on_fallback, loops,
         )  # fmt: skip
         out = []
         for i, (m, src) in enumerate(zip(cleaned, motions, strict=True)):
@@ -301,6 +244,7 @@ def denoise_motions(
             out.append(blended)
             if on_blend is not None:
                 on_blend(i, report)
+        _phase(progress, "blended", CORE_PHASES + 1, CORE_PHASES + 1)
         return out
     if loops is not None and any(loops):
         return _denoise_cycles(
@@ -351,7 +295,9 @@ def denoise_motions(
                                _staged(progress, "refine", done, sum(steps)), fallbacks)
                 for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
             ]  # fmt: skip
+        _phase(progress, "windows denoised", 1, CORE_PHASES)
         out = assemble(motions, motions30, groups, preds)
+        _phase(progress, "stitched", 2, CORE_PHASES)
     for mi, stretches in fallback_stretches(fallbacks or [], motions30, window).items():
         seconds = sum(b - a for a, b in stretches)
         duration = max((motions30[mi].num_frames - 1) / MODEL_FPS, 1e-9)
@@ -397,5 +343,27 @@ def _staged(progress, stage: str, offset: int, total: int):
 
     def tell(info: dict) -> None:
         progress({**info, "stage": stage, "step": offset + info["step"], "steps": total})
+
+    return tell
+
+
+CORE_PHASES = 2  # the "denoise" stage's phases without the blend and the foot lock
+
+
+def _phase(progress, phase: str, step: int, steps: int) -> None:
+    """Tell ``progress`` that the ``step``-th of ``steps`` phases of the whole is done."""
+    if progress is not None:
+        progress({"stage": "denoise", "step": step, "steps": steps, "phase": phase})
+
+
+def _more(progress, extra: int):
+    """``progress`` for an inner run whose "denoise" phases are followed by ``extra`` more."""
+    if progress is None:
+        return None
+
+    def tell(info: dict) -> None:
+        if info["stage"] == "denoise":
+            info = {**info, "steps": info["steps"] + extra}
+        progress(info)
 
     return tell
