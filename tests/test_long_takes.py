@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mdvae_cli.body.builtin import builtin_body_model
@@ -34,3 +35,37 @@ def test_progress_tells_each_phase_of_a_take(shipped, settings, phases):
     assert [t["phase"] for t in steps] == phases
     assert [t["step"] for t in steps] == list(range(1, len(phases) + 1))
     assert {t["steps"] for t in steps} == {len(phases)}
+
+
+def test_sole_heights_and_vertices_match_the_whole_feet():
+    """The soles in chunks (heights along a direction, one vertex a frame) are the foot
+    vertices skinned all at once, seen the same way (float noise)."""
+    import torch
+
+    from mdvae_cli.body.formats import load_body_model
+    from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+    from mdvae_cli.retarget.fit_shape import BodyJoints
+    from mdvae_cli.retarget.soles import _FEET, foot_heights, foot_vertex
+
+    body = BodyJoints(load_body_model(None))
+    gen = torch.Generator().manual_seed(0)
+    T = 50
+    G = rotvec_to_rotmat(torch.randn(T, 22, 3, generator=gen, dtype=torch.float64))
+    p = torch.randn(T, 22, 3, generator=gen, dtype=torch.float64)
+    betas = torch.randn(body.num_betas, generator=gen, dtype=torch.float64)
+    X_all = body.rest_joints(betas)
+    rest = body.foot_vertices(betas)  # (F, 3)
+    W = body.foot_weights  # (F, 4)
+    # every vertex: sum_k W[v, k] (G_k (v - X_k) + p_k)
+    arm = rest[None] - X_all[_FEET][:, None]  # (4, F, 3)
+    moved = torch.einsum("tkab,kfb->tkfa", G[:, _FEET], arm) + p[:, _FEET][:, :, None]
+    feet = torch.einsum("tkfa,fk->tfa", moved, W)  # (T, F, 3)
+    up = torch.nn.functional.normalize(torch.tensor([0.1, 1.0, -0.2], dtype=torch.float64), dim=0)
+    heights = torch.cat(list(foot_heights(G, p, body, betas, X_all, up, chunk=7)))
+    np.testing.assert_allclose(heights.numpy(), (feet @ up).numpy(), atol=1e-12)
+    lowest = feet[..., 1].argmin(-1)
+    np.testing.assert_allclose(
+        foot_vertex(G, p, body, betas, X_all, lowest).numpy(),
+        feet[torch.arange(T), lowest].numpy(),
+        atol=1e-12,
+    )

@@ -56,6 +56,7 @@ from mdvae_cli.retarget.pose_solve import (
     rest_corrections,
     solve_pose,
 )
+from mdvae_cli.retarget.soles import foot_heights, foot_vertex
 from mdvae_cli.retarget.upright import canonical_axes, stature_unit, upright_rest
 
 __all__ = [
@@ -188,22 +189,6 @@ def fit_ground(contacts: np.ndarray, max_tilt: float, tilt: bool = True) -> np.n
     return np.array([coef[0], 0.0, 0.0])
 
 
-def foot_points(G, p, body: BodyJoints, betas, X_all, chunk: int = 2048):
-    """The foot vertices of posed frames, skinned by the ankle and foot joints (y up), a
-    chunk of frames at a time.  G: (T, 22, 3, 3) world rotations, p: (T, 22, 3) joints;
-    betas: (S,); X_all: (J, 3) rest joints -> yields (n, F, 3) tensors, in frame order"""
-    fj = [7, 8, 10, 11]
-    w = body.foot_weights.T[..., None]  # (4, F, 1)
-    local = w * (body.foot_vertices(betas)[None] - X_all[fj][:, None])  # (4, F, 3), weighted
-    local = local.permute(0, 2, 1).reshape(12, -1)
-    for i in range(0, G.shape[0], chunk):
-        Gc, pc = G[i : i + chunk, fj], p[i : i + chunk, fj]
-        n = Gc.shape[0]
-        Gf = Gc.permute(0, 2, 1, 3).reshape(n, 3, 12)  # [a, (k, b)]
-        feet = (Gf @ local).reshape(n, 3, -1).transpose(1, 2)
-        yield feet + torch.einsum("tka,fk->tfa", pc, body.foot_weights)
-
-
 def retarget(
     src: SourceMotion,
     body: BodyJoints,
@@ -244,20 +229,19 @@ def retarget(
     G, p = _fk(L, bones, root, parents)
     err = (p - targets).norm(dim=-1)
 
-    # the soles: foot vertices skinned by the ankle and foot joints (y up), a chunk of frames
-    # at a time (a thousand vertices a frame: 1.7 GB on a 10-minute 120 Hz take at once)
+    # the soles: each frame's lowest foot vertex (y up), heights a chunk of frames at a time
+    # (a thousand vertices a frame: 1.7 GB of points on a 10-minute 120 Hz take at once)
     T = src.num_frames
-    contacts = np.concatenate([
-        f[torch.arange(len(f)), f[..., 1].argmin(-1)].numpy()
-        for f in foot_points(G, p, body, b, X_all)
-    ])  # fmt: skip
+    y = torch.tensor([0.0, 1.0, 0.0], dtype=G.dtype)
+    lowest = torch.cat([h.argmin(-1) for h in foot_heights(G, p, body, b, X_all, y)])
+    contacts = foot_vertex(G, p, body, b, X_all, lowest).numpy()
     plane = np.zeros(3)
     if settings.floor != "none":
         plane = fit_ground(contacts, settings.max_tilt, tilt=settings.floor == "plane")
     normal = np.array([-plane[1], 1.0, -plane[2]])
     level = torch.as_tensor(_min_rotation(normal, np.array([0.0, 1.0, 0.0])))
     floor = float((level @ torch.tensor([0.0, plane[0], 0.0], dtype=torch.float64))[1])
-    soles = torch.cat([(f @ level[1]).amin(-1) for f in foot_points(G, p, body, b, X_all)])
+    soles = torch.cat([h.amin(-1) for h in foot_heights(G, p, body, b, X_all, level[1])])
     soles = soles - floor  # (T,)
     tilt_deg = float(np.degrees(np.arctan(np.hypot(plane[1], plane[2]))))
 

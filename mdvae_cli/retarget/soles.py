@@ -1,0 +1,40 @@
+"""The soles of a retargeted body: its foot vertices, skinned by the ankle and foot joints, a
+chunk of frames at a time (a thousand vertices a frame: 1.7 GB of points on a 10-minute
+120 Hz take at once), reduced to what the floor fit needs: heights along a direction and one
+vertex per frame."""
+
+from __future__ import annotations
+
+import torch
+
+from mdvae_cli.retarget.fit_shape import BodyJoints
+
+_FEET = [7, 8, 10, 11]  # ankles and feet: the joints that skin the soles
+
+
+def _foot_skin(body: BodyJoints, betas, X_all) -> torch.Tensor:
+    """The foot vertices' weighted offsets from the ankle and foot joints, laid out for
+    ``G_feet (n, 3, 12) @ local``.  -> (12, F)"""
+    w = body.foot_weights.T[..., None]  # (4, F, 1)
+    local = w * (body.foot_vertices(betas)[None] - X_all[_FEET][:, None])  # (4, F, 3)
+    return local.permute(0, 2, 1).reshape(12, -1)
+
+
+def foot_heights(G, p, body: BodyJoints, betas, X_all, up, chunk: int = 4096):
+    """How far along ``up`` each foot vertex of posed frames is (the vertices skinned by the
+    ankle and foot joints), a chunk of frames at a time: a thousand vertices a frame, so a
+    long take's never all at once.  G: (T, 22, 3, 3) world rotations, p: (T, 22, 3) joints;
+    betas: (S,); X_all: (J, 3) rest joints; up: (3,) -> yields (n, F), in frame order"""
+    local = _foot_skin(body, betas, X_all)
+    for i in range(0, G.shape[0], chunk):
+        Gc, pc = G[i : i + chunk, _FEET], p[i : i + chunk, _FEET]
+        Gu = (up @ Gc).reshape(-1, 12)  # (n, 12): up^T G_k, k = 4 joints
+        yield Gu @ local + (pc @ up) @ body.foot_weights.T
+
+
+def foot_vertex(G, p, body: BodyJoints, betas, X_all, vertex: torch.Tensor) -> torch.Tensor:
+    """Where one foot vertex per frame is (y up).  vertex: (T,) indices -> (T, 3)"""
+    local = _foot_skin(body, betas, X_all)[:, vertex].T  # (T, 12)
+    Gf = G[:, _FEET].permute(0, 2, 1, 3).reshape(-1, 3, 12)  # [a, (k, b)]
+    skin = (Gf @ local[..., None])[..., 0]
+    return skin + (body.foot_weights[vertex][:, None, :] @ p[:, _FEET])[:, 0]
