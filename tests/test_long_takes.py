@@ -69,3 +69,16 @@ def test_sole_heights_and_vertices_match_the_whole_feet():
         feet[torch.arange(T), lowest].numpy(),
         atol=1e-12,
     )
+
+
+def test_jacobian_blocks_are_minus_skew():
+    """The pose solve writes -skew(d) straight into its Jacobian's rows and columns."""
+    import torch
+
+    from mdvae_cli.geometry.rotations import skew
+    from mdvae_cli.retarget.pose_solve import _minus_skew_into
+
+    d = torch.randn(4, 22, 17, 3, generator=torch.Generator().manual_seed(0))
+    out = torch.zeros(4, 22, 3, 17, 3)
+    _minus_skew_into(out, d)
+    assert torch.equal(out, -skew(d).permute(0, 1, 3, 2, 4) + 0.0)

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, skew
+from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.retarget.joint_map import (
     JointMap,
 )
@@ -106,7 +106,11 @@ def solve_pose(
     L = L_init.clone()
     root = targets[:, 0].clone()
     w2 = twist_weight**2
-    Jt = torch.eye(3, dtype=lin).repeat(_N, 1).expand(T, 3 * _N, 3)
+    # the Jacobian (T, 66, 3n + 3): rows (joint k, axis a); columns (active joint j, axis b),
+    # then the root's translation (identity blocks, set once)
+    Jac = torch.zeros(T, 3 * _N, 3 * n + 3, dtype=lin)
+    Jac[:, :, 3 * n :] = torch.eye(3, dtype=lin).repeat(_N, 1)
+    Jr = Jac[:, :, : 3 * n].unflatten(2, (n, 3)).unflatten(1, (_N, 3))  # (T, 22, 3, n, 3) view
     diag = torch.full((3 * n + 3,), damping, dtype=lin)
     diag[: 3 * n] += w2
     for _ in range(iterations):
@@ -114,9 +118,7 @@ def solve_pose(
         r = (p - targets).reshape(T, 3 * _N, 1).to(lin)
         pl = p.to(lin)
         diff = pl[:, :, None, :] - pl[:, None, active, :]  # (T, 22, n, 3): p_k - p_j
-        Jr = -skew(diff) * A[None, :, :, None, None]  # (T, 22, n, 3, 3)
-        Jr = Jr.permute(0, 1, 3, 2, 4).reshape(T, 3 * _N, 3 * n)
-        Jac = torch.cat([Jr, Jt], dim=2)  # (T, 66, 3n + 3)
+        _minus_skew_into(Jr, diff * A[None, :, :, None])  # d p_k / d omega_j, j above k
         JT = Jac.transpose(1, 2)
         H = torch.baddbmm(torch.diag(diag).expand(T, -1, -1), JT, Jac)
         g = (JT @ r)[..., 0]
@@ -130,3 +132,12 @@ def solve_pose(
         L[:, active] = L[:, active] @ rotvec_to_rotmat(local)
         root = root + step[:, 3 * n :]
     return L, root
+
+
+def _minus_skew_into(out: torch.Tensor, d: torch.Tensor) -> None:
+    """Write ``-skew(d)`` (the cross product ``v -> v x d``) into ``out``, laid out as the
+    Jacobian's rows and columns.  out: (T, K, 3, n, 3) [k, a, j, b]; d: (T, K, n, 3)"""
+    x, y, z = d.unbind(-1)
+    out[:, :, 0, :, 1], out[:, :, 0, :, 2] = z, -y
+    out[:, :, 1, :, 0], out[:, :, 1, :, 2] = -z, x
+    out[:, :, 2, :, 0], out[:, :, 2, :, 1] = y, -x
