@@ -61,11 +61,11 @@ def test_sole_heights_and_vertices_match_the_whole_feet():
     moved = torch.einsum("tkab,kfb->tkfa", G[:, _FEET], arm) + p[:, _FEET][:, :, None]
     feet = torch.einsum("tkfa,fk->tfa", moved, W)  # (T, F, 3)
     up = torch.nn.functional.normalize(torch.tensor([0.1, 1.0, -0.2], dtype=torch.float64), dim=0)
-    heights = torch.cat(list(foot_heights(G, p, body, betas, X_all, up, chunk=7)))
+    heights = torch.cat(list(foot_heights(G[:, _FEET], p[:, _FEET], body, betas, X_all, up, 7)))
     np.testing.assert_allclose(heights.numpy(), (feet @ up).numpy(), atol=1e-12)
     lowest = feet[..., 1].argmin(-1)
     np.testing.assert_allclose(
-        foot_vertex(G, p, body, betas, X_all, lowest).numpy(),
+        foot_vertex(G[:, _FEET], p[:, _FEET], body, betas, X_all, lowest).numpy(),
         feet[torch.arange(T), lowest].numpy(),
         atol=1e-12,
     )

@@ -104,20 +104,23 @@ class SourceMotion:
             pos[j] = pos[self.parents[j]] + self.offsets[j]
         return pos
 
-    def forward_kinematics(self) -> tuple[np.ndarray, np.ndarray]:
-        """Global rotations (T, J, 3, 3) and positions (T, J, 3) of every joint."""
-        T, J = self.num_frames, self.num_joints
+    def forward_kinematics(self, frames: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """Global rotations (T, J, 3, 3) and positions (T, J, 3) of every joint (of ``frames``
+        alone: a long take a chunk at a time)."""
+        rotations = self.rotations[frames]
+        T, J = rotations.shape[0], self.num_joints
         G = np.empty((T, J, 3, 3))
         P = np.empty((T, J, 3))
-        G[:, 0] = self.rotations[:, 0]
-        P[:, 0] = self.root_positions
+        G[:, 0] = rotations[:, 0]
+        P[:, 0] = self.root_positions[frames]
         for j in range(1, J):
             p = self.parents[j]
-            G[:, j] = G[:, p] @ self.rotations[:, j]
+            G[:, j] = G[:, p] @ rotations[:, j]
             if self.local_positions is None:
                 P[:, j] = P[:, p] + G[:, p] @ self.offsets[j]
             else:
-                P[:, j] = P[:, p] + (G[:, p] @ self.local_positions[:, j, :, None])[..., 0]
+                local = self.local_positions[frames, j, :, None]
+                P[:, j] = P[:, p] + (G[:, p] @ local)[..., 0]
         return G, P
 
 

@@ -1,6 +1,6 @@
 """Retarget a mocap clip (:class:`SourceMotion`) onto the SMPL skeleton of a body model.
 
-Pipeline, all frames at once in torch:
+Pipeline, in torch (the per-frame solve a chunk of frames at a time):
 
 1. **Joint map** (:func:`~mdvae_cli.retarget.joint_map.build_joint_map`): source joints are found
    by name for the SMPL joints with a clear anatomical counterpart (*direct* joints: hips,
@@ -56,7 +56,7 @@ from mdvae_cli.retarget.pose_solve import (
     rest_corrections,
     solve_pose,
 )
-from mdvae_cli.retarget.soles import foot_heights, foot_vertex
+from mdvae_cli.retarget.soles import _FEET, foot_heights, foot_vertex
 from mdvae_cli.retarget.upright import canonical_axes, stature_unit, upright_rest
 
 __all__ = [
@@ -189,6 +189,32 @@ def fit_ground(contacts: np.ndarray, max_tilt: float, tilt: bool = True) -> np.n
     return np.array([coef[0], 0.0, 0.0])
 
 
+CHUNK_FRAMES = 4096  # frames solved at once (a multiple of solve_pose's own chunks)
+
+
+def _chunks(num_frames: int, chunk: int = CHUNK_FRAMES) -> list[slice]:
+    return [slice(i, min(i + chunk, num_frames)) for i in range(0, num_frames, chunk)]
+
+
+def _solve_frames(src: SourceMotion, frames: slice, jmap, C, X, parents, settings) -> tuple:
+    """The pose solve on some of the take's frames (each frame is solved on its own, so a
+    long take goes a chunk at a time in flat memory). -> (targets (n, 22, 3), root (n, 3),
+    joints (n, 22, 3), the pelvis's world rotation (n, 3, 3), the ankles' and feet's
+    (n, 4, 3, 3), pose_body (n, 21, 3))"""
+    G_src, P_src = (torch.as_tensor(a) for a in src.forward_kinematics(frames))
+    attach, offset = torch.as_tensor(jmap.attach), torch.as_tensor(jmap.offset)
+    targets = P_src[:, attach] + (G_src[:, attach] @ offset[..., None])[..., 0]
+    G0 = G_src[:, torch.as_tensor(jmap.rot_source)] @ C
+    L0 = G0.clone()
+    L0[:, 1:] = G0[:, parents[1:]].transpose(-1, -2) @ G0[:, 1:]
+    del G_src, P_src, G0
+    L, root = solve_pose(targets, L0, X, parents, settings.twist_weight, settings.iterations)
+    bones = X.clone()
+    bones[1:] = X[1:] - X[parents[1:]]
+    G, p = _fk(L, bones, root, parents)
+    return targets, root, p, G[:, 0], G[:, _FEET], rotmat_to_rotvec(L[:, 1:])
+
+
 def retarget(
     src: SourceMotion,
     body: BodyJoints,
@@ -215,41 +241,35 @@ def retarget(
     jmap = attach_offsets(src, jmap, X_all.numpy())
     C = torch.as_tensor(rest_corrections(jmap, src.rest_positions(), X.numpy()))
 
-    G_src, P_src = (torch.as_tensor(a) for a in src.forward_kinematics())
-    attach, offset = torch.as_tensor(jmap.attach), torch.as_tensor(jmap.offset)
-    targets = P_src[:, attach] + (G_src[:, attach] @ offset[..., None])[..., 0]
-    G0 = G_src[:, torch.as_tensor(jmap.rot_source)] @ C
-    parents = body.parents
-    L0 = G0.clone()
-    L0[:, 1:] = G0[:, parents[1:]].transpose(-1, -2) @ G0[:, 1:]
-    del G_src, P_src, G0
-    L, root = solve_pose(targets, L0, X, parents, settings.twist_weight, settings.iterations)
-    bones = X.clone()
-    bones[1:] = X[1:] - X[parents[1:]]
-    G, p = _fk(L, bones, root, parents)
+    solved = [_solve_frames(src, frames, jmap, C, X, body.parents, settings)
+              for frames in _chunks(src.num_frames)]  # fmt: skip
+    targets, root, p, G_root, G_feet, pose_body = (
+        torch.cat([part[k] for part in solved]) for k in range(6)
+    )
+    del solved
     err = (p - targets).norm(dim=-1)
 
     # the soles: each frame's lowest foot vertex (y up), heights a chunk of frames at a time
     # (a thousand vertices a frame: 1.7 GB of points on a 10-minute 120 Hz take at once)
     T = src.num_frames
-    y = torch.tensor([0.0, 1.0, 0.0], dtype=G.dtype)
-    lowest = torch.cat([h.argmin(-1) for h in foot_heights(G, p, body, b, X_all, y)])
-    contacts = foot_vertex(G, p, body, b, X_all, lowest).numpy()
+    y = torch.tensor([0.0, 1.0, 0.0], dtype=G_feet.dtype)
+    p_feet = p[:, _FEET]
+    lowest = torch.cat([h.argmin(-1) for h in foot_heights(G_feet, p_feet, body, b, X_all, y)])
+    contacts = foot_vertex(G_feet, p_feet, body, b, X_all, lowest).numpy()
     plane = np.zeros(3)
     if settings.floor != "none":
         plane = fit_ground(contacts, settings.max_tilt, tilt=settings.floor == "plane")
     normal = np.array([-plane[1], 1.0, -plane[2]])
     level = torch.as_tensor(_min_rotation(normal, np.array([0.0, 1.0, 0.0])))
     floor = float((level @ torch.tensor([0.0, plane[0], 0.0], dtype=torch.float64))[1])
-    soles = torch.cat([h.amin(-1) for h in foot_heights(G, p, body, b, X_all, level[1])])
+    soles = torch.cat([h.amin(-1) for h in foot_heights(G_feet, p_feet, body, b, X_all, level[1])])
     soles = soles - floor  # (T,)
     tilt_deg = float(np.degrees(np.arctan(np.hypot(plane[1], plane[2]))))
 
     Q = torch.as_tensor(Y_UP_TO_Z_UP) @ level
     drop = torch.tensor([0.0, 0.0, floor], dtype=torch.float64)
     trans = root @ Q.T - drop - X[0]
-    root_orient = rotmat_to_rotvec(Q @ G[:, 0])
-    pose_body = rotmat_to_rotvec(L[:, 1:])
+    root_orient = rotmat_to_rotvec(Q @ G_root)
     joints = p @ Q.T - drop
     targets_z = targets @ Q.T - drop
 

@@ -23,18 +23,20 @@ def _foot_skin(body: BodyJoints, betas, X_all) -> torch.Tensor:
 def foot_heights(G, p, body: BodyJoints, betas, X_all, up, chunk: int = 4096):
     """How far along ``up`` each foot vertex of posed frames is (the vertices skinned by the
     ankle and foot joints), a chunk of frames at a time: a thousand vertices a frame, so a
-    long take's never all at once.  G: (T, 22, 3, 3) world rotations, p: (T, 22, 3) joints;
-    betas: (S,); X_all: (J, 3) rest joints; up: (3,) -> yields (n, F), in frame order"""
+    long take's never all at once.  G: (T, 4, 3, 3) world rotations and p: (T, 4, 3)
+    positions of the ankles and feet (``_FEET``); betas: (S,); X_all: (J, 3) rest joints;
+    up: (3,) -> yields (n, F), in frame order"""
     local = _foot_skin(body, betas, X_all)
     for i in range(0, G.shape[0], chunk):
-        Gc, pc = G[i : i + chunk, _FEET], p[i : i + chunk, _FEET]
+        Gc, pc = G[i : i + chunk], p[i : i + chunk]
         Gu = (up @ Gc).reshape(-1, 12)  # (n, 12): up^T G_k, k = 4 joints
         yield Gu @ local + (pc @ up) @ body.foot_weights.T
 
 
 def foot_vertex(G, p, body: BodyJoints, betas, X_all, vertex: torch.Tensor) -> torch.Tensor:
-    """Where one foot vertex per frame is (y up).  vertex: (T,) indices -> (T, 3)"""
+    """Where one foot vertex per frame is (y up).  G, p: as :func:`foot_heights`; vertex: (T,)
+    indices -> (T, 3)"""
     local = _foot_skin(body, betas, X_all)[:, vertex].T  # (T, 12)
-    Gf = G[:, _FEET].permute(0, 2, 1, 3).reshape(-1, 3, 12)  # [a, (k, b)]
+    Gf = G.permute(0, 2, 1, 3).reshape(-1, 3, 12)  # [a, (k, b)]
     skin = (Gf @ local[..., None])[..., 0]
-    return skin + (body.foot_weights[vertex][:, None, :] @ p[:, _FEET])[:, 0]
+    return skin + (body.foot_weights[vertex][:, None, :] @ p)[:, 0]
