@@ -45,7 +45,7 @@ def test_sole_heights_and_vertices_match_the_whole_feet():
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.geometry.rotations import rotvec_to_rotmat
     from mdvae_cli.retarget.fit_shape import BodyJoints
-    from mdvae_cli.retarget.soles import _FEET, foot_heights, foot_vertex
+    from mdvae_cli.retarget.soles import _FEET, foot_vertex, lowest_along
 
     body = BodyJoints(load_body_model(None))
     gen = torch.Generator().manual_seed(0)
@@ -61,8 +61,9 @@ def test_sole_heights_and_vertices_match_the_whole_feet():
     moved = torch.einsum("tkab,kfb->tkfa", G[:, _FEET], arm) + p[:, _FEET][:, :, None]
     feet = torch.einsum("tkfa,fk->tfa", moved, W)  # (T, F, 3)
     up = torch.nn.functional.normalize(torch.tensor([0.1, 1.0, -0.2], dtype=torch.float64), dim=0)
-    heights = torch.cat(list(foot_heights(G[:, _FEET], p[:, _FEET], body, betas, X_all, up, 7)))
-    np.testing.assert_allclose(heights.numpy(), (feet @ up).numpy(), atol=1e-12)
+    heights, vertex = lowest_along(G[:, _FEET], p[:, _FEET], body, betas, X_all, up, 7)
+    np.testing.assert_allclose(heights.numpy(), (feet @ up).amin(-1).numpy(), atol=1e-12)
+    assert torch.equal(vertex, (feet @ up).argmin(-1))
     lowest = feet[..., 1].argmin(-1)
     np.testing.assert_allclose(
         foot_vertex(G[:, _FEET], p[:, _FEET], body, betas, X_all, lowest).numpy(),

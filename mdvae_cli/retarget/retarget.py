@@ -56,7 +56,7 @@ from mdvae_cli.retarget.pose_solve import (
     rest_corrections,
     solve_pose,
 )
-from mdvae_cli.retarget.soles import _FEET, foot_heights, foot_vertex
+from mdvae_cli.retarget.soles import _FEET, foot_vertex, lowest_along
 from mdvae_cli.retarget.upright import canonical_axes, stature_unit, upright_rest
 
 __all__ = [
@@ -254,7 +254,7 @@ def retarget(
     T = src.num_frames
     y = torch.tensor([0.0, 1.0, 0.0], dtype=G_feet.dtype)
     p_feet = p[:, _FEET]
-    lowest = torch.cat([h.argmin(-1) for h in foot_heights(G_feet, p_feet, body, b, X_all, y)])
+    _, lowest = lowest_along(G_feet, p_feet, body, b, X_all, y)
     contacts = foot_vertex(G_feet, p_feet, body, b, X_all, lowest).numpy()
     plane = np.zeros(3)
     if settings.floor != "none":
@@ -262,7 +262,7 @@ def retarget(
     normal = np.array([-plane[1], 1.0, -plane[2]])
     level = torch.as_tensor(_min_rotation(normal, np.array([0.0, 1.0, 0.0])))
     floor = float((level @ torch.tensor([0.0, plane[0], 0.0], dtype=torch.float64))[1])
-    soles = torch.cat([h.amin(-1) for h in foot_heights(G_feet, p_feet, body, b, X_all, level[1])])
+    soles, _ = lowest_along(G_feet, p_feet, body, b, X_all, level[1])
     soles = soles - floor  # (T,)
     tilt_deg = float(np.degrees(np.arctan(np.hypot(plane[1], plane[2]))))
 

@@ -20,21 +20,29 @@ def _foot_skin(body: BodyJoints, betas, X_all) -> torch.Tensor:
     return local.permute(0, 2, 1).reshape(12, -1)
 
 
-def foot_heights(G, p, body: BodyJoints, betas, X_all, up, chunk: int = 4096):
-    """How far along ``up`` each foot vertex of posed frames is (the vertices skinned by the
-    ankle and foot joints), a chunk of frames at a time: a thousand vertices a frame, so a
-    long take's never all at once.  G: (T, 4, 3, 3) world rotations and p: (T, 4, 3)
-    positions of the ankles and feet (``_FEET``); betas: (S,); X_all: (J, 3) rest joints;
-    up: (3,) -> yields (n, F), in frame order"""
+def lowest_along(G, p, body: BodyJoints, betas, X_all, up, chunk: int = 4096):
+    """Each frame's lowest foot vertex along ``up`` (the vertices skinned by the ankle and
+    foot joints): the heights of a chunk of frames at a time (a thousand vertices a frame),
+    each chunk's made in one buffer and reduced into the outputs, so that a long take's
+    memory stays flat.  G: (T, 4, 3, 3) world rotations and p: (T, 4, 3) positions of the
+    ankles and feet (``_FEET``); betas: (S,); X_all: (J, 3) rest joints; up: (3,)
+    -> (heights (T,), vertex indices (T,))"""
     local = _foot_skin(body, betas, X_all)
-    for i in range(0, G.shape[0], chunk):
+    T = G.shape[0]
+    heights = torch.empty(T, dtype=G.dtype)
+    vertex = torch.empty(T, dtype=torch.long)
+    for i in range(0, T, chunk):
         Gc, pc = G[i : i + chunk], p[i : i + chunk]
         Gu = (up @ Gc).reshape(-1, 12)  # (n, 12): up^T G_k, k = 4 joints
-        yield Gu @ local + (pc @ up) @ body.foot_weights.T
+        h = Gu @ local
+        h += (pc @ up) @ body.foot_weights.T
+        torch.min(h, -1, out=(heights[i : i + chunk], vertex[i : i + chunk]))
+        del h
+    return heights, vertex
 
 
 def foot_vertex(G, p, body: BodyJoints, betas, X_all, vertex: torch.Tensor) -> torch.Tensor:
-    """Where one foot vertex per frame is (y up).  G, p: as :func:`foot_heights`; vertex: (T,)
+    """Where one foot vertex per frame is (y up).  G, p: as :func:`lowest_along`; vertex: (T,)
     indices -> (T, 3)"""
     local = _foot_skin(body, betas, X_all)[:, vertex].T  # (T, 12)
     Gf = G.permute(0, 2, 1, 3).reshape(-1, 3, 12)  # [a, (k, b)]
