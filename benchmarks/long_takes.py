@@ -278,6 +278,30 @@ def readme_table(rows: list[Row]) -> str:
     return "\n".join([README_BEGIN, table(keep), README_END])
 
 
+def save_rows(rows: list[Row], path: Path, argv: list[str]) -> None:
+    """The rows and the command that measured them, as JSON (``--load`` reads it back)."""
+    path.write_text(json.dumps({"argv": argv, "rows": [
+        {"format": r.fmt, "minutes": r.minutes, "frames": r.frames, "run": r.kind,
+         "seconds": r.now.seconds, "peak_mb": r.now.peak_mb, "page_mb": r.page_mb,
+         "before_seconds": r.before and r.before.seconds,
+         "before_peak_mb": r.before and r.before.peak_mb, "gap": r.gap}
+        for r in rows
+    ]}, indent=1))  # fmt: skip
+
+
+def load_rows(path: Path) -> tuple[list[Row], list[str]]:
+    """:func:`save_rows`'s file. -> (rows, the command line that measured them)"""
+    data = json.loads(path.read_text())
+    rows = [
+        Row(d["format"], d["minutes"], d["frames"], d["run"], Run(d["seconds"], d["peak_mb"], ""),
+            page_mb=d["page_mb"], gap=d["gap"],
+            before=None if d["before_seconds"] is None
+            else Run(d["before_seconds"], d["before_peak_mb"], ""))
+        for d in data["rows"]
+    ]  # fmt: skip
+    return rows, data["argv"]
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, nargs="+", default=[1, 10, 30])
@@ -289,23 +313,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--baseline", help="a tree with another mdvae_cli to compare with")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--json", help="also save the rows here")
+    parser.add_argument("--load", help="no runs: the rows saved by an earlier --json")
     parser.add_argument("--write", action="store_true",
                         help="update docs/benchmarks.md and README.md")  # fmt: skip
     args = parser.parse_args(argv)
-    if "view" in args.runs and "default" not in args.runs:
-        args.runs = ["default", *args.runs]
-    rows = measure(args)
+    shown = sys.argv[1:] if argv is None else argv
+    if args.load:
+        rows, shown = load_rows(Path(args.load))
+    else:
+        if "view" in args.runs and "default" not in args.runs:
+            args.runs = ["default", *args.runs]
+        rows = measure(args)
     print(table(rows))
     if args.json:
-        Path(args.json).write_text(json.dumps([
-            {"format": r.fmt, "minutes": r.minutes, "frames": r.frames, "run": r.kind,
-             "seconds": r.now.seconds, "peak_mb": r.now.peak_mb, "page_mb": r.page_mb,
-             "before_seconds": r.before and r.before.seconds,
-             "before_peak_mb": r.before and r.before.peak_mb, "gap": r.gap}
-            for r in rows
-        ], indent=1))  # fmt: skip
+        save_rows(rows, Path(args.json), shown)
     if args.write:
-        shown = sys.argv[1:] if argv is None else argv
         common.write_section(REPO / "docs" / "benchmarks.md", section(rows, shown),
                              SECTION_BEGIN, SECTION_END)  # fmt: skip
         common.write_section(REPO / "README.md", readme_table(rows), README_BEGIN, README_END)
