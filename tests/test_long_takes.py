@@ -83,3 +83,13 @@ def test_jacobian_blocks_are_minus_skew():
     out = torch.zeros(4, 22, 3, 17, 3)
     _minus_skew_into(out, d)
     assert torch.equal(out, -skew(d).permute(0, 1, 3, 2, 4) + 0.0)
+
+
+def test_reading_a_take_tells_its_progress(tmp_path):
+    from mdvae_cli.formats.registry import ReadOptions, read
+    from tests.test_bvh_out import write_rig
+
+    path = write_rig(tmp_path / "take.bvh", T=90)
+    told = []
+    loaded = read(path, ReadOptions(progress=lambda done, total: told.append((done, total))))
+    assert told and told[-1] == (90, 90) == (loaded.single().num_frames,) * 2

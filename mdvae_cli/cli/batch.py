@@ -236,14 +236,26 @@ def _message(job: FileJob, exc: BaseException) -> str:
     return f"{job.source}: {text}"
 
 
+def _inside(progress, task, name: str) -> Callable[[int, int], None]:
+    """``tell(done, total)`` for the bar of the progress inside one file."""
+
+    def tell(done: int, total: int) -> None:
+        progress.update(task, visible=True, completed=done, total=total, description=f"  {name}")
+
+    return tell
+
+
 def run_batch(
     jobs: Sequence[FileJob],
     fn: Callable[[FileJob], Any],
     description: str,
     quiet: bool = False,
     on_success: Callable[[FileOutcome], None] | None = None,
+    within: bool = False,
 ) -> BatchReport:
     """Call ``fn(job)`` for each job, with a progress bar; collect results and failures.
+    ``within``: call ``fn(job, tell)`` instead, ``tell(done, total)`` showing the progress
+    inside that file (a long take) on a second bar.
 
     A failing job (any exception but KeyboardInterrupt) prints one ``error: ...`` line and
     the loop goes on; MDVAE_DEBUG=1 re-raises instead, for a traceback. ``on_success`` is
@@ -254,10 +266,16 @@ def run_batch(
     debug = bool(os.environ.get("MDVAE_DEBUG"))
     with progress_bar() as progress:
         task = progress.add_task(description, total=len(jobs), info="")
+        inner = progress.add_task("", total=1, visible=False, info="") if within else None
         for job in jobs:
             progress.update(task, info=escape(job.relpath.as_posix()))
             try:
-                outcome = FileOutcome(job, result=fn(job))
+                if inner is None:
+                    outcome = FileOutcome(job, result=fn(job))
+                else:
+                    tell = _inside(progress, inner, job.relpath.name)
+                    outcome = FileOutcome(job, result=fn(job, tell))
+                    progress.update(inner, visible=False)
             except KeyboardInterrupt:
                 raise
             except Exception as exc:

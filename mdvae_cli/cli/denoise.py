@@ -168,9 +168,9 @@ def denoise(
     read_takes: dict[Path, object] = {}  # source -> its take, for writing it back
     waited: dict[Path, float] = {}  # source -> seconds spent reading and writing it
 
-    def read(job: FileJob) -> None:
+    def read(job: FileJob, tell) -> None:
         start = time.perf_counter()
-        f = read_input(job.source, job.relpath, options, takes=takes)
+        f = read_input(job.source, job.relpath, replace(options, progress=tell), takes=takes)
         read_takes[job.source] = f.take
         items, short = [], []
         for label, motion, output in outputs_of(f, job.output):
@@ -192,7 +192,7 @@ def denoise(
         loaded[job.source] = items
         waited[job.source] = time.perf_counter() - start
 
-    report = run_batch(jobs, read, "reading", quiet=True)
+    report = run_batch(jobs, read, "reading", quiet=True, within=True)
     good = [o.job for o in report.succeeded]
     if good:
         denoiser, _ = load_denoiser(denoiser_path)

@@ -26,6 +26,7 @@ the file.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -99,6 +100,7 @@ class ReadOptions:
     resample: a rate every motion read is resampled to (None keeps each file's own; a take
     is resampled before its retarget). retarget: the take retarget's ``RetargetSettings``
     (None: the defaults). metadata: kept with a take's motion (default: its file name).
+    progress: called with (frames retargeted, frames) while a take is retargeted.
     """
 
     format: str | None = None
@@ -112,6 +114,7 @@ class ReadOptions:
     resample: float | None = None
     retarget: Any = None
     metadata: dict | None = None
+    progress: Callable[[int, int], None] | None = None
 
 
 def unsupported(path: Path | str) -> str | None:
@@ -160,7 +163,7 @@ def _read_take(path: Path, options: ReadOptions, takes: TakeReader | None) -> Lo
     reader = takes or TakeReader(options.body, options.skeleton, options.joint_map)
     take = reader.read(path, fps=options.fps, scale=options.scale, rate=options.resample,
                        settings=options.retarget, metadata=options.metadata,
-                       skeleton=options.skeleton)  # fmt: skip
+                       skeleton=options.skeleton, progress=options.progress)  # fmt: skip
     fmt = suffix_of(path)[1:]
     return LoadedFile(path, fmt, "mocap", [(None, take.motion)], take=take)
 

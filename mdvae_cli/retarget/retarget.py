@@ -27,6 +27,7 @@ their public names are re-exported here.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -221,11 +222,13 @@ def retarget(
     betas: np.ndarray | None = None,
     settings: RetargetSettings | None = None,
     metadata: dict | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> RetargetResult:
     """Retarget ``src`` (any axes, any frame rate: resample it first) onto ``body``.
 
     betas: the body shape to use (e.g. fitted once per subject with :func:`fit_betas`); None
-    fits it here. metadata: extra entries for the output's ``source`` record.
+    fits it here. metadata: extra entries for the output's ``source`` record. progress:
+    called with (frames solved, frames) as each chunk of a take's frames is solved.
     """
     settings = (settings or RetargetSettings()).validate()
     if src.num_frames < 2:
@@ -241,8 +244,11 @@ def retarget(
     jmap = attach_offsets(src, jmap, X_all.numpy())
     C = torch.as_tensor(rest_corrections(jmap, src.rest_positions(), X.numpy()))
 
-    solved = [_solve_frames(src, frames, jmap, C, X, body.parents, settings)
-              for frames in _chunks(src.num_frames)]  # fmt: skip
+    solved = []
+    for frames in _chunks(src.num_frames):
+        solved.append(_solve_frames(src, frames, jmap, C, X, body.parents, settings))
+        if progress is not None:
+            progress(frames.stop, src.num_frames)
     targets, root, p, G_root, G_feet, pose_body = (
         torch.cat([part[k] for part in solved]) for k in range(6)
     )
@@ -385,10 +391,12 @@ def import_motion(
     betas: np.ndarray | None = None,
     settings: RetargetSettings | None = None,
     metadata: dict | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> RetargetResult:
     """Resample ``src`` to ``fps`` (None keeps its rate), then :func:`retarget` it."""
     if fps is not None:
         if not fps > 0:
             raise InputError(f"the output frame rate must be > 0, got {fps:g}")
         src = resample_source(src, fps)
-    return retarget(src, body, betas=betas, settings=settings, metadata=metadata)
+    return retarget(src, body, betas=betas, settings=settings, metadata=metadata,
+                    progress=progress)  # fmt: skip

@@ -9,6 +9,7 @@ in the file's own form.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +61,7 @@ def read_take(
     rate: float | None = None,
     settings=None,
     metadata: dict | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Take:
     """Read a BVH or AMC take and retarget it onto ``body`` at the take's own frame rate.
 
@@ -68,7 +70,8 @@ def read_take(
     take's true rate when its file is wrong. betas: the body shape (default: fitted).
     source: the take already read with :func:`load_source` (the other arguments but body and
     betas are then unused). rate: resample to this rate first (None: the take's own);
-    settings: ``RetargetSettings``; metadata: kept with the motion (default: the file name).
+    settings: ``RetargetSettings``; metadata: kept with the motion (default: the file name);
+    progress: (frames retargeted, frames) as the retarget goes.
     """
     path = Path(path)
     src = source or load_source(path, skeleton, fps=fps, scale=scale, joint_map=joint_map)
@@ -79,7 +82,8 @@ def read_take(
             raise InputError(f"{path}: {exc}") from None
     try:
         meta = metadata if metadata is not None else {"file": path.name}
-        rt = import_motion(src, body, fps=rate, betas=betas, settings=settings, metadata=meta)
+        rt = import_motion(src, body, fps=rate, betas=betas, settings=settings, metadata=meta,
+                           progress=progress)  # fmt: skip
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
     if not np.isfinite(rt.mean_error):
@@ -184,10 +188,12 @@ class TakeReader:
         settings=None,
         metadata: dict | None = None,
         skeleton: Path | None = None,
+        progress: Callable[[int, int], None] | None = None,
     ) -> Take:
         """Read one take and retarget it (:func:`read_take`); ``rate``: resample to this rate
         first (None: the take's own), with ``settings`` (``RetargetSettings``); metadata: kept
-        with the motion, with the skeleton's key added; skeleton: this take's ``.asf``."""
+        with the motion, with the skeleton's key added; skeleton: this take's ``.asf``;
+        progress: (frames retargeted, frames) as the retarget goes."""
         path = Path(path)
         skeleton, found = self.skeleton(path, skeleton)
         src = load_source(path, skeleton, fps=fps, scale=scale, joint_map=self.joint_map)
@@ -200,6 +206,6 @@ class TakeReader:
         if metadata is not None:
             metadata = {**metadata, "skeleton_key": key}
         take = read_take(path, self.body, betas=self.betas[key], source=src, rate=rate,
-                         settings=settings, metadata=metadata)  # fmt: skip
+                         settings=settings, metadata=metadata, progress=progress)  # fmt: skip
         take.skeleton_file = found
         return take
