@@ -93,3 +93,17 @@ def test_reading_a_take_tells_its_progress(tmp_path):
     told = []
     loaded = read(path, ReadOptions(progress=lambda done, total: told.append((done, total))))
     assert told and told[-1] == (90, 90) == (loaded.single().num_frames,) * 2
+
+
+def test_a_batch_hands_each_file_a_progress_of_its_own(tmp_path):
+    from mdvae_cli.cli.batch import FileJob, run_batch
+
+    jobs = [FileJob(Path(f"{n}.bvh"), tmp_path / f"{n}.bvh") for n in "ab"]
+
+    def work(job, tell):
+        for done in range(0, 101, 50):
+            tell(done, 100)
+        return job.relpath.stem
+
+    report = run_batch(jobs, work, "reading", quiet=True, within=True)
+    assert [o.result for o in report.succeeded] == ["a", "b"]
