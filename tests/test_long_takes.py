@@ -107,3 +107,13 @@ def test_a_batch_hands_each_file_a_progress_of_its_own(tmp_path):
 
     report = run_batch(jobs, work, "reading", quiet=True, within=True)
     assert [o.result for o in report.succeeded] == ["a", "b"]
+
+
+def test_writing_a_take_back_tells_its_progress(tmp_path):
+    from mdvae_cli.formats.registry import read, write
+    from tests.test_bvh_out import write_rig
+
+    loaded = read(write_rig(tmp_path / "take.bvh", T=90))
+    told = []
+    write(loaded, tmp_path / "back.bvh", progress=lambda done, total: told.append((done, total)))
+    assert told and told[-1] == (90, 90)

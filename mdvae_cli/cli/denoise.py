@@ -267,7 +267,7 @@ def denoise(
         for group in [[j] for j in of_kind] if per_file and optimize_steps else [of_kind]:
             run(group, per_kind(kind))
 
-    def write(job: FileJob) -> dict:
+    def write(job: FileJob, tell) -> dict:
         start, tracks = time.perf_counter(), []
         for i, (label, source_motion, output) in enumerate(loaded[job.source]):
             motion = results[(job.source, i)]
@@ -278,7 +278,7 @@ def denoise(
                 export_mesh_sequence(motion, body, track_output(target, label), mesh_format,
                                      forbid=sources)  # fmt: skip
             write_motion(motion, output, take=read_takes[job.source] if is_take(output) else None,
-                  forbid=sources)  # fmt: skip
+                  forbid=sources, progress=tell)  # fmt: skip
             if view_dir is not None:
                 from mdvae_cli.view.page import write_before_after
 
@@ -312,7 +312,7 @@ def denoise(
             "tracks": tracks,
         }
 
-    write_report = run_batch(good, write, "denoise", quiet=True)
+    write_report = run_batch(good, write, "denoise", quiet=True, within=True)
     write_report.outcomes = report.failed + write_report.outcomes
     if len(jobs) > 1:
         write_report.print_summary("denoise")

@@ -177,6 +177,7 @@ def write(
     forbid: tuple[Path, ...] = (),
     bvh_units: str = "cm",
     bvh_order: str = "ZXY",
+    progress: Callable[[int, int], None] | None = None,
 ) -> None:
     """Write a motion (atomically; never over a path in ``forbid``) in the form ``path`` names.
 
@@ -184,6 +185,7 @@ def write(
     (or a LoadedFile read from a take): on the take's own skeleton, in its own form; ``.bvh``
     without one: on the SMPL skeleton of the motion's shape (``bvh_units``, ``bvh_order``;
     ``body`` None: the built-in body). InputError for any other form, saying what to do.
+    progress: (frames carried back, frames) while a BVH take's way back goes.
     """
     if isinstance(item, LoadedFile):
         take = take if take is not None else item.take
@@ -199,7 +201,7 @@ def write(
     if kind in TAKE_SUFFIXES and take is not None:
         from mdvae_cli.retarget.take import write_take
 
-        write_take(take, item, path, forbid=forbid)
+        write_take(take, item, path, forbid=forbid, progress=progress)
         return
     if kind == ".bvh":
         from mdvae_cli.formats.bvh_write import write_text

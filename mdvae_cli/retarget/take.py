@@ -93,7 +93,7 @@ def read_take(
 
 def write_take(
     take: Take, cleaned: Motion, out: Path | str, body: BodyJoints | None = None,
-    forbid: tuple = (),
+    forbid: tuple = (), progress: Callable[[int, int], None] | None = None,
 ) -> None:  # fmt: skip
     """Write ``cleaned`` (the take's SMPL motion after cleaning) on the take's own skeleton,
     in the take's own form: a BVH take as BVH (``.bvh`` or ``.bvh.gz``), an AMC take as AMC
@@ -107,7 +107,8 @@ def write_take(
     if form not in ("bvh", "amc") or not name.endswith(f".{form}"):
         raise InputError(f"{out}: a {form} take is written back as .{form}, or as .npz")
     if form == "bvh":
-        data = write_back_data(take.source, take.retarget, take.motion, cleaned, body)
+        data = write_back_data(take.source, take.retarget, take.motion, cleaned, body,
+                               progress=progress)  # fmt: skip
         if not np.isfinite(data).all():
             raise InputError(f"{take.path}: the way back gave non-finite values; nothing written")
         write_bvh(take.source.layout, data, out, forbid=forbid)

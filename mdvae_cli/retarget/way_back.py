@@ -12,6 +12,8 @@ carried it (the root's, or a moving pelvis's own), in the file's units and axes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -143,12 +145,14 @@ def write_back_data(
     cleaned: Motion,
     body: BodyJoints,
     chunk: int = 4096,
+    progress: Callable[[int, int], None] | None = None,
 ) -> np.ndarray:
     """The file's channel values (F, C) with the change from ``original`` to ``cleaned`` (SMPL
     motions of the same frames as ``src``, e.g. a retarget result's motion and its denoised
     version) carried onto the file's own skeleton.  rt: the :class:`RetargetResult` of
     ``src`` (its joint map and axes). Rows the reader skipped are kept as they were. Frames
-    are carried ``chunk`` at a time (each frame on its own: the same result, flat memory)."""
+    are carried ``chunk`` at a time (each frame on its own: the same result, flat memory);
+    ``progress`` is called with (frames carried, frames) after each chunk."""
     layout: BvhLayout = src.layout
     if layout is None:
         raise InputError("this motion was not read from a BVH file; it cannot be written back")
@@ -160,6 +164,8 @@ def write_back_data(
         frames = slice(i, min(i + chunk, T))
         part = (slice_frames(m, frames.start, frames.stop) for m in (original, cleaned))
         out[layout.rows[frames]] = _write_back_rows(src, rt, *part, body, frames)
+        if progress is not None:
+            progress(frames.stop, T)
     return out
 
 
