@@ -124,13 +124,15 @@ class Run:
 
 
 def run_process(args: list[str], tree: Path, threads: int) -> Run:
-    """Run ``python args`` with ``tree`` first on the path; its wall time and peak memory."""
+    """Run ``python args`` in ``tree`` (first on the path: ``python -m`` puts the working
+    folder before PYTHONPATH); its wall time and peak memory."""
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": str(threads),
            "MKL_NUM_THREADS": str(threads)}  # fmt: skip
     start = time.perf_counter()
     proc = subprocess.Popen(
-        [sys.executable, *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT
-    )
+        [sys.executable, *args], env=env, cwd=tree, stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )  # fmt: skip
     out = proc.stdout.read().decode(errors="replace")
     _, status, usage = os.wait4(proc.pid, 0)
     seconds = time.perf_counter() - start
