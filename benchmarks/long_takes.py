@@ -226,7 +226,7 @@ def table(rows: list[Row]) -> str:
     baseline = any(r.before is not None for r in rows)
     header = ["take", "frames", "run", "wall (s)", "frames/s", "peak (MB)", "x scipy pass"]
     if baseline:
-        header += ["before: wall (s)", "before: peak (MB)", "speed-up", "max |out - before|"]
+        header += ["before: wall (s)", "before: peak (MB)", "speed-up", "output vs before"]
     body = []
     for r in rows:
         note = ""
@@ -260,7 +260,10 @@ def section(rows: list[Row], argv: list[str]) -> str:
         "import included) and peak resident memory. Takes: corpus files end to end with "
         "Pose-NDF noise (σ = 0.10 rad); npz at 30 Hz, BVH at 120 Hz on the SMPL skeleton. "
         "*x scipy pass*: the run's wall time over that of the same file read, smoothed with "
-        "scipy's Savitzky–Golay (9 frames, order 2) and written by the same reader and writer.",
+        "scipy's Savitzky–Golay (9 frames, order 2) and written by the same reader and writer. "
+        "*before*: the same runs with `--baseline` (another tree's `mdvae_cli`), alternating "
+        "with this tree's; *output vs before*: the largest difference between the two outputs "
+        "(npz: poses in rad and trans in m; BVH: channel values as written).",
         "",
         table(rows),
         "",
