@@ -25,6 +25,7 @@ from mdvae_cli.geometry.rotations import (
 )
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
+from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from
 from mdvae_cli.infer.guard import fallback_stretches, guard
 from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
@@ -255,6 +256,7 @@ def denoise_motions(
     blend: bool = False,
     on_blend: Callable[[int, BlendReport], None] | None = None,
     blend_fast: bool = True,
+    fill: str | None = "curve",
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -282,26 +284,46 @@ def denoise_motions(
     False puts back the slow band alone (video estimates, whose jitter is not white).
     With ``feet``, the results' feet are then held still on the floor where they are down
     (``infer.feet.lock_feet``, each input as its source).
+    ``fill``: what the inputs' holes (``joint_mask`` False) become, one of
+    ``infer.fill.FILLS`` (the "learned" fill, a "curve" from the result beside them, the
+    "model"'s frames, or "off": as they came); the likelihoods drop them whatever it is. None:
+    the model's (as "model").
     """
+    holes = any(has_holes(m) for m in motions)
+    if fill == "off" and holes:  # everything as usual, then the holes as they came
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror, guard, on_fallback, loops, feet, blend, on_blend,
+            blend_fast, fill="model",
+        )  # fmt: skip
+        return [fill_holes(src, m, "off") for m, src in zip(cleaned, motions, strict=True)]
     if feet is not None:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
             progress, refine, mirror, guard, on_fallback, loops, blend=blend, on_blend=on_blend,
-            blend_fast=blend_fast,
+            blend_fast=blend_fast, fill=fill,
         )  # fmt: skip
-        return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
+        # in a hole the lock reads the filled motion as the input's
+        sources = [holes_from(s, m) for m, s in zip(cleaned, motions, strict=True)]
+        return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]
     if blend:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            progress, refine, mirror, guard, on_fallback, loops,
+            progress, refine, mirror, guard, on_fallback, loops, fill=None,
         )  # fmt: skip
         out = []
         for i, (m, src) in enumerate(zip(cleaned, motions, strict=True)):
             blended, report = blend_motion(src, m, blend_fast)
-            out.append(blended)
+            out.append(fill_holes(src, blended, fill or "model"))
             if on_blend is not None:
                 on_blend(i, report)
         return out
+    if fill not in (None, "model") and holes:
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror, guard, on_fallback, loops, fill=None,
+        )  # fmt: skip
+        return [fill_holes(src, m, fill) for m, src in zip(cleaned, motions, strict=True)]
     if loops is not None and any(loops):
         return _denoise_cycles(
             motions, list(loops), denoiser, body, window, stride, optimize_steps, lr,

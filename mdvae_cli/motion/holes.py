@@ -17,7 +17,9 @@ from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_q
 from mdvae_cli.motion.motion import Motion
 
 NUM_JOINTS = 22
-FILL_METHODS = ("slerp", "spline")
+FILL_METHODS = ("slerp", "spline", "hermite")
+#: frames each side of a hole that the Hermite fill's end values and velocities are read from
+HERMITE_FRAMES = 4
 #: SMPL body joints of each limb (pelvis = 0), the parts a marker set loses together
 LIMBS = {
     "left_arm": (16, 18, 20),
@@ -65,7 +67,10 @@ def fill_gaps(motion: Motion, method: str = "slerp") -> Motion:
 
     "slerp": spherical linear interpolation between the nearest observed frames (linear for
     the translation); "spline": a cubic spline through every observed frame (quaternions made
-    sign-continuous, then normalised), what studio tools call a spline fill. Before the first
+    sign-continuous, then normalised), what studio tools call a spline fill; "hermite": a
+    cubic from each side's value and velocity, read by a quadratic least-squares fit to
+    :data:`HERMITE_FRAMES` frames beside the hole (a frame's small error does not swing the
+    curve, as it does a spline's). Before the first
     and after the last observed frame a joint holds its nearest observed value. A joint never
     observed keeps its values. The mask stays: the values are placeholders.
     """
@@ -77,12 +82,15 @@ def fill_gaps(motion: Motion, method: str = "slerp") -> Motion:
     rot = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
     rot = np.array(rot, dtype=np.float64)
     trans = np.array(motion.trans, dtype=np.float64)
-    fill = _fill_quats if method == "slerp" else _spline_quats
+    fill = {"slerp": _fill_quats, "spline": _spline_quats, "hermite": _hermite_quats}[method]
     for j in np.flatnonzero(~mask.all(axis=0)):
         if mask[:, j].any():
             rot[:, j] = fill(rot[:, j], mask[:, j])
     if not mask[:, 0].all() and mask[:, 0].any():
-        trans = _fill_values(trans, mask[:, 0], method)
+        if method == "hermite":
+            trans = _hermite(_fill_values(trans, mask[:, 0], "slerp"), mask[:, 0])
+        else:
+            trans = _fill_values(trans, mask[:, 0], method)
     return motion.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
 
 
@@ -125,6 +133,81 @@ def _spline_quats(rotvecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
     qs /= np.linalg.norm(qs, axis=-1, keepdims=True)
     out[holes[inside]] = quat_to_rotvec(torch.as_tensor(qs)).numpy()
     return out
+
+
+def _hermite_quats(rotvecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Hermite fill of one joint on sign-continuous quaternions.  (T, 3), (T,) -> (T, 3)"""
+    q = rotvec_to_quat(torch.as_tensor(_fill_quats(rotvecs, mask))).numpy()
+    flips = np.sign(np.einsum("ti,ti->t", q[1:], q[:-1]))
+    q = q * np.concatenate([[1.0], np.cumprod(np.where(flips == 0, 1.0, flips))])[:, None]
+    filled = _hermite(q, mask)
+    filled /= np.linalg.norm(filled, axis=-1, keepdims=True)
+    out = rotvecs.copy()
+    out[~mask] = quat_to_rotvec(torch.as_tensor(filled[~mask])).numpy()
+    return out
+
+
+def hermite_fill_rows(
+    rot: np.ndarray, trans: np.ndarray, frames: np.ndarray, joints: list[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The Hermite fill of the same frames of several joints at once (a frame hole, or a limb
+    missing together): ``joints`` rewritten where ``frames`` is False, the translation too
+    when the pelvis (0) is among them.
+
+    rot: (T, 22, 3), trans: (T, 3), frames: (T,) bool -> (rot, trans) copies"""
+    rot, trans = rot.copy(), trans.copy()
+    seen = np.flatnonzero(frames)
+    q = rotvec_to_quat(torch.as_tensor(rot[seen][:, joints])).numpy()  # (S, J, 4)
+    flips = np.sign(np.einsum("tji,tji->tj", q[1:], q[:-1]))
+    signs = np.cumprod(
+        np.concatenate([np.ones((1, len(joints))), np.where(flips == 0, 1.0, flips)]), 0
+    )
+    full = np.zeros((len(frames), len(joints), 4))
+    full[seen] = q * signs[..., None]
+    filled = _hermite(full.reshape(len(frames), -1), frames).reshape(full.shape)[~frames]
+    filled /= np.linalg.norm(filled, axis=-1, keepdims=True)
+    holes = np.flatnonzero(~frames)
+    rot[np.ix_(holes, joints)] = quat_to_rotvec(torch.as_tensor(filled)).numpy()
+    if 0 in joints:
+        trans = _hermite(trans, frames)
+    return rot, trans
+
+
+def _hermite(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Each inner run of missing frames of ``values`` (T, D) rewritten as the cubic Hermite
+    curve between its sides' fitted values and velocities; runs at the ends stay."""
+    out = values.copy()
+    T = len(mask)
+    edges = np.diff(np.concatenate([[1], mask.astype(int), [1]]))
+    for a, b in zip(np.flatnonzero(edges == -1), np.flatnonzero(edges == 1), strict=True):
+        if a == 0 or b == T:
+            continue
+        p0, v0 = _side_fit(values, mask, a - 1, -1)
+        p1, v1 = _side_fit(values, mask, b, 1)
+        span = b - (a - 1)
+        t = (np.arange(a, b) - (a - 1))[:, None] / span
+        h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
+        h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
+        out[a:b] = h00 * p0 + h10 * span * v0 + h01 * p1 + h11 * span * v1
+    return out
+
+
+def _side_fit(values: np.ndarray, mask: np.ndarray, edge: int, step: int):
+    """Value and velocity (per frame) at frame ``edge`` from a quadratic least-squares fit to
+    the observed frames running from it away from the hole (``step`` -1: back, 1: on)."""
+    idx = [edge]
+    while len(idx) < HERMITE_FRAMES:
+        nxt = idx[-1] + step
+        if not 0 <= nxt < len(mask) or not mask[nxt]:
+            break
+        idx.append(nxt)
+    if len(idx) < 3:
+        vel = (values[idx[-1]] - values[idx[0]]) / (step * max(len(idx) - 1, 1))
+        return values[edge], vel if len(idx) > 1 else np.zeros_like(values[edge])
+    t = np.asarray(idx, float) - edge
+    design = np.stack([np.ones_like(t), t, t**2], axis=1)
+    coef, *_ = np.linalg.lstsq(design, values[idx], rcond=None)
+    return coef[0], coef[1]
 
 
 def _fill_values(values: np.ndarray, mask: np.ndarray, method: str) -> np.ndarray:
