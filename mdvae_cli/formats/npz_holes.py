@@ -6,9 +6,9 @@ missing there, and so is every joint of a frame whose ``trans`` holds one (the r
 translation follows the pelvis). The motion gets ``joint_mask`` False there and finite
 placeholders (``motion.holes.fill_gaps``: slerp / lerp from the observed frames); hand, jaw and
 eye columns that are not finite are interpolated linearly (they are carried through, not
-denoised). A joint missing in every frame, or every frame missing, is refused: there is nothing
-to fill it from. The file's own values in the holes (NaN, inf, and the finite values of a frame whose
-translation is missing) are kept in ``layout["as_read"]``.
+denoised). A joint missing in every frame, or every frame missing, is refused: there is
+nothing to fill it from. The file's own values in the holes (NaN, inf, and the finite values
+of a frame whose translation is missing) are kept in ``layout["as_read"]``.
 
 Writing: a motion marked with :func:`keep_holes` (``mdvae denoise --fill off``) gets the file's
 NaN / inf back in the entries where it had them (:func:`restore_holes`); otherwise holes are
@@ -143,7 +143,8 @@ def keep_holes(motion: Motion) -> Motion:
 
 def restore_holes(poses: np.ndarray, trans: np.ndarray, layout: dict) -> None:
     """Put a file's values in its holes (its NaN / inf) back into ``poses`` (T, W) and
-    ``trans`` (T, 3), in place, when the motion was marked with :func:`keep_holes` and has the file's frames."""
+    ``trans`` (T, 3), in place, when the motion was marked with :func:`keep_holes` and has
+    the file's frames."""
     as_read = layout.get(AS_READ)
     if layout.get(HOLES) != "as read" or not as_read:
         return

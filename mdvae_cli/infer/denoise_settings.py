@@ -23,6 +23,7 @@ from mdvae_cli.infer.noise_blend import BlendReport
 from mdvae_cli.infer.rest_pose import keep_rest_frames
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import Denoiser
+from mdvae_cli.motion.holes import unfilled
 from mdvae_cli.motion.motion import Motion
 
 FEET = ("lock", "off")
@@ -41,7 +42,9 @@ class DenoiseSettings:
     output moved further than the noise explains; feet: "lock" or "off"; loop: True / False,
     or None to detect cycles; mirror: average with the mirror image's result;
     optimize_steps, lr, seed: optimisation mode; window, overlap: the windows (30 Hz frames);
-    rest_pose: leading rest-pose frames (an exporter's T-pose frame 0) kept as they came.
+    rest_pose: leading rest-pose frames (an exporter's T-pose frame 0) kept as they came;
+    fill: fill the holes (``joint_mask`` False: missing frames and joints) from the prior;
+    False leaves the hole entries of the result as the input's values as they came.
     """
 
     input_kind: str = "mocap"
@@ -62,6 +65,7 @@ class DenoiseSettings:
     window: int = 60
     overlap: int = 15
     rest_pose: bool = True
+    fill: bool = True
 
     def __post_init__(self) -> None:
         if self.feet not in FEET:
@@ -155,4 +159,7 @@ def denoise(
             blend_fast=kind_settings(settings.input_kind).blend_fast,
         )
 
-    return keep_rest_frames(motions, run) if settings.rest_pose else run(motions)
+    out = keep_rest_frames(motions, run) if settings.rest_pose else run(motions)
+    if not settings.fill:
+        out = [unfilled(o, m) for o, m in zip(out, motions, strict=True)]
+    return out
