@@ -152,3 +152,22 @@ def restore_holes(poses: np.ndarray, trans: np.ndarray, layout: dict) -> None:
         rows, cols, values = as_read[key]
         if len(rows) and rows.max() < arr.shape[0] and cols.max() < arr.shape[1]:
             arr[rows, cols] = values
+
+
+def with_nan_holes(motion: Motion, mask: np.ndarray) -> Motion:
+    """``motion`` to be written with NaN where ``mask`` (T, 22) is False (``add-noise
+    --drop-frames / --drop-joints``): a missing joint's three ``poses`` columns, the
+    translation of a frame whose pelvis is missing, and the hand / face columns of a frame
+    missing whole. Its values and ``joint_mask`` are unchanged; an ``.npz`` written from it
+    holds the NaN (:func:`restore_holes`), and reads back with these holes."""
+    mask = np.asarray(mask, bool)
+    out = motion.with_body()
+    T, W = motion.num_frames, motion.poses.shape[1]
+    bad_p = np.zeros((T, W), bool)
+    bad_p[:, : 3 * NUM_JOINTS] = np.repeat(~mask, 3, axis=1)
+    bad_p[:, 3 * NUM_JOINTS :] = (~mask).all(axis=1, keepdims=True)
+    bad_t = np.repeat(~mask[:, :1], 3, axis=1)
+    nan = lambda bad: (*np.nonzero(bad), np.full(int(bad.sum()), np.nan))  # noqa: E731
+    out.layout[AS_READ] = {"poses": nan(bad_p), "trans": nan(bad_t)}
+    out.layout[HOLES] = "as read"
+    return out
