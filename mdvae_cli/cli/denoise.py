@@ -61,6 +61,7 @@ def denoise(
     mirror,
     feet,
     fill,
+    missing,
     floor,
     guard,
     blend,
@@ -166,7 +167,7 @@ def denoise(
         raise InputError(f"no such skeleton file: {asf}")
     takes = TakeReader(body_data, asf, joint_map)
     options = ReadOptions(format=input_format, fps=input_fps, track=track,
-                          allow_pickle=allow_pickle, body=body_data)  # fmt: skip
+                          allow_pickle=allow_pickle, body=body_data, missing=missing)  # fmt: skip
     read_takes: dict[Path, object] = {}  # source -> its take, for writing it back
 
     def read(job: FileJob) -> None:
