@@ -193,3 +193,17 @@ def test_bad_hole_options_one_line(make_motion_file, tmp_path, args, message):
     line = one_error(*run(command, path, "-o", tmp_path / "o.npz", *args))
     assert message is None or message in line
     assert not (tmp_path / "o.npz").exists()
+
+
+def test_video_track_gaps_filled_in_the_videos_numbering(tmp_path):
+    from tests import video_files as vf
+
+    ids = np.r_[np.arange(105, 120), np.arange(125, 140)]  # frames 120-124: person not found
+    path = vf.write_wham(tmp_path / "w.pkl", {3: (vf.clip(30, seed=4), ids)})
+    code, out, err = run("denoise", path, "-o", tmp_path / "clean.npz", "--json")
+    assert code == 0, err
+    result = json.loads(out)["files"][0]["result"]
+    assert (result["filled_frames"], result["filled_joints"]) == (5, 5 * 22)
+    clean = np.load(tmp_path / "clean.npz")
+    assert np.array_equal(clean["frame_ids"], np.arange(105, 140))
+    assert np.isfinite(clean["poses"]).all() and not clean["joint_mask"][15:20].any()
