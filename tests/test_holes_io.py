@@ -207,3 +207,17 @@ def test_video_track_gaps_filled_in_the_videos_numbering(tmp_path):
     clean = np.load(tmp_path / "clean.npz")
     assert np.array_equal(clean["frame_ids"], np.arange(105, 140))
     assert np.isfinite(clean["poses"]).all() and not clean["joint_mask"][15:20].any()
+
+
+def test_add_noise_keeps_the_inputs_nan_and_adds_its_own(holey, tmp_path):
+    path = holey()
+    code, out, err = run("add-noise", path, "-o", tmp_path / "n.npz", "--sigma", "0.1")
+    assert code == 0, err
+    raw, noisy = np.load(path), np.load(tmp_path / "n.npz")
+    assert np.array_equal(np.isnan(noisy["poses"]), np.isnan(raw["poses"]))
+    assert np.array_equal(np.isnan(noisy["trans"]), np.isnan(raw["trans"]))
+    code, out, err = run("add-noise", path, "-o", tmp_path / "d.npz", "--drop-frames", "5")
+    assert code == 0, err
+    both = np.load(tmp_path / "d.npz")
+    assert np.isnan(both["poses"][np.isnan(raw["poses"])]).all()
+    assert np.isnan(both["trans"]).any(axis=1).sum() == 1 + 5

@@ -69,11 +69,14 @@ def drop_holes(
 ) -> tuple[Motion, dict]:
     """``motion`` with the holes of :func:`hole_mask` to be written as NaN, and
     {"dropped_frames", "dropped_joints"} (frames with a joint dropped, (frame, joint)
-    entries); unchanged and {} when neither is asked for. InputError when no hole fits; a
-    note when some do not."""
+    entries); {} when neither is asked for. The input's own holes (NaN in an npz) are written
+    back as they came either way. InputError when no hole fits; a note when some do not."""
+    from mdvae_cli.formats.npz_holes import AS_READ, keep_holes, with_nan_holes
+
+    if motion.layout.get(AS_READ):  # the input's own holes (its NaN) stay holes
+        motion = keep_holes(motion)
     if frames is None and joints is None:
         return motion, {}
-    from mdvae_cli.formats.npz_holes import with_nan_holes
     from mdvae_cli.motion.holes import hole_count
 
     mask, short = hole_mask(motion.num_frames, frames, joints, rng)

@@ -159,7 +159,8 @@ def with_nan_holes(motion: Motion, mask: np.ndarray) -> Motion:
     --drop-frames / --drop-joints``): a missing joint's three ``poses`` columns, the
     translation of a frame whose pelvis is missing, and the hand / face columns of a frame
     missing whole. Its values and ``joint_mask`` are unchanged; an ``.npz`` written from it
-    holds the NaN (:func:`restore_holes`), and reads back with these holes."""
+    holds the NaN (:func:`restore_holes`) and the file's own holes it was read with, and reads
+    back with both."""
     mask = np.asarray(mask, bool)
     out = motion.with_body()
     T, W = motion.num_frames, motion.poses.shape[1]
@@ -167,7 +168,17 @@ def with_nan_holes(motion: Motion, mask: np.ndarray) -> Motion:
     bad_p[:, : 3 * NUM_JOINTS] = np.repeat(~mask, 3, axis=1)
     bad_p[:, 3 * NUM_JOINTS :] = (~mask).all(axis=1, keepdims=True)
     bad_t = np.repeat(~mask[:, :1], 3, axis=1)
-    nan = lambda bad: (*np.nonzero(bad), np.full(int(bad.sum()), np.nan))  # noqa: E731
-    out.layout[AS_READ] = {"poses": nan(bad_p), "trans": nan(bad_t)}
+    before = motion.layout.get(AS_READ) or {}
+    as_read = {}
+    for key, bad in (("poses", bad_p), ("trans", bad_t)):
+        rows, cols = np.nonzero(bad)
+        old = before.get(key, ((), (), ()))  # the file's own holes first: the new NaN win
+        values = np.concatenate([np.asarray(old[2], float), np.full(len(rows), np.nan)])
+        as_read[key] = (
+            np.concatenate([np.asarray(old[0], int), rows]),
+            np.concatenate([np.asarray(old[1], int), cols]),
+            values,
+        )
+    out.layout[AS_READ] = as_read
     out.layout[HOLES] = "as read"
     return out
