@@ -67,11 +67,11 @@ def read_holes(
     entries (for :func:`restore_holes`) and a note saying how many frames and joints miss.
     InputError: see :func:`check_holes`.
     """
-    from mdvae_cli.motion.holes import finite_mask, hole_count
-
     bad_p, bad_t = ~np.isfinite(poses), ~np.isfinite(trans)
     if not bad_p.any() and not bad_t.any():
         return poses, trans, None, None, None
+    from mdvae_cli.motion.holes import finite_mask, hole_count  # torch: only for holes
+
     mask = finite_mask(poses, trans)
     check_holes(mask, path, split, "poses" if bad_p[:, : 3 * NUM_JOINTS].any() else "trans")
     extra = int(bad_p[:, 3 * NUM_JOINTS :].any(axis=0).sum())
