@@ -110,3 +110,27 @@ def test_missing_rules_parsed():
     assert parse_rules("") == parse_rules("none") == ()
     with pytest.raises(InputError, match="unknown rule 'nan'"):
         parse_rules("frozen,nan")
+
+
+def test_amc_frozen_bone_filled_and_kept_with_fill_off(tmp_path):
+    from tests.test_amc_out import amc_file, asf_text, motion_values
+
+    values = motion_values(120)
+    values["lradius"][40:90] = values["lradius"][39]  # a lost marker: held for 50 frames
+    (tmp_path / "gen.asf").write_text(asf_text())
+    path = tmp_path / "gen_01.amc"
+    path.write_text(amc_file(values))
+    src = load_source(path, tmp_path / "gen.asf")
+    missing, found = missing_channels(src, ("frozen",))
+    assert found["frozen"] == {"lradius": 50} and missing.sum() == 50
+    for fill, name in (("on", "clean.amc"), ("off", "off.amc")):
+        code, out, err = run("denoise", path, "-o", tmp_path / name, "--missing", "frozen",
+                             "--fill", fill, "--json")  # fmt: skip
+        assert code == 0, err
+        assert json.loads(out)["files"][0]["result"]["filled_frames"] == (50 if fill == "on" else 0)
+    from mdvae_cli.formats.asfamc import load_amc
+
+    clean = load_amc(tmp_path / "clean.amc", tmp_path / "gen.asf").layout.values["lradius"]
+    off = load_amc(tmp_path / "off.amc", tmp_path / "gen.asf").layout.values["lradius"]
+    assert np.ptp(clean[40:90]) > 0.01  # filled: it moves again
+    assert np.allclose(off[40:90], values["lradius"][40:90], atol=1e-6)
