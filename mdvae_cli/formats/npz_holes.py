@@ -86,6 +86,7 @@ def read_holes(
     as_read = {
         "poses": (*np.nonzero(holes_p), poses[holes_p]),
         "trans": (*np.nonzero(holes_t), trans[holes_t]),
+        "frames": len(poses),
     }
     frames, entries = hole_count(mask)
     T = len(mask)
@@ -146,11 +147,11 @@ def restore_holes(poses: np.ndarray, trans: np.ndarray, layout: dict) -> None:
     ``trans`` (T, 3), in place, when the motion was marked with :func:`keep_holes` and has
     the file's frames."""
     as_read = layout.get(AS_READ)
-    if layout.get(HOLES) != "as read" or not as_read:
+    if layout.get(HOLES) != "as read" or not as_read or as_read["frames"] != len(poses):
         return
     for arr, key in ((poses, "poses"), (trans, "trans")):
         rows, cols, values = as_read[key]
-        if len(rows) and rows.max() < arr.shape[0] and cols.max() < arr.shape[1]:
+        if len(rows) and cols.max() < arr.shape[1]:
             arr[rows, cols] = values
 
 
@@ -169,7 +170,7 @@ def with_nan_holes(motion: Motion, mask: np.ndarray) -> Motion:
     bad_p[:, 3 * NUM_JOINTS :] = (~mask).all(axis=1, keepdims=True)
     bad_t = np.repeat(~mask[:, :1], 3, axis=1)
     before = motion.layout.get(AS_READ) or {}
-    as_read = {}
+    as_read: dict = {"frames": T}
     for key, bad in (("poses", bad_p), ("trans", bad_t)):
         rows, cols = np.nonzero(bad)
         old = before.get(key, ((), (), ()))  # the file's own holes first: the new NaN win
