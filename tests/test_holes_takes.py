@@ -134,3 +134,15 @@ def test_amc_frozen_bone_filled_and_kept_with_fill_off(tmp_path):
     off = load_amc(tmp_path / "off.amc", tmp_path / "gen.asf").layout.values["lradius"]
     assert np.ptp(clean[40:90]) > 0.01  # filled: it moves again
     assert np.allclose(off[40:90], values["lradius"][40:90], atol=1e-6)
+
+
+def test_import_missing_marks_the_holes_in_joint_mask(tmp_path):
+    path, _ = holey_bvh(tmp_path / "take.bvh")
+    code, out, err = run("import", path, "-o", tmp_path / "take.npz", "--missing", "zeros",
+                         "--json")  # fmt: skip
+    assert code == 0, err
+    assert json.loads(out)["files"][0]["result"]["missing_frames"] == 1
+    mask = np.load(tmp_path / "take.npz")["joint_mask"]
+    assert (~mask).all(axis=1).sum() == 1 and mask.sum() == 89 * 22
+    code, out, err = run("import", path, "-o", tmp_path / "plain.npz")
+    assert code == 0 and "joint_mask" not in np.load(tmp_path / "plain.npz")

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED
+from mdvae_cli.cli.motion_input import missing_option
 from mdvae_cli.motion.motion import Motion
 
 #: click options, in --help order
@@ -180,17 +181,7 @@ OPTIONS = [
         'the summary and --json say how many ("filled_frames", "filled_joints"). off: leave '
         "them as they came (an npz gets its NaN back, a take its own frames).",
     ),
-    click.option(
-        "--missing",
-        default="",
-        metavar="RULES",
-        callback=lambda ctx, param, value: _missing_rules(value),
-        help="BVH/AMC takes: which frames are holes, comma-separated (off by default): frozen = "
-        "every channel of a joint exactly unchanged for 1/3 s or more (at least 5 frames) while "
-        "other joints move, in a take where it moves elsewhere (a solver holding a lost "
-        "marker's last value); zeros = a frame with every channel 0 (an exporter's empty "
-        "frame). E.g. --missing frozen,zeros. The holes are filled as --fill says.",
-    ),
+    missing_option,
     click.option(
         "--floor",
         is_flag=True,
@@ -244,17 +235,6 @@ OPTIONS = [
         'e.g. {"pelvis": "Hips", "left_hip": "LeftUpLeg", "head": "Head"} (SMPL joint -> yours).',
     ),
 ]
-
-
-def _missing_rules(value: str) -> tuple[str, ...]:
-    """``--missing``'s text as rules (``formats.missing.parse_rules``)."""
-    from mdvae_cli.errors import InputError
-    from mdvae_cli.formats.missing import parse_rules
-
-    try:
-        return parse_rules(value)
-    except InputError as exc:
-        raise click.BadParameter(str(exc).removeprefix("--missing: ")) from None
 
 
 def fill_counts(source: Motion, fill: bool) -> dict:
