@@ -221,3 +221,20 @@ def test_add_noise_keeps_the_inputs_nan_and_adds_its_own(holey, tmp_path):
     both = np.load(tmp_path / "d.npz")
     assert np.isnan(both["poses"][np.isnan(raw["poses"])]).all()
     assert np.isnan(both["trans"]).any(axis=1).sum() == 1 + 5
+
+
+def test_video_track_keeps_its_own_unobserved_frames_across_gaps(tiny_body):
+    """A track whose pipeline marks frames it filled itself (observed False) and skips frame
+    ids: both kinds of frame are holes, each where its frame id lands."""
+    from mdvae_cli.formats.video_tracks import Z_UP, RawTrack, track_to_motion
+
+    T = 12
+    ids = np.r_[np.arange(100, 106), np.arange(109, 115)][::-1]  # out of order, 106-108 skipped
+    observed = np.ones(T, bool)
+    observed[ids == 102] = False
+    raw = RawTrack(root=np.tile(np.eye(3), (T, 1, 1)), body=np.zeros((T, 21, 3)),
+                   transl=np.zeros((T, 3)), betas=np.zeros(10), up=Z_UP, frame_ids=ids,
+                   observed=observed)  # fmt: skip
+    m = track_to_motion(raw, 30.0, tiny_body, "track.pkl")
+    assert np.array_equal(m.extras["frame_ids"], np.arange(100, 115))
+    assert np.flatnonzero(~m.joint_mask[:, 0]).tolist() == [2, 6, 7, 8]
