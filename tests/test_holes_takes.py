@@ -74,14 +74,29 @@ def test_frozen_and_zero_frames_found(tmp_path):
     assert missing_channels(src, ("zeros",))[0].sum() == src.num_joints
 
 
-def test_short_or_whole_take_stillness_is_no_hole(tmp_path):
+def test_holds_that_are_no_holes(tmp_path):
+    """Not holes: a still take, a hold that eases out (no jump when it ends), a hold that runs
+    to the end of the take, a hold one frame too short."""
     path, c = holey_bvh(tmp_path / "take.bvh")
     src = load_source(path)
-    need = frozen_frames(src.fps)
-    assert need == 10
+    assert frozen_frames(src.fps) == 10
+    arm = slice(c, c + 3)
     data = src.layout.data
-    data[:] = data[0]  # nobody moves: a still take, not a hole
-    data[5 : 5 + need - 1, :3] += 1.0  # nor a held stretch one frame short
+    original = data.copy()
+    data[FROZEN.stop :, arm] -= data[FROZEN.stop, arm] - data[FROZEN.start, arm]  # eases out
+    assert not missing_channels(src, ("frozen",))[0].any()
+    data[:] = original
+    data[60:, arm] = data[60, arm]  # to the end
+    data[20:29, arm] = data[20, arm]  # 9 frames, then a jump
+    data[29, arm] += 30.0
+    missing = missing_channels(src, ("frozen",))[0]
+    assert np.flatnonzero(missing.any(axis=1)).tolist() == list(range(31, 50))
+    data[:] = original
+    data[:15, arm] = 0.0  # not found yet at the start: missing from frame 0
+    data[15, arm] += 30.0
+    missing = missing_channels(src, ("frozen",))[0]
+    assert np.flatnonzero(missing.any(axis=1)).tolist() == [*range(15), *range(31, 50)]
+    data[:] = data[0]  # nobody moves
     assert not missing_channels(src, ("frozen",))[0].any()
 
 

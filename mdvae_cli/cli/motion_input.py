@@ -87,8 +87,8 @@ missing_option = click.option(
     callback=_missing_rules,
     help="BVH/AMC takes: which frames are holes, comma-separated (off by default): frozen = "
     "every channel of a joint exactly unchanged for 1/3 s or more (at least 5 frames) while "
-    "other joints move, in a take where it moves elsewhere (a solver holding a lost marker's "
-    "last value); zeros = a frame with every channel 0 (an exporter's empty frame). E.g. "
+    "other joints move, then a jump (a solver that held a lost marker's last value and caught "
+    "up); zeros = a frame with every channel 0 (an exporter's empty frame). E.g. "
     "--missing frozen,zeros. They are marked in joint_mask (denoise fills them, see --fill).",
 )
 
