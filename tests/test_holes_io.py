@@ -238,3 +238,11 @@ def test_video_track_keeps_its_own_unobserved_frames_across_gaps(tiny_body):
     m = track_to_motion(raw, 30.0, tiny_body, "track.pkl")
     assert np.array_equal(m.extras["frame_ids"], np.arange(100, 115))
     assert np.flatnonzero(~m.joint_mask[:, 0]).tolist() == [2, 6, 7, 8]
+
+
+def test_prior_training_refuses_a_take_with_holes(holey, tiny_body):
+    from mdvae_cli.body.skinning import BodyModel
+    from mdvae_cli.train.corpus import load_windows
+
+    with pytest.raises(InputError, match="16 frame\\(s\\) with missing joints"):
+        load_windows([holey()], BodyModel(tiny_body), 20, 5)
