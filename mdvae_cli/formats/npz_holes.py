@@ -110,10 +110,10 @@ def fill_placeholders(motion: Motion, trans_bad: np.ndarray) -> Motion:
 
     as_read = motion.layout.get(AS_READ) or {}
     rows, cols, _ = as_read.get("poses", ((), (), ()))
+    rows, cols = np.asarray(rows, int), np.asarray(cols, int)
     extra = np.zeros_like(motion.pose_extra, dtype=bool)
-    for r, c in zip(rows, cols, strict=True):
-        if c >= 3 * NUM_JOINTS:
-            extra[r, c - 3 * NUM_JOINTS] = True
+    hand = cols >= 3 * NUM_JOINTS
+    extra[rows[hand], cols[hand] - 3 * NUM_JOINTS] = True
     trans = motion.trans.copy()
     filled = fill_gaps(motion, "slerp")
     keep = ~trans_bad.any(axis=1)
