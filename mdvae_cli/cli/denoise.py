@@ -23,7 +23,13 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
-from mdvae_cli.cli.denoise_options import denoise_options
+from mdvae_cli.cli.denoise_options import (
+    denoise_options,
+    fill_counts,
+    fill_setting,
+    fill_totals,
+    fill_words,
+)
 from mdvae_cli.cli.motion_input import (
     motion_input_options,
     outputs_of,
@@ -60,6 +66,8 @@ def denoise(
     input_kind,
     mirror,
     feet,
+    fill,
+    missing,
     floor,
     guard,
     blend,
@@ -119,6 +127,7 @@ def denoise(
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.cli.motion_input import on_floor
     from mdvae_cli.export import export_mesh_sequence
+    from mdvae_cli.formats.npz_holes import keep_holes
     from mdvae_cli.formats.registry import ReadOptions
     from mdvae_cli.formats.registry import write as write_motion
     from mdvae_cli.infer.denoise import check_finite, check_length
@@ -149,7 +158,7 @@ def denoise(
         refine_steps=refine_steps, refine_lr=refine_lr, offset=offset, lam=lam,
         offset_std=refine_offset, trans_offset_std=trans_offset, blend=blend, guard=guard,
         feet=feet, loop=loop, mirror=mirror, optimize_steps=optimize_steps, lr=lr, seed=seed,
-        window=window, overlap=overlap,
+        window=window, overlap=overlap, fill=fill_setting(fill),
     )  # fmt: skip
     per_kind = lambda kind: replace(base, input_kind=kind)  # noqa: E731
     mesh_format = mesh_format or "ply"
@@ -164,7 +173,7 @@ def denoise(
         raise InputError(f"no such skeleton file: {asf}")
     takes = TakeReader(body_data, asf, joint_map)
     options = ReadOptions(format=input_format, fps=input_fps, track=track,
-                          allow_pickle=allow_pickle, body=body_data)  # fmt: skip
+                          allow_pickle=allow_pickle, body=body_data, missing=missing)  # fmt: skip
     read_takes: dict[Path, object] = {}  # source -> its take, for writing it back
 
     def read(job: FileJob) -> None:
@@ -270,6 +279,8 @@ def denoise(
                 target = Path(mesh_dir) / sub if len(jobs) > 1 else Path(mesh_dir)
                 export_mesh_sequence(motion, body, track_output(target, label), mesh_format,
                                      forbid=sources)  # fmt: skip
+            if fill == "off":  # an npz gets its NaN back, a take its own frames
+                motion = keep_holes(motion)
             write_motion(motion, output, take=read_takes[job.source] if is_take(output) else None,
                   forbid=sources)  # fmt: skip
             if view_dir is not None:
@@ -289,7 +300,8 @@ def denoise(
                                                        / duration, 1.0), 4),
                            "input_share": None if kept is None else round(kept.input_share, 4),
                            "spike_share": None if kept is None else round(kept.spike_share, 4),
-                           "loop": cycles.get((job.source, i), False)})  # fmt: skip
+                           "loop": cycles.get((job.source, i), False),
+                           **fill_counts(source_motion, fill != "off")})  # fmt: skip
         return {
             "frames": sum(t["frames"] for t in tracks),
             "seconds": round(timings[job.source], 4),
@@ -299,6 +311,7 @@ def denoise(
             "fallback_share": _frame_mean(tracks, "fallback_share"),
             "input_share": _frame_mean(tracks, "input_share"),
             "loop": any(t["loop"] for t in tracks),
+            **fill_totals(tracks),
             "tracks": tracks,
         }
 
@@ -318,6 +331,7 @@ def denoise(
                 "settings": {kind: c[1] for kind, c in chosen.items()},
                 "mirror": mirror,
                 "feet": feet,
+                "fill": fill_setting(fill),
                 "guard": any(guarding.values()),
                 "blend": blend and any(r is not None for r, _ in chosen.values()),
             }
@@ -328,7 +342,7 @@ def denoise(
         secs = sum(r["seconds"] for r in done)
         console.print(
             f"denoised {len(done)} file(s), {total} frames in {secs:.2f} s "
-            f"({total / max(secs, 1e-9):,.0f} frames/s){_kept_words(done)}"
+            f"({total / max(secs, 1e-9):,.0f} frames/s){_kept_words(done)}{fill_words(done)}"
         )
     write_report.exit()
 

@@ -7,6 +7,9 @@ from pathlib import Path
 import click
 
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED
+from mdvae_cli.cli.motion_input import missing_option
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
+from mdvae_cli.motion.motion import Motion
 
 #: click options, in --help order
 OPTIONS = [
@@ -170,6 +173,20 @@ OPTIONS = [
         '"Feet and floor"). off: the feet as denoised.',
     ),
     click.option(
+        "--fill",
+        type=click.Choice(["on", "off", *FILLS[:-1]]),
+        default="on",
+        show_default=True,
+        help="on: fill the holes of a take (frames and joints that are missing: NaN in an npz, "
+        "frames a video track skips, what --missing names in a BVH/AMC take) by the default "
+        f'way, {DEFAULT_FILL}; the summary and --json say how many ("filled_frames", '
+        '"filled_joints"). learned: a cubic curve from the cleaned frames beside the hole, '
+        "corrected by a network trained on clean motion with holes cut in it; curve: the curve "
+        "alone; model: the denoiser's own frames. off: leave them as they came (an npz gets "
+        "its NaN back, a take its own frames).",
+    ),
+    missing_option,
+    click.option(
         "--floor",
         is_flag=True,
         help="Put each input on the floor first: the ground under its soles moved to z = 0 (as "
@@ -222,6 +239,40 @@ OPTIONS = [
         'e.g. {"pelvis": "Hips", "left_hip": "LeftUpLeg", "head": "Head"} (SMPL joint -> yours).',
     ),
 ]
+
+
+def fill_setting(option: str) -> str:
+    """``--fill``'s value as ``DenoiseSettings.fill`` ("on": the default fill)."""
+    return DEFAULT_FILL if option == "on" else option
+
+
+def fill_counts(source: Motion, fill: bool) -> dict:
+    """What ``--fill`` did to one motion: {"filled_frames": frames with a joint filled,
+    "filled_joints": (frame, joint) entries filled}, both 0 with ``--fill off``, and
+    "unfilled_frames": the frames left with holes (``--fill off``), else 0."""
+    from mdvae_cli.motion.holes import hole_count, observed
+
+    frames, entries = hole_count(observed(source)) if source.joint_mask is not None else (0, 0)
+    if fill:
+        return {"filled_frames": frames, "filled_joints": entries, "unfilled_frames": 0}
+    return {"filled_frames": 0, "filled_joints": 0, "unfilled_frames": frames}
+
+
+def fill_totals(items: list[dict]) -> dict:
+    """:func:`fill_counts` summed over tracks or files."""
+    keys = ("filled_frames", "filled_joints", "unfilled_frames")
+    return {k: sum(int(t.get(k) or 0) for t in items) for k in keys}
+
+
+def fill_words(done: list[dict]) -> str:
+    """What the summary line says of the holes (nothing when there were none)."""
+    total = fill_totals(done)
+    if total["filled_frames"]:
+        return (f"; filled {total['filled_frames']} frame(s) with missing joints "
+                f"({total['filled_joints']} joint entries) from the prior")  # fmt: skip
+    if total["unfilled_frames"]:
+        return f"; {total['unfilled_frames']} frame(s) with holes left as they came (--fill off)"
+    return ""
 
 
 def denoise_options(command):

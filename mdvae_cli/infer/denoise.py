@@ -26,6 +26,7 @@ from mdvae_cli.geometry.rotations import (
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL
 from mdvae_cli.infer.guard import fallback_stretches, guard
 from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
@@ -256,7 +257,7 @@ def denoise_motions(
     blend: bool = False,
     on_blend: Callable[[int, BlendReport], None] | None = None,
     blend_fast: bool = True,
-    fill: str | None = "curve",
+    fill: str | None = DEFAULT_FILL,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 

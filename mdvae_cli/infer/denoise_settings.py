@@ -17,7 +17,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
-from mdvae_cli.infer.fill import FILLS
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
 from mdvae_cli.infer.input_kinds import kind_settings, refine_config
 from mdvae_cli.infer.loop import looks_like_loop
 from mdvae_cli.infer.noise_blend import BlendReport
@@ -43,7 +43,8 @@ class DenoiseSettings:
     or None to detect cycles; mirror: average with the mirror image's result;
     optimize_steps, lr, seed: optimisation mode; window, overlap: the windows (30 Hz frames);
     rest_pose: leading rest-pose frames (an exporter's T-pose frame 0) kept as they came;
-    fill: what the input's holes (missing frames and joints) become (``infer.fill.FILLS``).
+    fill: what the input's holes (``joint_mask`` False: missing frames and joints) become
+    (``infer.fill.FILLS``); "off" leaves them as the input's values as they came.
     """
 
     input_kind: str = "mocap"
@@ -64,7 +65,7 @@ class DenoiseSettings:
     window: int = 60
     overlap: int = 15
     rest_pose: bool = True
-    fill: str = "curve"
+    fill: str = DEFAULT_FILL
 
     def __post_init__(self) -> None:
         if self.feet not in FEET:

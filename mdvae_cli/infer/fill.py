@@ -20,10 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from mdvae_cli.infer.fill_choices import FILLS
 from mdvae_cli.motion.holes import fill_gaps, observed
 from mdvae_cli.motion.motion import Motion
-
-FILLS = ("learned", "curve", "model", "off")
 
 
 def has_holes(motion: Motion) -> bool:

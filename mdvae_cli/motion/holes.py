@@ -94,6 +94,23 @@ def fill_gaps(motion: Motion, method: str = "slerp") -> Motion:
     return motion.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
 
 
+def unfilled(result: Motion, source: Motion) -> Motion:
+    """``result`` (a motion made from ``source``, same frames) with ``source``'s values in
+    ``source``'s holes: its missing joints' rotations, and its translation where the pelvis is
+    missing (``denoise`` with ``fill=False``). The result keeps ``source``'s mask."""
+    mask = observed(source)
+    if mask.all() or result.num_frames != source.num_frames:
+        return result
+    rot = np.concatenate([result.root_orient[:, None], result.pose_body], axis=1).copy()
+    src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
+    rot[~mask] = src[~mask]
+    trans = np.array(result.trans, dtype=np.float64)
+    trans[~mask[:, 0]] = source.trans[~mask[:, 0]]
+    out = result.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
+    out.joint_mask = mask.copy()
+    return out
+
+
 def _neighbours(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """For each missing frame of a (T,) mask: (frames, previous observed, next observed,
     weight of the next); the ends hold the nearest observed frame."""
