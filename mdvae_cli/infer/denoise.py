@@ -25,7 +25,7 @@ from mdvae_cli.geometry.rotations import (
 )
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
-from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from
+from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from, join_pieces, observed_pieces
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL
 from mdvae_cli.infer.guard import fallback_stretches, guard
 from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
@@ -39,7 +39,7 @@ from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regress
 from mdvae_cli.model.state import BodyParams, state_to_params
 from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
-from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.motion.resample import resample_times
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
@@ -298,6 +298,13 @@ def denoise_motions(
             blend_fast, fill="model",
         )  # fmt: skip
         return [fill_holes(src, m, "off") for m, src in zip(cleaned, motions, strict=True)]
+    pieces = [observed_pieces(m, min_frames(m)) for m in motions] if holes else []
+    if any(p is not None for p in pieces):  # long holes: the pieces between them on their own
+        return _denoise_pieces(
+            motions, pieces, denoiser, body, window, stride, optimize_steps, lr, batch_size,
+            seed, progress, refine, mirror, guard, on_fallback, loops, feet, blend, on_blend,
+            blend_fast, fill,
+        )  # fmt: skip
     if feet is not None:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
@@ -388,6 +395,38 @@ def denoise_motions(
             for a, b in stretches:
                 on_fallback(mi, a, b)
     return out
+
+
+def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
+    """Denoise the pieces of the motions between their long holes (``infer.fill``) as
+    motions of their own, put them back, then fill the holes. ``args``: the rest of
+    :func:`denoise_motions`' arguments after ``body``, in order."""
+    *head, on_fallback, loops, feet, blend, on_blend, blend_fast, fill = args
+    parts, owners = [], []
+    for i, (m, cuts) in enumerate(zip(motions, pieces, strict=True)):
+        for a, b in cuts if cuts is not None else [(0, m.num_frames)]:
+            parts.append(slice_frames(m, a, b))
+            owners.append((i, a / m.fps))
+    tell = None if on_fallback is None else (
+        lambda j, a, b: on_fallback(owners[j][0], a + owners[j][1], b + owners[j][1]))  # fmt: skip
+    report = None if on_blend is None else lambda j, r: on_blend(owners[j][0], r)
+    done = denoise_motions(
+        parts, denoiser, body, *head, on_fallback=tell,
+        loops=None, feet=feet, blend=blend,  # a piece of a take is no cycle
+        on_blend=report, blend_fast=blend_fast, fill=fill,
+    )  # fmt: skip
+    out, k = [], 0
+    for m, cuts in zip(motions, pieces, strict=True):
+        cuts = cuts if cuts is not None else [(0, m.num_frames)]
+        joined = join_pieces(m, cuts, done[k : k + len(cuts)])
+        k += len(cuts)
+        out.append(fill_holes(m, joined, fill or "model"))
+    return out
+
+
+def min_frames(motion: Motion) -> int:
+    """The fewest frames at the motion's own rate that :func:`check_length` takes."""
+    return int(np.ceil((MIN_FRAMES - 1) * motion.fps / MODEL_FPS)) + 1
 
 
 def _denoise_cycles(motions, loops, denoiser, body, *args, on_fallback=None) -> list[Motion]:

@@ -67,3 +67,39 @@ def holes_from(source: Motion, result: Motion) -> Motion:
     """``source`` with its holes taken from ``result`` (what a later stage reads as the input
     there: the foot lock finds contacts on the filled motion); ``source`` itself when whole."""
     return take_holes(source, result, observed(source)) if has_holes(source) else source
+
+
+#: a run of frames missing every joint this long (seconds) or longer splits the take: the
+#: pieces either side are denoised on their own, never reading the placeholders between them
+SPLIT_SECONDS = 0.3
+
+
+def observed_pieces(motion: Motion, min_frames: int) -> list[tuple[int, int]] | None:
+    """[start, end) of the runs of frames between the motion's long whole-frame holes (at
+    least :data:`SPLIT_SECONDS`) that are ``min_frames`` long or more; None when it has no such
+    hole (nothing to split)."""
+    if not has_holes(motion):
+        return None
+    gone = ~observed(motion).any(axis=1)
+    long_gap = max(2, int(round(SPLIT_SECONDS * motion.fps)))
+    edges = np.diff(np.concatenate([[0], gone.astype(int), [0]]))
+    gaps = [(a, b) for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1),
+                                   strict=True) if b - a >= long_gap]  # fmt: skip
+    if not gaps:
+        return None
+    bounds = [0, *[x for gap in gaps for x in gap], motion.num_frames]
+    pieces = list(zip(bounds[::2], bounds[1::2], strict=True))
+    return [(a, b) for a, b in pieces if b - a >= min_frames]
+
+
+def join_pieces(source: Motion, pieces: list[tuple[int, int]], results: list[Motion]) -> Motion:
+    """``source`` with each piece's frames [a, b) taken from its result (the rest, holes and
+    pieces too short to denoise, as they came)."""
+    rot = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1).copy()
+    trans = np.array(source.trans, dtype=np.float64)
+    for (a, b), r in zip(pieces, results, strict=True):
+        rot[a:b] = np.concatenate([r.root_orient[:, None], r.pose_body], axis=1)
+        trans[a:b] = r.trans
+    out = source.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
+    out.notes = [*source.notes, *(n for r in results for n in r.notes if n not in source.notes)]
+    return out

@@ -19,7 +19,10 @@ from mdvae_cli.motion.motion import Motion
 NUM_JOINTS = 22
 FILL_METHODS = ("slerp", "spline", "hermite")
 #: frames each side of a hole that the Hermite fill's end values and velocities are read from
-HERMITE_FRAMES = 4
+HERMITE_FRAMES = 6
+#: a hole longer than this (frames) has its end velocities scaled down by this over its length:
+#: a person's velocity does not hold for long, and a small error in it grows with the hole
+TANGENT_FRAMES = 15
 #: SMPL body joints of each limb (pelvis = 0), the parts a marker set loses together
 LIMBS = {
     "left_arm": (16, 18, 20),
@@ -202,6 +205,8 @@ def _hermite(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
         p0, v0 = _side_fit(values, mask, a - 1, -1)
         p1, v1 = _side_fit(values, mask, b, 1)
         span = b - (a - 1)
+        scale = min(1.0, TANGENT_FRAMES / span)
+        v0, v1 = scale * v0, scale * v1
         t = (np.arange(a, b) - (a - 1))[:, None] / span
         h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
         h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
