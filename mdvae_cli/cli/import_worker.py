@@ -88,8 +88,9 @@ class FileImporter:
         file): read upright (``formats.registry``), one output per track, at the file's own
         frames and heights (as ``mdvae denoise`` reads it) unless ``--fps`` (resampled) or
         ``--floor plane|flat`` (the ground under the soles at z = 0) is given."""
-        from mdvae_cli.cli.motion_input import on_floor, outputs_of, read_input
+        from mdvae_cli.cli.motion_input import read_input
         from mdvae_cli.motion.resample import resample_motion
+        from mdvae_cli.run.tracks import on_floor, outputs_of
 
         options = ReadOptions(format=self.format, fps=self.source_fps, track=self.track,
                               body=self.body.data)  # fmt: skip

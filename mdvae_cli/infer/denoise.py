@@ -18,11 +18,7 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import (
-    quat_slerp,
-    quat_to_rotvec,
-    rotvec_to_quat,
-)
+from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.guard import fallback_stretches, guard
