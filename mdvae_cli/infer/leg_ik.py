@@ -233,48 +233,6 @@ def knee_turn(
     return np.take_along_axis(phi, cost.argmin(-1)[..., None], -1)[..., 0]
 
 
-def two_bone_ik(
-    root: np.ndarray,
-    legs: np.ndarray,
-    pelvis: np.ndarray,
-    bones: np.ndarray,
-    targets: np.ndarray,
-    held: np.ndarray,
-    flexion: np.ndarray,
-) -> np.ndarray:
-    """Put ankles and balls of the feet on targets by turning hips, knees and ankles.
-
-    root, legs, pelvis, bones: as :func:`leg_chain`; targets: (B, 2, 2, 3) positions of
-    (ankle, ball) per leg; held: (B, 2, 2) bool, which of them have a target; flexion: (B, 2)
-    each knee's flexion (rad, the x component of its axis-angle). Closed form, per leg: the knee
-    turns about its hinge (its x axis) until the hip-ankle distance is right, the hip turns
-    (smallest rotation) to point the leg at the ankle's target, and the ankle turns to point the
-    foot at the ball's target, or, with no ball target, to keep the foot's world orientation.
-    With only the ball held, the ankle's target is the ankle moved as the ball must move. Out of
-    reach, the leg straightens toward the target.
-    -> (B, 2, 4, 3, 3) the new local rotations (the ball's own unchanged).
-    """
-    pos, G = leg_chain(root, legs, pelvis, bones)
-    hip, knee, ankle, ball = (pos[:, :, i] for i in range(4))
-    hold_ankle, hold_ball = held[..., 0, None], held[..., 1, None]
-    moved = np.where(hold_ball, ankle + targets[:, :, 1] - ball, ankle)
-    goal = np.where(hold_ankle, targets[:, :, 0], moved)
-    n = G[:, :, 1, :, 0]
-    phi = knee_turn(knee - hip, ankle - knee, n, np.linalg.norm(goal - hip, axis=-1), flexion)
-    x_axis = np.zeros_like(n)
-    x_axis[..., 0] = phi
-    knee_local = legs[:, :, 1] @ rotvec_to_rotmat_np(x_axis)
-    shank = (rotvec_to_rotmat_np(n * phi[..., None]) @ (ankle - knee)[..., None])[..., 0]
-    R0 = root[:, None]
-    hip_local = R0.swapaxes(-1, -2) @ swing(knee + shank - hip, goal - hip) @ R0 @ legs[:, :, 0]
-    knee_world = R0 @ hip_local @ knee_local
-    turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
-    aim = swing((turned @ bones[:, 3, :, None])[..., 0], targets[:, :, 1] - goal) @ turned
-    foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
-    ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
-    return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)
-
-
 def turn_about(v: np.ndarray, n: np.ndarray, phi: np.ndarray) -> np.ndarray:
     """``v`` turned by ``phi`` about the unit axis ``n`` (Rodrigues).  (..., 3), (..., 3),
     (...,) -> (..., 3)"""
@@ -313,7 +271,10 @@ def swing_ik(
     """Put ankles and balls of the feet on targets by swinging each leg about its hip, its
     knee bent as it was unless a target is off the reach that bend gives.
 
-    root, legs, pelvis, bones, targets, held, flexion: as :func:`two_bone_ik`; stiffness (m/rad):
+    root, legs, pelvis, bones: as :func:`leg_chain`; targets: (B, 2, 2, 3) positions of
+    (ankle, ball) per leg; held: (B, 2, 2) bool, which of them have a target (with only the
+    ball held, the ankle's target is the ankle moved as the ball must move); flexion: (B, 2)
+    each knee's flexion (rad, the x component of its axis-angle); stiffness (m/rad):
     how far an ankle may miss a target further than the leg reaches rather than straighten the
     knee by one radian; bend_stiffness: the same for a target nearer than that (0: the knee
     bends as far as the target needs, as a foot under the floor is lifted); both floats or
