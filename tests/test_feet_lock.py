@@ -13,6 +13,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.export import pose_motion_chunks
 from mdvae_cli.formats.npz_io import load_motion, save_motion
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.infer import leg_ik
 from mdvae_cli.infer.contact_runs import (
     clean_contacts,
@@ -191,7 +192,7 @@ def test_config_is_checked():
 
 
 def chain_of(motion: Motion, model: leg_ik.LegModel):
-    root = leg_ik.rotvec_to_rotmat_np(motion.root_orient)
+    root = rotvec_to_rotmat(motion.root_orient)
     return root, leg_ik.leg_rotations(motion), motion.trans + model.pelvis
 
 
@@ -434,7 +435,7 @@ def test_swing_ik_keeps_the_knee_for_a_horizontal_move_and_lands_on_the_target(b
     after, _ = leg_ik.leg_chain(root, new, pelvis, model.bones)
     # the knee's own rotation turns by the damped step only: the ankle moves on (nearly) a
     # sphere about the hip, so the step is small; horizontally the ankle is on its target
-    knee_turn = np.abs(leg_ik.rotmat_to_rotvec_np(legs[:, :, 1].swapaxes(-1, -2) @ new[:, :, 1]))
+    knee_turn = np.abs(rotmat_to_rotvec(legs[:, :, 1].swapaxes(-1, -2) @ new[:, :, 1]))
     assert knee_turn.max() < np.radians(1.0)
     assert np.abs(after[:, :, 2, :2] - targets[:, :, 0, :2]).max() < 1e-6
     assert np.abs(after[:, :, 2, 2] - targets[:, :, 0, 2]).max() < 0.005  # the miss: height

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
+from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, skew
 from mdvae_cli.retarget.joint_map import (
     JointMap,
@@ -45,18 +46,6 @@ def rest_corrections(jmap: JointMap, src_rest: np.ndarray, X: np.ndarray) -> np.
         if not any(parents[k] == j for k in range(_N)):
             C[j] = C[parents[j]]
     return C
-
-
-def _fk(L: torch.Tensor, bones: torch.Tensor, root: torch.Tensor, parents: list[int]):
-    """Body FK.  L: (T, 22, 3, 3) local rotations; bones: (22, 3) rest offsets from the parent;
-    root: (T, 3) pelvis position -> global rotations (T, 22, 3, 3), positions (T, 22, 3)"""
-    G = [L[:, 0]]
-    p = [root]
-    for j in range(1, _N):
-        q = parents[j]
-        G.append(G[q] @ L[:, j])
-        p.append(p[q] + G[q] @ bones[j])
-    return torch.stack(G, 1), torch.stack(p, 1)
 
 
 def _ancestors(parents: list[int]) -> torch.Tensor:
@@ -110,7 +99,7 @@ def solve_pose(
     diag = torch.full((3 * n + 3,), damping, dtype=lin)
     diag[: 3 * n] += w2
     for _ in range(iterations):
-        G, p = _fk(L, bones, root, parents)
+        G, p = forward_kinematics(L, bones, parents[:_N], root=root)  # (T, 22, 3, 3), (T, 22, 3)
         r = (p - targets).reshape(T, 3 * _N, 1).to(lin)
         pl = p.to(lin)
         diff = pl[:, :, None, :] - pl[:, None, active, :]  # (T, 22, n, 3): p_k - p_j

@@ -35,11 +35,12 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.formats.asfamc import AmcLayout, dof_rotation, rotation_columns
 from mdvae_cli.formats.bvh_write import rotmat_to_euler
 from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
-from mdvae_cli.retarget.way_back import _fk, drivers, pelvis_point, smpl_change, smpl_globals
+from mdvae_cli.retarget.way_back import drivers, pelvis_point, smpl_change, smpl_globals
 
 
 def _unit(layout: AmcLayout) -> float:
@@ -78,7 +79,7 @@ def amc_pose(src: SourceMotion, layout: AmcLayout, values: dict[str, np.ndarray]
         if rot:
             angles = values[name][:, [c for c, _ in rot]] * _unit(layout)
             L[:, j] = dof_rotation(layout.frame(name), angles, "".join(a for _, a in rot))
-    G, P = _fk(L, t, src.parents)
+    G, P = forward_kinematics(L, t, src.parents)
     return L, t, G, P
 
 
