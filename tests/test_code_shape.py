@@ -42,3 +42,39 @@ def test_no_module_in_the_package_is_over_400_lines():
     lines = {str(p.relative_to(PACKAGE)): len(p.read_text(encoding="utf-8").splitlines())
              for p in modules}  # fmt: skip
     assert {name: n for name, n in lines.items() if n > MAX_MODULE} == {}
+
+
+def module_imports(path: Path) -> set[str]:
+    """The package's modules ``path`` imports at its top level (not inside functions)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    found = set()
+    for node in tree.body:
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("mdvae_cli"):
+            found |= {f"{node.module}.{a.name}" for a in node.names} | {node.module}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("mdvae_cli")}
+    return found
+
+
+def test_no_module_imports_itself_round_a_circle():
+    names = {
+        ".".join(("mdvae_cli", *p.relative_to(PACKAGE).with_suffix("").parts)).removesuffix(
+            ".__init__"
+        ): p
+        for p in PACKAGE.rglob("*.py")
+    }
+    graph = {m: sorted(module_imports(p) & set(names) - {m}) for m, p in names.items()}
+    state: dict[str, int] = {}  # 1: on the path, 2: done
+
+    def visit(m: str, path: list[str]) -> list[str] | None:
+        state[m] = 1
+        for n in graph[m]:
+            if state.get(n) == 1:
+                return [*path, m, n]
+            if n not in state and (cycle := visit(n, [*path, m])):
+                return cycle
+        state[m] = 2
+        return None
+
+    cycles = [c for m in sorted(graph) if m not in state and (c := visit(m, []))]
+    assert cycles == []
