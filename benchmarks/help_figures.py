@@ -25,7 +25,17 @@ FIGURES = REPO / "mdvae_cli" / "help_figures.json"
 README = REPO / "README.md"
 
 #: README phrases that quote a figure: pattern (one group: the number) -> the figure's key
-README_QUOTES = {r"most accurate \(~(\d+)x slower\)": ("denoise", "refine_mirror_slowdown")}
+_FPS_CELL = r"(?:[^|\n]*\|){3} ([\d,]+) \|"  # after a row's name, its fourth cell: frames/s
+README_QUOTES = {
+    r"most accurate \(~(\d+)x slower\)": ("denoise", "refine_mirror_slowdown"),
+    r"\| best tuned filter \([^|\n]*\) \|" + _FPS_CELL: ("denoise", "filter_fps"),
+    r"\| `--refine 50 --no-blend --feet off` \|" + _FPS_CELL: ("denoise", "refine_fps"),
+    r"\| `--refine 50 --mirror --no-blend --feet off` \|" + _FPS_CELL: (
+        "denoise",
+        "refine_mirror_fps",
+    ),
+    r"the filter ran at ([\d,]+) frames/s here": ("denoise", "filter_fps"),
+}
 
 
 def section(text: str, name: str) -> str:
@@ -78,7 +88,11 @@ def denoise_figures(text: str) -> dict:
     refine, mirror = row(rows, "Latent refinement"), row(rows, "Latent refinement + mirror")
     gains = [100 * (1 - number(mirror[c]) / number(refine[c])) for c in v2v]
     one_pass = fps["Regression + offset (default)"]
+    best = next(r for r in rows if r[list(r)[-1]] == "best filter")
     return {
+        "filter_fps": round(number(best["frames/s ↑"])),
+        "refine_fps": round(fps["Latent refinement"]),
+        "refine_mirror_fps": round(fps["Latent refinement + mirror"]),
         "offset_time": round(fps["Regression mode"] / one_pass, 1),
         "refine_slowdown": round(one_pass / fps["Latent refinement"]),
         "refine_mirror_slowdown": round(one_pass / fps["Latent refinement + mirror"]),
@@ -134,7 +148,7 @@ def figures(text: str) -> dict:
 def readme_text(readme: str, figs: dict) -> str:
     """The README with every quoted figure (:data:`README_QUOTES`) set to the table's."""
     for pattern, (group, key) in README_QUOTES.items():
-        value = f"{figs[group][key]:g}"
+        value = f"{figs[group][key]:,}"  # 15,199 as the README writes it
 
         def put(m: re.Match, value: str = value) -> str:
             return (

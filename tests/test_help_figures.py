@@ -74,3 +74,13 @@ def test_the_figures_follow_the_table():
 def test_a_range_is_written_once_when_its_ends_agree():
     assert span([5.5, 9.0]) == "5.5-9"
     assert span([40, 40], " %") == "40 %"
+
+
+def test_every_readme_quote_is_found_and_follows_the_table():
+    readme = generator.README.read_text(encoding="utf-8")
+    figs = help_figures()
+    for pattern, (group, key) in generator.README_QUOTES.items():
+        found = re.findall(pattern, readme)
+        assert found and {int(x.replace(",", "")) for x in found} == {figs[group][key]}, key
+        moved = {**figs, group: {**figs[group], key: figs[group][key] + 1000}}
+        assert f"{figs[group][key] + 1000:,}" in generator.readme_text(readme, moved), key
