@@ -63,3 +63,32 @@ def test_a_file_not_denoised_is_not_written(tmp_path):
 )
 def test_the_mode_names_what_runs_after_the_networks_pass(settings, mode):
     assert settings.mode == mode
+
+
+def cycle_file(path: Path) -> Path:
+    """A 30-frame cycle of a periodic motion (frame 30 would equal frame 0)."""
+    from mdvae_cli.formats.npz_io import save_motion
+    from mdvae_cli.motion.motion import slice_frames
+
+    T = 30
+    t = np.arange(T) / 30.0
+    phase = 2 * np.pi * t
+    pose = 0.4 * np.sin(phase[:, None, None] + np.arange(21)[None, :, None] * 0.3)
+    trans = np.stack([1.0 * t, 0 * t, 0.9 + 0.02 * np.cos(2 * phase)], 1)
+    walk = slice_frames(load_motion(REPO / "examples" / "walk.npz"), 0, T)
+    root = np.tile([[0.0, 0.0, 1.0]], (T, 1))
+    body = np.broadcast_to(pose, (T, 21, 3)).copy()
+    cyc = walk.with_body(root_orient=root, pose_body=body, trans=trans)
+    save_motion(cyc, path)
+    return path
+
+
+@pytest.mark.parametrize("flag, note, loop", [([], True, True), (["--no-loop"], False, False)])
+def test_a_cycle_is_said_once_and_reported(tmp_path, flag, note, loop):
+    src = cycle_file(tmp_path / "cycle.npz")
+    args = ["denoise", str(src), "-o", str(tmp_path / "out.npz"), "--feet", "off", *flag]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 0, res.output
+    assert res.output.count("looks like a loop") == int(note)
+    said = json.loads(CliRunner().invoke(cli, [*args, "--json"]).stdout)
+    assert said["files"][0]["result"]["loop"] is loop

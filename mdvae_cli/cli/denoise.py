@@ -81,7 +81,7 @@ def denoise(
     from mdvae_cli.formats.registry import ReadOptions
     from mdvae_cli.model.denoiser import load_denoiser
     from mdvae_cli.retarget.take import TakeReader
-    from mdvae_cli.run.denoise_files import denoise_files, kind_rows, mark_loops, read_file
+    from mdvae_cli.run.denoise_files import denoise_files, kind_rows, read_file
 
     settings = _settings(
         refine_steps=refine_steps, refine_lr=refine_lr, offset=offset, lam=lam, outliers=outliers,
@@ -102,23 +102,24 @@ def denoise(
                         input_kind=input_kind)  # fmt: skip
         runs[job.source] = run
         for label, note in run.notes:
-            where = (
-                job.relpath if label is None else Path(f"{job.relpath.as_posix()} track {label}")
-            )
-            print_notes(where, [note])
+            where = job.relpath if label is None else f"{job.relpath.as_posix()} track {label}"
+            print_notes(Path(where), [note])
 
     report = run_batch(jobs, read, "reading", quiet=True)
     good = [o.job for o in report.succeeded]
     chosen = kind_rows([runs[j.source] for j in good], settings)
     if good:
-        mark_loops([runs[j.source] for j in good], settings)
         if not as_json:
-            _print_kind_notes(chosen, [j for j in good], runs, settings)
+            _print_kind_notes(chosen)
         denoiser, _ = load_denoiser(denoiser_path)
         body = BodyModel(body_data)
         with progress_bar(transient=True) as progress:
             denoise_files([runs[j.source] for j in good], settings, denoiser, body,
                           per_file=per_file, progress=_ticker(progress))  # fmt: skip
+        if settings.loop is None and not as_json:  # --json: "loop"
+            for job in good:
+                if any(t.loop for t in runs[job.source].tracks):
+                    print_notes(job.relpath, [LOOP_NOTE])
     write = _writer(runs, jobs, body if good else None, mesh_dir, mesh_format, view_dir, as_json)
     write_report = run_batch(good, write, "denoise", quiet=True)
     write_report.outcomes = report.failed + write_report.outcomes
@@ -167,16 +168,12 @@ def _check_outputs(mesh_dir, mesh_format, view_dir, asf) -> None:
         raise InputError(f"no such skeleton file: {asf}")
 
 
-def _print_kind_notes(chosen: dict, good: list[FileJob], runs: dict, settings) -> None:
-    """The settings row of every input kind but mocap, and the takes denoised as cycles."""
+def _print_kind_notes(chosen: dict) -> None:
+    """The settings row of every input kind but mocap."""
     for kind, (_, c) in chosen.items():
         if kind != "mocap":
             console.print(f"[dim]note: {kind} input: λ = {c['lam']:g}, offset scales "
                           f"{c['offset_std']:g} rad / {c['trans_offset_std']:g} m[/]")  # fmt: skip
-    if settings.loop is None:
-        for job in good:
-            if any(t.loop for t in runs[job.source].tracks):
-                print_notes(job.relpath, [LOOP_NOTE])
 
 
 def _ticker(progress):
