@@ -100,3 +100,18 @@ def test_forward_kinematics_of_a_known_chain_in_numpy_and_torch():
                                 root=torch.as_tensor(root))  # fmt: skip
     np.testing.assert_allclose(Gt.numpy(), G, atol=1e-12)
     np.testing.assert_allclose(Pt.numpy(), P, atol=1e-12)
+
+
+@pytest.mark.parametrize("axes", ["zxy", "xyz", "zyx", "yxz"])
+def test_euler_angles_in_any_batch_shape(axes):
+    from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
+
+    rng = np.random.default_rng(7)
+    angles = rng.uniform(-1.2, 1.2, size=(4, 5, 3))
+    R = euler_to_rotmat(angles, axes)
+    unit = {a: np.eye(3)[i] for i, a in enumerate("xyz")}
+    turns = [N.rotvec_to_rotmat(angles[..., k, None] * unit[a]) for k, a in enumerate(axes)]
+    np.testing.assert_allclose(R, turns[0] @ turns[1] @ turns[2], atol=1e-12)
+    np.testing.assert_allclose(rotmat_to_euler(R, axes, near=angles), angles, atol=1e-9)
+    flat = rotmat_to_euler(R.reshape(-1, 3, 3), axes).reshape(angles.shape)
+    np.testing.assert_allclose(rotmat_to_euler(R, axes), flat, atol=0)

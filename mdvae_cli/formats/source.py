@@ -111,24 +111,6 @@ class SourceMotion:
         return forward_kinematics(self.rotations, local, self.parents, root=self.root_positions)
 
 
-def euler_to_rotmat(angles: np.ndarray, axes: str) -> np.ndarray:
-    """Product of axis rotations, outermost first: ``R_axes[0](a0) @ R_axes[1](a1) @ ...``.
-
-    angles: (T, K) radians; axes: K letters from "xyz" -> (T, 3, 3)
-    """
-    T = angles.shape[0]
-    out = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
-    for k, axis in enumerate(axes):
-        c, s = np.cos(angles[:, k]), np.sin(angles[:, k])
-        R = np.zeros((T, 3, 3))
-        i = "xyz".index(axis)
-        a, b = (i + 1) % 3, (i + 2) % 3
-        R[:, i, i] = 1.0
-        R[:, a, a], R[:, a, b], R[:, b, a], R[:, b, b] = c, -s, s, c
-        out = out @ R
-    return out
-
-
 #: bytes a text mocap file (BVH, ASF, AMC) may hold, unzipped
 MAX_TEXT = 256 << 20
 #: the UTF-8 byte-order mark some Windows exporters put first

@@ -14,7 +14,8 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES, SMPL_PARENTS
-from mdvae_cli.formats.bvh_write import bvh_text, rotmat_to_euler
+from mdvae_cli.formats.bvh_write import bvh_text
+from mdvae_cli.geometry.euler import rotmat_to_euler
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.fit_shape import BodyJoints

@@ -18,8 +18,8 @@ import torch
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.bvh import BvhLayout, _positions
-from mdvae_cli.formats.bvh_write import rotmat_to_euler
-from mdvae_cli.formats.source import SourceMotion, euler_to_rotmat
+from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
 from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion

@@ -33,8 +33,8 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.asfamc import AmcLayout, dof_rotation, rotation_columns
-from mdvae_cli.formats.bvh_write import rotmat_to_euler
 from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.geometry.euler import rotmat_to_euler
 from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
