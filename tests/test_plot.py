@@ -27,18 +27,24 @@ from mdvae_cli.view.figure import (
 )
 from tests.conftest import motion_arrays
 
-matplotlib = pytest.importorskip("matplotlib")
-from matplotlib.colors import to_rgb  # noqa: E402
-from matplotlib.image import imread  # noqa: E402
+
+@pytest.fixture
+def mpl():
+    """matplotlib, the ``[plot]`` extra (in ``[test]`` too): tests that draw need it."""
+    return pytest.importorskip("matplotlib")
 
 
 def pixels(png: bytes) -> np.ndarray:
     """(H, W, 3) floats in [0, 1]."""
+    from matplotlib.image import imread
+
     return imread(io.BytesIO(png), format="png")[..., :3]
 
 
 def share_of(img: np.ndarray, color: str, tol: float = 0.02) -> float:
     """The share of pixels drawn in ``color`` (within ``tol`` per channel)."""
+    from matplotlib.colors import to_rgb
+
     return float((np.abs(img - np.array(to_rgb(color))) < tol).all(-1).mean())
 
 
@@ -58,7 +64,7 @@ def test_helpers():
             bad.validate()
 
 
-def test_figure_draws_every_motion_in_its_colour_at_the_width_asked(tiny_body):
+def test_figure_draws_every_motion_in_its_colour_at_the_width_asked(tiny_body, mpl):
     body = BodyModel(tiny_body)
     spec = FigureSpec(joints=(4, 15), frames=4, width=800)  # the head has no bend: still drawn
     figure = draw_figure(items(3), body, spec)
@@ -72,7 +78,7 @@ def test_figure_draws_every_motion_in_its_colour_at_the_width_asked(tiny_body):
     assert figure_size(taller)[1] > figure_size(figure)[1]  # a panel more: taller
 
 
-def test_the_pixels_follow_the_takes_and_nothing_else(tiny_body):
+def test_the_pixels_follow_the_takes_and_nothing_else(tiny_body, mpl):
     body, spec = BodyModel(tiny_body), FigureSpec(frames=3, width=600)
     a, b = items(2)
     png = [figure_bytes(draw_figure([m], body, spec), "png") for m in (a, a, b)]
@@ -82,7 +88,7 @@ def test_the_pixels_follow_the_takes_and_nothing_else(tiny_body):
     assert np.abs(one - other).max() > 0.5 and (np.abs(one - other) > 0.1).any(-1).mean() > 0.01
 
 
-def test_svg_is_the_same_figure_as_vector(tiny_body):
+def test_svg_is_the_same_figure_as_vector(tiny_body, mpl):
     figure = draw_figure(items(2), BodyModel(tiny_body), FigureSpec(frames=2, width=1000))
     root = ET.fromstring(figure_bytes(figure, "svg"))
     assert root.attrib["width"] == f"{1000 / DPI * 72:g}pt"  # 72 points an inch
@@ -90,7 +96,7 @@ def test_svg_is_the_same_figure_as_vector(tiny_body):
     assert all(c in drawn for c in PALETTE[:2]) and "m1.npz" in drawn
 
 
-def test_plot_command_png_and_svg(tmp_path, make_motion_file):
+def test_plot_command_png_and_svg(tmp_path, make_motion_file, mpl):
     a = make_motion_file("noisy.npz", T=50)
     b = make_motion_file("clean.npz", T=50, seed=1)
     for name in ("fig.png", "fig.svg"):
