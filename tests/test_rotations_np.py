@@ -115,3 +115,20 @@ def test_euler_angles_in_any_batch_shape(axes):
     np.testing.assert_allclose(rotmat_to_euler(R, axes, near=angles), angles, atol=1e-9)
     flat = rotmat_to_euler(R.reshape(-1, 3, 3), axes).reshape(angles.shape)
     np.testing.assert_allclose(rotmat_to_euler(R, axes), flat, atol=0)
+
+
+def test_rotmat_between_turns_one_direction_into_the_other_the_short_way():
+    rng = np.random.default_rng(8)
+    u, v = rng.normal(size=(2, 6, 4, 3))
+    R = N.rotmat_between(u, v)
+    unit = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    np.testing.assert_allclose((R @ u[..., None])[..., 0] / np.linalg.norm(u, axis=-1)[..., None],
+                               unit, atol=1e-12)  # fmt: skip
+    angle = np.linalg.norm(N.rotmat_to_rotvec(R), axis=-1)
+    between = np.arccos(np.clip((u * unit).sum(-1) / np.linalg.norm(u, axis=-1), -1, 1))
+    np.testing.assert_allclose(angle, between, atol=1e-9)  # no longer than the angle between
+    x = np.array([1.0, 0.0, 0.0])
+    assert np.array_equal(N.rotmat_between(x, 2 * x), np.eye(3))
+    half = N.rotmat_between(x, -x)  # opposite: half a turn about a perpendicular axis
+    np.testing.assert_allclose(half @ x, -x, atol=1e-12)
+    np.testing.assert_allclose(half @ half, np.eye(3), atol=1e-12)

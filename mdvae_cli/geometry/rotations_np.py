@@ -36,6 +36,25 @@ def rotvec_to_rotmat(rotvec: np.ndarray) -> np.ndarray:
     return R
 
 
+def rotmat_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The smallest rotation turning direction ``u`` into direction ``v`` (any lengths), about
+    their common normal; where they are opposite, half a turn about an axis perpendicular to
+    ``u``; the identity where either is zero.  (..., 3) x 2 -> (..., 3, 3)"""
+    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    axis = cross(u, v)
+    sin = np.linalg.norm(axis, axis=-1, keepdims=True)
+    cos = (u * v).sum(-1, keepdims=True)
+    scale = np.linalg.norm(u, axis=-1, keepdims=True) * np.linalg.norm(v, axis=-1, keepdims=True)
+    opposite = (sin <= 1e-9 * scale) & (cos < 0)
+    if opposite.any():
+        other = np.eye(3)[np.abs(u).argmin(-1)]  # the axis u is least along
+        perp = cross(u, other)
+        axis = np.where(opposite, perp, axis)
+        sin = np.where(opposite, np.linalg.norm(perp, axis=-1, keepdims=True), sin)
+    angle = np.arctan2(np.where(opposite, 0.0, sin), cos)
+    return rotvec_to_rotmat(axis / np.maximum(sin, 1e-12) * angle)
+
+
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
     """Unit quaternions with w >= 0, through the largest of the four pivots (as
     ``rotations.rotmat_to_quat``).  (..., 3, 3) -> (..., 4)"""

@@ -17,7 +17,12 @@ import numpy as np
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.geometry.rotations_np import cross, rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import (
+    cross,
+    rotmat_between,
+    rotmat_to_rotvec,
+    rotvec_to_rotmat,
+)
 from mdvae_cli.motion.contacts import foot_vertex_ids
 from mdvae_cli.motion.motion import Motion
 
@@ -139,15 +144,6 @@ def sole_heights(pos: np.ndarray, G: np.ndarray, model: LegModel) -> np.ndarray:
     return out
 
 
-def swing(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The smallest rotation turning direction ``u`` into direction ``v``.  (..., 3) x 2 ->
-    (..., 3, 3)"""
-    axis = cross(u, v)
-    sin = np.linalg.norm(axis, axis=-1, keepdims=True)
-    angle = np.arctan2(sin, (u * v).sum(-1, keepdims=True))
-    return rotvec_to_rotmat(axis / np.maximum(sin, 1e-12) * angle)
-
-
 def knee_turn(
     q: np.ndarray, p: np.ndarray, n: np.ndarray, reach: np.ndarray, flexion: np.ndarray
 ) -> np.ndarray:
@@ -252,11 +248,11 @@ def swing_ik(
     turned_leg = thigh + turn_about(shank, n, phi)
     aim_at = on_sphere(goal - hip, np.linalg.norm(turned_leg, axis=-1), limit=2.0)
     R0 = root[:, None]
-    hip_local = R0.swapaxes(-1, -2) @ swing(turned_leg, aim_at) @ R0 @ legs[:, :, 0]
+    hip_local = R0.swapaxes(-1, -2) @ rotmat_between(turned_leg, aim_at) @ R0 @ legs[:, :, 0]
     knee_world = R0 @ hip_local @ knee_local
     turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
     toe = (turned @ bones[:, 3, :, None])[..., 0]  # ankle -> ball, turned with the shank
-    aim = swing(toe, targets[:, :, 1] - (hip + aim_at)) @ turned
+    aim = rotmat_between(toe, targets[:, :, 1] - (hip + aim_at)) @ turned
     foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
     ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
     return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)

@@ -26,6 +26,8 @@ import torch
 
 from mdvae_cli.body.data import SMPL_PARENTS, BodyModelData
 from mdvae_cli.filters import savgol_smooth
+from mdvae_cli.geometry import rotations_np
+from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
 from mdvae_cli.motion.motion import Motion
 
@@ -95,14 +97,9 @@ def posed_joints(rot: np.ndarray, joints: np.ndarray) -> np.ndarray:
 
     rot: (N, 22, 3) axis-angles (root first); joints: (22, 3) rest joints -> (N, 22, 3)
     """
-    R = rotvec_to_rotmat(torch.as_tensor(rot, dtype=torch.float64)).numpy()  # (N, 22, 3, 3)
-    world_R = [R[:, 0]]
-    pos = [np.zeros((R.shape[0], 3))]
-    for j in range(1, 22):
-        p = SMPL_PARENTS[j]
-        pos.append(pos[p] + world_R[p] @ (joints[j] - joints[p]))
-        world_R.append(world_R[p] @ R[:, j])
-    return np.stack(pos, axis=1)
+    parents = SMPL_PARENTS[:22]
+    offsets = joints - joints[[max(p, 0) for p in parents]]  # the root's: zero
+    return forward_kinematics(rotations_np.rotvec_to_rotmat(rot), offsets, parents)[1]
 
 
 def end_gaps(rot: np.ndarray, trans: np.ndarray, joints: np.ndarray) -> tuple[float, float]:
