@@ -204,7 +204,7 @@ def smooth_rotvecs(rotvec: np.ndarray, smooth: Callable[[np.ndarray], np.ndarray
     norm = np.linalg.norm(q_hat, axis=-1, keepdims=True)
     q_hat = np.where(norm > 1e-6, q_hat / np.maximum(norm, 1e-12), q)  # degenerate: keep input
     q_hat = np.where(np.sum(q_hat * q_in, axis=-1, keepdims=True) < 0, -q_hat, q_hat)
-    return quat_to_rotvec(q_hat)
+    return quat_to_rotvec(q_hat, keep_branch=True)
 
 
 # --------------------------------------------------------------------------------------------

@@ -53,7 +53,10 @@ def test_an_axis_angle_keeps_its_branch_through_the_quaternion():
     long = r / np.linalg.norm(r, axis=-1, keepdims=True) * 4.0  # 4 rad about each axis
     q = N.rotvec_to_quat(long)
     assert (q[:, 0] < 0).all()
-    np.testing.assert_allclose(N.quat_to_rotvec(q), long, atol=1e-12)
+    np.testing.assert_allclose(N.quat_to_rotvec(q, keep_branch=True), long, atol=1e-12)
+    # without keep_branch, as torch: the short way round
+    np.testing.assert_allclose(N.quat_to_rotvec(q), torch_of(T.quat_to_rotvec, q), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(N.quat_to_rotvec(q), axis=-1), 2 * np.pi - 4.0)
     # the matrix forgets the branch: the short way round, 2 pi - 4 rad about the other side
     short = N.rotmat_to_rotvec(N.rotvec_to_rotmat(long))
     np.testing.assert_allclose(np.linalg.norm(short, axis=-1), 2 * np.pi - 4.0, atol=1e-9)

@@ -2,9 +2,10 @@
 ``rotmat``, ``quat`` scalar first (w, x, y, z)) for the code that works on numpy arrays (the foot
 lock, filters, file readers), where a round trip through torch costs more than the math.
 
-Every function takes arbitrary leading batch dimensions. Branches: :func:`rotmat_to_rotvec` gives
-angles in [0, pi]; :func:`rotvec_to_quat` keeps an axis-angle's branch in the quaternion's sign
-(w < 0 for angles in (pi, 3 pi)) and :func:`quat_to_rotvec` reads it back (angles in [0, 2 pi)).
+Every function takes arbitrary leading batch dimensions. Branches, as in torch:
+:func:`rotmat_to_rotvec` and :func:`quat_to_rotvec` give angles in [0, pi];
+:func:`rotvec_to_quat` keeps an axis-angle's branch in the quaternion's sign (w < 0 for angles in
+(pi, 3 pi)), which ``quat_to_rotvec(q, keep_branch=True)`` reads back (angles in [0, 2 pi)).
 """
 
 from __future__ import annotations
@@ -100,14 +101,18 @@ def rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
     return np.concatenate([np.cos(half), rotvec * scale], axis=-1)
 
 
-def quat_to_rotvec(quat: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4) -> (..., 3) with angle 2 atan2(|v|, w) in [0, 2 pi).
+def quat_to_rotvec(quat: np.ndarray, keep_branch: bool = False) -> np.ndarray:
+    """Unit quaternions (..., 4) -> (..., 3), angles in [0, pi] (``q`` and ``-q`` alike).
 
-    q and -q give the two branches (angle a about n, or 2 pi - a about -n). A quaternion close
-    to -1 is the identity seen from the far branch, whose axis is undefined, so it is read as +1.
+    keep_branch: the angle 2 atan2(|v|, w) in [0, 2 pi) instead: q and -q give the two
+    branches (angle a about n, or 2 pi - a about -n). A quaternion close to -1 is then the
+    identity seen from the far branch, whose axis is undefined, so it is read as +1.
     """
     quat = np.asarray(quat, dtype=np.float64)
-    far = (quat[..., :1] < 0) & (np.linalg.norm(quat[..., 1:], axis=-1, keepdims=True) < 1e-6)
+    if keep_branch:
+        far = (quat[..., :1] < 0) & (np.linalg.norm(quat[..., 1:], axis=-1, keepdims=True) < 1e-6)
+    else:
+        far = quat[..., :1] < 0
     q = np.where(far, -quat, quat)
     w, v = q[..., 0], q[..., 1:]
     s = np.linalg.norm(v, axis=-1)
