@@ -21,7 +21,7 @@ from mdvae_cli.formats.bvh import BvhLayout, _positions
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
 from mdvae_cli.geometry.kinematics import forward_kinematics
-from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.joint_map import JointMap
@@ -37,7 +37,7 @@ def smpl_globals(motion: Motion, model: BodyJoints) -> tuple[np.ndarray, np.ndar
     T = motion.num_frames
     body = np.reshape(motion.pose_body, (T, -1, 3))[:, : _N - 1]
     pose = np.concatenate([np.reshape(motion.root_orient, (T, 1, 3)), body], axis=1)
-    L = rotvec_to_rotmat(torch.as_tensor(pose, dtype=torch.float64)).numpy()
+    L = rotvec_to_rotmat(pose)
     X = X.numpy()
     G = np.empty((T, _N, 3, 3))
     P = np.empty((T, _N, 3))
