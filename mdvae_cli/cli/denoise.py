@@ -18,7 +18,7 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
-from mdvae_cli.cli.denoise_options import denoise_options
+from mdvae_cli.cli.denoise_options import denoise_options, fill_setting, fill_words
 from mdvae_cli.cli.motion_input import motion_input_options
 from mdvae_cli.cli.takes import load_joint_map, plan_take_jobs
 from mdvae_cli.errors import InputError
@@ -72,9 +72,9 @@ Examples:
 @handle_errors
 def denoise(
     inputs, out, denoiser_path, optimize_steps, per_file, lr, seed, refine_steps, refine_lr,
-    refine_offset, trans_offset, offset, outliers, lam, input_kind, mirror, feet, floor, guard,
-    blend, loop, mesh_dir, mesh_format, view_dir, window, overlap, asf, joint_map_file,
-    input_format, input_fps, track, body_model, allow_pickle, as_json,
+    refine_offset, trans_offset, offset, outliers, lam, input_kind, mirror, feet, fill, missing,
+    floor, guard, blend, loop, mesh_dir, mesh_format, view_dir, window, overlap, asf,
+    joint_map_file, input_format, input_fps, track, body_model, allow_pickle, as_json,
 ) -> None:  # fmt: skip
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
@@ -87,14 +87,14 @@ def denoise(
         refine_steps=refine_steps, refine_lr=refine_lr, offset=offset, lam=lam, outliers=outliers,
         offset_std=refine_offset, trans_offset_std=trans_offset, blend=blend, guard=guard,
         feet=feet, loop=loop, mirror=mirror, optimize_steps=optimize_steps, lr=lr, seed=seed,
-        window=window, overlap=overlap, per_file=per_file,
+        window=window, overlap=overlap, per_file=per_file, fill=fill_setting(fill),
     )  # fmt: skip
     _check_outputs(mesh_dir, mesh_format, view_dir, asf)
     jobs = plan_take_jobs(inputs, out)
     body_data = load_body_model(body_model)
     takes = TakeReader(body_data, asf, load_joint_map(joint_map_file))
     options = ReadOptions(format=input_format, fps=input_fps, track=track,
-                          allow_pickle=allow_pickle, body=body_data)  # fmt: skip
+                          allow_pickle=allow_pickle, body=body_data, missing=missing)  # fmt: skip
     runs: dict[Path, object] = {}  # source -> its FileRun
 
     def read(job: FileJob) -> None:
@@ -223,6 +223,7 @@ def _json_head(settings, chosen: dict) -> dict:
         "settings": {kind: row for kind, (_, row) in chosen.items()},
         "mirror": settings.mirror,
         "feet": settings.feet,
+        "fill": settings.fill,
         # the guard and the blend go with the offset or refinement (--no-offset: the paper's mode)
         "guard": settings.guard and any(r is not None for r, _ in chosen.values()),
         "blend": settings.blend and any(r is not None for r, _ in chosen.values()),
@@ -245,7 +246,7 @@ def _print_summary(done: list) -> None:
         words += f"; guard: {100 * fell:.1f} % of frames are the input smoothed"
     console.print(
         f"denoised {len(done)} file(s), {total} frames in {secs:.2f} s "
-        f"({total / max(secs, 1e-9):,.0f} frames/s){words}"
+        f"({total / max(secs, 1e-9):,.0f} frames/s){words}{fill_words(rows)}"
     )
 
 

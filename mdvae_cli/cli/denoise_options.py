@@ -7,7 +7,9 @@ from pathlib import Path
 import click
 
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED
+from mdvae_cli.cli.motion_input import missing_option
 from mdvae_cli.help_figures import help_figures, span
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
 
 #: the benchmarks' figures the help quotes (benchmarks/help_figures.py)
 _FIGURES = help_figures()
@@ -181,6 +183,20 @@ OPTIONS = [
         '"Feet and floor"). off: the feet as denoised.',
     ),
     click.option(
+        "--fill",
+        type=click.Choice(["on", "off", *FILLS[:-1]]),
+        default="on",
+        show_default=True,
+        help="on: fill the holes of a take (frames and joints that are missing: NaN in an npz, "
+        "frames a video track skips, what --missing names in a BVH/AMC take) by the default "
+        f'way, {DEFAULT_FILL}; the summary and --json say how many ("filled_frames", '
+        '"filled_joints"). learned: a cubic curve from the cleaned frames beside the hole, '
+        "corrected by a network trained on clean motion with holes cut in it; curve: the curve "
+        "alone; model: the denoiser's own frames. off: leave them as they came (an npz gets "
+        "its NaN back, a take its own frames).",
+    ),
+    missing_option,
+    click.option(
         "--floor",
         is_flag=True,
         help="Put each input on the floor first: the ground under its soles moved to z = 0 (as "
@@ -233,6 +249,24 @@ OPTIONS = [
         'e.g. {"pelvis": "Hips", "left_hip": "LeftUpLeg", "head": "Head"} (SMPL joint -> yours).',
     ),
 ]
+
+
+def fill_setting(option: str) -> str:
+    """``--fill``'s value as ``DenoiseSettings.fill`` ("on": the default fill)."""
+    return DEFAULT_FILL if option == "on" else option
+
+
+def fill_words(done: list[dict]) -> str:
+    """What the summary line says of the holes (nothing when there were none)."""
+    from mdvae_cli.run.denoise_files import fill_totals
+
+    total = fill_totals(done)
+    if total["filled_frames"]:
+        return (f"; filled {total['filled_frames']} frame(s) with missing joints "
+                f"({total['filled_joints']} joint entries) from the prior")  # fmt: skip
+    if total["unfilled_frames"]:
+        return f"; {total['unfilled_frames']} frame(s) with holes left as they came (--fill off)"
+    return ""
 
 
 def denoise_options(command):

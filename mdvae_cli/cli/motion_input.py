@@ -66,6 +66,31 @@ def motion_input_options(fn: Callable) -> Callable:
     )(fn)
 
 
+def _missing_rules(ctx, param, value: str) -> tuple[str, ...]:
+    """``--missing``'s text as rules (``formats.missing.parse_rules``)."""
+    from mdvae_cli.errors import InputError
+    from mdvae_cli.formats.missing import parse_rules
+
+    try:
+        return parse_rules(value)
+    except InputError as exc:
+        raise click.BadParameter(str(exc).removeprefix("--missing: ")) from None
+
+
+#: ``--missing RULES``: the holes of BVH / AMC takes (``formats.missing``)
+missing_option = click.option(
+    "--missing",
+    default="",
+    metavar="RULES",
+    callback=_missing_rules,
+    help="BVH/AMC takes: which frames are holes, comma-separated (off by default): frozen = "
+    "every channel of a joint exactly unchanged for 1/3 s or more (at least 5 frames) while "
+    "other joints move, then a jump (a solver that held a lost marker's last value and caught "
+    "up); zeros = a frame with every channel 0 (an exporter's empty frame). E.g. "
+    "--missing frozen,zeros. They are marked in joint_mask (denoise fills them, see --fill).",
+)
+
+
 def read_input(path: Path, relpath: Path, options: ReadOptions, takes=None) -> LoadedFile:
     """``formats.registry.read`` with the command's options, printing the file's notes.
     takes: a ``retarget.take.TakeReader`` shared over the command's files."""

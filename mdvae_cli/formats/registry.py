@@ -99,6 +99,8 @@ class ReadOptions:
     resample: a rate every motion read is resampled to (None keeps each file's own; a take
     is resampled before its retarget). retarget: the take retarget's ``RetargetSettings``
     (None: the defaults). metadata: kept with a take's motion (default: its file name).
+    missing: the rules that mark holes in a BVH / AMC take (``formats.missing``: "frozen",
+    "zeros"; none by default).
     """
 
     format: str | None = None
@@ -112,6 +114,7 @@ class ReadOptions:
     resample: float | None = None
     retarget: Any = None
     metadata: dict | None = None
+    missing: tuple[str, ...] = ()
 
 
 def unsupported(path: Path | str) -> str | None:
@@ -153,7 +156,7 @@ def read(
 
 
 def _read_take(path: Path, options: ReadOptions, takes: TakeReader | None) -> LoadedFile:
-    from mdvae_cli.retarget.take import TakeReader
+    from mdvae_cli.retarget.take import TakeReader, with_missing
 
     if options.track is not None:
         raise InputError(f"{path}: --track applies to files of several people; a take holds one")
@@ -162,7 +165,7 @@ def _read_take(path: Path, options: ReadOptions, takes: TakeReader | None) -> Lo
                        settings=options.retarget, metadata=options.metadata,
                        skeleton=options.skeleton)  # fmt: skip
     fmt = suffix_of(path)[1:]
-    return LoadedFile(path, fmt, "mocap", [(None, take.motion)], take=take)
+    return LoadedFile(path, fmt, "mocap", [(None, with_missing(take, options.missing))], take=take)
 
 
 def write(

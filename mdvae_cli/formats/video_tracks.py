@@ -197,7 +197,10 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         root, pose_body, trans, extra, extras, gaps, ids = _fill_gaps(
             raw.frame_ids, root, pose_body, trans, extra, extras, source, raw.label
         )
-        mask = gaps if gaps is not None else mask
+        if mask is not None:  # the pipeline's own filled frames, where they land now
+            mask = _observed_at(raw.frame_ids, raw.observed, ids) & (True if gaps is None else gaps)
+        else:
+            mask = gaps
         extras["frame_ids"] = ids
         if gaps is not None:
             missing = int((~mask[:, 0]).sum())
@@ -226,6 +229,17 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         layout=layout,
         notes=notes,
     )
+
+
+def _observed_at(src_ids, observed, ids: np.ndarray) -> np.ndarray:
+    """(T', 22) the pipeline's ``observed`` (T,) flags moved onto the consecutive frame ids
+    ``ids`` (T',) as :func:`_fill_gaps` orders them (the first of repeated ids kept); False
+    for frames absent from ``src_ids``."""
+    src = np.asarray(src_ids).reshape(-1).astype(np.int64)
+    first, at = np.unique(src, return_index=True)
+    seen = np.zeros(len(ids), bool)
+    seen[first - ids[0]] = np.asarray(observed, bool)[at]
+    return np.repeat(seen[:, None], 22, axis=1)
 
 
 def _mean_up(root_orient: np.ndarray) -> float:

@@ -44,6 +44,7 @@ class TrackRun:
     loop: bool = False
     fallbacks: list[list[float]] = field(default_factory=list)
     blend: BlendReport | None = None
+    filled: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         """What ``--json`` says of the track."""
@@ -60,6 +61,7 @@ class TrackRun:
             "input_share": None if kept is None else round(kept.input_share, 4),
             "spike_share": None if kept is None else round(kept.spike_share, 4),
             "loop": self.loop,
+            **fill_counts(self.motion, self.filled),
         }
 
 
@@ -97,8 +99,27 @@ class FileRun:
             "fallback_share": frame_mean(tracks, "fallback_share"),
             "input_share": frame_mean(tracks, "input_share"),
             "loop": any(t["loop"] for t in tracks),
+            **fill_totals(tracks),
             "tracks": tracks,
         }
+
+
+def fill_counts(source: Motion, fill: bool) -> dict:
+    """What the fill did to one motion: {"filled_frames": frames with a joint filled,
+    "filled_joints": (frame, joint) entries filled}, both 0 with the fill off, and
+    "unfilled_frames": the frames left with holes (fill off), else 0."""
+    from mdvae_cli.motion.holes import hole_count, observed
+
+    frames, entries = hole_count(observed(source)) if source.joint_mask is not None else (0, 0)
+    if fill:
+        return {"filled_frames": frames, "filled_joints": entries, "unfilled_frames": 0}
+    return {"filled_frames": 0, "filled_joints": 0, "unfilled_frames": frames}
+
+
+def fill_totals(items: Sequence[dict]) -> dict:
+    """:func:`fill_counts` summed over tracks or files."""
+    keys = ("filled_frames", "filled_joints", "unfilled_frames")
+    return {k: sum(int(t.get(k) or 0) for t in items) for k in keys}
 
 
 def frame_mean(items: Sequence[dict], key: str) -> float | None:
@@ -213,7 +234,7 @@ def _denoise_group(group, settings, denoiser, body, progress) -> None:
     seconds = time.perf_counter() - start
     frames = max(sum(m.num_frames for m in motions), 1)
     for (run, track), motion in zip(tracks, cleaned, strict=True):
-        track.cleaned = motion
+        track.cleaned, track.filled = motion, settings.fill != "off"
         run.seconds += seconds * track.motion.num_frames / frames
 
 
@@ -243,6 +264,10 @@ def write_file(
 
             target = track_output(Path(mesh_dir), track.label)
             export_mesh_sequence(motion, body, target, mesh_format, forbid=forbid)
+        if not track.filled:  # an npz gets its NaN back, a take its own frames
+            from mdvae_cli.formats.npz_holes import keep_holes
+
+            motion = keep_holes(motion)
         is_take = track.output.name.lower().removesuffix(".gz").endswith(TAKE_OUTPUTS)
         write(motion, track.output, take=run.take if is_take else None, forbid=forbid)
         if page is not None:

@@ -28,7 +28,7 @@ class FileImporter:
 
     def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf,
                  input_format=None, track=None, joint_map=None, estimate_fps=None,
-                 estimate_floor=None, on_notes=None):  # fmt: skip
+                 estimate_floor=None, missing=(), on_notes=None):  # fmt: skip
         torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
         self.takes = TakeReader(load_body_model(body_model), asf, joint_map)
         self.body = self.takes.body
@@ -39,6 +39,7 @@ class FileImporter:
         # --fps / --floor are given
         self.estimate_fps, self.estimate_floor = estimate_fps, estimate_floor
         self.on_notes = on_notes
+        self.missing = missing  # --missing: holes of takes, marked in joint_mask
 
     def __call__(self, job: FileJob) -> dict:
         item: CorpusItem | None = job.data
@@ -53,11 +54,13 @@ class FileImporter:
         options = ReadOptions(
             fps=item.fps if item else self.source_fps, body=self.body.data, scale=self.scale,
             skeleton=item.skeleton if item else None, resample=self.fps,
-            retarget=self.settings, metadata=meta,
+            retarget=self.settings, metadata=meta, missing=self.missing,
         )  # fmt: skip
-        take = read(job.source, options, takes=self.takes).take
+        from mdvae_cli.motion.holes import hole_count, observed
+
+        loaded = read(job.source, options, takes=self.takes)
+        take, motion = loaded.take, loaded.single()  # with --missing: its holes marked
         src, result = take.source, take.retarget
-        motion = result.motion
         key = skeleton_key(src)
         arrays = (motion.root_orient, motion.pose_body, motion.trans, motion.betas)
         if not all(np.isfinite(a).all() for a in arrays) or not np.isfinite(result.mean_error):
@@ -81,6 +84,7 @@ class FileImporter:
             "floor_tilt_deg": round(result.floor_tilt_deg, 2),
             "speed_mps": round(walking_speed(motion.trans, motion.fps), 3),
             "skeleton_key": key,
+            "missing_frames": hole_count(observed(motion))[0],  # --missing
         }
         if item is not None:
             row.update({k: meta[k] for k in ("subject", "trial", "split", "description")},

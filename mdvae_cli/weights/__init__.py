@@ -1,4 +1,5 @@
-"""Weights shipped with the package: the default prior and denoiser (see weights_recipe/)."""
+"""Weights shipped with the package: the default prior, denoiser and learned fill (see
+weights_recipe/)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 
 from mdvae_cli.errors import NotAvailableError
 
-NAMES = ("prior", "denoiser")
+NAMES = ("prior", "denoiser", "infiller")
 
 
 def default_weights(name: str) -> Path:

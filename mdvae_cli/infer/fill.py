@@ -1,0 +1,69 @@
+"""Holes (frames and joints a take is missing, ``Motion.joint_mask`` False) in the denoised
+result: how they are written, and what the later stages read of the input there.
+
+The denoiser reads placeholders in the holes (``motion.holes.fill_gaps``) and its likelihoods
+drop them (the joint mask weighs the observations). What ends up in a hole is then one of
+:data:`FILLS`:
+
+* ``"learned"`` (the default): the curve below, corrected by the learned fill
+  (``infer.learned_fill``: a network trained on clean motion with holes cut in it, which reads
+  a window around the hole and puts back what a curve misses, a step of a walk);
+* ``"curve"``: a cubic curve, joint by joint, from the values and velocities of the *result's*
+  frames beside the hole (``motion.holes.fill_gaps``'s Hermite fill): the denoised motion, with
+  what the input's noise does not explain put back, so a clean take is filled from its own
+  frames and a noisy one from its cleaned frames;
+* ``"model"``: the denoiser's own frames (its prior's continuation of the placeholders);
+* ``"off"``: the input's values as they came.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mdvae_cli.infer.fill_choices import FILLS
+from mdvae_cli.motion.holes import fill_gaps, observed
+from mdvae_cli.motion.motion import Motion
+
+
+def has_holes(motion: Motion) -> bool:
+    """Whether any body joint of any frame is missing."""
+    return motion.joint_mask is not None and not np.asarray(motion.joint_mask, bool).all()
+
+
+def fill_holes(source: Motion, result: Motion, method: str = "learned") -> Motion:
+    """``result`` (the denoised ``source``, same frames) with the source's holes written by
+    ``method`` (see the module docstring); the result's mask is the source's."""
+    if method not in FILLS:
+        raise ValueError(f"fill must be one of {', '.join(FILLS)}, got {method!r}")
+    if not has_holes(source):
+        return result
+    mask = observed(source)
+    out = result.with_body()
+    out.joint_mask = mask
+    if method == "curve":
+        return fill_gaps(out, "hermite")
+    if method == "learned":
+        from mdvae_cli.infer.learned_fill import learned_fill
+        from mdvae_cli.model.infiller import load_infiller
+
+        return learned_fill(out, load_infiller())
+    if method == "off":
+        return take_holes(out, source, mask)
+    return out
+
+
+def take_holes(motion: Motion, other: Motion, mask: np.ndarray) -> Motion:
+    """``motion`` with its entries where ``mask`` (T, 22) is False taken from ``other`` (the
+    root translation follows the pelvis)."""
+    miss = ~np.asarray(mask, bool)
+    rot = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+    rot_other = np.concatenate([other.root_orient[:, None], other.pose_body], axis=1)
+    rot = np.where(miss[..., None], rot_other.astype(rot.dtype), rot)
+    trans = np.where(miss[:, :1], np.asarray(other.trans, motion.trans.dtype), motion.trans)
+    return motion.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
+
+
+def holes_from(source: Motion, result: Motion) -> Motion:
+    """``source`` with its holes taken from ``result`` (what a later stage reads as the input
+    there: the foot lock finds contacts on the filled motion); ``source`` itself when whole."""
+    return take_holes(source, result, observed(source)) if has_holes(source) else source
