@@ -18,8 +18,9 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import savgol_filter_motion
 from mdvae_cli.formats.npz_io import load_motion
-from mdvae_cli.infer.denoise import blend_windows, denoise_motions
+from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.stitch import blend_windows
 from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior

@@ -11,9 +11,9 @@ from click.testing import CliRunner
 
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
-from mdvae_cli.infer.denoise_settings import DenoiseSettings
 from mdvae_cli.formats.npz_holes import keep_holes
 from mdvae_cli.formats.npz_io import load_motion, save_motion
+from mdvae_cli.infer.denoise_settings import DenoiseSettings
 from mdvae_cli.motion.holes import unfilled
 from tests.conftest import file_digest
 
@@ -134,7 +134,10 @@ def test_denoise_fills_holes_and_fill_off_gives_nan_back(holey, tmp_path):
     assert code == 0, err
     result = json.loads(out)["files"][0]["result"]
     assert (result["filled_frames"], result["filled_joints"]) == (16, 247)
-    assert result["tracks"][0]["filled_frames"] == 16 and json.loads(out)["fill"] == DenoiseSettings.fill
+    assert (
+        result["tracks"][0]["filled_frames"] == 16
+        and json.loads(out)["fill"] == DenoiseSettings.fill
+    )
     clean = np.load(tmp_path / "clean.npz")
     assert np.isfinite(clean["poses"]).all() and np.isfinite(clean["trans"]).all()
     assert clean["joint_mask"].sum() == 60 * 22 - 247

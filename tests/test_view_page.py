@@ -28,7 +28,6 @@ from mdvae_cli.view.page import POS_SCALE, ROT_SCALE, build_view_page
 from mdvae_cli.view.pose import (
     BODY_PARENTS,
     bend_angles,
-    continuous_quats,
     pose_skeleton,
     rotation_angles,
     rotation_channels,
@@ -71,15 +70,6 @@ def test_quantise_rounds_and_clips():
     assert q.tolist() == [0, 1, -2, 32767, -32768]
     with pytest.raises(ValueError):
         encode_array(np.zeros((3, 2)))  # floats are quantised first
-
-
-def test_continuous_quats_keeps_each_rotation_and_avoids_sign_jumps():
-    rng = np.random.default_rng(0)
-    q = rng.normal(size=(50, 3, 4))
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    c = continuous_quats(q)
-    assert np.allclose(np.abs(np.sum(c * q, -1)), 1.0)  # same rotations (q or -q)
-    assert (np.sum(c[1:] * c[:-1], -1) >= 0).all() and (c[0, :, 0] >= 0).all()
 
 
 # --- what the page embeds ------------------------------------------------------------------------

@@ -26,7 +26,6 @@ from mdvae_cli.cli.common import (
 from mdvae_cli.cli.motion_input import (
     INPUT_SUFFIXES,
     motion_input_options,
-    outputs_of,
     read_input,
 )
 from mdvae_cli.cli.noise_holes import HOLES, drop_holes
@@ -39,6 +38,7 @@ from mdvae_cli.motion.noise import (
     add_video_noise,
     file_rng,
 )
+from mdvae_cli.run.tracks import outputs_of
 
 
 def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:

@@ -18,6 +18,7 @@ from mdvae_cli.cli.batch import (
     is_kind,
     json_option,
     plan_jobs,
+    print_notes,
     run_batch,
     strip_gz,
 )
@@ -66,7 +67,7 @@ def _start_worker(*args) -> None:
     atomically) and exit."""
     import signal
 
-    from mdvae_cli.cli.import_worker import FileImporter
+    from mdvae_cli.run.import_files import FileImporter
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     global _WORKER
@@ -214,7 +215,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     settings = RetargetSettings(floor=floor or "plane").validate()
     joint_map = load_joint_map(joint_map_file)
     args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track,
-            joint_map, estimate_fps, floor, missing)  # fmt: skip
+            joint_map, estimate_fps, floor, missing, print_notes)  # fmt: skip
     report = _run(jobs, args, jobs_n)
     rows = [o.result for o in report.succeeded]
     summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps,
@@ -286,7 +287,7 @@ def _plan(inputs, out: Path, out_arg, asf, source_fps, corpus: bool, split_file)
 def _run(jobs: list[FileJob], args: tuple, jobs_n: int):
     """Import every job (in ``jobs_n`` worker processes when more than one), a line per good
     file. -> the batch report"""
-    from mdvae_cli.cli.import_worker import FileImporter
+    from mdvae_cli.run.import_files import FileImporter
 
     pool = None
     if jobs_n > 1 and len(jobs) > 1:

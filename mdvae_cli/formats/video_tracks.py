@@ -26,11 +26,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 
 from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import interp_linear, interp_rotvec
 
@@ -96,15 +95,7 @@ def up_to_z(up: tuple[float, float, float] | np.ndarray) -> np.ndarray:
             return np.eye(3)
         return np.diag([1.0, -1.0, -1.0])  # upside down: half a turn about x
     angle = np.arctan2(s, c)
-    return to_rotmat(axis / s * angle)
-
-
-def to_rotmat(rotvec: np.ndarray) -> np.ndarray:
-    return rotvec_to_rotmat(torch.as_tensor(rotvec, dtype=torch.float64)).numpy()
-
-
-def to_rotvec(rotmat: np.ndarray) -> np.ndarray:
-    return rotmat_to_rotvec(torch.as_tensor(rotmat, dtype=torch.float64)).numpy()
+    return rotvec_to_rotmat(axis / s * angle)
 
 
 def pose_values(x, what: str, label: str) -> np.ndarray:
@@ -153,7 +144,7 @@ def matrices_to_rotvecs(m: np.ndarray) -> np.ndarray:
     u, _, vt = np.linalg.svd(m)
     d = np.sign(np.linalg.det(u @ vt))
     u[..., :, -1] *= d[..., None]
-    return to_rotvec(u @ vt)
+    return rotmat_to_rotvec(u @ vt)
 
 
 def rest_pelvis(body: BodyModelData, betas: np.ndarray) -> np.ndarray:
@@ -190,7 +181,7 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         root = Rw @ root
         pelvis = np.einsum("tij,tj->ti", Rw, pelvis) + tw
     C = up_to_z(raw.up)
-    root = to_rotvec(C @ root)
+    root = rotmat_to_rotvec(C @ root)
     trans = pelvis @ C.T - J0
     pose_body = np.asarray(raw.body, dtype=np.float64)
     extra = np.zeros((T, 0)) if raw.pose_extra is None else np.asarray(raw.pose_extra, np.float64)
@@ -253,7 +244,7 @@ def _observed_at(src_ids, observed, ids: np.ndarray) -> np.ndarray:
 
 def _mean_up(root_orient: np.ndarray) -> float:
     """Mean z of the pelvis's up axis (the rest body's +y) over the frames."""
-    return float(to_rotmat(root_orient)[:, 2, 1].mean())
+    return float(rotvec_to_rotmat(root_orient)[:, 2, 1].mean())
 
 
 def _frame_ids(ids, source, label) -> np.ndarray:

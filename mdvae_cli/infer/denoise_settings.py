@@ -96,6 +96,16 @@ class DenoiseSettings:
         """The paper's regression mode: no offset, no refinement, so no blend and no guard."""
         return self.refine() is None
 
+    @property
+    def mode(self) -> str:
+        """What runs after the networks' one pass: "optimization", "refinement",
+        "regression+offset" or "regression" (the paper's mode untouched)."""
+        if self.optimize_steps:
+            return "optimization"
+        if self.refine_steps:
+            return "refinement"
+        return "regression+offset" if self.offset else "regression"
+
     def to_dict(self) -> dict:
         return asdict(self)
 

@@ -26,7 +26,9 @@ import torch
 
 from mdvae_cli.body.data import SMPL_PARENTS, BodyModelData
 from mdvae_cli.filters import savgol_smooth
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, rotvec_unwrap
+from mdvae_cli.geometry import rotations_np
+from mdvae_cli.geometry.kinematics import forward_kinematics
+from mdvae_cli.geometry.rotations import rotvec_unwrap
 from mdvae_cli.motion.motion import Motion
 
 #: a take is a loop when its last pose is this close to its first, in frame-to-frame steps
@@ -47,10 +49,9 @@ def _rotations(motion: Motion) -> np.ndarray:
 
 def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Mean rotation angle between two sets of axis-angles (..., 22, 3) -> (...)"""
-    ra = rotvec_to_rotmat(torch.as_tensor(a, dtype=torch.float64))
-    rb = rotvec_to_rotmat(torch.as_tensor(b, dtype=torch.float64))
-    rel = rotmat_to_rotvec(ra.transpose(-1, -2) @ rb)
-    return rel.norm(dim=-1).mean(dim=-1).numpy()
+    ra, rb = rotations_np.rotvec_to_rotmat(a), rotations_np.rotvec_to_rotmat(b)
+    rel = rotations_np.rotmat_to_rotvec(ra.swapaxes(-1, -2) @ rb)
+    return np.linalg.norm(rel, axis=-1).mean(axis=-1)
 
 
 def looks_like_loop(
@@ -95,14 +96,9 @@ def posed_joints(rot: np.ndarray, joints: np.ndarray) -> np.ndarray:
 
     rot: (N, 22, 3) axis-angles (root first); joints: (22, 3) rest joints -> (N, 22, 3)
     """
-    R = rotvec_to_rotmat(torch.as_tensor(rot, dtype=torch.float64)).numpy()  # (N, 22, 3, 3)
-    world_R = [R[:, 0]]
-    pos = [np.zeros((R.shape[0], 3))]
-    for j in range(1, 22):
-        p = SMPL_PARENTS[j]
-        pos.append(pos[p] + world_R[p] @ (joints[j] - joints[p]))
-        world_R.append(world_R[p] @ R[:, j])
-    return np.stack(pos, axis=1)
+    parents = SMPL_PARENTS[:22]
+    offsets = joints - joints[[max(p, 0) for p in parents]]  # the root's: zero
+    return forward_kinematics(rotations_np.rotvec_to_rotmat(rot), offsets, parents)[1]
 
 
 def end_gaps(rot: np.ndarray, trans: np.ndarray, joints: np.ndarray) -> tuple[float, float]:

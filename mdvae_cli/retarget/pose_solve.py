@@ -8,27 +8,15 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
+from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, skew
+from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.retarget.joint_map import (
     JointMap,
 )
 
 _N = NUM_BODY_JOINTS
 _PARENTS = SMPL_PARENTS[:_N]
-
-
-def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation taking direction a to direction b.  -> (3, 3)"""
-    a = a / max(np.linalg.norm(a), 1e-12)
-    b = b / max(np.linalg.norm(b), 1e-12)
-    axis = np.cross(a, b)
-    s, c = np.linalg.norm(axis), float(a @ b)
-    if s < 1e-9:  # parallel, or opposite: half a turn about any perpendicular axis
-        if c > 0:
-            return np.eye(3)
-        perp = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
-        return rotvec_to_rotmat(torch.as_tensor(perp / np.linalg.norm(perp) * np.pi)).numpy()
-    return rotvec_to_rotmat(torch.as_tensor(axis / s * np.arctan2(s, c))).numpy()
 
 
 def rest_corrections(jmap: JointMap, src_rest: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -40,23 +28,11 @@ def rest_corrections(jmap: JointMap, src_rest: np.ndarray, X: np.ndarray) -> np.
     for j in range(_N):
         kids = [k for k in range(_N) if parents[k] == j]
         if len(kids) == 1:
-            C[j] = _min_rotation(X[kids[0]] - X[j], Y[kids[0]] - Y[j])
+            C[j] = rotmat_between(X[kids[0]] - X[j], Y[kids[0]] - Y[j])
     for j in range(_N):  # leaves continue their parent's correction
         if not any(parents[k] == j for k in range(_N)):
             C[j] = C[parents[j]]
     return C
-
-
-def _fk(L: torch.Tensor, bones: torch.Tensor, root: torch.Tensor, parents: list[int]):
-    """Body FK.  L: (T, 22, 3, 3) local rotations; bones: (22, 3) rest offsets from the parent;
-    root: (T, 3) pelvis position -> global rotations (T, 22, 3, 3), positions (T, 22, 3)"""
-    G = [L[:, 0]]
-    p = [root]
-    for j in range(1, _N):
-        q = parents[j]
-        G.append(G[q] @ L[:, j])
-        p.append(p[q] + G[q] @ bones[j])
-    return torch.stack(G, 1), torch.stack(p, 1)
 
 
 def _ancestors(parents: list[int]) -> torch.Tensor:
@@ -110,7 +86,7 @@ def solve_pose(
     diag = torch.full((3 * n + 3,), damping, dtype=lin)
     diag[: 3 * n] += w2
     for _ in range(iterations):
-        G, p = _fk(L, bones, root, parents)
+        G, p = forward_kinematics(L, bones, parents[:_N], root=root)  # (T, 22, 3, 3), (T, 22, 3)
         r = (p - targets).reshape(T, 3 * _N, 1).to(lin)
         pl = p.to(lin)
         diff = pl[:, :, None, :] - pl[:, None, active, :]  # (T, 22, n, 3): p_k - p_j

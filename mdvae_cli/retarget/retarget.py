@@ -38,7 +38,9 @@ from mdvae_cli.formats.asf import AsfSkeleton
 from mdvae_cli.formats.asfamc import load_amc
 from mdvae_cli.formats.bvh import load_bvh
 from mdvae_cli.formats.source import SourceMotion, resample_source
+from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec
+from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.motion.motion import Motion, check_fps
 from mdvae_cli.retarget.fit_shape import BodyJoints, fit_betas, skeleton_key
 from mdvae_cli.retarget.joint_map import (
@@ -51,8 +53,6 @@ from mdvae_cli.retarget.joint_map import (
 )
 from mdvae_cli.retarget.pose_solve import (
     _N,
-    _fk,
-    _min_rotation,
     rest_corrections,
     solve_pose,
 )
@@ -225,7 +225,7 @@ def retarget(
     L, root = solve_pose(targets, L0, X, parents, settings.twist_weight, settings.iterations)
     bones = X.clone()
     bones[1:] = X[1:] - X[parents[1:]]
-    G, p = _fk(L, bones, root, parents)
+    G, p = forward_kinematics(L, bones, parents[:22], root=root)
     err = (p - targets).norm(dim=-1)
 
     # the soles: foot vertices skinned by the ankle and foot joints (y up)
@@ -242,7 +242,7 @@ def retarget(
     if settings.floor != "none":
         plane = fit_ground(contacts, settings.max_tilt, tilt=settings.floor == "plane")
     normal = np.array([-plane[1], 1.0, -plane[2]])
-    level = torch.as_tensor(_min_rotation(normal, np.array([0.0, 1.0, 0.0])))
+    level = torch.as_tensor(rotmat_between(normal, np.array([0.0, 1.0, 0.0])))
     floor = float((level @ torch.tensor([0.0, plane[0], 0.0], dtype=torch.float64))[1])
     soles = (feet @ level[1]).amin(-1) - floor  # (T,)
     tilt_deg = float(np.degrees(np.arctan(np.hypot(plane[1], plane[2]))))

@@ -258,12 +258,18 @@ def write_view_page(page: ViewPage, path: Path | str, forbid: Sequence[Path] = (
 
 
 def write_before_after(
-    noisy: Motion, cleaned: Motion, job, path: Path, body: BodyModel, forbid: Sequence[Path] = ()
+    noisy: Motion,
+    cleaned: Motion,
+    source: Path,
+    output: Path,
+    path: Path,
+    body: BodyModel,
+    forbid: Sequence[Path] = (),
 ) -> ViewPage:
-    """``denoise --view``: the page of one input (``job.source``) and its cleaned motion
-    (``job.output``), written to ``path``."""
-    names = [f"{Path(job.source).name} (input)", f"{Path(job.output).name} (cleaned)"]
-    title = f"{Path(job.source).name}: before and after mdvae denoise"
+    """``denoise --view``: the page of one input file (``source``) and its cleaned motion (in
+    ``output``), written to ``path``."""
+    names = [f"{Path(source).name} (input)", f"{Path(output).name} (cleaned)"]
+    title = f"{Path(source).name}: before and after mdvae denoise"
     page = build_view_page(list(zip(names, (noisy, cleaned), strict=True)), body, title=title)
     write_view_page(page, path, forbid)
     return page
