@@ -93,7 +93,8 @@ def test_curve_fills_reproduce_a_smooth_path_and_beat_slerp_on_it(method):
     holed_curve, holed_lerp = with_holes(m, mask, method), with_holes(m, mask, "slerp")
     t = np.arange(90) / 30.0
     quadratic = np.stack([0.5 * t**2, 0.2 * t, 0.9 + 0.1 * t**2], 1)  # a quadratic path
-    exact = with_holes(m.with_body(trans=quadratic), mask, method)
+    short = frame_holes(90, 12, 1, np.random.default_rng(1), margin=20)  # ends' velocities kept
+    exact = with_holes(m.with_body(trans=quadratic), short, method)
     np.testing.assert_allclose(exact.trans, quadratic, atol=1e-9)
     err = lambda h: rotation_gap(h.pose_body[miss], m.pose_body[miss]).mean()  # noqa: E731
     assert err(holed_curve) < 0.6 * err(holed_lerp)
@@ -174,3 +175,23 @@ def test_denoise_fills_a_hole_from_the_take_and_keeps_the_rest(model):
     far[np.flatnonzero(miss)[0] - 30 : np.flatnonzero(miss)[-1] + 31] = False
     gap = rotation_gap(filled.pose_body[far], whole.pose_body[far])
     assert gap.mean() < 0.005
+
+
+def test_a_long_hole_splits_the_take_and_each_side_is_denoised_on_its_own(model):
+    from mdvae_cli.infer.denoise import denoise_motions
+    from mdvae_cli.infer.input_kinds import refine_config
+    from mdvae_cli.motion.motion import slice_frames
+
+    den, body = model
+    src = clip(150, seed=6)
+    mask = np.ones((150, 22), bool)
+    mask[60:90] = False  # 1 s: long enough to split
+    holed = with_holes(src, mask)
+    cfg, _ = refine_config("mocap", steps=0)
+    run = lambda ms: denoise_motions(ms, den, body, refine=cfg, blend=True)  # noqa: E731
+    out = run([holed])[0]
+    before, after = run([slice_frames(holed, 0, 60), slice_frames(holed, 90, 150)])
+    np.testing.assert_allclose(out.pose_body[:60], before.pose_body, atol=1e-6)
+    np.testing.assert_allclose(out.pose_body[90:], after.pose_body, atol=1e-6)
+    assert np.isfinite(out.pose_body[60:90]).all()
+    assert not np.allclose(out.pose_body[60:90], holed.pose_body[60:90])  # filled, not kept

@@ -236,7 +236,7 @@ def denoise_motions(
             blend_fast, fill="model",
         )  # fmt: skip
         return [fill_holes(src, m, "off") for m, src in zip(cleaned, motions, strict=True)]
-    pieces = [observed_pieces(m, min_frames(m)) for m in motions] if holes else []
+    pieces = [observed_pieces(m, MIN_FRAMES) for m in motions] if holes else []
     if any(p is not None for p in pieces):  # long holes: the pieces between them on their own
         return _denoise_pieces(
             motions, pieces, denoiser, body, window, stride, optimize_steps, lr, batch_size,
@@ -360,11 +360,6 @@ def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
         k += len(cuts)
         out.append(fill_holes(m, joined, fill or "model"))
     return out
-
-
-def min_frames(motion: Motion) -> int:
-    """The fewest frames at the motion's own rate that :func:`check_length` takes."""
-    return int(np.ceil((MIN_FRAMES - 1) * motion.fps / MODEL_FPS)) + 1
 
 
 def _denoise_cycles(motions, loops, denoiser, body, *args, on_fallback=None) -> list[Motion]:

@@ -74,10 +74,11 @@ def holes_from(source: Motion, result: Motion) -> Motion:
 SPLIT_SECONDS = 0.3
 
 
-def observed_pieces(motion: Motion, min_frames: int) -> list[tuple[int, int]] | None:
+def observed_pieces(motion: Motion, least: int) -> list[tuple[int, int]] | None:
     """[start, end) of the runs of frames between the motion's long whole-frame holes (at
-    least :data:`SPLIT_SECONDS`) that are ``min_frames`` long or more; None when it has no such
-    hole (nothing to split)."""
+    least :data:`SPLIT_SECONDS`) that hold ``least`` frames at 30 Hz or more; None when it has
+    no such hole (nothing to split)."""
+    min_frames = int(np.ceil((least - 1) * motion.fps / 30.0)) + 1
     if not has_holes(motion):
         return None
     gone = ~observed(motion).any(axis=1)
