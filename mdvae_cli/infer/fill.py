@@ -19,6 +19,7 @@ drop them (the joint mask weighs the observations). What ends up in a hole is th
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from mdvae_cli.infer.fill_choices import FILLS
 from mdvae_cli.motion.holes import fill_gaps, observed
@@ -41,7 +42,11 @@ def fill_holes(source: Motion, result: Motion, method: str = "learned") -> Motio
     out = result.with_body()
     out.joint_mask = mask
     if method == "curve":
-        return fill_gaps(out, "hermite")
+        return mix_by_noise(
+            fill_gaps(source.with_body(), "hermite"),
+            fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES),
+            source,
+        )
     if method == "learned":
         from mdvae_cli.infer.learned_fill import learned_fill
         from mdvae_cli.model.infiller import load_infiller
@@ -50,6 +55,52 @@ def fill_holes(source: Motion, result: Motion, method: str = "learned") -> Motio
     if method == "off":
         return take_holes(out, source, mask)
     return out
+
+
+#: the input noise (rad per component, m for the translation) at which a hole's curve reads
+#: the input's frames and the result's equally: below it the input's own frames (a clean take,
+#: whose result differs from it by the denoiser's hair), above it the cleaned ones
+CURVE_NOISE_RAD = 0.01
+CURVE_NOISE_M = 0.003
+#: the curve from a denoised result holds its end velocities over holes up to this long
+#: (frames; ``motion.holes.TANGENT_FRAMES`` for the input's own frames): a denoised velocity
+#: is less sure than a clean take's
+RESULT_TANGENT_FRAMES = 15
+
+
+def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Motion:
+    """Per joint, the hole curves drawn from the input's frames and from the result's, mixed
+    by the input's own noise s (``infer.noise_blend.noise_variance``): the result's share is
+    s^2 / (s^2 + c^2). Outside the holes, ``from_result``."""
+    from mdvae_cli.geometry.rotations import (
+        quat_slerp,
+        quat_to_rotvec,
+        rotvec_to_quat,
+        rotvec_unwrap,
+    )
+    from mdvae_cli.infer.noise_blend import noise_variance
+
+    rot_in = np.concatenate([from_input.root_orient[:, None], from_input.pose_body], axis=1)
+    rot_res = np.concatenate([from_result.root_orient[:, None], from_result.pose_body], axis=1)
+    src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
+    seen = observed(source)
+    s2 = noise_variance(rotvec_unwrap(torch.as_tensor(src, dtype=torch.float64), 0).numpy(), seen)
+    w = torch.as_tensor(s2 / (s2 + CURVE_NOISE_RAD**2))[None].expand(len(src), -1)
+    q = quat_slerp(rotvec_to_quat(torch.as_tensor(rot_in, dtype=torch.float64)),
+                   rotvec_to_quat(torch.as_tensor(rot_res, dtype=torch.float64)), w)  # fmt: skip
+    miss = ~observed(source)
+    rot = np.where(miss[..., None], quat_to_rotvec(q).numpy(), rot_res)
+    t2 = float(noise_variance(np.asarray(source.trans, float)[:, None, :], seen[:, :1])[0])
+    wt = t2 / (t2 + CURVE_NOISE_M**2)
+    trans = (1 - wt) * np.asarray(from_input.trans, float) + wt * np.asarray(
+        from_result.trans, float
+    )
+    trans = np.where(miss[:, :1], trans, from_result.trans)
+    return from_result.with_body(
+        root_orient=rot[:, 0].astype(from_result.root_orient.dtype),
+        pose_body=rot[:, 1:].astype(from_result.pose_body.dtype),
+        trans=trans.astype(from_result.trans.dtype),
+    )
 
 
 def take_holes(motion: Motion, other: Motion, mask: np.ndarray) -> Motion:

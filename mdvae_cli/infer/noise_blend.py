@@ -71,17 +71,28 @@ class BlendReport:
     spike_share: float
 
 
-def noise_variance(values: np.ndarray) -> np.ndarray:
+def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
     """The white-noise variance of each channel from its third differences in time.
 
-    values: (T, C, ...) -> (C, ...) (per channel, the median over time and the remaining
-    trailing axis when there is one per channel); zeros for T < 4."""
+    values: (T, C, ...); seen: (T, C) bool, where the values are the input's own (a hole's
+    placeholders are a straight line, no noise: differences that reach into one are left out),
+    or None -> (C, ...) (per channel, the median over time and the remaining trailing axis
+    when there is one per channel); zeros for T < 4 or a channel with no difference left."""
     if values.shape[0] < NOISE_ORDER + 1:
         return np.zeros(values.shape[1:-1] if values.ndim > 2 else values.shape[1:])
     d3 = np.diff(values, n=NOISE_ORDER, axis=0) ** 2
+    if seen is not None:
+        ok = np.ones(d3.shape[:2], bool)
+        for k in range(NOISE_ORDER + 1):
+            ok &= seen[k : k + len(d3)]
+        d3 = np.where(ok.reshape(*ok.shape, *([1] * (d3.ndim - 2))), d3, np.nan)
     if values.ndim > 2:  # pool the components of a channel (x, y, z)
         d3 = np.moveaxis(d3, -1, 1).reshape(-1, *values.shape[1:-1])
-    return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
+    if seen is None:
+        return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
+    with np.errstate(all="ignore"):
+        med = np.nan_to_num(np.nanmedian(d3, axis=0)) if np.isfinite(d3).any() else d3[0] * 0
+    return np.nan_to_num(med) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
 
 
 def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
@@ -199,7 +210,7 @@ def blend_rotations(
     q_den_inv = q_den * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
     residual = quat_to_rotvec(quat_multiply(q_den_inv, rotvec_to_quat(src))).numpy()
     unwrapped = rotvec_unwrap(src, dim=0).numpy()
-    noise = noise_variance(unwrapped)  # (J,)
+    noise = noise_variance(unwrapped, None if missing is None else ~missing)  # (J,)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
     if missing is not None:
         spikes = spikes & ~missing
@@ -219,7 +230,8 @@ def blend_translation(
 
     source, denoised: (T, 3); missing: (T,) bool or None -> (blended (T, 3), slow share put
     back (T,))"""
-    noise = noise_variance(source[:, None, :])  # (1,)
+    seen = None if missing is None else ~missing[:, None]
+    noise = noise_variance(source[:, None, :], seen)  # (1,)
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M)
     kept, share = keep_unexplained(
         (source - denoised)[:, None, :], noise, spikes, fps, fast,

@@ -22,7 +22,7 @@ FILL_METHODS = ("slerp", "spline", "hermite")
 HERMITE_FRAMES = 6
 #: a hole longer than this (frames) has its end velocities scaled down by this over its length:
 #: a person's velocity does not hold for long, and a small error in it grows with the hole
-TANGENT_FRAMES = 15
+TANGENT_FRAMES = 30
 #: SMPL body joints of each limb (pelvis = 0), the parts a marker set loses together
 LIMBS = {
     "left_arm": (16, 18, 20),
@@ -65,7 +65,9 @@ def with_holes(motion: Motion, mask: np.ndarray, method: str = "slerp") -> Motio
     return fill_gaps(marked, method)
 
 
-def fill_gaps(motion: Motion, method: str = "slerp") -> Motion:
+def fill_gaps(
+    motion: Motion, method: str = "slerp", tangent_frames: float = TANGENT_FRAMES
+) -> Motion:
     """Rewrite the missing joints of a motion from its observed frames, joint by joint.
 
     "slerp": spherical linear interpolation between the nearest observed frames (linear for
@@ -85,13 +87,14 @@ def fill_gaps(motion: Motion, method: str = "slerp") -> Motion:
     rot = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
     rot = np.array(rot, dtype=np.float64)
     trans = np.array(motion.trans, dtype=np.float64)
-    fill = {"slerp": _fill_quats, "spline": _spline_quats, "hermite": _hermite_quats}[method]
+    fill = {"slerp": _fill_quats, "spline": _spline_quats,
+            "hermite": lambda r, m: _hermite_quats(r, m, tangent_frames)}[method]  # fmt: skip
     for j in np.flatnonzero(~mask.all(axis=0)):
         if mask[:, j].any():
             rot[:, j] = fill(rot[:, j], mask[:, j])
     if not mask[:, 0].all() and mask[:, 0].any():
         if method == "hermite":
-            trans = _hermite(_fill_values(trans, mask[:, 0], "slerp"), mask[:, 0])
+            trans = _hermite(_fill_values(trans, mask[:, 0], "slerp"), mask[:, 0], tangent_frames)
         else:
             trans = _fill_values(trans, mask[:, 0], method)
     return motion.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
@@ -155,12 +158,12 @@ def _spline_quats(rotvecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hermite_quats(rotvecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def _hermite_quats(rotvecs: np.ndarray, mask: np.ndarray, tangent_frames: float) -> np.ndarray:
     """Hermite fill of one joint on sign-continuous quaternions.  (T, 3), (T,) -> (T, 3)"""
     q = rotvec_to_quat(torch.as_tensor(_fill_quats(rotvecs, mask))).numpy()
     flips = np.sign(np.einsum("ti,ti->t", q[1:], q[:-1]))
     q = q * np.concatenate([[1.0], np.cumprod(np.where(flips == 0, 1.0, flips))])[:, None]
-    filled = _hermite(q, mask)
+    filled = _hermite(q, mask, tangent_frames)
     filled /= np.linalg.norm(filled, axis=-1, keepdims=True)
     out = rotvecs.copy()
     out[~mask] = quat_to_rotvec(torch.as_tensor(filled[~mask])).numpy()
@@ -193,7 +196,9 @@ def hermite_fill_rows(
     return rot, trans
 
 
-def _hermite(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def _hermite(
+    values: np.ndarray, mask: np.ndarray, tangent_frames: float = TANGENT_FRAMES
+) -> np.ndarray:
     """Each inner run of missing frames of ``values`` (T, D) rewritten as the cubic Hermite
     curve between its sides' fitted values and velocities; runs at the ends stay."""
     out = values.copy()
@@ -205,7 +210,7 @@ def _hermite(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
         p0, v0 = _side_fit(values, mask, a - 1, -1)
         p1, v1 = _side_fit(values, mask, b, 1)
         span = b - (a - 1)
-        scale = min(1.0, TANGENT_FRAMES / span)
+        scale = min(1.0, tangent_frames / span)
         v0, v1 = scale * v0, scale * v1
         t = (np.arange(a, b) - (a - 1))[:, None] / span
         h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
