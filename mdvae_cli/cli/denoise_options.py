@@ -189,11 +189,10 @@ OPTIONS = [
         show_default=True,
         help="on: fill the holes of a take (frames and joints that are missing: NaN in an npz, "
         "frames a video track skips, what --missing names in a BVH/AMC take) by the default "
-        f'way, {DEFAULT_FILL}; the summary and --json say how many ("filled_frames", '
-        '"filled_joints"). learned: a cubic curve from the cleaned frames beside the hole, '
-        "corrected by a network trained on clean motion with holes cut in it; curve: the curve "
-        "alone; model: the denoiser's own frames. off: leave them as they came (an npz gets "
-        "its NaN back, a take its own frames).",
+        f"way, {DEFAULT_FILL}: a cubic curve per joint from the frames beside the hole (the "
+        "take's own on a clean take, the cleaned ones on a noisy one); the summary and --json "
+        'say how many ("filled_frames", "filled_joints"). model: the denoiser\'s own frames. '
+        "off: leave them as they came (an npz gets its NaN back, a take its own frames).",
     ),
     missing_option,
     click.option(
@@ -263,7 +262,7 @@ def fill_words(done: list[dict]) -> str:
     total = fill_totals(done)
     if total["filled_frames"]:
         return (f"; filled {total['filled_frames']} frame(s) with missing joints "
-                f"({total['filled_joints']} joint entries) from the prior")  # fmt: skip
+                f"({total['filled_joints']} joint entries)")  # fmt: skip
     if total["unfilled_frames"]:
         return f"; {total['unfilled_frames']} frame(s) with holes left as they came (--fill off)"
     return ""

@@ -224,8 +224,8 @@ def denoise_motions(
     With ``feet``, the results' feet are then held still on the floor where they are down
     (``infer.feet.lock_feet``, each input as its source).
     ``fill``: what the inputs' holes (``joint_mask`` False) become, one of
-    ``infer.fill.FILLS`` (the "learned" fill, a "curve" from the result beside them, the
-    "model"'s frames, or "off": as they came); the likelihoods drop them whatever it is. None:
+    ``infer.fill.FILLS`` (a "curve" from the frames beside them, the "model"'s frames, or
+    "off": as they came); the likelihoods drop them whatever it is. None:
     the model's (as "model").
     """
     holes = any(has_holes(m) for m in motions)

@@ -5,9 +5,6 @@ The denoiser reads placeholders in the holes (``motion.holes.fill_gaps``) and it
 drop them (the joint mask weighs the observations). What ends up in a hole is then one of
 :data:`FILLS`:
 
-* ``"learned"`` (the default): the curve below, corrected by the learned fill
-  (``infer.learned_fill``: a network trained on clean motion with holes cut in it, which reads
-  a window around the hole and puts back what a curve misses, a step of a walk);
 * ``"curve"``: a cubic curve, joint by joint, from the values and velocities of the *result's*
   frames beside the hole (``motion.holes.fill_gaps``'s Hermite fill): the denoised motion, with
   what the input's noise does not explain put back, so a clean take is filled from its own
@@ -31,7 +28,7 @@ def has_holes(motion: Motion) -> bool:
     return motion.joint_mask is not None and not np.asarray(motion.joint_mask, bool).all()
 
 
-def fill_holes(source: Motion, result: Motion, method: str = "learned") -> Motion:
+def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
     """``result`` (the denoised ``source``, same frames) with the source's holes written by
     ``method`` (see the module docstring); the result's mask is the source's."""
     if method not in FILLS:
@@ -47,11 +44,6 @@ def fill_holes(source: Motion, result: Motion, method: str = "learned") -> Motio
             fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES),
             source,
         )
-    if method == "learned":
-        from mdvae_cli.infer.learned_fill import learned_fill
-        from mdvae_cli.model.infiller import load_infiller
-
-        return learned_fill(out, load_infiller())
     if method == "off":
         return take_holes(out, source, mask)
     return out

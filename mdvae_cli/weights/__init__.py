@@ -1,5 +1,4 @@
-"""Weights shipped with the package: the default prior, denoiser and learned fill (see
-weights_recipe/)."""
+"""Weights shipped with the package: the default prior and denoiser (see weights_recipe/)."""
 
 from __future__ import annotations
 
@@ -8,7 +7,7 @@ from pathlib import Path
 
 from mdvae_cli.errors import NotAvailableError
 
-NAMES = ("prior", "denoiser", "infiller")
+NAMES = ("prior", "denoiser")
 
 
 def default_weights(name: str) -> Path:
