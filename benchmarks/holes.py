@@ -67,9 +67,8 @@ def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray
     return {
         "slerp / lerp": classical("slerp"),
         "cubic spline": classical("spline"),
-        "cubic Hermite (4-frame ends)": classical("hermite"),
+        "cubic Hermite (ends fitted to 6 frames)": classical("hermite"),
         "`mdvae denoise` (default)": ours(),
-        "`--fill model` (the model's own frames)": ours(fill="model"),
         "`--refine 50`": ours(refine_steps=50),
     }
 

@@ -9,7 +9,7 @@ import click
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED
 from mdvae_cli.cli.motion_input import missing_option
 from mdvae_cli.help_figures import help_figures, span
-from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL
 
 #: the benchmarks' figures the help quotes (benchmarks/help_figures.py)
 _FIGURES = help_figures()
@@ -184,15 +184,15 @@ OPTIONS = [
     ),
     click.option(
         "--fill",
-        type=click.Choice(["on", "off", *FILLS[:-1]]),
+        type=click.Choice(["on", "off", DEFAULT_FILL]),
         default="on",
         show_default=True,
         help="on: fill the holes of a take (frames and joints that are missing: NaN in an npz, "
         "frames a video track skips, what --missing names in a BVH/AMC take) by the default "
         f"way, {DEFAULT_FILL}: a cubic curve per joint from the frames beside the hole (the "
         "take's own on a clean take, the cleaned ones on a noisy one); the summary and --json "
-        'say how many ("filled_frames", "filled_joints"). model: the denoiser\'s own frames. '
-        "off: leave them as they came (an npz gets its NaN back, a take its own frames).",
+        'say how many ("filled_frames", "filled_joints"). off: leave them as they came (an npz '
+        "gets its NaN back, a take its own frames).",
     ),
     missing_option,
     click.option(
