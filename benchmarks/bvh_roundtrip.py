@@ -28,8 +28,8 @@ import torch
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.formats.bvh_write import rotmat_to_euler, write_bvh
-from mdvae_cli.formats.source import euler_to_rotmat
+from mdvae_cli.formats.bvh_write import write_bvh
+from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import load_denoiser

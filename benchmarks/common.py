@@ -285,6 +285,12 @@ def write_section(path: Path, section: str, begin: str, end: str) -> None:
         text = text.rstrip("\n") + "\n\n" + section
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text if text.endswith("\n") else text + "\n")
+    try:
+        from benchmarks import help_figures
+    except ModuleNotFoundError:  # run as a file
+        import help_figures  # type: ignore[no-redef]
+    if path.resolve() == help_figures.DOCS.resolve():  # the help texts quote these tables
+        help_figures.write()
 
 
 # --------------------------------------------------------------------------------------------

@@ -41,6 +41,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.geometry.rotations_np import quat_continuous, quat_to_rotvec, rotvec_to_quat
 from mdvae_cli.motion.motion import Motion
 
 #: The Gaussian kernel is cut at this many standard deviations.
@@ -189,41 +190,6 @@ def one_euro_smooth(
 # rotations
 
 
-def _rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
-    """(..., 3) -> (..., 4) scalar first. w = cos(angle / 2) keeps the branch: w < 0 for angles
-    in (pi, 3 pi)."""
-    theta = np.linalg.norm(rotvec, axis=-1, keepdims=True)
-    half = 0.5 * theta
-    scale = 0.5 * np.sinc(half / np.pi)  # sin(half) / theta, exact at 0
-    return np.concatenate([np.cos(half), rotvec * scale], axis=-1)
-
-
-def _quat_to_rotvec(quat: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4) -> (..., 3) with angle 2 atan2(|v|, w) in [0, 2 pi).
-
-    q and -q give the two branches (angle a about n, or 2 pi - a about -n). A quaternion close
-    to -1 is the identity seen from the far branch, whose axis is undefined, so it is read as +1.
-    """
-    far = (quat[..., :1] < 0) & (np.linalg.norm(quat[..., 1:], axis=-1, keepdims=True) < 1e-6)
-    q = np.where(far, -quat, quat)
-    w, v = q[..., 0], q[..., 1:]
-    s = np.linalg.norm(v, axis=-1)
-    angle = 2.0 * np.arctan2(s, w)
-    factor = np.where(s > 0, angle / np.where(s > 0, s, 1.0), 2.0 / np.where(s > 0, 1.0, w))
-    return v * factor[..., None]
-
-
-def _hemisphere_align(quat: np.ndarray) -> np.ndarray:
-    """Flip signs so consecutive quaternions along axis 0 have a dot product >= 0.
-    (T, ..., 4) -> (T, ..., 4)"""
-    if quat.shape[0] < 2:
-        return quat.copy()
-    dots = np.sum(quat[1:] * quat[:-1], axis=-1, keepdims=True)
-    steps = np.where(dots < 0, -1.0, 1.0)
-    sign = np.concatenate([np.ones_like(steps[:1]), np.cumprod(steps, axis=0)], axis=0)
-    return quat * sign
-
-
 def smooth_rotvecs(rotvec: np.ndarray, smooth: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
     """Smooth axis-angle tracks over time as sign-continuous quaternions.
 
@@ -232,13 +198,13 @@ def smooth_rotvecs(rotvec: np.ndarray, smooth: Callable[[np.ndarray], np.ndarray
     """
     rotvec = np.asarray(rotvec, dtype=np.float64)
     T = rotvec.shape[0]
-    q_in = _rotvec_to_quat(rotvec)
-    q = _hemisphere_align(q_in)
+    q_in = rotvec_to_quat(rotvec)
+    q = quat_continuous(q_in)
     q_hat = smooth(q.reshape(T, -1)).reshape(q.shape)
     norm = np.linalg.norm(q_hat, axis=-1, keepdims=True)
     q_hat = np.where(norm > 1e-6, q_hat / np.maximum(norm, 1e-12), q)  # degenerate: keep input
     q_hat = np.where(np.sum(q_hat * q_in, axis=-1, keepdims=True) < 0, -q_hat, q_hat)
-    return _quat_to_rotvec(q_hat)
+    return quat_to_rotvec(q_hat, keep_branch=True)
 
 
 # --------------------------------------------------------------------------------------------

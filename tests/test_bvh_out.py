@@ -14,9 +14,8 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.bvh import load_bvh
-from mdvae_cli.formats.bvh_write import rotmat_to_euler
 from mdvae_cli.formats.npz_io import load_motion
-from mdvae_cli.formats.source import euler_to_rotmat
+from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.joint_map import build_joint_map, normalise_name
 from mdvae_cli.retarget.retarget import load_source

@@ -169,11 +169,17 @@ def test_a_file_without_checkpoint_metadata_is_named_as_such(tmp_path):
         load_checkpoint(tmp_path / "missing.npz")
 
 
-def test_eval_table_is_not_cut_off_a_terminal():
-    res = invoke("eval", "--gt", EXAMPLES / "walk.npz", "--pred", NOISY)
+@pytest.mark.parametrize("columns", [None, "80", "60"])
+def test_eval_table_is_not_cut_off_a_terminal(columns):
+    args = ["eval", "--gt", str(EXAMPLES / "walk.npz"), "--pred", str(NOISY)]
+    res = CliRunner().invoke(cli, args, env={"COLUMNS": columns})
     assert res.exit_code == 0, res.output
-    assert "acc err" in res.output and "…" not in res.output
-    assert max(len(line) for line in res.output.splitlines()) > 80
+    assert "acc err" in res.output and "MPJPE world" in res.output and "…" not in res.output
+    widest = max(len(line) for line in res.output.splitlines())
+    if columns is None:  # logs and pipes get the one-row-per-file table
+        assert widest > 80
+    else:  # COLUMNS=80 mdvae eval ...: a column per file, every metric whole
+        assert widest <= int(columns) and "665.82 (6.50)" in res.output
 
 
 def test_sample_does_not_claim_the_start_file_s_source_or_duration(tmp_path):

@@ -13,6 +13,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.export import pose_motion_chunks
 from mdvae_cli.formats.npz_io import load_motion, save_motion
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.infer import leg_ik
 from mdvae_cli.infer.contact_runs import (
     clean_contacts,
@@ -191,7 +192,7 @@ def test_config_is_checked():
 
 
 def chain_of(motion: Motion, model: leg_ik.LegModel):
-    root = leg_ik.rotvec_to_rotmat_np(motion.root_orient)
+    root = rotvec_to_rotmat(motion.root_orient)
     return root, leg_ik.leg_rotations(motion), motion.trans + model.pelvis
 
 
@@ -205,7 +206,8 @@ def test_leg_chain_matches_the_body_model(body):
     assert np.abs(soles - mesh_soles).max() < 1e-5
 
 
-def test_two_bone_ik_reaches_reachable_targets_and_changes_nothing_on_the_spot(body):
+def test_a_free_knee_reaches_reachable_targets_and_changes_nothing_on_the_spot(body):
+    """swing_ik with no stiffness: the knee turns as far as the target needs (closed form)."""
     rng = np.random.default_rng(2)
     m = crouch(40)
     m.pose_body += rng.normal(0, 0.15, size=m.pose_body.shape)
@@ -214,35 +216,37 @@ def test_two_bone_ik_reaches_reachable_targets_and_changes_nothing_on_the_spot(b
     flexion = m.pose_body[:, [3, 4], 0]
     held = np.ones((40, 2, 2), dtype=bool)
     pos, _ = leg_ik.leg_chain(root, legs, pelvis, model.bones)
-    same = leg_ik.two_bone_ik(root, legs, pelvis, model.bones, pos[:, :, 2:], held, flexion)
+    same = leg_ik.swing_ik(root, legs, pelvis, model.bones, pos[:, :, 2:], held, flexion, 0.0)
     assert np.abs(same - legs).max() < 1e-12
     # targets from another pose: hips and ankles turned any way, knees about their hinge
     other = m.with_body(pose_body=m.pose_body.copy())
     other.pose_body[:, [0, 1, 6, 7]] += rng.normal(0, 0.1, size=(40, 4, 3))
     other.pose_body[:, [3, 4], 0] += rng.normal(0, 0.1, size=(40, 2))
     goal, _ = leg_ik.leg_chain(root, leg_ik.leg_rotations(other), pelvis, model.bones)
-    new = leg_ik.two_bone_ik(root, legs, pelvis, model.bones, goal[:, :, 2:], held, flexion)
+    new = leg_ik.swing_ik(root, legs, pelvis, model.bones, goal[:, :, 2:], held, flexion, 0.0)
     reached, _ = leg_ik.leg_chain(root, new, pelvis, model.bones)
     assert np.abs(reached[:, :, 2:] - goal[:, :, 2:]).max() < 1e-9
     assert np.array_equal(new[:, :, 3], legs[:, :, 3])  # the ball's own rotation is kept
 
 
-def test_two_bone_ik_straightens_toward_a_target_out_of_reach(body):
+def test_a_free_knee_straightens_toward_a_target_out_of_reach(body):
     m = crouch(1)
     model = leg_ik.LegModel.build(body, m.betas)
     root, legs, pelvis = chain_of(m, model)
     pos, _ = leg_ik.leg_chain(root, legs, pelvis, model.bones)
     far = pos[:, :, 2:] + np.array([0.0, 0.0, -1.0])  # a metre below the feet
     held = np.array([[[True, False], [True, False]]])
-    new = leg_ik.two_bone_ik(root, legs, pelvis, model.bones, far, held, np.full((1, 2), 0.6))
+    flexion = np.full((1, 2), 0.6)
+    new = leg_ik.swing_ik(root, legs, pelvis, model.bones, far, held, flexion, 0.0)
     after, _ = leg_ik.leg_chain(root, new, pelvis, model.bones)
     hip, knee, ankle = after[0, :, 0], after[0, :, 1], after[0, :, 2]
     thigh, shin = np.linalg.norm(knee - hip, axis=-1), np.linalg.norm(ankle - knee, axis=-1)
     # as far as the knee's hinge goes (the rest leg is not quite straight)
     reach = np.linalg.norm(ankle - hip, axis=-1)
     assert np.all(reach > 0.995 * (thigh + shin)) and np.all(reach <= thigh + shin)
-    direction = (far[0, :, 0] - hip) / np.linalg.norm(far[0, :, 0] - hip, axis=-1)[:, None]
-    assert np.allclose((ankle - hip) / reach[:, None], direction, atol=1e-6)
+    # the miss goes to the height: the ankle stands over its target
+    assert np.allclose(ankle[:, :2], far[0, :, 0, :2], atol=1e-9)
+    assert np.all(ankle[:, 2] > far[0, :, 0, 2] + 0.5)
 
 
 # --------------------------------------------------------------------------------------------
@@ -431,7 +435,7 @@ def test_swing_ik_keeps_the_knee_for_a_horizontal_move_and_lands_on_the_target(b
     after, _ = leg_ik.leg_chain(root, new, pelvis, model.bones)
     # the knee's own rotation turns by the damped step only: the ankle moves on (nearly) a
     # sphere about the hip, so the step is small; horizontally the ankle is on its target
-    knee_turn = np.abs(leg_ik.rotmat_to_rotvec_np(legs[:, :, 1].swapaxes(-1, -2) @ new[:, :, 1]))
+    knee_turn = np.abs(rotmat_to_rotvec(legs[:, :, 1].swapaxes(-1, -2) @ new[:, :, 1]))
     assert knee_turn.max() < np.radians(1.0)
     assert np.abs(after[:, :, 2, :2] - targets[:, :, 0, :2]).max() < 1e-6
     assert np.abs(after[:, :, 2, 2] - targets[:, :, 0, 2]).max() < 0.005  # the miss: height

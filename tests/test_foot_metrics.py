@@ -208,3 +208,22 @@ def test_evaluate_pair_reports_feet_and_means_weigh_by_contacts(tiny_body):
     b = same.__class__(**{**same.to_dict(), "foot_skate_pred": 40.0, "contact_pairs": 3})
     assert mean_result([a, b]).foot_skate_pred == pytest.approx(32.5)  # (10 + 3 * 40) / 4
     assert mean_result([a, b]).contact_pairs == 4
+
+
+def test_eval_and_the_view_page_find_contacts_by_one_rule():
+    """``mdvae eval`` scores the feet where ``mdvae view`` and ``mdvae plot`` mark contacts:
+    one function, and its numbers are what ``mdvae eval --help`` states."""
+    from click.testing import CliRunner
+
+    from mdvae_cli import foot_metrics
+    from mdvae_cli.cli.main import cli
+    from mdvae_cli.motion import contacts
+    from mdvae_cli.view import figure, page
+
+    assert foot_metrics.foot_contacts is contacts.foot_contacts is page.foot_contacts
+    assert figure.foot_contacts is contacts.foot_contacts
+    text = " ".join(CliRunner().invoke(cli, ["eval", "--help"]).output.split())
+    assert f"less than {100 * contacts.HEIGHT_TOL:g} cm above its own floor level" in text
+    assert f"the {100 * contacts.FLOOR_QUANTILE:g} % quantile of its height" in text
+    assert f"slower than {contacts.SPEED_MAX:g} m/s" in text
+    assert f"faster than {foot_metrics.SLIDE_SPEED:g} m/s" in text

@@ -73,6 +73,20 @@ def test_every_file_command_takes_a_folder_and_answers_json(takes, tmp_path, com
         assert Path(data["output"]).is_file()
 
 
+#: the file commands run on a folder by the tests below rather than the loop above
+FOLDER_TESTED_APART = {"denoise", "import"}
+
+
+def test_every_command_has_json_and_every_file_command_is_run_on_a_folder():
+    for name, command in cli.commands.items():
+        assert "as_json" in {p.name for p in command.params}, name
+    takes_inputs = {
+        name for name, c in cli.commands.items() if "inputs" in {p.name for p in c.params}
+    }
+    assert takes_inputs - {"eval"} <= set(FOLDER_COMMANDS) | FOLDER_TESTED_APART
+    assert "eval" in FOLDER_COMMANDS  # --gt and --pred folders
+
+
 def test_import_takes_a_folder_of_takes_and_answers_json(tmp_path):
     for name in ("a.bvh", "sub/b.bvh"):
         (tmp_path / "mocap" / name).parent.mkdir(parents=True, exist_ok=True)

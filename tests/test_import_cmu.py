@@ -28,7 +28,8 @@ from mdvae_cli.formats.asf import load_asf, parse_asf
 from mdvae_cli.formats.asfamc import load_amc
 from mdvae_cli.formats.bvh import load_bvh
 from mdvae_cli.formats.npz_io import load_motion
-from mdvae_cli.formats.source import CMU_UNIT, euler_to_rotmat
+from mdvae_cli.formats.source import CMU_UNIT
+from mdvae_cli.geometry.euler import euler_to_rotmat
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion import cmu, corpus_plan
 from mdvae_cli.retarget.retarget import (

@@ -117,3 +117,25 @@ def test_writing_a_take_back_tells_its_progress(tmp_path):
     told = []
     write(loaded, tmp_path / "back.bvh", progress=lambda done, total: told.append((done, total)))
     assert told and told[-1] == (90, 90)
+
+
+def test_a_file_run_tells_its_progress_and_counts_the_time_waited(tmp_path, shipped):
+    """``run.denoise_files`` (what ``mdvae denoise`` calls): a take's progress inside it while
+    it is read and written back, and its seconds the time the user waited (reading, its share
+    of the denoising, writing)."""
+    from mdvae_cli.formats.registry import ReadOptions
+    from mdvae_cli.run.denoise_files import denoise_files, read_file, write_file
+    from tests.test_bvh_out import write_rig
+
+    path = write_rig(tmp_path / "take.bvh", T=90)
+    read_told, write_told = [], []
+    options = ReadOptions(progress=lambda done, total: read_told.append((done, total)))
+    run = read_file(path, tmp_path / "clean.bvh", options)
+    assert read_told[-1] == (90, 90)
+    times = [run.seconds]
+    denoise_files([run], DenoiseSettings(), *shipped)
+    times.append(run.seconds)
+    write_file(run, shipped[1], progress=lambda done, total: write_told.append((done, total)))
+    times.append(run.seconds)
+    assert write_told[-1] == (90, 90) and (tmp_path / "clean.bvh").is_file()
+    assert 0 < times[0] < times[1] < times[2] and run.to_dict()["seconds"] == round(times[2], 4)

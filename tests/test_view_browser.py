@@ -114,3 +114,41 @@ def test_play_advances_time(page):
     tab.evaluate("window.mdvaeView.pause()")
     assert state["playing"] and state["time"] > 0
     assert json.dumps(tab.errors()) == "[]"
+
+
+#: the plot canvas's pixel (r, g, b) at CSS position (x, y)
+PLOT_PIXEL = """(() => {
+  const c = document.getElementById('plot'), d = window.devicePixelRatio || 1;
+  const px = c.getContext('2d').getImageData(Math.round(%f * d), Math.round(%f * d), 1, 1);
+  return Array.from(px.data.slice(0, 3));
+})()"""
+
+
+def test_filled_frames_are_marked_on_the_plot(tmp_path, tiny_body):
+    """A take with frames 20-29 missing in the file: the page says which frames are filled,
+    draws a bar in the motion's colour over them and none elsewhere, and says so in the
+    legend."""
+    motion = motion_from_arrays(motion_arrays(T=60, fps=30.0, seed=1))
+    motion.joint_mask = np.ones((60, 22), bool)
+    motion.joint_mask[20:30, 16] = False
+    page_ = build_view_page([("holes", motion)], BodyModel(tiny_body), mesh=False)
+    assert page_.motions[0]["filled_frames"] == 10
+    path = tmp_path / "holes.html"
+    write_view_page(page_, path)
+    browser = Chromium.launch()
+    try:
+        tab = browser.open_page(width=1000, height=800)
+        tab.navigate(file_url(path))
+        tab.wait_for(READY, timeout=60)
+        assert tab.evaluate("window.mdvaeView.seek(25)")["motions"][0]["filled"] is True
+        assert tab.evaluate("window.mdvaeView.seek(40)")["motions"][0]["filled"] is False
+        width = tab.evaluate("document.getElementById('plot').clientWidth")
+        x = lambda f: 58 + f / 59 * (width - 70)  # noqa: E731  (plotLayout: left 58, right 12)
+        inside = tab.evaluate(PLOT_PIXEL % (x(25), 11.5))
+        outside = tab.evaluate(PLOT_PIXEL % (x(45), 11.5))
+        assert inside == [0xD9, 0x48, 0x0F]  # PALETTE[0]
+        assert outside != inside
+        assert "10 filled" in tab.evaluate("document.getElementById('legend').textContent")
+        assert tab.evaluate("window.mdvaeView.errors") == [] and tab.errors() == []
+    finally:
+        browser.close()

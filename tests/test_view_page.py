@@ -28,7 +28,6 @@ from mdvae_cli.view.page import POS_SCALE, ROT_SCALE, build_view_page
 from mdvae_cli.view.pose import (
     BODY_PARENTS,
     bend_angles,
-    continuous_quats,
     pose_skeleton,
     rotation_angles,
     rotation_channels,
@@ -71,15 +70,6 @@ def test_quantise_rounds_and_clips():
     assert q.tolist() == [0, 1, -2, 32767, -32768]
     with pytest.raises(ValueError):
         encode_array(np.zeros((3, 2)))  # floats are quantised first
-
-
-def test_continuous_quats_keeps_each_rotation_and_avoids_sign_jumps():
-    rng = np.random.default_rng(0)
-    q = rng.normal(size=(50, 3, 4))
-    q /= np.linalg.norm(q, axis=-1, keepdims=True)
-    c = continuous_quats(q)
-    assert np.allclose(np.abs(np.sum(c * q, -1)), 1.0)  # same rotations (q or -q)
-    assert (np.sum(c[1:] * c[:-1], -1) >= 0).all() and (c[0, :, 0] >= 0).all()
 
 
 # --- what the page embeds ------------------------------------------------------------------------
@@ -332,3 +322,18 @@ def test_view_benchmark_builds_a_continuous_long_take_and_its_section():
     rows = [{"page": "noisy + clean", "frames": 500, "mb": 0.1, "build_s": 1.0}]
     md = markdown(rows, "python benchmarks/view_page.py", 0.3, source, 1)
     assert md.startswith(SECTION_BEGIN) and SECTION_END in md and "| 2 x 500 | 0.10 |" in md
+
+
+def test_page_marks_the_frames_filled(tmp_path, tiny_body):
+    """Frames with a joint missing in the file (NaN in an npz) are embedded as runs."""
+    data = motion_arrays(T=40, width=66)
+    data["poses"][5:9] = np.nan
+    data["poses"][20:22, 3 * 16 : 3 * 16 + 3] = np.nan
+    np.savez(tmp_path / "holes.npz", **data)
+    motion = load_motion(tmp_path / "holes.npz")
+    page = build_view_page([("holes", motion), ("plain", motion_from_arrays(motion_arrays(T=40)))],
+                           BodyModel(tiny_body), mesh=False)  # fmt: skip
+    meta, _ = page_arrays(page.html)
+    assert meta["motions"][0]["filled"] == [[5, 9], [20, 22]]
+    assert meta["motions"][1]["filled"] == []
+    assert [m["filled_frames"] for m in page.motions] == [6, 0]

@@ -26,9 +26,9 @@ from mdvae_cli.cli.common import (
 from mdvae_cli.cli.motion_input import (
     INPUT_SUFFIXES,
     motion_input_options,
-    outputs_of,
     read_input,
 )
+from mdvae_cli.cli.noise_holes import HOLES, drop_holes
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.registry import ReadOptions, write
 from mdvae_cli.motion.noise import (
@@ -38,6 +38,7 @@ from mdvae_cli.motion.noise import (
     add_video_noise,
     file_rng,
 )
+from mdvae_cli.run.tracks import outputs_of
 
 
 def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
@@ -94,6 +95,16 @@ def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
     "(0 to 1; poses are not changed).",
 )  # fmt: skip
 @click.option(
+    "--drop-frames", type=HOLES, default=None, metavar="LENGTH[xCOUNT]",
+    help="Make holes: COUNT (default 1) stretches of LENGTH frames missing whole, written as "
+    "NaN in poses and trans (as a tracker that lost the person; mdvae denoise fills them).",
+)  # fmt: skip
+@click.option(
+    "--drop-joints", type=HOLES, default=None, metavar="LENGTH[xCOUNT]",
+    help="Make holes: COUNT (default 1) stretches of LENGTH frames with one limb (an arm or a "
+    "leg, drawn) missing, written as NaN (as an optical system that lost its markers).",
+)  # fmt: skip
+@click.option(
     "--spike-frac", type=FRACTION, default=0.0, show_default=True,
     help="Probability that a (frame, body joint) entry gets a spike (an outlier such as a "
     "swapped marker or a solver flip), on top of --sigma (0 to 1).",
@@ -107,8 +118,8 @@ def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
 @json_option
 @handle_errors
 def add_noise(
-    inputs, out, preset, sets, sigma, seed, joint_noise, drop_frac, spike_frac, spike_rad,
-    input_format, input_fps, track, allow_pickle, as_json,
+    inputs, out, preset, sets, sigma, seed, joint_noise, drop_frac, drop_frames, drop_joints,
+    spike_frac, spike_rad, input_format, input_fps, track, allow_pickle, as_json,
 ) -> None:  # fmt: skip
     """Add Pose-NDF-style noise to motion files.
 
@@ -125,6 +136,7 @@ def add_noise(
       mdvae add-noise --sigma 0.05 --spike-frac 0.02 --spike-rad 1 clean.npz -o spiky.npz
       mdvae add-noise --preset video clean.npz -o video_like.npz
       mdvae add-noise --preset video --set swap_rate=0 clean_dir/ -o noisy_dir/
+      mdvae add-noise --sigma 0.05 --drop-frames 15x2 --drop-joints 30 clean.npz -o holes.npz
     """
     video = None
     if preset is not None:
@@ -148,7 +160,7 @@ def add_noise(
 
     def process(job: FileJob) -> dict:
         loaded = read_input(job.source, job.relpath, read_options)
-        frames, outputs = 0, []
+        frames, outputs, dropped = 0, [], {}
         for label, motion, output in outputs_of(loaded, job.output):
             name = job.relpath if label is None else f"{job.relpath.as_posix()}#track{label}"
             rng = file_rng(seed, name)
@@ -164,9 +176,12 @@ def add_noise(
                     spike_frac=settings.spike_frac,
                     spike_rad=settings.spike_rad,
                 )
+            holes_rng = file_rng(seed, f"{name}#holes")  # the noise's own stream unchanged
+            noisy, made = drop_holes(noisy, drop_frames, drop_joints, holes_rng, job.relpath)
             write(noisy, output, forbid=sources)
             frames, outputs = frames + noisy.num_frames, [*outputs, str(output)]
-        return {"frames": frames, "outputs": outputs}
+            dropped = {k: dropped.get(k, 0) + v for k, v in made.items()}
+        return {"frames": frames, "outputs": outputs, **dropped}
 
     report = run_batch(jobs, process, "add-noise")
     if as_json:

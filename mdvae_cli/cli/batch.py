@@ -26,22 +26,7 @@ from rich.markup import escape
 from mdvae_cli.cli.common import console, os_error_words, progress_bar
 from mdvae_cli.errors import InputError, MdvaeError
 from mdvae_cli.fileio import MOTION_SUFFIXES, expand_inputs
-
-
-@dataclass
-class FileJob:
-    """One unit of work.
-
-    relpath: the file's path relative to the folder it was found in (its name when given
-        directly); used for display, mirroring and per-file seeds.
-    source: the input file. output: where the result goes (None when nothing is written).
-    data: anything else the command needs (e.g. the matching prediction file).
-    """
-
-    relpath: Path
-    source: Path
-    output: Path | None = None
-    data: Any = None
+from mdvae_cli.run.jobs import FileJob
 
 
 @dataclass

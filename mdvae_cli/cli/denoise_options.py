@@ -7,6 +7,13 @@ from pathlib import Path
 import click
 
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED
+from mdvae_cli.cli.motion_input import missing_option
+from mdvae_cli.help_figures import help_figures, span
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL
+
+#: the benchmarks' figures the help quotes (benchmarks/help_figures.py)
+_FIGURES = help_figures()
+_D, _O, _F = _FIGURES["denoise"], _FIGURES["outliers"], _FIGURES["feet"]
 
 #: click options, in --help order
 OPTIONS = [
@@ -56,7 +63,8 @@ OPTIONS = [
         show_default=True,
         help="Then refine every window's latents for N gradient steps on its own ELBO, scoring "
         "the file's noisy joint rotations with a noise level estimated per joint (50 is a good "
-        "value: markedly cleaner, about 15x slower than the default); 0 = off.",
+        f"value: markedly cleaner, about {_D['refine_slowdown']:g}x slower than one pass with "
+        "the offset); 0 = off.",
     ),
     click.option(
         "--refine-lr",
@@ -90,8 +98,8 @@ OPTIONS = [
         "translation, to the file in closed form (no gradient steps): it follows slow motion the "
         "learned prior cannot express, so clean parts of a take come back almost unchanged, the "
         "body keeps the file's path, and the result is more accurate than a tuned filter, at "
-        "~1.3x the time. --no-offset is the paper's plain regression mode. Part of --refine "
-        "already.",
+        f"~{_D['offset_time']:g}x the time. --no-offset is the paper's plain regression mode. "
+        "Part of --refine already.",
     ),
     click.option(
         "--loop/--no-loop",
@@ -109,9 +117,8 @@ OPTIONS = [
         "stretch, or a joint that is clean) comes back as it came, a noisy one cleaned, and a "
         "spike in the input is replaced. The share kept is in the summary and in --json "
         '("input_share"). On by default, except with --outliers, whose heavy-tailed noise '
-        "model already weighs the spikes (on a spiky take with --refine 50 --outliers: 1.55 cm "
-        "without it, 1.98 with it). Not with --no-offset, which is the paper's regression mode "
-        "untouched.",
+        "model already weighs the spikes (such takes come out more accurate without the blend). "
+        "Not with --no-offset, which is the paper's regression mode untouched.",
     ),
     click.option(
         "--guard/--no-guard",
@@ -128,8 +135,9 @@ OPTIONS = [
         is_flag=True,
         help="Model the noise as heavy-tailed (Student-t, 10 degrees of freedom, = --lam 10) per "
         "frame and joint, so spikes (a swapped marker, a solver flip) are down-weighted where they "
-        "happen instead of raising the whole joint's noise level: with --refine, about 40 % lower "
-        "error on takes with spikes, 1 % higher on evenly noisy ones (benchmarks/outliers.py); "
+        "happen instead of raising the whole joint's noise level: with --refine, "
+        f"{span(_O['spike_gain_pct'], ' %')} lower error on takes with spikes, "
+        f"{span(_O['even_cost_pct'], ' %')} higher on evenly noisy ones (benchmarks/outliers.py); "
         "without --refine (the video setting) smoother, but worse on spiky mocap takes.",
     ),
     click.option(
@@ -153,8 +161,10 @@ OPTIONS = [
         "--mirror",
         is_flag=True,
         help="Also denoise each file's left-right mirror image and average the two results (the "
-        "learned prior is not exactly mirror-symmetric): about 10 % lower error in regression "
-        "mode without the offset, 1 % with it, 3 % with --refine, at about twice the time.",
+        "learned prior is not exactly mirror-symmetric): with --refine 50, "
+        f"{span(_D['mirror_refine_gain_pct'], ' %')} lower error on the test walks at "
+        f"{_D['mirror_time']:g}x the time; less with the default's offset, which already absorbs "
+        "much of what the two images disagree on.",
     ),
     click.option(
         "--feet",
@@ -164,11 +174,27 @@ OPTIONS = [
         help="lock: where a foot is clearly planted (a foot joint low and slow; the rule "
         "widens with the input's noise), hold it still by swinging its leg about the hip, the "
         "knee keeping its bend; frames away from contacts are left as denoised, and a clean take "
-        "keeps its own feet. On noisy clips (0.10-0.20 rad) foot skate falls from 5.5-9 times "
-        "the truth's to 0.6-0.7 times on the test walks (1.2-1.9 on unseen kinds of motion), "
-        "the vertex error by 8-9 % (1-3 %), for ~0.02-0.08 ms a frame (docs/benchmarks.md, "
+        "keeps its own feet. On noisy clips (0.10-0.20 rad) foot skate falls from "
+        f"{span(_F['test']['skate_off'])} times the truth's to {span(_F['test']['skate_lock'])} "
+        f"times on the test walks ({span(_F['unseen_test']['skate_off'])} to "
+        f"{span(_F['unseen_test']['skate_lock'])} on unseen kinds of motion), the vertex error by "
+        f"{span(_F['test']['v2v_gain_pct'], ' %')} ({span(_F['unseen_test']['v2v_gain_pct'], ' %')}"
+        f"), for ~{span(_F['ms_per_frame'])} ms a frame on a long take (docs/benchmarks.md, "
         '"Feet and floor"). off: the feet as denoised.',
     ),
+    click.option(
+        "--fill",
+        type=click.Choice(["on", "off", DEFAULT_FILL]),
+        default="on",
+        show_default=True,
+        help="on: fill the holes of a take (frames and joints that are missing: NaN in an npz, "
+        "frames a video track skips, what --missing names in a BVH/AMC take) by the default "
+        f"way, {DEFAULT_FILL}: a cubic curve per joint from the frames beside the hole (the "
+        "take's own on a clean take, the cleaned ones on a noisy one); the summary and --json "
+        'say how many ("filled_frames", "filled_joints"). off: leave them as they came (an npz '
+        "gets its NaN back, a take its own frames).",
+    ),
+    missing_option,
     click.option(
         "--floor",
         is_flag=True,
@@ -222,6 +248,24 @@ OPTIONS = [
         'e.g. {"pelvis": "Hips", "left_hip": "LeftUpLeg", "head": "Head"} (SMPL joint -> yours).',
     ),
 ]
+
+
+def fill_setting(option: str) -> str:
+    """``--fill``'s value as ``DenoiseSettings.fill`` ("on": the default fill)."""
+    return DEFAULT_FILL if option == "on" else option
+
+
+def fill_words(done: list[dict]) -> str:
+    """What the summary line says of the holes (nothing when there were none)."""
+    from mdvae_cli.run.denoise_files import fill_totals
+
+    total = fill_totals(done)
+    if total["filled_frames"]:
+        return (f"; filled {total['filled_frames']} frame(s) with missing joints "
+                f"({total['filled_joints']} joint entries)")  # fmt: skip
+    if total["unfilled_frames"]:
+        return f"; {total['unfilled_frames']} frame(s) with holes left as they came (--fill off)"
+    return ""
 
 
 def denoise_options(command):

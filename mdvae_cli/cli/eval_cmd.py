@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -20,7 +21,9 @@ from mdvae_cli.cli.common import (
 )
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular, expand_inputs
+from mdvae_cli.foot_metrics import SLIDE_SPEED
 from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
+from mdvae_cli.motion.contacts import FLOOR_QUANTILE, HEIGHT_TOL, SPEED_MAX
 
 if TYPE_CHECKING:  # the metrics pose meshes with torch: imported when the command runs
     from mdvae_cli.metrics import EvalResult
@@ -148,7 +151,37 @@ def _cells(r: EvalResult) -> list[str]:
     ]
 
 
-@click.command("eval")
+_SLIDE_CM = 100 * SLIDE_SPEED / 30  # a sliding foot's travel in one frame at 30 Hz
+#: ``mdvae eval --help``; the contact rule's numbers are the ones ``motion.contacts`` uses
+HELP = f"""Score predicted motions against ground truth.
+
+\b
+Per file, both motions posed by the body model with the ground truth's betas:
+  V2V       vertex error, root-relative (each mesh minus its pelvis), cm
+  V2V abs   vertex error in world coordinates, cm
+  MPJPE     error of the 22 body joints, cm: root-relative (each skeleton
+            minus its pelvis, as in the literature) and in world coordinates
+  acc       mean joint |x[t-1] - 2x[t] + x[t+1]| * fps^2, m/s^2 (GT, pred)
+  acc err   mean norm of the difference of accelerations, m/s^2
+Feet, where the ground truth has a foot down by the rule mdvae view marks
+contacts with (its ankle or ball joint less than {100 * HEIGHT_TOL:g} cm above its own
+floor level, the {100 * FLOOR_QUANTILE:g} % quantile of its height over the take, and
+slower than {SPEED_MAX:g} m/s), against the ground truth's floor (the median height
+of its lowest sole points there); prediction (GT):
+  skate     mean horizontal speed of contacting foot joints, cm/s
+  slide %   share of them faster than {SLIDE_SPEED:g} m/s ({_SLIDE_CM:g} cm per frame at 30 Hz)
+  penetr.   mean depth of each foot's lowest point under the floor, cm
+  float     its mean height above the floor while the foot is down, cm
+The mean row weights every frame equally (skate: every contact pair; float:
+every foot-frame down). Frame rates and lengths must match.
+
+\b
+Example:
+  mdvae eval --gt clean/ --pred denoised/ --json > scores.json
+"""  # fmt: skip
+
+
+@click.command("eval", help=HELP)
 @click.option(
     "--gt", "gt", type=click.Path(path_type=Path), required=True,
     help="Ground-truth motion file or folder: any file `mdvae denoise` reads (.npz, .bvh, "
@@ -167,31 +200,6 @@ def _cells(r: EvalResult) -> list[str]:
 @json_option
 @handle_errors
 def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> None:
-    """Score predicted motions against ground truth.
-
-    \b
-    Per file, both motions posed by the body model with the ground truth's betas:
-      V2V       vertex error, root-relative (each mesh minus its pelvis), cm
-      V2V abs   vertex error in world coordinates, cm
-      MPJPE     error of the 22 body joints, cm: root-relative (each skeleton
-                minus its pelvis, as in the literature) and in world coordinates
-      acc       mean joint |x[t-1] - 2x[t] + x[t+1]| * fps^2, m/s^2 (GT, pred)
-      acc err   mean norm of the difference of accelerations, m/s^2
-    Feet, where the ground truth has a foot down (its ankle or ball joint less
-    than 5 cm above its planted level, the take's 5th percentile of ankle or
-    ball heights, and slower than 0.3 m/s), against the ground truth's floor
-    (the median height of its lowest sole points there); prediction (GT):
-      skate     mean horizontal speed of contacting foot joints, cm/s
-      slide %   share of them faster than 0.6 m/s (2 cm per frame at 30 Hz)
-      penetr.   mean depth of each foot's lowest point under the floor, cm
-      float     its mean height above the floor while the foot is down, cm
-    The mean row weights every frame equally (skate: every contact pair; float:
-    every foot-frame down). Frame rates and lengths must match.
-
-    \b
-    Example:
-      mdvae eval --gt clean/ --pred denoised/ --json > scores.json
-    """
     from mdvae_cli.export import as_body_model
     from mdvae_cli.metrics import evaluate_pair, mean_result
 
@@ -236,11 +244,19 @@ def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> N
         )
     elif good:
         rows = [(o.job.relpath.as_posix(), o.result) for o in good]
-        # off a terminal (logs, pipes) rich would cut the table at 80 columns
-        out = console if console.is_terminal else Console(stderr=True, width=200)
+        out = table_console()
         for table in results_table(rows, mean if len(good) > 1 else None, out.width):
             out.print(table)
     report.exit()
+
+
+def table_console() -> Console:
+    """Where the results table goes: the console on a terminal; off one (logs, pipes), as many
+    columns as ``COLUMNS`` says, else 200 (rich would cut the table at 80)."""
+    if console.is_terminal:
+        return console
+    columns = os.environ.get("COLUMNS", "")
+    return Console(stderr=True, width=int(columns) if columns.isdigit() else 200)
 
 
 COMMANDS = [eval_command]

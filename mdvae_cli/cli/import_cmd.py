@@ -18,11 +18,12 @@ from mdvae_cli.cli.batch import (
     is_kind,
     json_option,
     plan_jobs,
+    print_notes,
     run_batch,
     strip_gz,
 )
 from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, console, handle_errors
-from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice
+from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice, missing_option
 from mdvae_cli.cli.takes import load_joint_map
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
@@ -66,7 +67,7 @@ def _start_worker(*args) -> None:
     atomically) and exit."""
     import signal
 
-    from mdvae_cli.cli.import_worker import FileImporter
+    from mdvae_cli.run.import_files import FileImporter
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     global _WORKER
@@ -169,11 +170,12 @@ def _print_summary(summary: dict) -> None:
     help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them "
     '(SMPL joint -> yours, e.g. {"left_hip": "LeftUpLeg"}).',
 )  # fmt: skip
+@missing_option
 @body_model_option
 @json_option
 @handle_errors
 def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, split_file,
-                   input_format, track, jobs_n, joint_map_file, body_model,
+                   input_format, track, jobs_n, joint_map_file, missing, body_model,
                    as_json) -> None:  # fmt: skip
     """Import motion capture (BVH, ASF/AMC; .gz too) as AMASS-style .npz on the SMPL skeleton,
     and the output files of video pose pipelines (WHAM, GVHMR, TRAM, 4D-Humans/PHALP, VIBE,
@@ -213,7 +215,7 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     settings = RetargetSettings(floor=floor or "plane").validate()
     joint_map = load_joint_map(joint_map_file)
     args = (body_model, out, out_fps, settings, source_fps, scale, asf, input_format, track,
-            joint_map, estimate_fps, floor)  # fmt: skip
+            joint_map, estimate_fps, floor, missing, print_notes)  # fmt: skip
     report = _run(jobs, args, jobs_n)
     rows = [o.result for o in report.succeeded]
     summary = {**report.to_dict(), "skipped": skipped, "fps": out_fps,
@@ -285,7 +287,7 @@ def _plan(inputs, out: Path, out_arg, asf, source_fps, corpus: bool, split_file)
 def _run(jobs: list[FileJob], args: tuple, jobs_n: int):
     """Import every job (in ``jobs_n`` worker processes when more than one), a line per good
     file. -> the batch report"""
-    from mdvae_cli.cli.import_worker import FileImporter
+    from mdvae_cli.run.import_files import FileImporter
 
     pool = None
     if jobs_n > 1 and len(jobs) > 1:

@@ -1,14 +1,13 @@
 """What the file commands share about reading motion: the ``--format``, ``--fps`` and ``--track``
-options, the suffixes folders are searched for, and where each track of a file is written.
+options, the suffixes folders are searched for, and reading a file with its notes shown.
 
 A file of several people (a WHAM or PHALP result with several tracks) gives one output per
-track, named ``<output stem>.track<ID>.npz`` beside the output the file would have had
-(``--track ID`` keeps one track, written to the output itself).
+track (``run.tracks.outputs_of``); ``--track ID`` keeps one track, written to the output
+itself.
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -24,7 +23,6 @@ from mdvae_cli.formats.registry import (
     ReadOptions,
     read,
 )
-from mdvae_cli.motion.motion import Motion
 
 #: what folders are searched for by the commands that read any motion file
 INPUT_SUFFIXES = READ_SUFFIXES
@@ -68,6 +66,31 @@ def motion_input_options(fn: Callable) -> Callable:
     )(fn)
 
 
+def _missing_rules(ctx, param, value: str) -> tuple[str, ...]:
+    """``--missing``'s text as rules (``formats.missing.parse_rules``)."""
+    from mdvae_cli.errors import InputError
+    from mdvae_cli.formats.missing import parse_rules
+
+    try:
+        return parse_rules(value)
+    except InputError as exc:
+        raise click.BadParameter(str(exc).removeprefix("--missing: ")) from None
+
+
+#: ``--missing RULES``: the holes of BVH / AMC takes (``formats.missing``)
+missing_option = click.option(
+    "--missing",
+    default="",
+    metavar="RULES",
+    callback=_missing_rules,
+    help="BVH/AMC takes: which frames are holes, comma-separated (off by default): frozen = "
+    "every channel of a joint exactly unchanged for 1/3 s or more (at least 5 frames) while "
+    "other joints move, then a jump (a solver that held a lost marker's last value and caught "
+    "up); zeros = a frame with every channel 0 (an exporter's empty frame). E.g. "
+    "--missing frozen,zeros. They are marked in joint_mask (denoise fills them, see --fill).",
+)
+
+
 def read_input(path: Path, relpath: Path, options: ReadOptions, takes=None) -> LoadedFile:
     """``formats.registry.read`` with the command's options, printing the file's notes.
     takes: a ``retarget.take.TakeReader`` shared over the command's files."""
@@ -77,46 +100,3 @@ def read_input(path: Path, relpath: Path, options: ReadOptions, takes=None) -> L
         where = relpath if label is None else Path(f"{relpath.as_posix()} track {label}")
         print_notes(where, motion.notes)
     return loaded
-
-
-def track_output(output: Path, label: str | None) -> Path:
-    """Where one track of a file goes: ``output`` itself for a file of one motion, else
-    ``<stem>.track<label><suffix>`` beside it (the label made file-name safe)."""
-    if label is None:
-        return output
-    safe = re.sub(r"[^A-Za-z0-9_-]+", "_", str(label)) or "_"
-    return output.with_name(f"{output.stem}.track{safe}{output.suffix}")
-
-
-def outputs_of(loaded: LoadedFile, output: Path) -> list[tuple[str | None, Motion, Path]]:
-    """Each track of a file with its output path."""
-    return [(label, m, track_output(output, label)) for label, m in loaded.tracks]
-
-
-def floor_height(motion: Motion, body, max_tilt: float = 0.035) -> float:
-    """The height (m) of the ground under a motion's soles: the lower envelope of each frame's
-    lowest foot vertex (``retarget.retarget.fit_ground`` without tilt), the motion posed on
-    ``body`` (a BodyModelData)."""
-    import numpy as np
-
-    from mdvae_cli.export import pose_motion_chunks
-    from mdvae_cli.retarget.fit_shape import BodyJoints
-    from mdvae_cli.retarget.retarget import fit_ground
-
-    feet = BodyJoints(body).foot_ids
-    lowest = []
-    for _, out in pose_motion_chunks(motion, body, vertices=True):
-        v = out.vertices[:, feet].double().numpy()
-        i = v[..., 2].argmin(axis=1)
-        lowest.append(v[np.arange(len(v)), i])
-    p = np.concatenate(lowest)
-    return float(fit_ground(p[:, [0, 2, 1]], max_tilt, tilt=False)[0])
-
-
-def on_floor(motion: Motion, body, max_tilt: float = 0.035) -> Motion:
-    """A copy of ``motion`` moved up or down so that the ground under its soles
-    (:func:`floor_height`) is at z = 0, with a note saying by how much (``--floor``)."""
-    h = floor_height(motion, body, max_tilt)
-    out = motion.with_body(trans=motion.trans - [0.0, 0.0, h])
-    out.notes.append(f"put on the floor (--floor): heights {-100 * h:+.1f} cm")
-    return out

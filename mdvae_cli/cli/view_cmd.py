@@ -188,7 +188,7 @@ def plot(
 
     INPUTS are motion files in any format mdvae reads (or folders of them), drawn in this
     order and colour.
-    Written with no plotting library: a PNG, or an SVG when -o ends in .svg.
+    Drawn with matplotlib (pip install 'mdvae[plot]'): a PNG, or an SVG when -o ends in .svg.
 
     \b
     Examples:
@@ -198,10 +198,18 @@ def plot(
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.fileio import write_atomic
-    from mdvae_cli.view.figure import FigureSpec, draw_figure, joint_index
+    from mdvae_cli.view.figure import (
+        FigureSpec,
+        draw_figure,
+        figure_bytes,
+        figure_size,
+        joint_index,
+        require_matplotlib,
+    )
 
     out = Path(out)
     check_output(out, (".png", ".svg"), inputs)
+    require_matplotlib()  # before anything is read
     spec = FigureSpec(
         joints=tuple(joint_index(j) for j in joints), series=series, frames=frames,
         width=width, title=title,
@@ -210,15 +218,15 @@ def plot(
     report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out)
     if not items:
         report.exit()
-    canvas = draw_figure(items, BodyModel(body_data), spec, svg=out.suffix.lower() == ".svg")
-    data = canvas.to_bytes()
+    figure = draw_figure(items, BodyModel(body_data), spec)
+    data = figure_bytes(figure, out.suffix.lower()[1:])
     write_atomic(out, lambda tmp: tmp.write_bytes(data), forbid=tuple(inputs))
+    width, height = figure_size(figure)
     if as_json:
-        emit_json({"output": str(out), "bytes": len(data), "width": canvas.width,
-                   "height": canvas.height, "motions": [label for label, _ in items],
-                   **_read_counts(report)})  # fmt: skip
+        emit_json({"output": str(out), "bytes": len(data), "width": width, "height": height,
+                   "motions": [label for label, _ in items], **_read_counts(report)})  # fmt: skip
     else:
-        console.print(f"wrote {out} ({canvas.width} x {canvas.height}, {len(data) / 1e3:.0f} kB)")
+        console.print(f"wrote {out} ({width} x {height}, {len(data) / 1e3:.0f} kB)")
     report.exit()
 
 

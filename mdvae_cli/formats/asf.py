@@ -18,11 +18,11 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.source import (
-    euler_to_rotmat,
     guess_length_unit,
     read_text,
     skeleton_height,
 )
+from mdvae_cli.geometry.euler import euler_to_rotmat
 from mdvae_cli.motion.motion import MAX_DISTANCE_M
 
 _DOF_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz", "l")

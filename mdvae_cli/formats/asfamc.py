@@ -30,9 +30,9 @@ from mdvae_cli.formats.asf import (
 from mdvae_cli.formats.source import (
     SourceMotion,
     check_angles,
-    euler_to_rotmat,
     read_text,
 )
+from mdvae_cli.geometry.euler import euler_to_rotmat
 
 
 @dataclass

@@ -25,11 +25,11 @@ from mdvae_cli.formats.source import (
     CMU_UNIT,
     SourceMotion,
     check_angles,
-    euler_to_rotmat,
     guess_length_unit,
     read_text,
     skeleton_height,
 )
+from mdvae_cli.geometry.euler import euler_to_rotmat
 
 # --- BVH ---------------------------------------------------------------------------------------
 

@@ -1,4 +1,4 @@
-"""Writing BVH files: Euler angles back out of rotation matrices, and the file itself.
+"""Writing BVH files (their Euler angles: ``geometry.euler.rotmat_to_euler``).
 
 A file read by :func:`mdvae_cli.formats.bvh.load_bvh` keeps its :class:`BvhLayout` (the header
 verbatim, the channel layout, every frame as read); :func:`write_bvh` writes new channel values
@@ -17,40 +17,6 @@ from mdvae_cli.fileio import write_atomic
 
 #: digits after the decimal point in written channel values (0.000001 deg, 0.000001 unit)
 DECIMALS = 6
-
-
-def rotmat_to_euler(R: np.ndarray, axes: str, near: np.ndarray | None = None) -> np.ndarray:
-    """Angles (radians) with ``R = R_axes[0](a0) @ R_axes[1](a1) @ R_axes[2](a2)``, the BVH
-    convention (first channel outermost), for three distinct axes.
-
-    Of the two solutions, the one closest to ``near`` is returned, each angle moved by whole
-    turns to lie nearest its ``near`` value (so a file's angles that run past 180 degrees, or
-    sit at -180 rather than 180, come back as written).
-
-    R: (T, 3, 3); axes: e.g. "zxy"; near: (T, 3) radians or None  -> (T, 3)
-    """
-    i, j, k = ("xyz".index(a) for a in axes)
-    sign = 1.0 if (j - i) % 3 == 1 else -1.0  # cyclic order (xyz, yzx, zxy) or not
-    s = np.clip(sign * R[:, i, k], -1.0, 1.0)
-    b = np.arcsin(s)
-    a = np.arctan2(-sign * R[:, j, k], R[:, k, k])
-    c = np.arctan2(-sign * R[:, i, j], R[:, i, i])
-    lock = np.sqrt(R[:, i, i] ** 2 + R[:, i, j] ** 2) < 1e-9  # gimbal lock: put it all in a
-    if lock.any():
-        c = np.where(lock, 0.0, c)
-        a = np.where(lock, np.arctan2(sign * R[:, k, j], R[:, j, j]), a)
-    one = np.stack([a, b, c], axis=1)
-    two = np.stack([a + np.pi, np.pi - b, c + np.pi], axis=1)
-    if near is None:
-        return _wrap(one, np.zeros_like(one))
-    one, two = _wrap(one, near), _wrap(two, near)
-    pick = np.abs(two - near).sum(1) < np.abs(one - near).sum(1)
-    return np.where(pick[:, None], two, one)
-
-
-def _wrap(angles: np.ndarray, near: np.ndarray) -> np.ndarray:
-    """angles moved by whole turns to lie within half a turn of near."""
-    return angles + 2 * np.pi * np.round((near - angles) / (2 * np.pi))
 
 
 def format_rows(data: np.ndarray) -> str:

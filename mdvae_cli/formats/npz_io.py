@@ -12,6 +12,13 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
+from mdvae_cli.formats.npz_holes import (
+    AS_READ,
+    HOLES,
+    fill_placeholders,
+    read_holes,
+    restore_holes,
+)
 from mdvae_cli.formats.npz_values import (
     ANGLE,
     BETA,
@@ -106,7 +113,7 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     notes: list[str] = []
     has_poses = "poses" in data
     if has_poses:
-        poses = real_array("poses", data["poses"], path, ANGLE)
+        poses = real_array("poses", data["poses"], path, ANGLE, holes=True)
     else:
         poses = _poses_from_split(data, path)
     if poses.ndim != 2 or poses.shape[1] not in POSE_WIDTHS:
@@ -118,7 +125,7 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     split = _split_layout(data, poses, path, notes)
 
     if "trans" in data:
-        trans = real_array("trans", data["trans"], path, DISTANCE)
+        trans = real_array("trans", data["trans"], path, DISTANCE, holes=True)
         if trans.shape != (T, 3):
             raise InputError(f"{path}: 'trans' has shape {trans.shape}, expected ({T}, 3)")
     else:
@@ -163,6 +170,11 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         mask = joint_mask(data["joint_mask"], path)
         if mask.shape != (T, 22):
             raise InputError(f"{path}: 'joint_mask' has shape {mask.shape}, expected ({T}, 22)")
+    trans_bad = ~np.isfinite(trans)
+    poses, trans, finite, as_read, note = read_holes(poses, trans, path, split=not has_poses)
+    if finite is not None:
+        mask = finite if mask is None else mask & finite
+        notes.append(note)
 
     data = safe_keys(data, notes)
     extras = {k: v for k, v in data.items() if k not in _OWN_KEYS and k not in split}
@@ -178,10 +190,13 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         "split": split,
         "betas_rows": betas_rows,
     }
-    return Motion.from_poses(
+    if as_read is not None:
+        layout[AS_READ] = as_read
+    motion = Motion.from_poses(
         poses, trans, betas, fps, gender=gender, joint_mask=mask, extras=extras,
         layout=layout, notes=notes,
     )  # fmt: skip
+    return motion if as_read is None else fill_placeholders(motion, trans_bad)
 
 
 def _split_array(data: dict[str, np.ndarray], key: str, T: int) -> np.ndarray | None:
@@ -206,7 +221,7 @@ def _poses_from_split(data: dict[str, np.ndarray], path: Path) -> np.ndarray:
         )
     T = np.shape(data["root_orient"])[0] if np.ndim(data["root_orient"]) else 0
     for key in _BODY_SPLIT_KEYS:
-        real_array(key, data[key], path, ANGLE)
+        real_array(key, data[key], path, ANGLE, holes=True)
         if _split_array(data, key, T) is None:
             shape = np.shape(data[key])
             raise InputError(
@@ -219,7 +234,7 @@ def _poses_from_split(data: dict[str, np.ndarray], path: Path) -> np.ndarray:
             poses = np.zeros((T, width))
             for k, p in parts.items():
                 start = SPLIT_KEYS[k][1][width]
-                poses[:, start : start + p.shape[1]] = real_array(k, p, path, ANGLE)
+                poses[:, start : start + p.shape[1]] = real_array(k, p, path, ANGLE, holes=True)
             return poses
     raise AssertionError("unreachable: width 66 needs only the body arrays")
 
@@ -241,7 +256,10 @@ def _split_layout(
         if arr is None or start is None:
             continue
         cols = f"poses[:, {start}:{start + columns}]"
-        diff = np.abs(arr - poses[:, start : start + columns])
+        with np.errstate(invalid="ignore"):
+            diff = np.abs(arr - poses[:, start : start + columns])
+        diff[np.isnan(diff) & (arr == poses[:, start : start + columns])] = 0.0  # inf == inf
+        diff[np.isnan(arr) & np.isnan(poses[:, start : start + columns])] = 0.0
         worst = float(diff.max()) if np.all(np.isfinite(diff)) else float("inf")
         if worst > _SPLIT_TOL and key not in _BODY_SPLIT_KEYS:
             notes.append(f"'{key}' differs from {cols} by up to {worst:.3g}: kept as it is")
@@ -259,12 +277,13 @@ def _split_layout(
     return split
 
 
-def motion_to_arrays(motion: Motion) -> dict[str, np.ndarray]:
+def motion_to_arrays(motion: Motion, holes: bool = True) -> dict[str, np.ndarray]:
     """The arrays to write for a Motion, in the layout it was read with.
 
     Every key read is written back with its dtype, shape and place in the key order (keys the
     file did not have, e.g. a new ``joint_mask``, come last); split pose arrays are rewritten
-    from the motion's pose, so they agree with ``poses``.
+    from the motion's pose, so they agree with ``poses``. holes: the file's NaN back in its
+    holes when the motion is marked so (``formats.npz_holes.keep_holes``).
     """
     layout = motion.layout
     specs: dict = layout.get("arrays") or {}
@@ -275,7 +294,9 @@ def motion_to_arrays(motion: Motion) -> dict[str, np.ndarray]:
         return _float_dtype(specs[key][0] if key in specs else None, poses_dtype)
 
     out: dict[str, np.ndarray] = dict(motion.extras)
-    poses = motion.poses
+    poses, trans = motion.poses, motion.trans.copy()
+    if holes:
+        restore_holes(poses, trans, layout)
     if layout.get("has_poses", True):
         out["poses"] = poses.astype(poses_dtype)
     for key, spec in (layout.get("split") or {}).items():
@@ -283,7 +304,7 @@ def motion_to_arrays(motion: Motion) -> dict[str, np.ndarray]:
         start = int(spec["start"])
         shape = (T, *tuple(spec["shape"])[1:])
         out[key] = poses[:, start : start + columns].reshape(shape).astype(spec["dtype"])
-    out["trans"] = motion.trans.astype(float_dtype("trans"))
+    out["trans"] = trans.astype(float_dtype("trans"))
     out["betas"] = _betas_array(motion, specs.get("betas"), float_dtype("betas"))
     fps_key = str(layout.get("fps_key", "mocap_framerate"))
     out[fps_key] = _fps_array(motion.fps, specs.get(fps_key))
@@ -353,13 +374,15 @@ def save_motion(motion: Motion, path: Path | str, forbid: tuple[Path, ...] = ())
     refused: it could not be read back.
     """
     with np.errstate(over="ignore", invalid="ignore"):  # the check below says it in one line
-        arrays = motion_to_arrays(motion)
+        arrays = motion_to_arrays(motion, holes=False)
     for key in ("poses", "trans", "betas", *SPLIT_KEYS):
         if key in arrays and not np.isfinite(arrays[key]).all():
             raise InputError(
                 f"cannot write {path}: its '{key}' is not finite as {arrays[key].dtype} "
                 "(values too large); nothing written"
             )
+    if motion.layout.get(HOLES):  # the file's NaN back in its holes (--fill off)
+        arrays = motion_to_arrays(motion)
     compress = bool(motion.layout.get("compressed"))
 
     def write(tmp: Path) -> None:

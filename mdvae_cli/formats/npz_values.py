@@ -37,19 +37,24 @@ DISTANCE = Limit(MAX_DISTANCE_M, "reaches {:.3g} m", f"distances over {MAX_DISTA
 BETA = Limit(MAX_BETA, "holds a shape coefficient of {:.3g}", f"coefficients over {MAX_BETA:g}")
 
 
-def real_array(key: str, arr: np.ndarray, path: Path, limit: Limit | None = None) -> np.ndarray:
+def real_array(
+    key: str, arr: np.ndarray, path: Path, limit: Limit | None = None, holes: bool = False
+) -> np.ndarray:
     """``arr`` as float64; InputError when it is not real numbers (text, complex...), holds
-    NaN or inf, or holds a value past ``limit``."""
+    NaN or inf (unless ``holes``: they mark missing values, ``formats.npz_holes``), or holds a
+    finite value past ``limit``."""
     arr = np.asarray(arr)
     if np.iscomplexobj(arr):
         raise InputError(f"{path}: '{key}' holds complex numbers; expected real numbers")
     if arr.dtype.kind not in "iuf":  # timedelta, datetime, text, bool, objects
         raise InputError(f"{path}: '{key}' is not numeric (dtype {arr.dtype})")
     arr = np.asarray(arr, dtype=np.float64)
-    if not np.all(np.isfinite(arr)):
+    finite = np.isfinite(arr)
+    if not holes and not finite.all():
         raise InputError(f"{path}: '{key}' contains NaN or infinite values")
-    if limit is not None and arr.size and np.abs(arr).max() > limit.largest:
-        worst = float(np.abs(arr).max())
+    size = np.abs(arr[finite]) if holes else np.abs(arr)
+    if limit is not None and size.size and size.max() > limit.largest:
+        worst = float(size.max())
         raise InputError(f"{path}: '{key}' {limit.value.format(worst)}; the file is corrupt "
                          f"({limit.kind} are refused)")  # fmt: skip
     return arr

@@ -101,6 +101,8 @@ class ReadOptions:
     is resampled before its retarget). retarget: the take retarget's ``RetargetSettings``
     (None: the defaults). metadata: kept with a take's motion (default: its file name).
     progress: called with (frames retargeted, frames) while a take is retargeted.
+    missing: the rules that mark holes in a BVH / AMC take (``formats.missing``: "frozen",
+    "zeros"; none by default).
     """
 
     format: str | None = None
@@ -115,6 +117,7 @@ class ReadOptions:
     retarget: Any = None
     metadata: dict | None = None
     progress: Callable[[int, int], None] | None = None
+    missing: tuple[str, ...] = ()
 
 
 def unsupported(path: Path | str) -> str | None:
@@ -156,7 +159,7 @@ def read(
 
 
 def _read_take(path: Path, options: ReadOptions, takes: TakeReader | None) -> LoadedFile:
-    from mdvae_cli.retarget.take import TakeReader
+    from mdvae_cli.retarget.take import TakeReader, with_missing
 
     if options.track is not None:
         raise InputError(f"{path}: --track applies to files of several people; a take holds one")
@@ -165,7 +168,7 @@ def _read_take(path: Path, options: ReadOptions, takes: TakeReader | None) -> Lo
                        settings=options.retarget, metadata=options.metadata,
                        skeleton=options.skeleton, progress=options.progress)  # fmt: skip
     fmt = suffix_of(path)[1:]
-    return LoadedFile(path, fmt, "mocap", [(None, take.motion)], take=take)
+    return LoadedFile(path, fmt, "mocap", [(None, with_missing(take, options.missing))], take=take)
 
 
 def write(

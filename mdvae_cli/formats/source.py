@@ -15,6 +15,7 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular
+from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotmat, rotmat_to_quat
 from mdvae_cli.motion.motion import MAX_ANGLE_DEG, MAX_DISTANCE_M
 
@@ -107,39 +108,10 @@ class SourceMotion:
     def forward_kinematics(self, frames: slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
         """Global rotations (T, J, 3, 3) and positions (T, J, 3) of every joint (of ``frames``
         alone: a long take a chunk at a time)."""
-        rotations = self.rotations[frames]
-        T, J = rotations.shape[0], self.num_joints
-        G = np.empty((T, J, 3, 3))
-        P = np.empty((T, J, 3))
-        G[:, 0] = rotations[:, 0]
-        P[:, 0] = self.root_positions[frames]
-        for j in range(1, J):
-            p = self.parents[j]
-            G[:, j] = G[:, p] @ rotations[:, j]
-            if self.local_positions is None:
-                P[:, j] = P[:, p] + G[:, p] @ self.offsets[j]
-            else:
-                local = self.local_positions[frames, j, :, None]
-                P[:, j] = P[:, p] + (G[:, p] @ local)[..., 0]
-        return G, P
-
-
-def euler_to_rotmat(angles: np.ndarray, axes: str) -> np.ndarray:
-    """Product of axis rotations, outermost first: ``R_axes[0](a0) @ R_axes[1](a1) @ ...``.
-
-    angles: (T, K) radians; axes: K letters from "xyz" -> (T, 3, 3)
-    """
-    T = angles.shape[0]
-    out = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
-    for k, axis in enumerate(axes):
-        c, s = np.cos(angles[:, k]), np.sin(angles[:, k])
-        R = np.zeros((T, 3, 3))
-        i = "xyz".index(axis)
-        a, b = (i + 1) % 3, (i + 2) % 3
-        R[:, i, i] = 1.0
-        R[:, a, a], R[:, a, b], R[:, b, a], R[:, b, b] = c, -s, s, c
-        out = out @ R
-    return out
+        local = self.offsets if self.local_positions is None else self.local_positions[frames]
+        return forward_kinematics(
+            self.rotations[frames], local, self.parents, root=self.root_positions[frames]
+        )
 
 
 #: bytes a text mocap file (BVH, ASF, AMC) may hold, unzipped

@@ -33,8 +33,8 @@ from mdvae_cli.formats.video_tracks import (
     Y_UP,
     RawTrack,
     rotvecs,
-    to_rotmat,
 )
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 
 #: frame rate of a video pipeline's output when the file does not say (none does)
 VIDEO_FPS = 30.0
@@ -183,7 +183,7 @@ def read_gvhmr(data: dict, label: str) -> list[RawTrack]:
     if not isinstance(params, dict):
         raise InputError(f"{label}: no 'smpl_params_global' or 'smpl_params_incam'")
     where = f"{label} smpl_params_{'global' if world else 'incam'}"
-    root = to_rotmat(
+    root = rotvec_to_rotmat(
         rotvecs(array(params, "global_orient", where), 1, "global_orient", where)[:, 0]
     )
     T = len(root)
@@ -194,7 +194,7 @@ def read_gvhmr(data: dict, label: str) -> list[RawTrack]:
     extras: dict[str, np.ndarray] = {"surface_model_type": np.array("smplx")}
     incam = data.get("smpl_params_incam")
     if world and isinstance(incam, dict) and "global_orient" in incam and "transl" in incam:
-        cam_root = to_rotmat(
+        cam_root = rotvec_to_rotmat(
             rotvecs(array(incam, "global_orient", label), 1, "global_orient", label)[:, 0]
         )
         extras.update(cam_extras(cam_root, np.asarray(incam["transl"]).reshape(-1, 3)))

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.formats.video_tracks import matrices_to_rotvecs, rotmats, rotvecs, to_rotmat
+from mdvae_cli.formats.video_tracks import matrices_to_rotvecs, rotmats, rotvecs
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 
 
 def array(d: dict, key: str, label: str) -> np.ndarray:
@@ -36,7 +37,7 @@ def frames_of(a: np.ndarray, T: int, key: str, label: str) -> np.ndarray:
 def smpl_axis_angle(pose: np.ndarray, key: str, label: str) -> tuple:
     """(T, 72) SMPL axis-angles -> root (T, 3, 3), body (T, 21, 3), hands (T, 6)."""
     aa = rotvecs(pose, 24, key, label)
-    return to_rotmat(aa[:, 0]), aa[:, 1:22], aa[:, 22:].reshape(len(aa), 6)
+    return rotvec_to_rotmat(aa[:, 0]), aa[:, 1:22], aa[:, 22:].reshape(len(aa), 6)
 
 
 def smpl_matrices(mats: np.ndarray, joints: int, key: str, label: str) -> tuple:

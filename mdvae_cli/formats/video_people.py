@@ -17,7 +17,8 @@ from mdvae_cli.formats.video_layout import (
     smpl_matrices,
     track_items,
 )
-from mdvae_cli.formats.video_tracks import CAMERA_UP, RawTrack, rotvecs, to_rotmat
+from mdvae_cli.formats.video_tracks import CAMERA_UP, RawTrack, rotvecs
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 
 
 def read_phalp(data: dict, label: str) -> list[RawTrack]:
@@ -138,7 +139,7 @@ def read_slahmr(data: dict, label: str) -> list[RawTrack]:
             observed = np.asarray(data["track_mask"][b]).astype(bool).reshape(T)
         tracks.append(
             RawTrack(
-                root=to_rotmat(ro[b].astype(np.float64)),
+                root=rotvec_to_rotmat(ro[b].astype(np.float64)),
                 body=body,
                 transl=array(data, "trans", label)[b].reshape(T, 3),
                 betas=array(data, "betas", label)[b],
@@ -154,7 +155,7 @@ def read_slahmr(data: dict, label: str) -> list[RawTrack]:
 
 def _floor_up(data: dict, root_orient: np.ndarray) -> tuple[float, float, float]:
     """SLAHMR's up: the floor plane's normal, signed to agree with the bodies' mean up."""
-    body_up = to_rotmat(root_orient.reshape(-1, 3).astype(np.float64))[:, :, 1].mean(0)
+    body_up = rotvec_to_rotmat(root_orient.reshape(-1, 3).astype(np.float64))[:, :, 1].mean(0)
     n = np.asarray(data.get("floor_plane", CAMERA_UP), np.float64).reshape(-1, 3)[0]
     n = n / max(np.linalg.norm(n), 1e-9) if np.linalg.norm(n) > 1e-9 else np.array(CAMERA_UP)
     return tuple(n if n @ body_up >= 0 else -n)

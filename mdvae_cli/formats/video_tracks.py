@@ -26,11 +26,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import torch
 
 from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import interp_linear, interp_rotvec
 
@@ -96,15 +95,7 @@ def up_to_z(up: tuple[float, float, float] | np.ndarray) -> np.ndarray:
             return np.eye(3)
         return np.diag([1.0, -1.0, -1.0])  # upside down: half a turn about x
     angle = np.arctan2(s, c)
-    return to_rotmat(axis / s * angle)
-
-
-def to_rotmat(rotvec: np.ndarray) -> np.ndarray:
-    return rotvec_to_rotmat(torch.as_tensor(rotvec, dtype=torch.float64)).numpy()
-
-
-def to_rotvec(rotmat: np.ndarray) -> np.ndarray:
-    return rotmat_to_rotvec(torch.as_tensor(rotmat, dtype=torch.float64)).numpy()
+    return rotvec_to_rotmat(axis / s * angle)
 
 
 def pose_values(x, what: str, label: str) -> np.ndarray:
@@ -153,7 +144,7 @@ def matrices_to_rotvecs(m: np.ndarray) -> np.ndarray:
     u, _, vt = np.linalg.svd(m)
     d = np.sign(np.linalg.det(u @ vt))
     u[..., :, -1] *= d[..., None]
-    return to_rotvec(u @ vt)
+    return rotmat_to_rotvec(u @ vt)
 
 
 def rest_pelvis(body: BodyModelData, betas: np.ndarray) -> np.ndarray:
@@ -190,7 +181,7 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         root = Rw @ root
         pelvis = np.einsum("tij,tj->ti", Rw, pelvis) + tw
     C = up_to_z(raw.up)
-    root = to_rotvec(C @ root)
+    root = rotmat_to_rotvec(C @ root)
     trans = pelvis @ C.T - J0
     pose_body = np.asarray(raw.body, dtype=np.float64)
     extra = np.zeros((T, 0)) if raw.pose_extra is None else np.asarray(raw.pose_extra, np.float64)
@@ -206,7 +197,10 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         root, pose_body, trans, extra, extras, gaps, ids = _fill_gaps(
             raw.frame_ids, root, pose_body, trans, extra, extras, source, raw.label
         )
-        mask = gaps if gaps is not None else mask
+        if mask is not None:  # the pipeline's own filled frames, where they land now
+            mask = _observed_at(raw.frame_ids, raw.observed, ids) & (True if gaps is None else gaps)
+        else:
+            mask = gaps
         extras["frame_ids"] = ids
         if gaps is not None:
             missing = int((~mask[:, 0]).sum())
@@ -237,9 +231,20 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
     )
 
 
+def _observed_at(src_ids, observed, ids: np.ndarray) -> np.ndarray:
+    """(T', 22) the pipeline's ``observed`` (T,) flags moved onto the consecutive frame ids
+    ``ids`` (T',) as :func:`_fill_gaps` orders them (the first of repeated ids kept); False
+    for frames absent from ``src_ids``."""
+    src = np.asarray(src_ids).reshape(-1).astype(np.int64)
+    first, at = np.unique(src, return_index=True)
+    seen = np.zeros(len(ids), bool)
+    seen[first - ids[0]] = np.asarray(observed, bool)[at]
+    return np.repeat(seen[:, None], 22, axis=1)
+
+
 def _mean_up(root_orient: np.ndarray) -> float:
     """Mean z of the pelvis's up axis (the rest body's +y) over the frames."""
-    return float(to_rotmat(root_orient)[:, 2, 1].mean())
+    return float(rotvec_to_rotmat(root_orient)[:, 2, 1].mean())
 
 
 def _frame_ids(ids, source, label) -> np.ndarray:

@@ -20,9 +20,12 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
+from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from, join_pieces, observed_pieces
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL
 from mdvae_cli.infer.guard import fallback_stretches, guard
 from mdvae_cli.infer.native_rate import to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
+from mdvae_cli.infer.progress import CORE_PHASES, more_phases, phase, staged
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.stitch import assemble
@@ -33,7 +36,7 @@ from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regress
 from mdvae_cli.model.state import BodyParams, state_to_params
 from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
-from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.motion.resample import resample_times
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
@@ -159,7 +162,7 @@ def refine_windows(
             with torch.no_grad():
                 x_hat = add_offset(regressor(denoiser, len(idx))(g.yn), g.obs, joints, cfg)
         else:
-            tell = _staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
+            tell = staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
             x_hat = refine_latents(denoiser, g.yn, g.obs, joints, cfg, tell)
         x_hat = _guarded(x_hat.detach(), g, fallbacks)
         outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
@@ -193,6 +196,7 @@ def denoise_motions(
     blend: bool = False,
     on_blend: Callable[[int, BlendReport], None] | None = None,
     blend_fast: bool = True,
+    fill: str | None = DEFAULT_FILL,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -222,30 +226,57 @@ def denoise_motions(
     False puts back the slow band alone (video estimates, whose jitter is not white).
     With ``feet``, the results' feet are then held still on the floor where they are down
     (``infer.feet.lock_feet``, each input as its source).
+    ``fill``: what the inputs' holes (``joint_mask`` False) become, one of
+    ``infer.fill.FILLS`` (a "curve" from the frames beside them, the "model"'s frames, or
+    "off": as they came); the likelihoods drop them whatever it is. None:
+    the model's (as "model").
     """
+    holes = any(has_holes(m) for m in motions)
+    if fill == "off" and holes:  # everything as usual, then the holes as they came
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror, guard, on_fallback, loops, feet, blend, on_blend,
+            blend_fast, fill="model",
+        )  # fmt: skip
+        return [fill_holes(src, m, "off") for m, src in zip(cleaned, motions, strict=True)]
+    pieces = [observed_pieces(m, MIN_FRAMES) for m in motions] if holes else []
+    if any(p is not None for p in pieces):  # long holes: the pieces between them on their own
+        return _denoise_pieces(
+            motions, pieces, denoiser, body, window, stride, optimize_steps, lr, batch_size,
+            seed, progress, refine, mirror, guard, on_fallback, loops, feet, blend, on_blend,
+            blend_fast, fill,
+        )  # fmt: skip
     if feet is not None:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            _more(progress, 1), refine, mirror, guard, on_fallback, loops, blend=blend,
-            on_blend=on_blend, blend_fast=blend_fast,
+            more_phases(progress, 1), refine, mirror, guard, on_fallback, loops, blend=blend,
+            on_blend=on_blend, blend_fast=blend_fast, fill=fill,
         )  # fmt: skip
-        out = [lock_feet(m, body, feet, src) for m, src in zip(cleaned, motions, strict=True)]
+        # in a hole the lock reads the filled motion as the input's
+        sources = [holes_from(s, m) for m, s in zip(cleaned, motions, strict=True)]
+        out = [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]
         done = CORE_PHASES + blend + 1
-        _phase(progress, "feet locked", done, done)
+        phase(progress, "feet locked", done, done)
         return out
     if blend:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            _more(progress, 1), refine, mirror, guard, on_fallback, loops,
+            more_phases(progress, 1), refine, mirror, guard, on_fallback, loops, fill=None,
         )  # fmt: skip
         out = []
         for i, (m, src) in enumerate(zip(cleaned, motions, strict=True)):
             blended, report = blend_motion(src, m, blend_fast)
-            out.append(blended)
+            out.append(fill_holes(src, blended, fill or "model"))
             if on_blend is not None:
                 on_blend(i, report)
-        _phase(progress, "blended", CORE_PHASES + 1, CORE_PHASES + 1)
+        phase(progress, "blended", CORE_PHASES + 1, CORE_PHASES + 1)
         return out
+    if fill not in (None, "model") and holes:
+        cleaned = denoise_motions(
+            motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
+            progress, refine, mirror, guard, on_fallback, loops, fill=None,
+        )  # fmt: skip
+        return [fill_holes(src, m, fill) for m, src in zip(cleaned, motions, strict=True)]
     if loops is not None and any(loops):
         return _denoise_cycles(
             motions, list(loops), denoiser, body, window, stride, optimize_steps, lr,
@@ -280,7 +311,7 @@ def denoise_motions(
         if optimize_steps > 0:
             from mdvae_cli.infer.elbo_fit import fit_denoiser
 
-            tell = _staged(progress, "optimize", 0, optimize_steps)
+            tell = staged(progress, "optimize", 0, optimize_steps)
             draws = torch.Generator().manual_seed(seed)  # reproducible whatever ran before
             fit_denoiser(
                 denoiser, groups, body, optimize_steps, lr, batch_size, seed, tell,
@@ -292,12 +323,12 @@ def denoise_motions(
             steps = [len(refine_batches(g, refine)) * refine.steps for g in groups]
             preds = [
                 refine_windows(denoiser, g, refine,
-                               _staged(progress, "refine", done, sum(steps)), fallbacks)
+                               staged(progress, "refine", done, sum(steps)), fallbacks)
                 for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
             ]  # fmt: skip
-        _phase(progress, "windows denoised", 1, CORE_PHASES)
+        phase(progress, "windows denoised", 1, CORE_PHASES)
         out = assemble(motions, motions30, groups, preds)
-        _phase(progress, "stitched", 2, CORE_PHASES)
+        phase(progress, "stitched", 2, CORE_PHASES)
     for mi, stretches in fallback_stretches(fallbacks or [], motions30, window).items():
         seconds = sum(b - a for a, b in stretches)
         duration = max((motions30[mi].num_frames - 1) / MODEL_FPS, 1e-9)
@@ -310,6 +341,33 @@ def denoise_motions(
         if on_fallback is not None:
             for a, b in stretches:
                 on_fallback(mi, a, b)
+    return out
+
+
+def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
+    """Denoise the pieces of the motions between their long holes (``infer.fill``) as
+    motions of their own, put them back, then fill the holes. ``args``: the rest of
+    :func:`denoise_motions`' arguments after ``body``, in order."""
+    *head, on_fallback, loops, feet, blend, on_blend, blend_fast, fill = args
+    parts, owners = [], []
+    for i, (m, cuts) in enumerate(zip(motions, pieces, strict=True)):
+        for a, b in cuts if cuts is not None else [(0, m.num_frames)]:
+            parts.append(slice_frames(m, a, b))
+            owners.append((i, a / m.fps))
+    tell = None if on_fallback is None else (
+        lambda j, a, b: on_fallback(owners[j][0], a + owners[j][1], b + owners[j][1]))  # fmt: skip
+    report = None if on_blend is None else lambda j, r: on_blend(owners[j][0], r)
+    done = denoise_motions(
+        parts, denoiser, body, *head, on_fallback=tell,
+        loops=None, feet=feet, blend=blend,  # a piece of a take is no cycle
+        on_blend=report, blend_fast=blend_fast, fill=fill,
+    )  # fmt: skip
+    out, k = [], 0
+    for m, cuts in zip(motions, pieces, strict=True):
+        cuts = cuts if cuts is not None else [(0, m.num_frames)]
+        joined = join_pieces(m, cuts, done[k : k + len(cuts)])
+        k += len(cuts)
+        out.append(fill_holes(m, joined, fill or "model"))
     return out
 
 
@@ -334,36 +392,3 @@ def _denoise_cycles(motions, loops, denoiser, body, *args, on_fallback=None) -> 
     *head, guard = args
     out = denoise_motions(tiled, denoiser, body, *head, guard=guard, on_fallback=tell)
     return [untile(o, m) if lp else o for o, m, lp in zip(out, motions, loops, strict=True)]
-
-
-def _staged(progress, stage: str, offset: int, total: int):
-    """A progress callback that labels its stage and counts steps over several runs."""
-    if progress is None:
-        return None
-
-    def tell(info: dict) -> None:
-        progress({**info, "stage": stage, "step": offset + info["step"], "steps": total})
-
-    return tell
-
-
-CORE_PHASES = 2  # the "denoise" stage's phases without the blend and the foot lock
-
-
-def _phase(progress, phase: str, step: int, steps: int) -> None:
-    """Tell ``progress`` that the ``step``-th of ``steps`` phases of the whole is done."""
-    if progress is not None:
-        progress({"stage": "denoise", "step": step, "steps": steps, "phase": phase})
-
-
-def _more(progress, extra: int):
-    """``progress`` for an inner run whose "denoise" phases are followed by ``extra`` more."""
-    if progress is None:
-        return None
-
-    def tell(info: dict) -> None:
-        if info["stage"] == "denoise":
-            info = {**info, "steps": info["steps"] + extra}
-        progress(info)
-
-    return tell

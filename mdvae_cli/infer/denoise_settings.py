@@ -17,6 +17,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
 from mdvae_cli.infer.input_kinds import kind_settings, refine_config
 from mdvae_cli.infer.loop import looks_like_loop
 from mdvae_cli.infer.noise_blend import BlendReport
@@ -41,7 +42,9 @@ class DenoiseSettings:
     output moved further than the noise explains; feet: "lock" or "off"; loop: True / False,
     or None to detect cycles; mirror: average with the mirror image's result;
     optimize_steps, lr, seed: optimisation mode; window, overlap: the windows (30 Hz frames);
-    rest_pose: leading rest-pose frames (an exporter's T-pose frame 0) kept as they came.
+    rest_pose: leading rest-pose frames (an exporter's T-pose frame 0) kept as they came;
+    fill: what the input's holes (``joint_mask`` False: missing frames and joints) become
+    (``infer.fill.FILLS``); "off" leaves them as the input's values as they came.
     """
 
     input_kind: str = "mocap"
@@ -62,10 +65,13 @@ class DenoiseSettings:
     window: int = 60
     overlap: int = 15
     rest_pose: bool = True
+    fill: str = DEFAULT_FILL
 
     def __post_init__(self) -> None:
         if self.feet not in FEET:
             raise InputError(f"feet must be one of {', '.join(FEET)}, got {self.feet!r}")
+        if self.fill not in FILLS:
+            raise InputError(f"fill must be one of {', '.join(FILLS)}, got {self.fill!r}")
         if not 0 <= self.overlap < self.window:
             raise InputError(
                 f"the overlap ({self.overlap}) must be smaller than the window ({self.window})"
@@ -89,6 +95,16 @@ class DenoiseSettings:
     def untouched(self) -> bool:
         """The paper's regression mode: no offset, no refinement, so no blend and no guard."""
         return self.refine() is None
+
+    @property
+    def mode(self) -> str:
+        """What runs after the networks' one pass: "optimization", "refinement",
+        "regression+offset" or "regression" (the paper's mode untouched)."""
+        if self.optimize_steps:
+            return "optimization"
+        if self.refine_steps:
+            return "refinement"
+        return "regression+offset" if self.offset else "regression"
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -153,6 +169,7 @@ def denoise(
             blend=settings.blend and refine is not None,
             on_blend=on_blend,
             blend_fast=kind_settings(settings.input_kind).blend_fast,
+            fill=settings.fill,
         )
 
     return keep_rest_frames(motions, run) if settings.rest_pose else run(motions)

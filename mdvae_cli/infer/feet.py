@@ -56,6 +56,7 @@ import numpy as np
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_smooth
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 from mdvae_cli.infer.contact_runs import clean_contacts, fade_weights, hold_targets, run_means
 from mdvae_cli.infer.leg_ik import (
     CHUNK_FRAMES,
@@ -64,7 +65,6 @@ from mdvae_cli.infer.leg_ik import (
     leg_chain,
     leg_rotations,
     pose_legs,
-    rotvec_to_rotmat_np,
     sole_heights,
     swing_ik,
     to_rotvecs,
@@ -207,7 +207,7 @@ def input_trust(
     if T > 3 * JITTER_TRIPLES:
         starts = np.linspace(0, T - 3, JITTER_TRIPLES).astype(int)
         frames = (starts[:, None] + np.arange(3)).reshape(-1)
-        root = rotvec_to_rotmat_np(np.asarray(source.root_orient[frames], dtype=np.float64))
+        root = rotvec_to_rotmat(np.asarray(source.root_orient[frames], dtype=np.float64))
         pos, _ = leg_chain(
             root, leg_rotations(source, frames), source.trans[frames] + model.pelvis, model.bones
         )
@@ -335,7 +335,7 @@ def _solve_legs(
     for s in range(0, B, CHUNK_FRAMES):
         sl = slice(s, min(s + CHUNK_FRAMES, B))
         f = frames[sl]
-        root = rotvec_to_rotmat_np(np.asarray(motion.root_orient[f], dtype=np.float64))
+        root = rotvec_to_rotmat(np.asarray(motion.root_orient[f], dtype=np.float64))
         pelvis = motion.trans[f] + model.pelvis
         legs = leg_rotations(motion, f)
         flexion = motion.pose_body[f][:, rows[:, 1], 0]

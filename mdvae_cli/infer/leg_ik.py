@@ -17,6 +17,12 @@ import numpy as np
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS
 from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.geometry.rotations_np import (
+    cross,
+    rotmat_between,
+    rotmat_to_rotvec,
+    rotvec_to_rotmat,
+)
 from mdvae_cli.motion.contacts import foot_vertex_ids
 from mdvae_cli.motion.motion import Motion
 
@@ -30,65 +36,6 @@ SOLE_BAND = 0.03
 HYPEREXTENSION = 0.05
 #: frames posed at once (bounded memory on long takes: a chunk's rotations take ~10 MB)
 CHUNK_FRAMES = 8192
-
-
-def rotvec_to_rotmat_np(rotvec: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula in numpy.  (..., 3) -> (..., 3, 3)"""
-    rotvec = np.asarray(rotvec, dtype=np.float64)
-    theta = np.sqrt((rotvec * rotvec).sum(-1))
-    small = theta < 1e-8
-    x, y, z = np.moveaxis(rotvec / np.where(small, 1.0, theta)[..., None], -1, 0)
-    sin, cos = np.where(small, 0.0, np.sin(theta)), np.where(small, 1.0, np.cos(theta))
-    c1 = 1 - cos
-    xs, ys, zs = x * sin, y * sin, z * sin
-    xy, xz, yz = x * y * c1, x * z * c1, y * z * c1
-    R = np.empty((*rotvec.shape[:-1], 3, 3))
-    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = cos + x * x * c1, xy - zs, xz + ys
-    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = xy + zs, cos + y * y * c1, yz - xs
-    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = xz - ys, yz + xs, cos + z * z * c1
-    return R
-
-
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product over the last axis (numpy's ``cross`` costs more on small arrays)."""
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
-
-
-def rotmat_to_rotvec_np(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices to axis-angles with angles in [0, pi], in numpy, through the
-    quaternion (the largest of the four pivots, as ``geometry.rotations.rotmat_to_quat``).
-    (..., 3, 3) -> (..., 3)"""
-    m = R
-    pivots = np.stack(
-        [
-            1 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2],
-            1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-            1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
-            1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
-        ],
-        axis=-1,
-    )
-    a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
-    d, e, f = m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]
-    cand = np.stack(
-        [
-            np.stack([pivots[..., 0], a, b, c], -1),
-            np.stack([a, pivots[..., 1], d, e], -1),
-            np.stack([b, d, pivots[..., 2], f], -1),
-            np.stack([c, e, f, pivots[..., 3]], -1),
-        ],
-        axis=-2,
-    )  # row k is 4 q_k q
-    best = pivots.argmax(-1)
-    q = np.take_along_axis(cand, best[..., None, None], -2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    q = np.where(q[..., :1] < 0, -q, q)
-    s = np.linalg.norm(q[..., 1:], axis=-1)
-    angle = 2 * np.arctan2(s, q[..., 0])
-    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-12), 2.0)
-    return q[..., 1:] * scale[..., None]
 
 
 @dataclass(frozen=True)
@@ -136,7 +83,7 @@ class LegModel:
 
 def leg_rotations(motion: Motion, frames: np.ndarray | slice = slice(None)) -> np.ndarray:
     """Local rotations of hip, knee, ankle, ball per leg.  -> (B, 2, 4, 3, 3)"""
-    return rotvec_to_rotmat_np(motion.pose_body[frames][:, np.asarray(LEGS) - 1])
+    return rotvec_to_rotmat(motion.pose_body[frames][:, np.asarray(LEGS) - 1])
 
 
 def leg_chain(
@@ -172,7 +119,7 @@ def pose_legs(
     low = np.empty((T, 2)) if soles else None
     for s in range(0, T, chunk):
         sl = slice(s, min(s + chunk, T))
-        root = rotvec_to_rotmat_np(np.asarray(motion.root_orient[sl], dtype=np.float64))
+        root = rotvec_to_rotmat(np.asarray(motion.root_orient[sl], dtype=np.float64))
         pelvis = motion.trans[sl] + model.pelvis
         pos[sl], G = leg_chain(root, leg_rotations(motion, sl), pelvis, model.bones)
         if low is not None:
@@ -195,15 +142,6 @@ def sole_heights(pos: np.ndarray, G: np.ndarray, model: LegModel) -> np.ndarray:
         z = G[:, leg, used, 2].reshape(len(G), -1) @ weighted.reshape(-1, weighted.shape[-1])
         out[:, leg] = (z + pos[:, leg, used, 2] @ w[:, used].T).min(-1)
     return out
-
-
-def swing(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The smallest rotation turning direction ``u`` into direction ``v``.  (..., 3) x 2 ->
-    (..., 3, 3)"""
-    axis = cross(u, v)
-    sin = np.linalg.norm(axis, axis=-1, keepdims=True)
-    angle = np.arctan2(sin, (u * v).sum(-1, keepdims=True))
-    return rotvec_to_rotmat_np(axis / np.maximum(sin, 1e-12) * angle)
 
 
 def knee_turn(
@@ -231,48 +169,6 @@ def knee_turn(
     phi = np.remainder(phi + math.pi, 2 * math.pi) - math.pi
     cost = np.abs(phi) + 10.0 * (flexion[..., None] + phi < -HYPEREXTENSION)
     return np.take_along_axis(phi, cost.argmin(-1)[..., None], -1)[..., 0]
-
-
-def two_bone_ik(
-    root: np.ndarray,
-    legs: np.ndarray,
-    pelvis: np.ndarray,
-    bones: np.ndarray,
-    targets: np.ndarray,
-    held: np.ndarray,
-    flexion: np.ndarray,
-) -> np.ndarray:
-    """Put ankles and balls of the feet on targets by turning hips, knees and ankles.
-
-    root, legs, pelvis, bones: as :func:`leg_chain`; targets: (B, 2, 2, 3) positions of
-    (ankle, ball) per leg; held: (B, 2, 2) bool, which of them have a target; flexion: (B, 2)
-    each knee's flexion (rad, the x component of its axis-angle). Closed form, per leg: the knee
-    turns about its hinge (its x axis) until the hip-ankle distance is right, the hip turns
-    (smallest rotation) to point the leg at the ankle's target, and the ankle turns to point the
-    foot at the ball's target, or, with no ball target, to keep the foot's world orientation.
-    With only the ball held, the ankle's target is the ankle moved as the ball must move. Out of
-    reach, the leg straightens toward the target.
-    -> (B, 2, 4, 3, 3) the new local rotations (the ball's own unchanged).
-    """
-    pos, G = leg_chain(root, legs, pelvis, bones)
-    hip, knee, ankle, ball = (pos[:, :, i] for i in range(4))
-    hold_ankle, hold_ball = held[..., 0, None], held[..., 1, None]
-    moved = np.where(hold_ball, ankle + targets[:, :, 1] - ball, ankle)
-    goal = np.where(hold_ankle, targets[:, :, 0], moved)
-    n = G[:, :, 1, :, 0]
-    phi = knee_turn(knee - hip, ankle - knee, n, np.linalg.norm(goal - hip, axis=-1), flexion)
-    x_axis = np.zeros_like(n)
-    x_axis[..., 0] = phi
-    knee_local = legs[:, :, 1] @ rotvec_to_rotmat_np(x_axis)
-    shank = (rotvec_to_rotmat_np(n * phi[..., None]) @ (ankle - knee)[..., None])[..., 0]
-    R0 = root[:, None]
-    hip_local = R0.swapaxes(-1, -2) @ swing(knee + shank - hip, goal - hip) @ R0 @ legs[:, :, 0]
-    knee_world = R0 @ hip_local @ knee_local
-    turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
-    aim = swing((turned @ bones[:, 3, :, None])[..., 0], targets[:, :, 1] - goal) @ turned
-    foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
-    ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
-    return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)
 
 
 def turn_about(v: np.ndarray, n: np.ndarray, phi: np.ndarray) -> np.ndarray:
@@ -313,7 +209,10 @@ def swing_ik(
     """Put ankles and balls of the feet on targets by swinging each leg about its hip, its
     knee bent as it was unless a target is off the reach that bend gives.
 
-    root, legs, pelvis, bones, targets, held, flexion: as :func:`two_bone_ik`; stiffness (m/rad):
+    root, legs, pelvis, bones: as :func:`leg_chain`; targets: (B, 2, 2, 3) positions of
+    (ankle, ball) per leg; held: (B, 2, 2) bool, which of them have a target (with only the
+    ball held, the ankle's target is the ankle moved as the ball must move); flexion: (B, 2)
+    each knee's flexion (rad, the x component of its axis-angle); stiffness (m/rad):
     how far an ankle may miss a target further than the leg reaches rather than straighten the
     knee by one radian; bend_stiffness: the same for a target nearer than that (0: the knee
     bends as far as the target needs, as a foot under the floor is lifted); both floats or
@@ -345,15 +244,15 @@ def swing_ik(
     phi = np.where(cost > 0, np.clip(step, np.minimum(exact, 0.0), np.maximum(exact, 0.0)), exact)
     x_axis = np.zeros_like(n)
     x_axis[..., 0] = phi
-    knee_local = legs[:, :, 1] @ rotvec_to_rotmat_np(x_axis)
+    knee_local = legs[:, :, 1] @ rotvec_to_rotmat(x_axis)
     turned_leg = thigh + turn_about(shank, n, phi)
     aim_at = on_sphere(goal - hip, np.linalg.norm(turned_leg, axis=-1), limit=2.0)
     R0 = root[:, None]
-    hip_local = R0.swapaxes(-1, -2) @ swing(turned_leg, aim_at) @ R0 @ legs[:, :, 0]
+    hip_local = R0.swapaxes(-1, -2) @ rotmat_between(turned_leg, aim_at) @ R0 @ legs[:, :, 0]
     knee_world = R0 @ hip_local @ knee_local
     turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
     toe = (turned @ bones[:, 3, :, None])[..., 0]  # ankle -> ball, turned with the shank
-    aim = swing(toe, targets[:, :, 1] - (hip + aim_at)) @ turned
+    aim = rotmat_between(toe, targets[:, :, 1] - (hip + aim_at)) @ turned
     foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
     ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
     return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)
@@ -362,7 +261,7 @@ def swing_ik(
 def to_rotvecs(rotmats: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Axis-angles of ``rotmats`` on the branch nearest ``reference`` (angle t or t - 2 pi about
     the same axis), so a track keeps its convention.  (..., 3, 3), (..., 3) -> (..., 3)"""
-    rotvec = rotmat_to_rotvec_np(rotmats)
+    rotvec = rotmat_to_rotvec(rotmats)
     angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
     other = rotvec * (1.0 - 2 * math.pi / np.maximum(angle, 1e-12))
     far = np.linalg.norm(other - reference, axis=-1) < np.linalg.norm(rotvec - reference, axis=-1)

@@ -26,11 +26,9 @@ import torch
 
 from mdvae_cli.body.data import SMPL_PARENTS, BodyModelData
 from mdvae_cli.filters import savgol_smooth
-from mdvae_cli.geometry.rotations import (
-    rotvec_to_quat,
-    rotvec_to_rotmat,
-    rotvec_unwrap,
-)
+from mdvae_cli.geometry import rotations_np
+from mdvae_cli.geometry.kinematics import forward_kinematics
+from mdvae_cli.geometry.rotations import rotvec_unwrap
 from mdvae_cli.motion.motion import Motion
 
 #: a take is a loop when its last pose is this close to its first, in frame-to-frame steps
@@ -54,12 +52,11 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
     Through quaternions (the angle of conj(q_a) q_b is 2 atan2(|v|, |w|)): the same angle as
     the norm of ``rotmat_to_rotvec(R_a^T R_b)``, a quarter of the work on a long take."""
-    qa = rotvec_to_quat(torch.as_tensor(a, dtype=torch.float64))
-    qb = rotvec_to_quat(torch.as_tensor(b, dtype=torch.float64))
+    qa, qb = rotations_np.rotvec_to_quat(a), rotations_np.rotvec_to_quat(b)
     wa, va, wb, vb = qa[..., 0], qa[..., 1:], qb[..., 0], qb[..., 1:]
     w = wa * wb + (va * vb).sum(-1)
-    v = wa[..., None] * vb - wb[..., None] * va - torch.linalg.cross(va, vb)
-    return (2 * torch.atan2(v.norm(dim=-1), w.abs())).mean(dim=-1).numpy()
+    v = wa[..., None] * vb - wb[..., None] * va - rotations_np.cross(va, vb)
+    return (2 * np.arctan2(np.linalg.norm(v, axis=-1), np.abs(w))).mean(axis=-1)
 
 
 def looks_like_loop(
@@ -104,14 +101,9 @@ def posed_joints(rot: np.ndarray, joints: np.ndarray) -> np.ndarray:
 
     rot: (N, 22, 3) axis-angles (root first); joints: (22, 3) rest joints -> (N, 22, 3)
     """
-    R = rotvec_to_rotmat(torch.as_tensor(rot, dtype=torch.float64)).numpy()  # (N, 22, 3, 3)
-    world_R = [R[:, 0]]
-    pos = [np.zeros((R.shape[0], 3))]
-    for j in range(1, 22):
-        p = SMPL_PARENTS[j]
-        pos.append(pos[p] + world_R[p] @ (joints[j] - joints[p]))
-        world_R.append(world_R[p] @ R[:, j])
-    return np.stack(pos, axis=1)
+    parents = SMPL_PARENTS[:22]
+    offsets = joints - joints[[max(p, 0) for p in parents]]  # the root's: zero
+    return forward_kinematics(rotations_np.rotvec_to_rotmat(rot), offsets, parents)[1]
 
 
 def end_gaps(rot: np.ndarray, trans: np.ndarray, joints: np.ndarray) -> tuple[float, float]:

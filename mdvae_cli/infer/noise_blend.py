@@ -71,17 +71,28 @@ class BlendReport:
     spike_share: float
 
 
-def noise_variance(values: np.ndarray) -> np.ndarray:
+def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
     """The white-noise variance of each channel from its third differences in time.
 
-    values: (T, C, ...) -> (C, ...) (per channel, the median over time and the remaining
-    trailing axis when there is one per channel); zeros for T < 4."""
+    values: (T, C, ...); seen: (T, C) bool, where the values are the input's own (a hole's
+    placeholders are a straight line, no noise: differences that reach into one are left out),
+    or None -> (C, ...) (per channel, the median over time and the remaining trailing axis
+    when there is one per channel); zeros for T < 4 or a channel with no difference left."""
     if values.shape[0] < NOISE_ORDER + 1:
         return np.zeros(values.shape[1:-1] if values.ndim > 2 else values.shape[1:])
     d3 = np.diff(values, n=NOISE_ORDER, axis=0) ** 2
+    if seen is not None:
+        ok = np.ones(d3.shape[:2], bool)
+        for k in range(NOISE_ORDER + 1):
+            ok &= seen[k : k + len(d3)]
+        d3 = np.where(ok.reshape(*ok.shape, *([1] * (d3.ndim - 2))), d3, np.nan)
     if values.ndim > 2:  # pool the components of a channel (x, y, z)
         d3 = np.moveaxis(d3, -1, 1).reshape(-1, *values.shape[1:-1])
-    return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
+    if seen is None:
+        return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
+    with np.errstate(all="ignore"):
+        med = np.nan_to_num(np.nanmedian(d3, axis=0)) if np.isfinite(d3).any() else d3[0] * 0
+    return np.nan_to_num(med) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
 
 
 def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
@@ -125,13 +136,19 @@ def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     return out
 
 
-def kept_share(residual_sq: np.ndarray, noise_var: np.ndarray, width: int) -> np.ndarray:
+def kept_share(
+    residual_sq: np.ndarray, noise_var: np.ndarray, width: int, seen: np.ndarray | None = None
+) -> np.ndarray:
     """The share of a band of the residual that its noise does not explain, per frame and
     channel: 1 - s^2 / E|r|^2, in [0, 1].
 
     residual_sq: (T, C) squared residual per component; noise_var: (C,) the band's noise
-    variance per component; width: frames over which E is taken -> (T, C)"""
-    local = moving_mean(residual_sq, width)
+    variance per component; width: frames over which E is taken; seen: (T, C) where the
+    input has values (E over those alone), or None -> (T, C)"""
+    if seen is None:
+        local = moving_mean(residual_sq, width)
+    else:
+        local = moving_mean(residual_sq * seen, width) / np.maximum(moving_mean(seen, width), 1e-6)
     return np.clip(1.0 - noise_var[None] / np.maximum(local, 1e-12), 0.0, 1.0)
 
 
@@ -141,17 +158,24 @@ def keep_unexplained(
     spikes: np.ndarray,
     fps: float,
     with_fast: bool = True,
+    missing: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """What of the input's difference from the denoiser's output to keep: the part its noise
     does not explain, band by band (a slow band, where the denoiser's own errors sit, and a
-    fast one, where white noise sits), and nothing at the input's spikes.
+    fast one, where white noise sits), and nothing at the input's spikes nor where it has no
+    value.
 
     residual: (T, C, 3) input minus output; noise_var: (C,); spikes: (T, C) bool; with_fast:
-    False keeps none of the fast band -> (kept residual (T, C, 3), the slow band's kept share
-    (T, C))"""
+    False keeps none of the fast band; missing: (T, C) bool or None -> (kept residual
+    (T, C, 3), the slow band's kept share (T, C))"""
     r = np.where(spikes[..., None], 0.0, residual)
     kernel = gaussian_coefficients(BAND_SECONDS * fps)
-    slow = smooth_in_time(r, kernel)
+    if missing is None:
+        slow = smooth_in_time(r, kernel)
+    else:  # the input's values alone make the slow band beside a hole (no pull to zero)
+        seen3 = (~missing).astype(float)[..., None]
+        slow = smooth_in_time(r * seen3, kernel) / np.maximum(smooth_in_time(seen3, kernel), 1e-6)
+        r, slow = r * seen3, slow * seen3
     fast = r - slow
     # white noise's variance in each band, per unit of input noise variance
     delta = np.zeros_like(kernel)
@@ -159,62 +183,81 @@ def keep_unexplained(
     width = max(3, int(round(BLEND_SECONDS * fps)) | 1)
     slow_noise = SLOW_MARGIN * noise_var * (kernel**2).sum()
     fast_noise = FAST_MARGIN * noise_var * ((delta - kernel) ** 2).sum()
-    keep_slow = kept_share((slow**2).mean(-1), slow_noise, width)
+    seen = None if missing is None else (~missing).astype(float)
+    keep_slow = kept_share((slow**2).mean(-1), slow_noise, width, seen)
     if not with_fast:
         return keep_slow[..., None] * slow, keep_slow
-    keep_fast = kept_share((fast**2).mean(-1), fast_noise, width)
+    keep_fast = kept_share((fast**2).mean(-1), fast_noise, width, seen)
     return keep_slow[..., None] * slow + keep_fast[..., None] * fast, keep_slow
 
 
 def blend_rotations(
-    source: np.ndarray, denoised: np.ndarray, fps: float, fast: bool = True
+    source: np.ndarray,
+    denoised: np.ndarray,
+    fps: float,
+    fast: bool = True,
+    missing: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each joint's denoised rotation with the part of the input's difference from it that
     the input's noise does not explain put back.
 
-    source, denoised: (T, J, 3) axis-angle -> (blended (T, J, 3), the share of the slow
-    difference put back (T, J): 0 = the denoiser's, 1 = the input's; spikes (T, J))
+    source, denoised: (T, J, 3) axis-angle; missing: (T, J) bool, where the input has no
+    value (taken from the denoiser, as at a spike), or None -> (blended (T, J, 3), the share
+    of the slow difference put back (T, J): 0 = the denoiser's, 1 = the input's; spikes (T, J))
     """
     src = torch.as_tensor(source, dtype=torch.float64)
     q_den = rotvec_to_quat(torch.as_tensor(denoised, dtype=torch.float64))
     q_den_inv = q_den * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
     residual = quat_to_rotvec(quat_multiply(q_den_inv, rotvec_to_quat(src))).numpy()
     unwrapped = rotvec_unwrap(src, dim=0).numpy()
-    noise = noise_variance(unwrapped)  # (J,)
+    noise = noise_variance(unwrapped, None if missing is None else ~missing)  # (J,)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
-    kept, share = keep_unexplained(residual, noise, spikes, fps, fast)
+    if missing is not None:
+        spikes = spikes & ~missing
+    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
     out = quat_to_rotvec(quat_multiply(q_den, rotvec_to_quat(torch.as_tensor(kept)))).numpy()
     return out, share, spikes
 
 
 def blend_translation(
-    source: np.ndarray, denoised: np.ndarray, fps: float, fast: bool = True
+    source: np.ndarray,
+    denoised: np.ndarray,
+    fps: float,
+    fast: bool = True,
+    missing: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The root translation, blended as :func:`blend_rotations` does.
 
-    source, denoised: (T, 3) -> (blended (T, 3), slow share put back (T,))"""
-    noise = noise_variance(source[:, None, :])  # (1,)
+    source, denoised: (T, 3); missing: (T,) bool or None -> (blended (T, 3), slow share put
+    back (T,))"""
+    seen = None if missing is None else ~missing[:, None]
+    noise = noise_variance(source[:, None, :], seen)  # (1,)
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M)
-    kept, share = keep_unexplained((source - denoised)[:, None, :], noise, spikes, fps, fast)
+    kept, share = keep_unexplained(
+        (source - denoised)[:, None, :], noise, spikes, fps, fast,
+        None if missing is None else missing[:, None],
+    )  # fmt: skip
     return denoised + kept[:, 0], share[:, 0]
 
 
 def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[Motion, BlendReport]:
     """``denoised`` (the denoiser's output at the source's frame times) with what the
     source's own noise does not explain put back (``fast``: the fast band too), and how much
-    was.
+    was. Where the source misses a joint (``joint_mask`` False) the denoiser's value stays.
 
     -> (the blended motion: a copy of ``denoised`` with new body parameters, its report)"""
     if source.num_frames < 4:  # too short to tell noise from motion: the denoiser's
         return denoised, BlendReport(0.0, 0.0)
     rot_src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
     rot_den = np.concatenate([denoised.root_orient[:, None], denoised.pose_body], axis=1)
-    rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps, fast)
+    missing = None if source.joint_mask is None else ~np.asarray(source.joint_mask, bool)
+    rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps, fast, missing)
     trans, _ = blend_translation(
         np.asarray(source.trans, np.float64),
         np.asarray(denoised.trans, np.float64),
         source.fps,
         fast,
+        None if missing is None else missing[:, 0],
     )
     dtype = denoised.pose_body.dtype
     out = denoised.with_body(

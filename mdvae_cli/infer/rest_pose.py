@@ -19,10 +19,9 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
-import torch
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion, slice_frames
 
 #: at most this many leading frames are taken for a rest pose
@@ -47,9 +46,8 @@ def joint_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
     a, b: (..., J, 3) -> (..., J)
     """
-    ra = rotvec_to_rotmat(torch.as_tensor(np.asarray(a), dtype=torch.float64))
-    rb = rotvec_to_rotmat(torch.as_tensor(np.asarray(b), dtype=torch.float64))
-    return rotmat_to_rotvec(ra.transpose(-1, -2) @ rb).norm(dim=-1).numpy()
+    ra, rb = rotvec_to_rotmat(a), rotvec_to_rotmat(b)
+    return np.linalg.norm(rotmat_to_rotvec(ra.swapaxes(-1, -2) @ rb), axis=-1)
 
 
 def _leading_run(flags: np.ndarray) -> int:

@@ -1,5 +1,6 @@
-"""Windows stitched back into whole motions: overlaps cross-faded (slerp on rotations, lerp on
-translation), then each motion back at its own frame times (``infer.native_rate``)."""
+"""Windows back into motions: each motion's denoised windows stitched into one sequence at
+30 Hz (overlaps cross-faded: slerp on rotations, lerp on translation), then put back at the
+file's own frame times (``infer.native_rate.to_input_rate``) in a copy of the input motion."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Solving SMPL joint rotations from a source skeleton's posed joint positions: rest-pose
-corrections between the two skeletons, forward kinematics, and the per-frame pose solve that
-``retarget.retarget`` runs."""
+corrections between the two skeletons, and the per-frame pose solve that
+``retarget.retarget`` runs, a chunk of a take's frames at a time (:func:`solve_frames`)."""
 
 from __future__ import annotations
 
@@ -8,27 +8,17 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
+from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.retarget.joint_map import (
     JointMap,
 )
+from mdvae_cli.retarget.soles import _FEET
 
 _N = NUM_BODY_JOINTS
 _PARENTS = SMPL_PARENTS[:_N]
-
-
-def _min_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation taking direction a to direction b.  -> (3, 3)"""
-    a = a / max(np.linalg.norm(a), 1e-12)
-    b = b / max(np.linalg.norm(b), 1e-12)
-    axis = np.cross(a, b)
-    s, c = np.linalg.norm(axis), float(a @ b)
-    if s < 1e-9:  # parallel, or opposite: half a turn about any perpendicular axis
-        if c > 0:
-            return np.eye(3)
-        perp = np.cross(a, np.eye(3)[int(np.argmin(np.abs(a)))])
-        return rotvec_to_rotmat(torch.as_tensor(perp / np.linalg.norm(perp) * np.pi)).numpy()
-    return rotvec_to_rotmat(torch.as_tensor(axis / s * np.arctan2(s, c))).numpy()
 
 
 def rest_corrections(jmap: JointMap, src_rest: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -40,23 +30,11 @@ def rest_corrections(jmap: JointMap, src_rest: np.ndarray, X: np.ndarray) -> np.
     for j in range(_N):
         kids = [k for k in range(_N) if parents[k] == j]
         if len(kids) == 1:
-            C[j] = _min_rotation(X[kids[0]] - X[j], Y[kids[0]] - Y[j])
+            C[j] = rotmat_between(X[kids[0]] - X[j], Y[kids[0]] - Y[j])
     for j in range(_N):  # leaves continue their parent's correction
         if not any(parents[k] == j for k in range(_N)):
             C[j] = C[parents[j]]
     return C
-
-
-def _fk(L: torch.Tensor, bones: torch.Tensor, root: torch.Tensor, parents: list[int]):
-    """Body FK.  L: (T, 22, 3, 3) local rotations; bones: (22, 3) rest offsets from the parent;
-    root: (T, 3) pelvis position -> global rotations (T, 22, 3, 3), positions (T, 22, 3)"""
-    G = [L[:, 0]]
-    p = [root]
-    for j in range(1, _N):
-        q = parents[j]
-        G.append(G[q] @ L[:, j])
-        p.append(p[q] + G[q] @ bones[j])
-    return torch.stack(G, 1), torch.stack(p, 1)
 
 
 def _ancestors(parents: list[int]) -> torch.Tensor:
@@ -114,7 +92,7 @@ def solve_pose(
     diag = torch.full((3 * n + 3,), damping, dtype=lin)
     diag[: 3 * n] += w2
     for _ in range(iterations):
-        G, p = _fk(L, bones, root, parents)
+        G, p = forward_kinematics(L, bones, parents[:_N], root=root)  # (T, 22, 3, 3), (T, 22, 3)
         r = (p - targets).reshape(T, 3 * _N, 1).to(lin)
         pl = p.to(lin)
         diff = pl[:, :, None, :] - pl[:, None, active, :]  # (T, 22, n, 3): p_k - p_j
@@ -141,3 +119,30 @@ def _minus_skew_into(out: torch.Tensor, d: torch.Tensor) -> None:
     out[:, :, 0, :, 1], out[:, :, 0, :, 2] = z, -y
     out[:, :, 1, :, 0], out[:, :, 1, :, 2] = -z, x
     out[:, :, 2, :, 0], out[:, :, 2, :, 1] = y, -x
+
+
+CHUNK_FRAMES = 4096  # frames solved at once (a multiple of solve_pose's own chunks)
+
+
+def frame_chunks(num_frames: int, chunk: int = CHUNK_FRAMES) -> list[slice]:
+    """A take's frames ``chunk`` at a time."""
+    return [slice(i, min(i + chunk, num_frames)) for i in range(0, num_frames, chunk)]
+
+
+def solve_frames(src: SourceMotion, frames: slice, jmap, C, X, parents, settings) -> tuple:
+    """The pose solve on some of the take's frames (each frame is solved on its own, so a
+    long take goes a chunk at a time in flat memory). -> (targets (n, 22, 3), root (n, 3),
+    joints (n, 22, 3), the pelvis's world rotation (n, 3, 3), the ankles' and feet's
+    (n, 4, 3, 3), pose_body (n, 21, 3))"""
+    G_src, P_src = (torch.as_tensor(a) for a in src.forward_kinematics(frames))
+    attach, offset = torch.as_tensor(jmap.attach), torch.as_tensor(jmap.offset)
+    targets = P_src[:, attach] + (G_src[:, attach] @ offset[..., None])[..., 0]
+    G0 = G_src[:, torch.as_tensor(jmap.rot_source)] @ C
+    L0 = G0.clone()
+    L0[:, 1:] = G0[:, parents[1:]].transpose(-1, -2) @ G0[:, 1:]
+    del G_src, P_src, G0
+    L, root = solve_pose(targets, L0, X, parents, settings.twist_weight, settings.iterations)
+    bones = X.clone()
+    bones[1:] = X[1:] - X[parents[1:]]
+    G, p = forward_kinematics(L, bones, parents[:_N], root=root)
+    return targets, root, p, G[:, 0], G[:, _FEET], rotmat_to_rotvec(L[:, 1:])

@@ -40,6 +40,7 @@ from mdvae_cli.formats.asfamc import load_amc
 from mdvae_cli.formats.bvh import load_bvh
 from mdvae_cli.formats.source import SourceMotion, resample_source
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec
+from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.motion.motion import Motion, check_fps
 from mdvae_cli.retarget.fit_shape import BodyJoints, fit_betas, skeleton_key
 from mdvae_cli.retarget.joint_map import (
@@ -52,9 +53,9 @@ from mdvae_cli.retarget.joint_map import (
 )
 from mdvae_cli.retarget.pose_solve import (
     _N,
-    _fk,
-    _min_rotation,
+    frame_chunks,
     rest_corrections,
+    solve_frames,
     solve_pose,
 )
 from mdvae_cli.retarget.soles import _FEET, foot_vertex, lowest_along
@@ -190,32 +191,6 @@ def fit_ground(contacts: np.ndarray, max_tilt: float, tilt: bool = True) -> np.n
     return np.array([coef[0], 0.0, 0.0])
 
 
-CHUNK_FRAMES = 4096  # frames solved at once (a multiple of solve_pose's own chunks)
-
-
-def _chunks(num_frames: int, chunk: int = CHUNK_FRAMES) -> list[slice]:
-    return [slice(i, min(i + chunk, num_frames)) for i in range(0, num_frames, chunk)]
-
-
-def _solve_frames(src: SourceMotion, frames: slice, jmap, C, X, parents, settings) -> tuple:
-    """The pose solve on some of the take's frames (each frame is solved on its own, so a
-    long take goes a chunk at a time in flat memory). -> (targets (n, 22, 3), root (n, 3),
-    joints (n, 22, 3), the pelvis's world rotation (n, 3, 3), the ankles' and feet's
-    (n, 4, 3, 3), pose_body (n, 21, 3))"""
-    G_src, P_src = (torch.as_tensor(a) for a in src.forward_kinematics(frames))
-    attach, offset = torch.as_tensor(jmap.attach), torch.as_tensor(jmap.offset)
-    targets = P_src[:, attach] + (G_src[:, attach] @ offset[..., None])[..., 0]
-    G0 = G_src[:, torch.as_tensor(jmap.rot_source)] @ C
-    L0 = G0.clone()
-    L0[:, 1:] = G0[:, parents[1:]].transpose(-1, -2) @ G0[:, 1:]
-    del G_src, P_src, G0
-    L, root = solve_pose(targets, L0, X, parents, settings.twist_weight, settings.iterations)
-    bones = X.clone()
-    bones[1:] = X[1:] - X[parents[1:]]
-    G, p = _fk(L, bones, root, parents)
-    return targets, root, p, G[:, 0], G[:, _FEET], rotmat_to_rotvec(L[:, 1:])
-
-
 def retarget(
     src: SourceMotion,
     body: BodyJoints,
@@ -245,8 +220,8 @@ def retarget(
     C = torch.as_tensor(rest_corrections(jmap, src.rest_positions(), X.numpy()))
 
     solved = []
-    for frames in _chunks(src.num_frames):
-        solved.append(_solve_frames(src, frames, jmap, C, X, body.parents, settings))
+    for frames in frame_chunks(src.num_frames):
+        solved.append(solve_frames(src, frames, jmap, C, X, body.parents, settings))
         if progress is not None:
             progress(frames.stop, src.num_frames)
     targets, root, p, G_root, G_feet, pose_body = (
@@ -266,7 +241,7 @@ def retarget(
     if settings.floor != "none":
         plane = fit_ground(contacts, settings.max_tilt, tilt=settings.floor == "plane")
     normal = np.array([-plane[1], 1.0, -plane[2]])
-    level = torch.as_tensor(_min_rotation(normal, np.array([0.0, 1.0, 0.0])))
+    level = torch.as_tensor(rotmat_between(normal, np.array([0.0, 1.0, 0.0])))
     floor = float((level @ torch.tensor([0.0, plane[0], 0.0], dtype=torch.float64))[1])
     soles, _ = lowest_along(G_feet, p_feet, body, b, X_all, level[1])
     soles = soles - floor  # (T,)

@@ -14,8 +14,9 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES, SMPL_PARENTS
-from mdvae_cli.formats.bvh_write import bvh_text, rotmat_to_euler
-from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+from mdvae_cli.formats.bvh_write import bvh_text
+from mdvae_cli.geometry.euler import rotmat_to_euler
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.fit_shape import BodyJoints
 
@@ -56,7 +57,7 @@ def smpl_bvh(motion: Motion, body: BodyJoints, units: str = "cm", order: str = "
     T = motion.num_frames
     body_pose = np.reshape(motion.pose_body, (T, -1, 3))[:, : _N - 1]
     pose = np.concatenate([np.reshape(motion.root_orient, (T, 1, 3)), body_pose], axis=1)
-    L = rotvec_to_rotmat(torch.as_tensor(pose, dtype=torch.float64)).numpy()
+    L = rotvec_to_rotmat(pose)
     L[:, 0] = Z_UP_TO_Y_UP @ L[:, 0]
     root = (np.asarray(motion.trans, dtype=np.float64) + X[0]) @ Z_UP_TO_Y_UP.T
     axes = order.lower()

@@ -42,6 +42,8 @@ class Take:
     retarget: RetargetResult
     body: BodyJoints | None = None  #: the body it was retargeted onto
     skeleton_file: Path | None = None  #: an AMC take's .asf, when found next to it
+    #: (T, J) True where ``--missing`` named a source joint missing (``formats.missing``)
+    missing: np.ndarray | None = None
 
     @property
     def motion(self) -> Motion:
@@ -91,6 +93,49 @@ def read_take(
     return Take(path=path, source=src, retarget=rt, body=body)
 
 
+def with_missing(take: Take, rules: tuple[str, ...]) -> Motion:
+    """The take's motion with the holes ``rules`` name (``formats.missing``) marked in
+    ``joint_mask`` and slerp / lerp placeholders in them (``motion.holes.with_holes``), and a
+    note; the take's own motion (kept for the way back) when nothing matched. A body joint is
+    missing where the source joint it follows, or takes its rotation from, is."""
+    if not rules:
+        return take.motion
+    from mdvae_cli.formats.missing import describe, missing_channels
+    from mdvae_cli.motion.holes import hole_count, with_holes
+
+    source, found = missing_channels(take.source, rules)
+    jmap = take.retarget.jmap
+    body = source[:, jmap.attach] | source[:, jmap.rot_source]  # (T_file, 22)
+    motion = take.motion
+    if len(body) != motion.num_frames:  # resampled: the nearest file frame
+        at = np.rint(np.arange(motion.num_frames) * take.source.fps / motion.fps).astype(int)
+        body = body[np.clip(at, 0, len(body) - 1)]
+    else:
+        take.missing = source
+    if not body.any():
+        motion = motion.with_body()
+        motion.notes.append(f"--missing {','.join(rules)}: no frame matched")
+        return motion
+    out = with_holes(motion, ~body, "slerp")
+    out.notes.append(describe(found, hole_count(~body)[0]))
+    return out
+
+
+def _restore_missing(take: Take, data: np.ndarray | dict) -> None:
+    """Put the file's own values back where ``take.missing`` is (``--fill off``), in place.
+    data: a BVH's rows (F, C) or an AMC's bone values {bone: (F, n)}, every frame of the file."""
+    layout = take.source.layout
+    for j in np.flatnonzero(take.missing.any(axis=0)):
+        at = layout.rows[take.missing[:, j]]
+        if isinstance(data, dict):
+            bone = take.source.names[j]
+            if bone in data:
+                data[bone][at] = layout.values[bone][at]
+        else:
+            cols = [c for c, (jj, _, _) in enumerate(layout.channels) if jj == j]
+            data[np.ix_(at, cols)] = layout.data[np.ix_(at, cols)]
+
+
 def write_take(
     take: Take, cleaned: Motion, out: Path | str, body: BodyJoints | None = None,
     forbid: tuple = (), progress: Callable[[int, int], None] | None = None,
@@ -104,11 +149,14 @@ def write_take(
     body = body if body is not None else take.body
     name = out.name.lower().removesuffix(".gz")
     form = take.source.info.get("format")
+    as_read = cleaned.layout.get("holes") == "as read" and take.missing is not None
     if form not in ("bvh", "amc") or not name.endswith(f".{form}"):
         raise InputError(f"{out}: a {form} take is written back as .{form}, or as .npz")
     if form == "bvh":
         data = write_back_data(take.source, take.retarget, take.motion, cleaned, body,
                                progress=progress)  # fmt: skip
+        if as_read:
+            _restore_missing(take, data)
         if not np.isfinite(data).all():
             raise InputError(f"{take.path}: the way back gave non-finite values; nothing written")
         write_bvh(take.source.layout, data, out, forbid=forbid)
@@ -117,6 +165,8 @@ def write_take(
         values = write_back_amc(take.source, take.retarget, take.motion, cleaned, body)
     except InputError as exc:
         raise InputError(f"{take.path}: {exc}; nothing written") from None
+    if as_read:
+        _restore_missing(take, values)
     write_amc(take.source.layout, values, out, forbid=forbid)
     if take.skeleton_file is not None:
         copy = out.parent / take.skeleton_file.name

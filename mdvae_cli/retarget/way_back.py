@@ -20,9 +20,10 @@ import torch
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.bvh import BvhLayout, _positions
-from mdvae_cli.formats.bvh_write import rotmat_to_euler
-from mdvae_cli.formats.source import SourceMotion, euler_to_rotmat
-from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
+from mdvae_cli.geometry.kinematics import forward_kinematics
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.joint_map import JointMap
@@ -38,7 +39,7 @@ def smpl_globals(motion: Motion, model: BodyJoints) -> tuple[np.ndarray, np.ndar
     T = motion.num_frames
     body = np.reshape(motion.pose_body, (T, -1, 3))[:, : _N - 1]
     pose = np.concatenate([np.reshape(motion.root_orient, (T, 1, 3)), body], axis=1)
-    L = rotvec_to_rotmat(torch.as_tensor(pose, dtype=torch.float64)).numpy()
+    L = rotvec_to_rotmat(pose)
     X = X.numpy()
     G = np.empty((T, _N, 3, 3))
     P = np.empty((T, _N, 3))
@@ -111,20 +112,8 @@ def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray):
             t[:, 0] = _positions(data, cols, np.zeros(3)) + layout.offsets[0]
         elif cols and j not in layout.world_channels:
             t[:, j] = _positions(data, cols, layout.offsets[j])
-    G, P = _fk(L, t, src.parents)
+    G, P = forward_kinematics(L, t, src.parents)
     return L, t, G, P
-
-
-def _fk(L, t, parents):
-    T, J = L.shape[:2]
-    G = np.empty_like(L)
-    P = np.empty((T, J, 3))
-    G[:, 0], P[:, 0] = L[:, 0], t[:, 0]
-    for j in range(1, J):
-        p = parents[j]
-        G[:, j] = G[:, p] @ L[:, j]
-        P[:, j] = P[:, p] + (G[:, p] @ t[:, j, :, None])[..., 0]
-    return G, P
 
 
 def _carrier(src: SourceMotion, layout: BvhLayout, a: int) -> int:
@@ -212,7 +201,7 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
         k = "xyz".index(axis)
         new[:, col] = t2[:, c, k] - (layout.offsets[0, k] if c == 0 else 0.0)
     if layout.world_channels:
-        _, P2 = _fk(L2, t2, src.parents)
+        _, P2 = forward_kinematics(L2, t2, src.parents)
         for j in layout.world_channels:
             for col, axis in layout.joint_columns(j, "t"):
                 k = "xyz".index(axis)  # the file's value, moved as the joint moved

@@ -29,17 +29,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.asfamc import AmcLayout, dof_rotation, rotation_columns
-from mdvae_cli.formats.bvh_write import rotmat_to_euler
 from mdvae_cli.formats.source import SourceMotion
-from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+from mdvae_cli.geometry.euler import rotmat_to_euler
+from mdvae_cli.geometry.kinematics import forward_kinematics
+from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
-from mdvae_cli.retarget.way_back import _fk, drivers, pelvis_point, smpl_change, smpl_globals
+from mdvae_cli.retarget.way_back import drivers, pelvis_point, smpl_change, smpl_globals
 
 
 def _unit(layout: AmcLayout) -> float:
@@ -78,7 +78,7 @@ def amc_pose(src: SourceMotion, layout: AmcLayout, values: dict[str, np.ndarray]
         if rot:
             angles = values[name][:, [c for c, _ in rot]] * _unit(layout)
             L[:, j] = dof_rotation(layout.frame(name), angles, "".join(a for _, a in rot))
-    G, P = _fk(L, t, src.parents)
+    G, P = forward_kinematics(L, t, src.parents)
     return L, t, G, P
 
 
@@ -150,16 +150,6 @@ def _carried(rt, src, layout, drive, motions, body, P, G, moved) -> dict:
     return out
 
 
-def _swing(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The smallest rotation turning direction u towards v.  u, v: (T, 3) -> (T, 3, 3)"""
-    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
-    v = v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
-    axis = np.cross(u, v)
-    angle = np.arctan2(np.linalg.norm(axis, axis=-1), (u * v).sum(-1))
-    axis = axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-12)
-    return rotvec_to_rotmat(torch.from_numpy(axis * angle[:, None])).numpy()
-
-
 def write_back_amc(
     src: SourceMotion, rt, original: Motion, cleaned: Motion, body: BodyJoints
 ) -> dict[str, np.ndarray]:
@@ -197,7 +187,7 @@ def write_back_amc(
             G2[:, j] = G2[:, p] @ L2[:, j]
             P2[:, j] = P2[:, p] + (G2[:, p] @ t[:, j, :, None])[..., 0]
             local, want = carried[j]
-            S = _swing((G2[:, j] @ local[..., None])[..., 0], want - P2[:, j])
+            S = rotmat_between((G2[:, j] @ local[..., None])[..., 0], want - P2[:, j])
             R = np.swapaxes(G2[:, p], -1, -2) @ S @ G2[:, j]
         if R is not None:
             for name, v in _solve(src, layout, chain, R, vals).items():

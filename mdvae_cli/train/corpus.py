@@ -134,7 +134,8 @@ def load_windows(
     fraction: float = 1.0,
     fraction_seed: int = 0,
 ) -> WindowSet:
-    """Load files, resample to the model rate and cut windows; files too short are skipped.
+    """Load files, resample to the model rate and cut windows; files too short are skipped,
+    a file with holes (``joint_mask`` False, e.g. NaN in it) refused.
 
     Augmentation for a small corpus (the augmented windows follow all the original ones):
     ``speeds``: every motion is also played at each of these speeds (``motion.resample.
@@ -143,7 +144,12 @@ def load_windows(
     about that share of the frames (:func:`fraction_of`)."""
     motions = []
     for f in files:
-        motions.append(resample_motion(load_motion(f), MODEL_FPS))
+        motion = load_motion(f)
+        if motion.joint_mask is not None and not motion.joint_mask.all():
+            holes = int((~motion.joint_mask).any(axis=1).sum())
+            raise InputError(f"{f}: {holes} frame(s) with missing joints (NaN values or "
+                             "joint_mask); the prior trains on complete takes only")  # fmt: skip
+        motions.append(resample_motion(motion, MODEL_FPS))
         if on_file is not None:
             on_file(f)
     motions = [motions[i] for i in fraction_of(motions, fraction, fraction_seed)]

@@ -1,10 +1,12 @@
-"""``mdvae plot``'s figure: a chosen series of a few joints for every motion over time, the
-feet's contacts, and a filmstrip of a few frames (one row per motion, seen from the side), on a
-:class:`~mdvae_cli.view.canvas.RasterCanvas` (PNG) or :class:`~mdvae_cli.view.canvas.SvgCanvas`.
+"""``mdvae plot``'s figure, drawn with matplotlib (the optional ``[plot]`` extra): a chosen
+series of a few joints for every motion over time, the feet's contacts, and a filmstrip of a
+few frames (one row per motion, seen from the side). No pyplot and no global state: a
+``matplotlib.figure.Figure`` on its own Agg canvas.
 """
 
 from __future__ import annotations
 
+import io
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -14,13 +16,17 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion.contacts import FOOT_JOINTS, foot_contacts
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.view.canvas import RasterCanvas, SvgCanvas, mix
-from mdvae_cli.view.font import text_size
 from mdvae_cli.view.pose import BODY_JOINT_NAMES, BODY_PARENTS, SERIES, joint_series, pose_skeleton
 
 PALETTE = ("#d9480f", "#1c7ed6", "#2b8a3e", "#9c36b5", "#e8a33d", "#0c8599", "#c2255c")
 INK, GREY, LIGHT = "#222222", "#777777", "#e6e6e6"
 HEAD = 15
+#: the height of a filmstrip row, in metres of the scene (a body and its frame's label)
+ROW_METRES = 2.5
+#: pixels per inch of the figure: ``spec.width`` pixels are ``spec.width / DPI`` inches
+DPI = 100
+#: what ``mdvae plot`` says when matplotlib is missing
+INSTALL = "mdvae plot needs matplotlib: pip install 'mdvae[plot]' (or pip install matplotlib)"
 
 
 @dataclass(frozen=True)
@@ -56,29 +62,12 @@ def joint_index(name: str) -> int:
     raise InputError(f"unknown joint {name!r}; choose one of {', '.join(BODY_JOINT_NAMES)}")
 
 
-def nice_ticks(lo: float, hi: float, count: int = 5) -> np.ndarray:
-    """Round tick values inside [lo, hi], about ``count`` of them."""
-    raw = max(hi - lo, 1e-12) / max(count, 1)
-    p = 10.0 ** np.floor(np.log10(raw))
-    step = next(m * p for m in (1, 2, 5, 10) if m * p >= raw)
-    return np.arange(np.ceil(lo / step) * step, hi + 1e-9 * step, step)
-
-
-def envelope(times: np.ndarray, values: np.ndarray, pixels: int, t0: float, t1: float):
-    """At most ~2 points per pixel column: (min, max) of each column when there are more
-    frames than that, else the frames themselves.  -> (times (N,), values (N,))"""
-    if len(values) <= 2 * pixels:
-        return times, values
-    col = np.clip(((times - t0) / max(t1 - t0, 1e-12) * pixels).astype(int), 0, pixels - 1)
-    out_t, out_v = [], []
-    for c in np.unique(col):
-        v = values[col == c]
-        v = v[np.isfinite(v)]
-        if len(v):
-            tc = t0 + (c + 0.5) / pixels * (t1 - t0)
-            out_t += [tc, tc]
-            out_v += [v.min(), v.max()]
-    return np.array(out_t), np.array(out_v)
+def require_matplotlib() -> None:
+    """InputError with the way to install it when matplotlib cannot be imported."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise InputError(INSTALL) from None
 
 
 def side_axis(joints: np.ndarray) -> np.ndarray:
@@ -92,160 +81,166 @@ def side_axis(joints: np.ndarray) -> np.ndarray:
     return forward / max(np.linalg.norm(forward), 1e-9)
 
 
-class _Figure:
-    """Lays the figure out top to bottom on one canvas; ``y`` is the next free row."""
+class _Layout:
+    """The figure's rows top to bottom, in inches: ``take(h)`` gives the next row's axes."""
 
-    PAD, LEFT, PLOT_H, STRIP = 20, 90, 190, 7
+    LEFT, RIGHT, HEADER, PANEL, STRIP = 0.9, 0.25, 1.15, 2.35, 0.2
 
-    def __init__(self, items, body: BodyModel, spec: FigureSpec, svg: bool):
-        self.items, self.spec = list(items), spec
-        self.posed = [pose_skeleton(m, body) for _, m in items]
-        pairs = zip(self.posed, items, strict=True)
-        self.contacts = [foot_contacts(p.joints, m.fps) for p, (_, m) in pairs]
-        self.duration = max(max(m.duration for _, m in items), 1e-9)
-        self.colors = [PALETTE[i % len(PALETTE)] for i in range(len(items))]
-        self.x0, self.x1 = self.LEFT, spec.width - self.PAD
-        self.cell_w = (self.x1 - self.x0) / spec.frames
-        self.cell_h = min(300, max(150, int(1.25 * self.cell_w)))
-        self.times = [(k + 0.5) * self.duration / spec.frames for k in range(spec.frames)]
-        n = len(items)
-        height = 82 + len(spec.joints) * (self.PLOT_H + 48) + n * 2 * self.STRIP + 24
-        height += 22 + n * (self.cell_h + 10) + self.PAD
-        height += 22 * (len(self.legend_rows()) - 1)
-        self.canvas = (SvgCanvas if svg else RasterCanvas)(spec.width, height)
-        self.y = 0.0
+    def __init__(self, spec: FigureSpec, n: int):
+        from matplotlib.figure import Figure
 
-    def X(self, t):
-        return self.x0 + np.asarray(t) / self.duration * (self.x1 - self.x0)
+        self.w = spec.width / DPI
+        self.cell_w = (self.w - self.LEFT - self.RIGHT) / spec.frames
+        self.cell_h = float(np.clip(1.25 * self.cell_w, 1.5, 3.0))
+        self.h = self.HEADER + len(spec.joints) * self.PANEL + 0.55 + 2 * n * self.STRIP
+        self.h += 0.35 + n * (self.cell_h + 0.1) + 0.15
+        self.figure = Figure(figsize=(self.w, self.h), dpi=DPI, facecolor="white")
+        self.y = self.h - self.HEADER  # the top of the next row
 
-    def legend_rows(self) -> list[list[tuple[str, str, float]]]:
-        """The legend's entries (text, colour, x), wrapped to the figure's width."""
-        rows, x = [[]], self.PAD
-        for (label, motion), color in zip(self.items, self.colors, strict=True):
-            text = f"{label} ({motion.num_frames} frames, {motion.fps:g} Hz)"
-            width = 20 + text_size(text, 2)[0] + 24
-            if x + width > self.spec.width and rows[-1]:
-                rows.append([])
-                x = self.PAD
-            rows[-1].append((text, color, x))
-            x += width
-        return rows
-
-    def header(self) -> None:
-        c, spec = self.canvas, self.spec
-        c.text(self.PAD, 14, spec.title or " vs ".join(label for label, _ in self.items), INK, 3)
-        for r, row in enumerate(self.legend_rows()):
-            for text, color, x in row:
-                c.rect(x, 50 + 22 * r, 14, 14, color)
-                c.text(x + 20, 50 + 22 * r, text, INK, scale=2)
-        self.y = 82 + 22 * (len(self.legend_rows()) - 1)
-
-    def curves(self, j: int) -> None:
-        """One panel: the chosen series of joint ``j`` for every motion over time."""
-        c, kind = self.canvas, self.spec.series
-        series = [joint_series(kind, p, m)[:, j] for p, (_, m) in zip(self.posed, self.items,
-                                                                      strict=True)]  # fmt: skip
-        finite = np.concatenate([s[np.isfinite(s)] for s in series])
-        label, unit = SERIES[kind]
-        c.text(self.x0, self.y, f"{BODY_JOINT_NAMES[j].replace('_', ' ')} {label} ({unit})", INK)
-        top, bottom = self.y + 20, self.y + 20 + self.PLOT_H
-        self.y = bottom + 28
-        if finite.size == 0:
-            c.text(self.x0 + 10, (top + bottom) / 2, f"no {label} for this joint", GREY)
-            return
-        lo, hi = float(finite.min()), float(finite.max())
-        margin = 0.5 if hi - lo < 1e-9 else 0.05 * (hi - lo)
-        lo, hi = lo - margin, hi + margin
-
-        def Y(v):
-            return bottom - (np.asarray(v) - lo) / (hi - lo) * (bottom - top)
-
-        for v in nice_ticks(lo, hi):
-            c.line(self.x0, Y(v), self.x1, Y(v), LIGHT)
-            c.text(self.x0 - 8, Y(v) - 7, f"{v + 0.0:g}", GREY, anchor="end")
-        for k, t in enumerate(self.times):  # where the filmstrip's frames are
-            c.line(self.X(t), top, self.X(t), bottom, "#c8c8c8")
-            c.text(self.X(t) + 3, top + 2, str(k + 1), GREY)
-        for s, (_, m), color in zip(series, self.items, self.colors, strict=True):
-            tt, vv = envelope(np.arange(len(s)) / m.fps, s, int(self.x1 - self.x0), 0.0,
-                              self.duration)  # fmt: skip
-            c.polyline(np.stack([self.X(tt), Y(vv)], axis=1), color, 1.6)
-        c.line(self.x0, bottom, self.x1, bottom, GREY)
-        for t in nice_ticks(0, self.duration, max(2, int((self.x1 - self.x0) / 120))):
-            c.text(self.X(t), bottom + 6, f"{t:g} s", GREY, anchor="middle")
-
-    def contact_strips(self) -> None:
-        """Per motion a row for the left foot and one for the right: filled while planted."""
-        c, strip = self.canvas, self.STRIP
-        for i, (on4, (_, m), color) in enumerate(zip(self.contacts, self.items, self.colors,
-                                                     strict=True)):  # fmt: skip
-            for side in range(2):
-                row_y = self.y + (2 * i + side) * strip
-                c.rect(self.x0, row_y, self.x1 - self.x0, strip - 1, "#f1f1ee")
-                on = (on4[:, side] | on4[:, side + 2]).astype(int)
-                edges = np.flatnonzero(np.diff(np.concatenate([[0], on, [0]])))
-                for a, b in zip(edges[::2], edges[1::2], strict=True):
-                    xa, xb = self.X(a / m.fps), self.X(b / m.fps)
-                    c.rect(xa, row_y, max(1.0, xb - xa), strip - 1, color)
-                c.text(self.x0 - 6, row_y - 0.5, "LR"[side], GREY, scale=1, anchor="end")
-        c.text(self.PAD, self.y + len(self.items) * strip - 7, "feet", GREY)
-        self.y += len(self.items) * 2 * strip + 24
-
-    def filmstrip(self) -> None:
-        """One row per motion, frame k in column k, seen from the side (the far limbs pale)."""
-        c, cell_w, cell_h = self.canvas, self.cell_w, self.cell_h
-        axis = side_axis(self.posed[0].joints)
-        across = np.array([-axis[1], axis[0]])
-        floor = min(float(np.quantile(p.joints[:, list(FOOT_JOINTS), 2], 0.02)) for p in self.posed)
-        floor -= 0.05
-        scale = min((cell_h - 24) / 2.1, cell_w / 1.6)
-        for k, t in enumerate(self.times):
-            c.text(
-                self.x0 + (k + 0.5) * cell_w, self.y, f"{k + 1}: {t:.2f} s", GREY, anchor="middle"
-            )
-        self.y += 22
-        frames = [[min(int(round(t * m.fps)), m.num_frames - 1) for _, m in self.items]
-                  for t in self.times]  # fmt: skip
-        for i, (p, (label, _), color) in enumerate(zip(self.posed, self.items, self.colors,
-                                                       strict=True)):  # fmt: skip
-            top = self.y + i * (cell_h + 10)
-            ground = top + cell_h - 8
-            c.text(self.PAD, top + cell_h / 2, label, color, scale=2, vertical=True)
-            for k in range(len(self.times)):
-                cx = self.x0 + (k + 0.5) * cell_w
-                roots = [q.joints[f, 0, :2] for q, f in zip(self.posed, frames[k], strict=True)]
-                centre = np.mean(roots, axis=0)
-                J = p.joints[frames[k][i]]
-                px = cx + ((J[:, :2] - centre) @ axis) * scale
-                py = ground - (J[:, 2] - floor) * scale
-                depth = (J[:, :2] - centre) @ across  # the viewer is on the -across side
-                c.line(cx - cell_w / 2 + 6, ground, cx + cell_w / 2 - 6, ground, "#bbbbbb", 1.5)
-
-                def shade_of(d, color=color):
-                    return color if d <= 0 else mix(color, "#ffffff", 0.5)
-
-                for j in sorted(range(1, len(BODY_PARENTS)), key=lambda j: -depth[j]):
-                    a = BODY_PARENTS[j]
-                    c.line(px[a], py[a], px[j], py[j], shade_of((depth[j] + depth[a]) / 2), 3)
-                c.circle(px[HEAD], py[HEAD] - 0.05 * scale, 0.1 * scale, color)
-                for n, joint in enumerate(FOOT_JOINTS):
-                    if self.contacts[i][frames[k][i], n]:
-                        c.circle(px[joint], py[joint], 4.5, INK)
-                        c.circle(px[joint], py[joint], 2.5, "#ffffff")
+    def take(self, height: float, gap: float = 0.0):
+        bottom = self.y - height
+        self.y = bottom - gap
+        rect = (self.LEFT / self.w, bottom / self.h, (self.w - self.LEFT - self.RIGHT) / self.w,
+                height / self.h)  # fmt: skip
+        return self.figure.add_axes(rect)
 
 
-def draw_figure(items: Sequence[tuple[str, Motion]], body: BodyModel, spec: FigureSpec,
-                svg: bool = False):  # fmt: skip
+def draw_figure(items: Sequence[tuple[str, Motion]], body: BodyModel, spec: FigureSpec):
     """The before/after figure of ``items`` ((label, motion) pairs, drawn in this order and
-    colour): a header with the legend, one curve panel per joint of ``spec``, the foot
-    contacts and the filmstrip.  -> RasterCanvas (``svg`` False) or SvgCanvas"""
+    colour): a title with the legend, one curve panel per joint of ``spec``, the foot contacts
+    and the filmstrip.  -> ``matplotlib.figure.Figure`` (``spec.width`` pixels wide at DPI)"""
     spec.validate()
     if not items:
         raise InputError("nothing to plot: give at least one motion file")
-    figure = _Figure(items, body, spec, svg)
-    figure.header()
+    require_matplotlib()
+    from matplotlib.lines import Line2D
+
+    posed = [pose_skeleton(m, body) for _, m in items]
+    contacts = [foot_contacts(p.joints, m.fps) for p, (_, m) in zip(posed, items, strict=True)]
+    colors = [PALETTE[i % len(PALETTE)] for i in range(len(items))]
+    duration = max(max(m.duration for _, m in items), 1e-9)
+    times = [(k + 0.5) * duration / spec.frames for k in range(spec.frames)]
+    lay = _Layout(spec, len(items))
+    fig = lay.figure
+    fig.text(0.2 / lay.w, 1 - 0.15 / lay.h, spec.title or " vs ".join(lab for lab, _ in items),
+             color=INK, fontsize=15, va="top")  # fmt: skip
+    handles = [Line2D([], [], color=c, lw=3) for c in colors]
+    labels = [f"{lab} ({m.num_frames} frames, {m.fps:g} Hz)" for lab, m in items]
+    fig.legend(handles, labels, loc="upper left", bbox_to_anchor=(0.15 / lay.w, 1 - 0.45 / lay.h),
+               ncol=min(len(items), 4), frameon=False, fontsize=10)  # fmt: skip
     for j in spec.joints:
-        figure.curves(j)
-    figure.contact_strips()
-    figure.filmstrip()
-    return figure.canvas
+        ax = lay.take(lay.PANEL - 0.6, gap=0.6)
+        _curves(ax, j, spec.series, posed, items, colors, duration, times)
+    _contact_strips(lay.take(2 * len(items) * lay.STRIP, gap=0.35), contacts, items, colors,
+                    duration)  # fmt: skip
+    _filmstrip(lay, posed, contacts, items, colors, times)
+    return fig
+
+
+def _curves(ax, j, kind, posed, items, colors, duration, times) -> None:
+    """One panel: the chosen series of joint ``j`` for every motion over time."""
+    label, unit = SERIES[kind]
+    ax.set_title(f"{BODY_JOINT_NAMES[j].replace('_', ' ')} {label} ({unit})", loc="left",
+                 fontsize=10, color=INK)  # fmt: skip
+    series = [joint_series(kind, p, m)[:, j] for p, (_, m) in zip(posed, items, strict=True)]
+    for s, (_, m), color in zip(series, items, colors, strict=True):
+        ax.plot(np.arange(len(s)) / m.fps, s, color=color, lw=1.6)
+    if not any(np.isfinite(s).any() for s in series):
+        ax.text(0.02, 0.5, f"no {label} for this joint", transform=ax.transAxes, color=GREY)
+    for k, t in enumerate(times):  # where the filmstrip's frames are
+        ax.axvline(t, color="#c8c8c8", lw=0.8, zorder=0)
+        ax.text(t, 0.97, f" {k + 1}", transform=ax.get_xaxis_transform(), color=GREY,
+                va="top", fontsize=8)  # fmt: skip
+    ax.set_xlim(0, duration)
+    ax.grid(axis="y", color=LIGHT)
+    ax.set_xlabel("s", color=GREY, fontsize=8, loc="right")
+    ax.tick_params(colors=GREY, labelsize=8)
+
+
+def _contact_strips(ax, contacts, items, colors, duration) -> None:
+    """Per motion a row for the left foot and one for the right: filled while planted."""
+    rows = 2 * len(items)
+    for i, (on4, (_, m), color) in enumerate(zip(contacts, items, colors, strict=True)):
+        for side in range(2):
+            row = rows - 1 - (2 * i + side)
+            on = (on4[:, side] | on4[:, side + 2]).astype(int)
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], on, [0]])))
+            starts, ends = edges[::2], edges[1::2]
+            spans = [(a / m.fps, (b - a) / m.fps) for a, b in zip(starts, ends, strict=True)]
+            ax.broken_barh([(0, duration)], (row + 0.1, 0.8), color="#f1f1ee")
+            ax.broken_barh(spans, (row + 0.1, 0.8), color=color)
+    ax.set_xlim(0, duration)
+    ax.set_ylim(0, rows)
+    ax.set_yticks(np.arange(rows) + 0.5, ["R", "L"] * len(items), fontsize=7, color=GREY)
+    ax.set_ylabel("feet", color=GREY, fontsize=8)
+    ax.tick_params(colors=GREY, labelsize=8)
+    for side in ("top", "right", "left"):
+        ax.spines[side].set_visible(False)
+
+
+def _filmstrip(lay: _Layout, posed, contacts, items, colors, times) -> None:
+    """One row per motion, frame k in column k, seen from the side (the far limbs pale)."""
+    from matplotlib.colors import to_rgb
+
+    axis = side_axis(posed[0].joints)
+    across = np.array([-axis[1], axis[0]])
+    floor = min(float(np.quantile(p.joints[:, list(FOOT_JOINTS), 2], 0.02)) for p in posed) - 0.05
+    frames = [[min(int(round(t * m.fps)), m.num_frames - 1) for _, m in items] for t in times]
+    lay.y -= 0.1
+    for i, (p, (label, _), color) in enumerate(zip(posed, items, colors, strict=True)):
+        ax = lay.take(lay.cell_h, gap=0.1)
+        pale = tuple(0.5 * c + 0.5 for c in to_rgb(color))
+        width = ROW_METRES * lay.cell_w / lay.cell_h  # metres per column
+        for k, t in enumerate(times):
+            if i == 0:
+                ax.text((k + 0.5) * width, ROW_METRES - 0.25, f"{k + 1}: {t:.2f} s",
+                        ha="center", va="bottom", color=GREY, fontsize=8)  # fmt: skip
+            roots = [q.joints[f, 0, :2] for q, f in zip(posed, frames[k], strict=True)]
+            centre = np.mean(roots, axis=0)
+            J = p.joints[frames[k][i]]
+            px = (k + 0.5) * width + (J[:, :2] - centre) @ axis
+            py = J[:, 2] - floor
+            depth = (J[:, :2] - centre) @ across  # the viewer is on the -across side
+            ax.plot([k * width + 0.05, (k + 1) * width - 0.05], [0, 0], color="#bbbbbb", lw=1.5)
+            for j in sorted(range(1, len(BODY_PARENTS)), key=lambda j: -depth[j]):
+                a = BODY_PARENTS[j]
+                near = (depth[j] + depth[a]) / 2 <= 0
+                ax.plot(px[[a, j]], py[[a, j]], color=color if near else pale, lw=3,
+                        solid_capstyle="round")  # fmt: skip
+            ax.add_patch(_disc((px[HEAD], py[HEAD] - 0.05), 0.1, color))
+            down = [n for n in range(len(FOOT_JOINTS)) if contacts[i][frames[k][i], n]]
+            feet = [FOOT_JOINTS[n] for n in down]
+            ax.scatter(px[feet], py[feet], s=40, facecolors="white", edgecolors=INK, zorder=3)
+        ax.set_xlim(0, len(times) * width)
+        ax.set_ylim(-0.1, ROW_METRES - 0.1)
+        ax.set_aspect("equal", adjustable="box")
+        ax.axis("off")
+        box = ax.get_position()
+        lay.figure.text(0.3 / lay.w, box.y0 + box.height / 2, label, rotation=90, color=color,
+                        va="center", ha="center", fontsize=10)  # fmt: skip
+
+
+def _disc(centre, radius, color):
+    from matplotlib.patches import Circle
+
+    return Circle(centre, radius, color=color)
+
+
+def figure_bytes(figure, fmt: str) -> bytes:
+    """The figure as a ``"png"`` or ``"svg"`` file's bytes (the same every run; an SVG's text
+    stays text)."""
+    from matplotlib import rc_context
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(figure)
+    buf = io.BytesIO()
+    metadata = {"Date": None} if fmt == "svg" else {}
+    with rc_context({"svg.fonttype": "none", "svg.hashsalt": "mdvae"}):
+        figure.savefig(buf, format=fmt, dpi=DPI, metadata=metadata, facecolor="white")
+    return buf.getvalue()
+
+
+def figure_size(figure) -> tuple[int, int]:
+    """(width, height) in pixels."""
+    w, h = figure.get_size_inches()
+    return int(round(w * DPI)), int(round(h * DPI))

@@ -8,6 +8,8 @@ What goes in, per motion (:func:`encode_track`):
   each joint's local quaternion (x, y, z; w >= 0 implied), int16 in steps of 1/2048
   (~0.03 degrees); the page rebuilds the joints by forward kinematics from the rest joints;
 * foot contacts (:func:`~mdvae_cli.motion.contacts.foot_contacts`), 4 bits a frame;
+* the frames with a joint missing in the file (``joint_mask``), as runs: the page shades them
+  on the plot ("filled": what ``mdvae denoise`` filled, or will fill);
 * the rest joints and, unless ``mesh=False``, the decimated rest mesh
   (:mod:`mdvae_cli.view.mesh`) for its body shape.
 
@@ -121,6 +123,16 @@ def floor_height(posed_joints: Sequence[np.ndarray], offsets: np.ndarray) -> flo
     return min(floors)
 
 
+def filled_runs(motion: Motion) -> list[list[int]]:
+    """[start, stop) of each run of frames with a joint missing (``joint_mask`` False)."""
+    if motion.joint_mask is None:
+        return []
+    hole = (~np.asarray(motion.joint_mask, bool)).any(axis=1).astype(np.int8)
+    edges = np.diff(np.concatenate([[0], hole, [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return [[int(a), int(b)] for a, b in zip(starts, stops, strict=True)]
+
+
 def _round(values: np.ndarray, digits: int = 4) -> list:
     return np.round(np.asarray(values, dtype=np.float64), digits).reshape(-1).tolist()
 
@@ -161,6 +173,7 @@ def build_view_page(
             "data": described,
             "rest_joints": _round(track.posed.rest_joints),
             "contact_fraction": _round(track.contacts_bool.mean(axis=0), 3),
+            "filled": filled_runs(motion),
         }
         if skin is not None:
             entry["rest_vertices"] = _round(skin.rest_vertices(body.data, motion.betas))
@@ -193,6 +206,7 @@ def build_view_page(
             "frames": m.num_frames,
             "fps": m.fps,
             "contact_fraction": e["contact_fraction"],
+            "filled_frames": sum(b - a for a, b in e["filled"]),
         }
         for (name, m), e in zip(items, motions_meta, strict=True)
     ]
@@ -244,12 +258,18 @@ def write_view_page(page: ViewPage, path: Path | str, forbid: Sequence[Path] = (
 
 
 def write_before_after(
-    noisy: Motion, cleaned: Motion, job, path: Path, body: BodyModel, forbid: Sequence[Path] = ()
+    noisy: Motion,
+    cleaned: Motion,
+    source: Path,
+    output: Path,
+    path: Path,
+    body: BodyModel,
+    forbid: Sequence[Path] = (),
 ) -> ViewPage:
-    """``denoise --view``: the page of one input (``job.source``) and its cleaned motion
-    (``job.output``), written to ``path``."""
-    names = [f"{Path(job.source).name} (input)", f"{Path(job.output).name} (cleaned)"]
-    title = f"{Path(job.source).name}: before and after mdvae denoise"
+    """``denoise --view``: the page of one input file (``source``) and its cleaned motion (in
+    ``output``), written to ``path``."""
+    names = [f"{Path(source).name} (input)", f"{Path(output).name} (cleaned)"]
+    title = f"{Path(source).name}: before and after mdvae denoise"
     page = build_view_page(list(zip(names, (noisy, cleaned), strict=True)), body, title=title)
     write_view_page(page, path, forbid)
     return page

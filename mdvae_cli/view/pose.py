@@ -12,6 +12,7 @@ import torch
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES, SMPL_PARENTS
 from mdvae_cli.body.skinning import BodyModel, batch_rigid_transform
 from mdvae_cli.geometry.rotations import rotvec_to_quat, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import quat_continuous
 from mdvae_cli.motion.motion import Motion
 
 BODY_JOINT_NAMES = SMPL_JOINT_NAMES[:NUM_BODY_JOINTS]
@@ -38,19 +39,6 @@ class PosedSkeleton:
     rest_joints: np.ndarray
 
 
-def continuous_quats(quats: np.ndarray) -> np.ndarray:
-    """Flip signs so that each quaternion lies in the hemisphere of the one before it in time
-    (q and -q are one rotation), the first with w >= 0.  quats: (T, ..., 4) -> (T, ..., 4)"""
-    q = np.asarray(quats, dtype=np.float64)
-    if len(q) == 0:
-        return q.copy()
-    # the flip of frame t is that of frame t-1 times the sign of their dot product
-    steps = np.where(np.sum(q[1:] * q[:-1], axis=-1) < 0, -1.0, 1.0)
-    first = np.where(q[:1, ..., 0] < 0, -1.0, 1.0)
-    flips = np.cumprod(np.concatenate([first, steps], axis=0), axis=0)
-    return q * flips[..., None]
-
-
 def rotation_channels(motion: Motion) -> np.ndarray:
     """The pose as the viewer reads it: the root's world quaternion (w, x, y, z), sign-continuous
     over time, then each body joint's local quaternion as (x, y, z) with w >= 0 implied
@@ -58,7 +46,7 @@ def rotation_channels(motion: Motion) -> np.ndarray:
     -> (T, 4 + 21 * 3)"""
     rotvecs = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
     q = rotvec_to_quat(torch.as_tensor(rotvecs, dtype=torch.float64)).numpy()
-    root = continuous_quats(q[:, 0])
+    root = quat_continuous(q[:, 0], first_positive=True)
     local = q[:, 1:] * np.where(q[:, 1:, :1] < 0, -1.0, 1.0)
     return np.concatenate([root, local[..., 1:].reshape(len(q), -1)], axis=1)
 

@@ -34,7 +34,8 @@ function setupControls() {
     const li = document.createElement("li"), sw = document.createElement("span"), name = document.createElement("span"), info = document.createElement("span");
     sw.className = "swatch"; sw.style.background = tr.color;
     name.textContent = tr.name;
-    info.className = "info"; info.textContent = `${tr.T} frames, ${+tr.fps.toFixed(3)} Hz`;
+    const filled = tr.filledFrames ? `, ${tr.filledFrames} filled (shaded on the plot)` : "";
+    info.className = "info"; info.textContent = `${tr.T} frames, ${+tr.fps.toFixed(3)} Hz${filled}`;
     li.append(sw, name, info); legend.append(li);
   }
   const timeline = $("timeline");
@@ -149,7 +150,7 @@ Object.assign(view, {
     return {
       time: state.time, frame: Math.round(state.time * state.fpsMax), frames: state.frames,
       fps: state.fpsMax, duration: state.duration, playing: state.playing, layout: state.layout,
-      body: state.body, mesh: !!meta.mesh, motions: tracks.map((tr) => ({ name: tr.name, frame: tr.frameAt(state.time), frames: tr.T })),
+      body: state.body, mesh: !!meta.mesh, motions: tracks.map((tr) => ({ name: tr.name, frame: tr.frameAt(state.time), frames: tr.T, filled: tr.filledAt(tr.frameAt(state.time)) })),
     };
   },
 });

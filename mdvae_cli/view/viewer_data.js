@@ -116,7 +116,10 @@ class Track {
     this.posedFrame = -1;
     this.series = {};
     this.smooth = this.smoothRoot(0.5);
+    this.filled = m.filled || []; // [start, stop) runs of frames with a joint missing in the file
+    this.filledFrames = this.filled.reduce((n, r) => n + r[1] - r[0], 0);
   }
+  filledAt(f) { return this.filled.some((r) => f >= r[0] && f < r[1]); }
   frameAt(time) { return clamp(Math.round(time * this.fps), 0, this.T - 1); }
   /* forward kinematics of frame f: fills this.J and this.R (as the body model poses) */
   pose(f) {

@@ -58,6 +58,14 @@ function drawPlotBody(ctx, L, t0, t1) {
     ctx.fillText(`${+t.toFixed(2)} s`, X(t), L.top + L.ph + 4);
   }
   ctx.save(); ctx.beginPath(); ctx.rect(L.left, L.top, L.pw, L.ph); ctx.clip();
+  // frames filled (missing in the file): a band in the motion's colour, a bar along the top
+  tracks.forEach((tr, i) => {
+    for (const [a, b] of tr.filled) {
+      const x0 = X((a - 0.5) / tr.fps), x1 = X((b - 0.5) / tr.fps), w = Math.max(1, x1 - x0);
+      ctx.fillStyle = tr.color; ctx.globalAlpha = 0.12; ctx.fillRect(x0, L.top, w, L.ph);
+      ctx.globalAlpha = 1; ctx.fillRect(x0, L.top + 4 * i, w, 4);
+    }
+  });
   tracks.forEach((tr, i) => {
     if (!range.ok) return;
     const s = range.series[i], T = tr.T;
@@ -145,7 +153,8 @@ function drawPlot() {
     if (!range.ok || !Number.isFinite(v)) return;
     const y = L.top + (1 - (v - range.lo) / (range.hi - range.lo)) * L.ph;
     ctx.fillStyle = tr.color; ctx.beginPath(); ctx.arc(X(f / tr.fps), y, 3.5, 0, 2 * Math.PI); ctx.fill();
-    parts.push(`${tr.name} ${v.toFixed(state.kind === "height" ? 3 : 1)}${SERIES[state.kind][1]}`);
+    const filled = tr.filledAt(f) ? " (filled)" : "";
+    parts.push(`${tr.name} ${v.toFixed(state.kind === "height" ? 3 : 1)}${SERIES[state.kind][1]}${filled}`);
   });
   $("readout").textContent = parts.join("   ");
 }

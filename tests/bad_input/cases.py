@@ -246,6 +246,17 @@ def _with_nan(key: str, value: float, shape: tuple) -> Builder:
     return make
 
 
+def _all_nan(key: str, value: float, shape: tuple, joint: int | None = None) -> Builder:
+    """A file whose ``key`` is ``value`` everywhere (or in every frame of one joint)."""
+
+    def make(case: Path) -> bytes:
+        a = np.zeros(shape)
+        a[..., slice(None) if joint is None else slice(3 * joint, 3 * joint + 3)] = value
+        return F.npz_bytes(F.motion_members(**{key: a}))
+
+    return make
+
+
 T = F.FRAMES
 # fmt: off
 NPZ = [
@@ -293,10 +304,14 @@ NPZ = [
     Defect("npz", "poses-text", _motion(poses=np.full((T, 66), "x")), r"'poses' is not numeric"),
     Defect("npz", "poses-structured", _motion(poses=np.zeros(T, dtype=[("a", "<f8", 66)])),
            r"'poses' is not numeric"),
-    Defect("npz", "poses-nan", _with_nan("poses", np.nan, (T, 66)),
-           r"'poses' contains NaN or infinite values", commands=ALL),
-    Defect("npz", "poses-inf", _with_nan("poses", -np.inf, (T, 66)),
-           r"'poses' contains NaN or infinite values"),
+    # NaN / inf are holes (issue 32): refused when nothing is observed to fill them from
+    Defect("npz", "poses-nan", _all_nan("poses", np.nan, (T, 66)),
+           r"'poses' contains NaN or infinite values in every frame", commands=ALL),
+    Defect("npz", "poses-inf", _all_nan("poses", -np.inf, (T, 66)),
+           r"'poses' contains NaN or infinite values in every frame"),
+    Defect("npz", "poses-joint-nan", _all_nan("poses", np.nan, (T, 66), joint=5),
+           r"'poses' contains NaN or infinite values for joint 5 \(right_knee\) in all 8 frames",
+           commands=ALL),
     Defect("npz", "poses-huge", _poses(lambda p: p * 1e30),
            r"'poses' holds an angle of .* rad; the file is corrupt", commands=ALL),
     Defect("npz", "poses-float32-max", _poses(lambda p: np.full_like(p, 3e38, np.float32)),
@@ -305,7 +320,8 @@ NPZ = [
            r"'trans' has shape \(8, 2\), expected \(8, 3\)"),
     Defect("npz", "trans-complex", _motion(trans=np.zeros((T, 3), complex)),
            r"'trans' holds complex numbers"),
-    Defect("npz", "trans-nan", _with_nan("trans", np.nan, (T, 3)), r"'trans' contains NaN"),
+    Defect("npz", "trans-nan", _all_nan("trans", np.nan, (T, 3)),
+           r"'trans' contains NaN or infinite values in every frame"),
     Defect("npz", "trans-huge", _with_nan("trans", 1e30, (T, 3)),
            r"'trans' reaches 1e\+30 m; the file is corrupt", commands=ALL),
     Defect("npz", "betas-complex", _motion(betas=np.zeros(10, complex)),
@@ -353,7 +369,7 @@ NPZ = [
            r"'pose_body' holds complex numbers"),
     Defect("npz", "split-nan",
            _motion(poses=None, root_orient=np.full((T, 3), np.nan), pose_body=np.zeros((T, 63))),
-           r"'root_orient' contains NaN"),
+           r"'root_orient' contains NaN or infinite values for joint 0 \(pelvis\) in all 8"),
     # shapes and types that used to be accepted (issue 33)
     Defect("npz", "betas-3d", _motion(betas=np.zeros((2, 3, 4))),
            r"'betas' has shape \(2, 3, 4\); expected \(S,\), \(1, S\) or one row per frame",

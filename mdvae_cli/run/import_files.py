@@ -1,5 +1,7 @@
-"""The per-file worker of ``mdvae import`` (kept apart from the command so that loading the
-CLI does not load torch: the retargeting solves need it, the rest of the CLI does not)."""
+"""``mdvae import``'s work on one file, as a Python user can call it: a mocap take retargeted
+onto the body (or a video pipeline's output read upright) and written as an AMASS-style .npz,
+with a row of what came of it. (Apart from the command, so that loading the CLI does not load
+torch: the retargeting solves need it, the rest of the CLI does not.)"""
 
 from __future__ import annotations
 
@@ -9,7 +11,6 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.cli.batch import FileJob
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.registry import TAKE_SUFFIXES, ReadOptions, read, suffix_of, write
 from mdvae_cli.motion import cmu
@@ -17,15 +18,17 @@ from mdvae_cli.motion.corpus_plan import CorpusItem
 from mdvae_cli.retarget.fit_shape import skeleton_key
 from mdvae_cli.retarget.retarget import walking_speed
 from mdvae_cli.retarget.take import TakeReader
+from mdvae_cli.run.jobs import FileJob
 
 
 class FileImporter:
     """Imports one file; keeps the body, parsed skeletons and betas fitted once per skeleton.
-    Built once per process (each ``--jobs`` worker builds its own)."""
+    Built once per process (each ``--jobs`` worker builds its own). ``on_notes(relpath,
+    notes)``: what reading a file remarked (a padded shape, an assumed rate), if wanted."""
 
     def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf,
                  input_format=None, track=None, joint_map=None, estimate_fps=None,
-                 estimate_floor=None):  # fmt: skip
+                 estimate_floor=None, missing=(), on_notes=None):  # fmt: skip
         torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
         self.takes = TakeReader(load_body_model(body_model), asf, joint_map)
         self.body = self.takes.body
@@ -35,6 +38,8 @@ class FileImporter:
         # files that need no retarget (video estimates): their own frames and heights unless
         # --fps / --floor are given
         self.estimate_fps, self.estimate_floor = estimate_fps, estimate_floor
+        self.on_notes = on_notes
+        self.missing = missing  # --missing: holes of takes, marked in joint_mask
 
     def __call__(self, job: FileJob) -> dict:
         item: CorpusItem | None = job.data
@@ -49,11 +54,13 @@ class FileImporter:
         options = ReadOptions(
             fps=item.fps if item else self.source_fps, body=self.body.data, scale=self.scale,
             skeleton=item.skeleton if item else None, resample=self.fps,
-            retarget=self.settings, metadata=meta,
+            retarget=self.settings, metadata=meta, missing=self.missing,
         )  # fmt: skip
-        take = read(job.source, options, takes=self.takes).take
+        from mdvae_cli.motion.holes import hole_count, observed
+
+        loaded = read(job.source, options, takes=self.takes)
+        take, motion = loaded.take, loaded.single()  # with --missing: its holes marked
         src, result = take.source, take.retarget
-        motion = result.motion
         key = skeleton_key(src)
         arrays = (motion.root_orient, motion.pose_body, motion.trans, motion.betas)
         if not all(np.isfinite(a).all() for a in arrays) or not np.isfinite(result.mean_error):
@@ -77,6 +84,7 @@ class FileImporter:
             "floor_tilt_deg": round(result.floor_tilt_deg, 2),
             "speed_mps": round(walking_speed(motion.trans, motion.fps), 3),
             "skeleton_key": key,
+            "missing_frames": hole_count(observed(motion))[0],  # --missing
         }
         if item is not None:
             row.update({k: meta[k] for k in ("subject", "trial", "split", "description")},
@@ -88,12 +96,21 @@ class FileImporter:
         file): read upright (``formats.registry``), one output per track, at the file's own
         frames and heights (as ``mdvae denoise`` reads it) unless ``--fps`` (resampled) or
         ``--floor plane|flat`` (the ground under the soles at z = 0) is given."""
-        from mdvae_cli.cli.motion_input import on_floor, outputs_of, read_input
         from mdvae_cli.motion.resample import resample_motion
+        from mdvae_cli.run.tracks import on_floor, outputs_of
 
         options = ReadOptions(format=self.format, fps=self.source_fps, track=self.track,
                               body=self.body.data)  # fmt: skip
-        loaded = read_input(job.source, job.relpath, options)
+        loaded = read(job.source, options)
+        if self.on_notes is not None:
+            self.on_notes(job.relpath, loaded.notes)
+            for label, motion in loaded.tracks:
+                where = (
+                    job.relpath
+                    if label is None
+                    else Path(f"{job.relpath.as_posix()} track {label}")
+                )
+                self.on_notes(where, motion.notes)
         frames, fps, outputs = 0, None, []
         for _, motion, output in outputs_of(loaded, job.output):
             source_fps = motion.fps

@@ -1,0 +1,161 @@
+"""Holes: frames and joints a take is missing, filled by ``mdvae denoise`` and by what studio
+tools do (slerp / lerp between the hole's ends, a cubic spline through the take).
+
+On the corpus's ``test`` and ``unseen_test`` clips (150 frames at 30 Hz), clean (a studio
+take that lost markers) and with Pose-NDF noise sigma = 0.10 rad (a noisy estimate): one hole
+per clip of 5, 15, 30 or 60 frames (every joint), or one limb (arm or leg, three joints)
+missing for 45 frames (1.5 s). Each row is V2V (cm, root-relative) on the filled frames alone;
+the last column is the default's V2V on the observed frames over its V2V on the same take
+without the hole (1.00 = the hole costs the rest nothing).
+
+    python benchmarks/holes.py [--clips 12] [--write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+try:
+    from benchmarks import common
+except ModuleNotFoundError:  # run as a file
+    import common  # type: ignore[no-redef]
+
+from mdvae_cli.body.formats import load_body_model
+from mdvae_cli.body.skinning import BodyModel
+from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, pose_motion_chunks
+from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
+from mdvae_cli.metrics import v2v
+from mdvae_cli.model.denoiser import load_denoiser
+from mdvae_cli.motion.holes import frame_holes, limb_holes, with_holes
+from mdvae_cli.motion.motion import Motion
+from mdvae_cli.train.corpus import select_files
+
+REPO = Path(__file__).resolve().parents[1]
+CLIP_FRAMES = 150
+HOLES = ((5, "frames"), (15, "frames"), (30, "frames"), (60, "frames"), (45, "limb"))
+SIGMAS = (0.0, 0.10)
+
+
+def hole_masks(clips: list[Motion], length: int, kind: str) -> list[np.ndarray]:
+    """One hole per clip, placed by a generator seeded with the clip's index."""
+    out = []
+    for i, m in enumerate(clips):
+        rng = np.random.default_rng(1000 * length + i)
+        make = frame_holes if kind == "frames" else limb_holes
+        out.append(make(m.num_frames, length, 1, rng, margin=30))
+    return out
+
+
+def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray]], list[Motion]]]:
+    """The rows: each takes the noisy clips and their masks and returns the filled clips."""
+
+    def classical(method: str):
+        return lambda ms, masks: [with_holes(m, k, method) for m, k in zip(ms, masks, strict=True)]
+
+    def ours(**kw):
+        settings = DenoiseSettings(**kw)
+        return lambda ms, masks: denoise(
+            [with_holes(m, k) for m, k in zip(ms, masks, strict=True)], settings, denoiser, body
+        )
+
+    return {
+        "slerp / lerp": classical("slerp"),
+        "cubic spline": classical("spline"),
+        "cubic Hermite (ends fitted to 6 frames)": classical("hermite"),
+        "`mdvae denoise` (default)": ours(),
+        "`--refine 50`": ours(refine_steps=50),
+    }
+
+
+def posed(motion: Motion, body: BodyModel) -> tuple[torch.Tensor, torch.Tensor]:
+    """Vertices (T, V, 3) and pelvis (T, 3) of a motion, float64."""
+    chunks = list(pose_motion_chunks(motion, body, DEFAULT_CHUNK_FRAMES, vertices=True))
+    verts = torch.cat([o.vertices for _, o in chunks]).double()
+    return verts, torch.cat([o.joints[:, 0] for _, o in chunks]).double()
+
+
+def frame_errors(gt: list[Motion], preds: list[Motion], body: BodyModel) -> list[np.ndarray]:
+    """Per clip, V2V (cm, root-relative) of every frame.  -> [(T,)]"""
+    out = []
+    for g, p in zip(gt, preds, strict=True):
+        vg, pg = posed(g, body)
+        vp, pp = posed(p, body)
+        out.append(100.0 * v2v(vp, vg, pp, pg).numpy())
+    return out
+
+
+def pooled(errors: list[np.ndarray], where: list[np.ndarray]) -> float:
+    """The mean of every clip's errors (T,) on its frames where ``where`` (T,) is True."""
+    return float(np.concatenate([e[w] for e, w in zip(errors, where, strict=True)]).mean())
+
+
+def split_table(split: str, n_clips: int, denoiser, body, log) -> str:
+    corpus = REPO / "data" / "corpus"
+    files = select_files([corpus], corpus / "split.json", split)
+    clips = common.load_clips(files, corpus, CLIP_FRAMES, max_clips=n_clips)
+    gt = [c.motion for c in clips]
+    rows = methods(denoiser, body)
+    cols = [f"{n} frames" if kind == "frames" else f"one limb, {n} frames" for n, kind in HOLES]
+    parts = []
+    for sigma in SIGMAS:
+        noisy = common.add_noise(clips, sigma, 0) if sigma > 0 else list(gt)
+        whole = frame_errors(gt, denoise(noisy, DenoiseSettings(), denoiser, body), body)
+        table: dict[str, list[str]] = {k: [] for k in rows}
+        kept: list[str] = []
+        for n, kind in HOLES:
+            masks = hole_masks(noisy, n, kind)
+            missing = [~k.all(axis=1) for k in masks]
+            for name, run in rows.items():
+                errs = frame_errors(gt, run(noisy, masks), body)
+                table[name].append(f"{pooled(errs, missing):.2f}")
+                if name.startswith("`mdvae denoise`"):
+                    observed = [~m for m in missing]
+                    obs, ref = pooled(errs, observed), pooled(whole, observed)
+                    kept.append(f"{obs / ref:.3f}")
+            log(f"{split} sigma {sigma:g} {n} {kind}: " + ", ".join(
+                f"{k[:14]} {v[-1]}" for k, v in table.items()))  # fmt: skip
+        head = [f"V2V cm on the filled frames, sigma = {sigma:g}", *cols]
+        body_rows = [[k, *v] for k, v in table.items()]
+        body_rows.append(["default on the observed frames / without the hole", *kept])
+        parts.append(common.markdown_table(head, body_rows))
+    return f"**{split}** ({len(clips)} clips of {CLIP_FRAMES} frames at 30 Hz)\n\n" + "\n\n".join(
+        parts
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--clips", type=int, default=12, help="clips per split (spread evenly)")
+    ap.add_argument("--splits", default="test,unseen_test")
+    ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
+    args = ap.parse_args(argv)
+    torch.manual_seed(0)
+    body = BodyModel(load_body_model(None))
+    denoiser, _ = load_denoiser(None)
+    start = time.time()
+
+    def log(message: str) -> None:
+        print(f"[{time.time() - start:6.0f} s] {message}", flush=True)
+
+    text = [split_table(s, args.clips, denoiser, body, log) for s in args.splits.split(",")]
+    section = (
+        "<!-- holes:begin (written by benchmarks/holes.py) -->\n"
+        "## Holes (missing frames and joints)\n\n"
+        + "\n\n".join(text)
+        + f"\n\n({common.cpu_model()}; `python benchmarks/holes.py --clips {args.clips}`)\n"
+        + "<!-- holes:end -->"
+    )
+    print(section)
+    if args.write:
+        common.write_section(REPO / "docs" / "benchmarks.md", section,
+                             "<!-- holes:begin", "<!-- holes:end -->")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

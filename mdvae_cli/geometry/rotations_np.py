@@ -1,0 +1,136 @@
+"""Rotation conversions in numpy, float64: the vocabulary of :mod:`.rotations` (``rotvec``,
+``rotmat``, ``quat`` scalar first (w, x, y, z)) for the code that works on numpy arrays (the foot
+lock, filters, file readers), where a round trip through torch costs more than the math.
+
+Every function takes arbitrary leading batch dimensions. Branches, as in torch:
+:func:`rotmat_to_rotvec` and :func:`quat_to_rotvec` give angles in [0, pi];
+:func:`rotvec_to_quat` keeps an axis-angle's branch in the quaternion's sign (w < 0 for angles in
+(pi, 3 pi)), which ``quat_to_rotvec(q, keep_branch=True)`` reads back (angles in [0, 2 pi)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product over the last axis (numpy's ``cross`` costs more on small arrays)."""
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], axis=-1)
+
+
+def rotvec_to_rotmat(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula.  (..., 3) -> (..., 3, 3)"""
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    theta = np.sqrt((rotvec * rotvec).sum(-1))
+    small = theta < 1e-8
+    x, y, z = np.moveaxis(rotvec / np.where(small, 1.0, theta)[..., None], -1, 0)
+    sin, cos = np.where(small, 0.0, np.sin(theta)), np.where(small, 1.0, np.cos(theta))
+    c1 = 1 - cos
+    xs, ys, zs = x * sin, y * sin, z * sin
+    xy, xz, yz = x * y * c1, x * z * c1, y * z * c1
+    R = np.empty((*rotvec.shape[:-1], 3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = cos + x * x * c1, xy - zs, xz + ys
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = xy + zs, cos + y * y * c1, yz - xs
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = xz - ys, yz + xs, cos + z * z * c1
+    return R
+
+
+def rotmat_between(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The smallest rotation turning direction ``u`` into direction ``v`` (any lengths), about
+    their common normal; where they are opposite, half a turn about an axis perpendicular to
+    ``u``; the identity where either is zero.  (..., 3) x 2 -> (..., 3, 3)"""
+    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    axis = cross(u, v)
+    sin = np.linalg.norm(axis, axis=-1, keepdims=True)
+    cos = (u * v).sum(-1, keepdims=True)
+    scale = np.linalg.norm(u, axis=-1, keepdims=True) * np.linalg.norm(v, axis=-1, keepdims=True)
+    opposite = (sin <= 1e-9 * scale) & (cos < 0)
+    if opposite.any():
+        other = np.eye(3)[np.abs(u).argmin(-1)]  # the axis u is least along
+        perp = cross(u, other)
+        axis = np.where(opposite, perp, axis)
+        sin = np.where(opposite, np.linalg.norm(perp, axis=-1, keepdims=True), sin)
+    angle = np.arctan2(np.where(opposite, 0.0, sin), cos)
+    return rotvec_to_rotmat(axis / np.maximum(sin, 1e-12) * angle)
+
+
+def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions with w >= 0, through the largest of the four pivots (as
+    ``rotations.rotmat_to_quat``).  (..., 3, 3) -> (..., 4)"""
+    m = np.asarray(R, dtype=np.float64)
+    pivots = np.stack(
+        [
+            1 + m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2],
+            1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+            1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+            1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
+        ],
+        axis=-1,
+    )
+    a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    d, e, f = m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]
+    cand = np.stack(
+        [
+            np.stack([pivots[..., 0], a, b, c], -1),
+            np.stack([a, pivots[..., 1], d, e], -1),
+            np.stack([b, d, pivots[..., 2], f], -1),
+            np.stack([c, e, f, pivots[..., 3]], -1),
+        ],
+        axis=-2,
+    )  # row k is 4 q_k q
+    best = pivots.argmax(-1)
+    q = np.take_along_axis(cand, best[..., None, None], -2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def rotmat_to_rotvec(R: np.ndarray) -> np.ndarray:
+    """Axis-angles with angles in [0, pi].  (..., 3, 3) -> (..., 3)"""
+    return quat_to_rotvec(rotmat_to_quat(R))
+
+
+def rotvec_to_quat(rotvec: np.ndarray) -> np.ndarray:
+    """(..., 3) -> (..., 4) scalar first. w = cos(angle / 2) keeps the branch: w < 0 for angles
+    in (pi, 3 pi)."""
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    theta = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    half = 0.5 * theta
+    scale = 0.5 * np.sinc(half / np.pi)  # sin(half) / theta, exact at 0
+    return np.concatenate([np.cos(half), rotvec * scale], axis=-1)
+
+
+def quat_to_rotvec(quat: np.ndarray, keep_branch: bool = False) -> np.ndarray:
+    """Unit quaternions (..., 4) -> (..., 3), angles in [0, pi] (``q`` and ``-q`` alike).
+
+    keep_branch: the angle 2 atan2(|v|, w) in [0, 2 pi) instead: q and -q give the two
+    branches (angle a about n, or 2 pi - a about -n). A quaternion close to -1 is then the
+    identity seen from the far branch, whose axis is undefined, so it is read as +1.
+    """
+    quat = np.asarray(quat, dtype=np.float64)
+    if keep_branch:
+        far = (quat[..., :1] < 0) & (np.linalg.norm(quat[..., 1:], axis=-1, keepdims=True) < 1e-6)
+    else:
+        far = quat[..., :1] < 0
+    q = np.where(far, -quat, quat)
+    w, v = q[..., 0], q[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, w)
+    factor = np.where(s > 0, angle / np.where(s > 0, s, 1.0), 2.0 / np.where(s > 0, 1.0, w))
+    return v * factor[..., None]
+
+
+def quat_continuous(quat: np.ndarray, first_positive: bool = False) -> np.ndarray:
+    """Signs flipped so that each quaternion lies in the hemisphere of the one before it along
+    axis 0 (q and -q are one rotation); ``first_positive``: the first frame with w >= 0 too.
+    (T, ..., 4) -> (T, ..., 4)"""
+    q = np.asarray(quat, dtype=np.float64)
+    if len(q) == 0:
+        return q.copy()
+    steps = np.where(np.sum(q[1:] * q[:-1], axis=-1) < 0, -1.0, 1.0)
+    first = (
+        np.where(q[:1, ..., 0] < 0, -1.0, 1.0) if first_positive else np.ones_like(q[:1, ..., 0])
+    )
+    flips = np.cumprod(np.concatenate([first, steps], axis=0), axis=0)
+    return q * flips[..., None]

@@ -1,0 +1,41 @@
+"""A denoise run's progress, told through a ``progress(info: dict)`` callback: the stages
+("optimize", "refine": steps) and the "denoise" stage's phases of the whole (the windows
+denoised, stitched, blended, feet locked: a long take's progress inside it)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+Progress = Callable[[dict], None] | None
+
+CORE_PHASES = 2  # the "denoise" stage's phases without the blend and the foot lock
+
+
+def staged(progress: Progress, stage: str, offset: int, total: int) -> Progress:
+    """A progress callback that labels its stage and counts steps over several runs."""
+    if progress is None:
+        return None
+
+    def tell(info: dict) -> None:
+        progress({**info, "stage": stage, "step": offset + info["step"], "steps": total})
+
+    return tell
+
+
+def phase(progress: Progress, name: str, step: int, steps: int) -> None:
+    """Tell ``progress`` that the ``step``-th of ``steps`` phases of the whole is done."""
+    if progress is not None:
+        progress({"stage": "denoise", "step": step, "steps": steps, "phase": name})
+
+
+def more_phases(progress: Progress, extra: int) -> Progress:
+    """``progress`` for an inner run whose "denoise" phases are followed by ``extra`` more."""
+    if progress is None:
+        return None
+
+    def tell(info: dict) -> None:
+        if info["stage"] == "denoise":
+            info = {**info, "steps": info["steps"] + extra}
+        progress(info)
+
+    return tell

@@ -1,0 +1,57 @@
+"""The tracks of a file a command reads: where each is written, and putting one on the floor.
+
+A file of several people (a WHAM or PHALP result with several tracks) gives one output per
+track, named ``<output stem>.track<ID>.npz`` beside the output the file would have had.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from mdvae_cli.body.data import BodyModelData
+from mdvae_cli.formats.loaded import LoadedFile
+from mdvae_cli.motion.motion import Motion
+
+
+def track_output(output: Path, label: str | None) -> Path:
+    """Where one track of a file goes: ``output`` itself for a file of one motion, else
+    ``<stem>.track<label><suffix>`` beside it (the label made file-name safe)."""
+    if label is None:
+        return output
+    safe = re.sub(r"[^A-Za-z0-9_-]+", "_", str(label)) or "_"
+    return output.with_name(f"{output.stem}.track{safe}{output.suffix}")
+
+
+def outputs_of(loaded: LoadedFile, output: Path) -> list[tuple[str | None, Motion, Path]]:
+    """Each track of a file with its output path."""
+    return [(label, m, track_output(output, label)) for label, m in loaded.tracks]
+
+
+def floor_height(motion: Motion, body: BodyModelData, max_tilt: float = 0.035) -> float:
+    """The height (m) of the ground under a motion's soles: the lower envelope of each frame's
+    lowest foot vertex (``retarget.retarget.fit_ground`` without tilt), the motion posed on
+    ``body``."""
+    from mdvae_cli.export import pose_motion_chunks
+    from mdvae_cli.retarget.fit_shape import BodyJoints
+    from mdvae_cli.retarget.retarget import fit_ground
+
+    feet = BodyJoints(body).foot_ids
+    lowest = []
+    for _, out in pose_motion_chunks(motion, body, vertices=True):
+        v = out.vertices[:, feet].double().numpy()
+        i = v[..., 2].argmin(axis=1)
+        lowest.append(v[np.arange(len(v)), i])
+    p = np.concatenate(lowest)
+    return float(fit_ground(p[:, [0, 2, 1]], max_tilt, tilt=False)[0])
+
+
+def on_floor(motion: Motion, body: BodyModelData, max_tilt: float = 0.035) -> Motion:
+    """A copy of ``motion`` moved up or down so that the ground under its soles
+    (:func:`floor_height`) is at z = 0, with a note saying by how much (``--floor``)."""
+    h = floor_height(motion, body, max_tilt)
+    out = motion.with_body(trans=motion.trans - [0.0, 0.0, h])
+    out.notes.append(f"put on the floor (--floor): heights {-100 * h:+.1f} cm")
+    return out

@@ -1,0 +1,137 @@
+"""The numpy rotations (``geometry.rotations_np``) against the torch ones they mirror: the same
+values in float32 and float64 inputs, several batch shapes, round trips, zero angles and the
+branch an axis-angle is on."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mdvae_cli.geometry import rotations as T
+from mdvae_cli.geometry import rotations_np as N
+
+
+def rotvecs(shape, seed=0, max_angle=np.pi) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=(*shape, 3))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    return axis * rng.uniform(0, max_angle, size=(*shape, 1))
+
+
+def torch_of(fn, x):
+    return fn(torch.as_tensor(np.asarray(x, np.float64))).numpy()
+
+
+@pytest.mark.parametrize("shape", [(), (7,), (4, 5), (2, 3, 6)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_conversions_match_the_torch_ones(shape, dtype):
+    r = rotvecs(shape, max_angle=0.99 * np.pi).astype(dtype)
+    R = N.rotvec_to_rotmat(r)
+    assert R.shape == (*shape, 3, 3) and R.dtype == np.float64
+    np.testing.assert_allclose(R, torch_of(T.rotvec_to_rotmat, r), atol=1e-12)
+    np.testing.assert_allclose(N.rotmat_to_quat(R), torch_of(T.rotmat_to_quat, R), atol=1e-12)
+    np.testing.assert_allclose(N.rotmat_to_rotvec(R), torch_of(T.rotmat_to_rotvec, R), atol=1e-9)
+    np.testing.assert_allclose(N.rotvec_to_quat(r), torch_of(T.rotvec_to_quat, r), atol=1e-12)
+    np.testing.assert_allclose(N.rotmat_to_rotvec(R), r, atol=1e-6 if dtype == np.float32 else 1e-9)
+
+
+def test_round_trips_and_zero_angle():
+    r = np.concatenate([rotvecs((50,), seed=1), np.zeros((1, 3)), [[1e-10, 0.0, 0.0]]])
+    np.testing.assert_allclose(N.quat_to_rotvec(N.rotvec_to_quat(r)), r, atol=1e-12)
+    np.testing.assert_allclose(N.rotmat_to_rotvec(N.rotvec_to_rotmat(r)), r, atol=1e-9)
+    assert np.array_equal(N.rotvec_to_rotmat(np.zeros(3)), np.eye(3))
+    R = N.rotvec_to_rotmat(r)
+    np.testing.assert_allclose(
+        R @ R.swapaxes(-1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12
+    )
+
+
+def test_an_axis_angle_keeps_its_branch_through_the_quaternion():
+    """Angles over pi: w < 0 in the quaternion, and the same axis-angle back."""
+    r = rotvecs((20,), seed=2, max_angle=1.0) + 0.0
+    long = r / np.linalg.norm(r, axis=-1, keepdims=True) * 4.0  # 4 rad about each axis
+    q = N.rotvec_to_quat(long)
+    assert (q[:, 0] < 0).all()
+    np.testing.assert_allclose(N.quat_to_rotvec(q, keep_branch=True), long, atol=1e-12)
+    # without keep_branch, as torch: the short way round
+    np.testing.assert_allclose(N.quat_to_rotvec(q), torch_of(T.quat_to_rotvec, q), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(N.quat_to_rotvec(q), axis=-1), 2 * np.pi - 4.0)
+    # the matrix forgets the branch: the short way round, 2 pi - 4 rad about the other side
+    short = N.rotmat_to_rotvec(N.rotvec_to_rotmat(long))
+    np.testing.assert_allclose(np.linalg.norm(short, axis=-1), 2 * np.pi - 4.0, atol=1e-9)
+
+
+def test_quat_continuous_keeps_each_rotation_and_avoids_sign_jumps():
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(50, 3, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    for first_positive in (False, True):
+        c = N.quat_continuous(q, first_positive)
+        assert np.allclose(np.abs(np.sum(c * q, -1)), 1.0)  # same rotations (q or -q)
+        assert (np.sum(c[1:] * c[:-1], -1) >= 0).all()
+    assert (N.quat_continuous(q, True)[0, :, 0] >= 0).all()
+    assert np.array_equal(N.quat_continuous(q)[0], q[0])  # the first frame as it came
+    assert N.quat_continuous(q[:0]).shape == (0, 3, 4)
+
+
+def test_cross_is_numpys():
+    a, b = rotvecs((6, 2), seed=3), rotvecs((6, 2), seed=4)
+    np.testing.assert_allclose(N.cross(a, b), np.cross(a, b), atol=1e-15)
+
+
+def test_forward_kinematics_of_a_known_chain_in_numpy_and_torch():
+    from mdvae_cli.geometry.kinematics import forward_kinematics
+
+    # root at (1, 0, 0) turned 90 degrees about z; a child 1 m along x; a grandchild 1 m along x
+    L = N.rotvec_to_rotmat(np.array([[[0, 0, np.pi / 2], [0, 0, 0], [0, 0, 0]]]))  # (1, 3, 3, 3)
+    offsets = np.array([[1.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]])
+    G, P = forward_kinematics(L, offsets, [-1, 0, 1])
+    np.testing.assert_allclose(P[0], [[1, 0, 0], [1, 1, 0], [1, 2, 0]], atol=1e-12)
+    np.testing.assert_allclose(G[0, 2], L[0, 0], atol=1e-12)
+    # per-frame offsets, a root given apart, a batch of 4 frames; torch the same
+    rng = np.random.default_rng(5)
+    L = N.rotvec_to_rotmat(rotvecs((4, 5), seed=6))
+    local = rng.normal(size=(4, 5, 3))
+    root = rng.normal(size=(4, 3))
+    parents = [-1, 0, 1, 1, 3]
+    G, P = forward_kinematics(L, local, parents, root=root)
+    assert G.shape == (4, 5, 3, 3) and P.shape == (4, 5, 3)
+    np.testing.assert_allclose(P[:, 0], root)
+    np.testing.assert_allclose(P[:, 4], P[:, 3] + (G[:, 3] @ local[:, 4, :, None])[..., 0])
+    Gt, Pt = forward_kinematics(*(torch.as_tensor(a) for a in (L, local)), parents,
+                                root=torch.as_tensor(root))  # fmt: skip
+    np.testing.assert_allclose(Gt.numpy(), G, atol=1e-12)
+    np.testing.assert_allclose(Pt.numpy(), P, atol=1e-12)
+
+
+@pytest.mark.parametrize("axes", ["zxy", "xyz", "zyx", "yxz"])
+def test_euler_angles_in_any_batch_shape(axes):
+    from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
+
+    rng = np.random.default_rng(7)
+    angles = rng.uniform(-1.2, 1.2, size=(4, 5, 3))
+    R = euler_to_rotmat(angles, axes)
+    unit = {a: np.eye(3)[i] for i, a in enumerate("xyz")}
+    turns = [N.rotvec_to_rotmat(angles[..., k, None] * unit[a]) for k, a in enumerate(axes)]
+    np.testing.assert_allclose(R, turns[0] @ turns[1] @ turns[2], atol=1e-12)
+    np.testing.assert_allclose(rotmat_to_euler(R, axes, near=angles), angles, atol=1e-9)
+    flat = rotmat_to_euler(R.reshape(-1, 3, 3), axes).reshape(angles.shape)
+    np.testing.assert_allclose(rotmat_to_euler(R, axes), flat, atol=0)
+
+
+def test_rotmat_between_turns_one_direction_into_the_other_the_short_way():
+    rng = np.random.default_rng(8)
+    u, v = rng.normal(size=(2, 6, 4, 3))
+    R = N.rotmat_between(u, v)
+    unit = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    np.testing.assert_allclose((R @ u[..., None])[..., 0] / np.linalg.norm(u, axis=-1)[..., None],
+                               unit, atol=1e-12)  # fmt: skip
+    angle = np.linalg.norm(N.rotmat_to_rotvec(R), axis=-1)
+    between = np.arccos(np.clip((u * unit).sum(-1) / np.linalg.norm(u, axis=-1), -1, 1))
+    np.testing.assert_allclose(angle, between, atol=1e-9)  # no longer than the angle between
+    x = np.array([1.0, 0.0, 0.0])
+    assert np.array_equal(N.rotmat_between(x, 2 * x), np.eye(3))
+    half = N.rotmat_between(x, -x)  # opposite: half a turn about a perpendicular axis
+    np.testing.assert_allclose(half @ x, -x, atol=1e-12)
+    np.testing.assert_allclose(half @ half, np.eye(3), atol=1e-12)
