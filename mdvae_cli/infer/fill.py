@@ -5,10 +5,10 @@ The denoiser reads placeholders in the holes (``motion.holes.fill_gaps``) and it
 drop them (the joint mask weighs the observations). What ends up in a hole is then one of
 :data:`FILLS`:
 
-* ``"curve"``: a cubic curve, joint by joint, from the values and velocities of the *result's*
-  frames beside the hole (``motion.holes.fill_gaps``'s Hermite fill): the denoised motion, with
-  what the input's noise does not explain put back, so a clean take is filled from its own
-  frames and a noisy one from its cleaned frames;
+* ``"curve"``: per joint, a cubic spline through the input's own frames and a cubic Hermite
+  curve from the values and velocities of the *result's* frames beside the hole
+  (``motion.holes.fill_gaps``), mixed by the input's own noise (:func:`mix_by_noise`): a clean
+  take is filled from its own frames, a noisy one from its cleaned frames;
 * ``"model"``: the denoiser's own frames (its prior's continuation of the placeholders);
 * ``"off"``: the input's values as they came.
 """
@@ -40,7 +40,7 @@ def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
     out.joint_mask = mask
     if method == "curve":
         return mix_by_noise(
-            fill_gaps(source.with_body(), "hermite"),
+            fill_gaps(source.with_body(), INPUT_CURVE),
             fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES),
             source,
         )
@@ -58,6 +58,9 @@ CURVE_NOISE_M = 0.003
 #: (frames; ``motion.holes.TANGENT_FRAMES`` for the input's own frames): a denoised velocity
 #: is less sure than a clean take's
 RESULT_TANGENT_FRAMES = 15
+#: the curve through the input's own frames: a cubic spline through all of them (on a clean
+#: take it has the exact neighbours; a noisy take's curve is the result's)
+INPUT_CURVE = "spline"
 
 
 def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Motion:
