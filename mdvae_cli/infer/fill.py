@@ -66,7 +66,8 @@ INPUT_CURVE = "spline"
 def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Motion:
     """Per joint, the hole curves drawn from the input's frames and from the result's, mixed
     by the input's own noise s (``infer.noise_blend.noise_variance``): the result's share is
-    s^2 / (s^2 + c^2). Outside the holes, ``from_result``."""
+    s^4 / (s^4 + c^4) (sharp: a noisy take's input curve swings far). Outside the holes,
+    ``from_result``."""
     from mdvae_cli.geometry.rotations import (
         quat_slerp,
         quat_to_rotvec,
@@ -80,13 +81,13 @@ def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Mot
     src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
     seen = observed(source)
     s2 = noise_variance(rotvec_unwrap(torch.as_tensor(src, dtype=torch.float64), 0).numpy(), seen)
-    w = torch.as_tensor(s2 / (s2 + CURVE_NOISE_RAD**2))[None].expand(len(src), -1)
+    w = torch.as_tensor(s2**2 / (s2**2 + CURVE_NOISE_RAD**4))[None].expand(len(src), -1)
     q = quat_slerp(rotvec_to_quat(torch.as_tensor(rot_in, dtype=torch.float64)),
                    rotvec_to_quat(torch.as_tensor(rot_res, dtype=torch.float64)), w)  # fmt: skip
     miss = ~observed(source)
     rot = np.where(miss[..., None], quat_to_rotvec(q).numpy(), rot_res)
     t2 = float(noise_variance(np.asarray(source.trans, float)[:, None, :], seen[:, :1])[0])
-    wt = t2 / (t2 + CURVE_NOISE_M**2)
+    wt = t2**2 / (t2**2 + CURVE_NOISE_M**4)
     trans = (1 - wt) * np.asarray(from_input.trans, float) + wt * np.asarray(
         from_result.trans, float
     )
