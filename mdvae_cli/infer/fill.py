@@ -40,7 +40,7 @@ def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
     out.joint_mask = mask
     if method == "curve":
         return mix_by_noise(
-            fill_gaps(source.with_body(), INPUT_CURVE),
+            input_curve(source),
             fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES),
             source,
         )
@@ -58,9 +58,10 @@ CURVE_NOISE_M = 0.003
 #: (frames; ``motion.holes.TANGENT_FRAMES`` for the input's own frames): a denoised velocity
 #: is less sure than a clean take's
 RESULT_TANGENT_FRAMES = 15
-#: the curve through the input's own frames: a cubic spline through all of them (on a clean
-#: take it has the exact neighbours; a noisy take's curve is the result's)
-INPUT_CURVE = "spline"
+#: the curve through the input's own frames is a cubic spline through all of them for holes
+#: up to this long (seconds; a clean take's exact neighbours), the Hermite curve over longer
+#: ones (a spline swings over a long hole: the root's turn most)
+SPLINE_SECONDS = 1.0
 
 
 def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Motion:
@@ -97,6 +98,23 @@ def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Mot
         pose_body=rot[:, 1:].astype(from_result.pose_body.dtype),
         trans=trans.astype(from_result.trans.dtype),
     )
+
+
+def input_curve(source: Motion) -> Motion:
+    """The holes of ``source`` filled from its own frames: the spline over short holes, the
+    Hermite curve over long ones (:data:`SPLINE_SECONDS`), joint by joint."""
+    spline, hermite = (
+        fill_gaps(source.with_body(), "spline"),
+        fill_gaps(source.with_body(), "hermite"),
+    )
+    longest = max(2, int(round(SPLINE_SECONDS * source.fps)))
+    missing = ~observed(source)
+    long = np.zeros_like(missing)
+    for j in np.flatnonzero(missing.any(axis=0)):
+        edges = np.diff(np.concatenate([[0], missing[:, j].astype(int), [0]]))
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+            long[a:b, j] = b - a > longest
+    return take_holes(spline, hermite, ~long)
 
 
 def take_holes(motion: Motion, other: Motion, mask: np.ndarray) -> Motion:
