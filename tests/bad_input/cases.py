@@ -712,6 +712,17 @@ def _wham_ids(ids: np.ndarray) -> Builder:
     return make
 
 
+def _gvhmr_expanded(case: Path) -> bytes:
+    """A GVHMR output whose tensors show one stored zero as 4 million frames each."""
+    import torch
+
+    def z(*shape):
+        return torch.zeros(1).expand(4_000_000, *shape)
+
+    params = {"body_pose": z(63), "betas": z(10), "global_orient": z(3), "transl": z(3)}
+    return F.torch_bytes({"smpl_params_global": params, "smpl_params_incam": dict(params)})
+
+
 _REFUSED = r"refusing to load '.*' from the pickle .*nothing was run"
 _LAYOUT = r"not a motion layout this tool knows \(give --format"
 
@@ -769,6 +780,15 @@ VIDEO = [
            r"bad\.c3d: C3D marker files are not supported", suffix=".c3d", commands=ALL),
     Defect("video-pkl", "a-video", lambda c: b"\0\0\0\x18ftypmp42",
            r"bad\.mp4: a video, not a motion file: run a video pose pipeline", suffix=".mp4"),
+    # small files that would expand to gigabytes: one 0.9 MB array referred to 4,000 times,
+    # and tensors of a 4-byte storage each claiming 4 million frames (strides of 0)
+    Defect("video-pkl", "repeated-array",
+           _hybrik(pred_thetas=[np.zeros((1000, 216), np.float32)] * 4000),
+           r"bad\.pkl: its arrays add up to 3\.22 GiB \(over 512 MiB\) once the parts it "
+           r"repeats are expanded", commands=ALL),
+    Defect("video-pt", "stride-zero", _gvhmr_expanded,
+           r"bad\.pt: its arrays add up to over 512 MiB once the parts it repeats are expanded",
+           commands=ALL),
 ]
 # fmt: on
 
