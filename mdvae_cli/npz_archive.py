@@ -77,7 +77,7 @@ class NpzArchive:
     """An open ``.npz`` archive whose arrays are read one at a time, on demand (a body model
     file holds arrays nobody needs). ``keys``: member names less ``.npy``, in archive order.
     Use as a context manager, or call :meth:`close`. InputError when ``source`` is no zip
-    archive, or two members share a key."""
+    archive, two members share a key, or its members unzip past ``max_total`` bytes."""
 
     def __init__(
         self,
@@ -85,6 +85,7 @@ class NpzArchive:
         label: str | Path,
         pickle_option: str | None = None,
         max_member: int | None = None,
+        max_total: int | None = None,
     ):
         self.label = str(label)
         self.pickle_option = pickle_option
@@ -109,6 +110,13 @@ class NpzArchive:
                 )
             self._infos[key] = info
         self.keys = list(self._infos)
+        total = sum(i.file_size for i in self._infos.values())
+        if max_total is not None and total > max_total:
+            self.close()  # refused before any array is read: many members each under max_member
+            raise InputError(
+                f"{self.label}: its arrays add up to {_bytes(total)} unzipped, over the "
+                f"{_bytes(max_total)} one file may take"
+            )
         self.compressed = any(i.compress_type != zipfile.ZIP_STORED for i in self._infos.values())
 
     def read(self, key: str, allow_pickle: bool = False) -> np.ndarray:

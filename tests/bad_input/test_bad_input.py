@@ -277,3 +277,30 @@ def test_odd_motions_within_the_limits_are_denoised_without_python_warnings(tmp_
     assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
     assert result.exit_code == 0, result.output
     assert not _INTERNAL.search(result.output), result.output
+
+
+@pytest.mark.parametrize("command", ["denoise", "eval"])
+def test_a_motion_whose_arrays_add_up_past_the_limit_is_refused_before_reading(
+    tmp_path, monkeypatch, command
+):
+    """Every array under the one-array limit, together over the file's (a 11 MB file of six
+    400 MB members of zeros took 2.8 GB): refused before any array is read. The limits are
+    made small here: the file holds two extra arrays of 3 kB against 4 kB for the file."""
+    from mdvae_cli.formats import npz_io
+
+    members = F.motion_members()
+    members.update({f"extra{i}.npy": np.zeros(384) for i in range(2)})
+    src = tmp_path / "many.npz"
+    src.write_bytes(F.npz_bytes(members, compress=True))
+    good = tmp_path / "good.npz"
+    good.write_bytes(F.good_motion())
+    monkeypatch.setattr(npz_io, "MAX_TOTAL", 4096)
+    before = tree_digest(tmp_path)
+    args = {"denoise": ["denoise", src, "-o", tmp_path / "out" / "o.npz"],
+            "eval": ["eval", "--gt", src, "--pred", good]}[command]  # fmt: skip
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(result.output, src, r"its arrays add up to [\d.]+ kB unzipped, over the 4\.1 kB")
+    assert tree_digest(tmp_path) == before
+    monkeypatch.setattr(npz_io, "MAX_TOTAL", 1 << 20)  # the same file under a larger limit
+    assert CliRunner().invoke(cli, [str(a) for a in args]).exit_code == 0
