@@ -60,6 +60,7 @@ def read_npz(
     label: str | Path,
     allow_pickle: bool = False,
     pickle_option: str | None = None,
+    max_total: int | None = None,
 ) -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` archive, by key (member name less ``.npy``), in archive order.
 
@@ -67,9 +68,9 @@ def read_npz(
     ``body model NAME``). Pickled (object) arrays are refused unless ``allow_pickle``, which
     runs their code; ``pickle_option``: the option that allows them, named in the refusal.
     Raises InputError with one line for every defect, before allocating what a member only
-    claims.
+    claims; ``max_total``: the bytes all its arrays may take together (None: no limit).
     """
-    with NpzArchive(source, label, pickle_option) as npz:
+    with NpzArchive(source, label, pickle_option, max_total=max_total) as npz:
         return {key: npz.read(key, allow_pickle) for key in npz.keys}
 
 

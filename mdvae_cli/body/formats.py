@@ -91,9 +91,14 @@ def load_body_model(path: Path | str | None = None) -> BodyModelData:
 # npz
 
 
+#: bytes the arrays of a body-model .npz may take together (SMPL-X with 400 shape components
+#: and every hand and face array: about 0.3 GB)
+MAX_NPZ_BYTES = 512 << 20
+
+
 def _load_npz(path: Path) -> BodyModelData:
     """Only the arrays the model needs are read, each checked before it is allocated."""
-    with NpzArchive(path, f"body model {path.name}") as archive:
+    with NpzArchive(path, f"body model {path.name}", max_total=MAX_NPZ_BYTES) as archive:
         return _assemble(path.name, set(archive.keys), archive.read)
 
 

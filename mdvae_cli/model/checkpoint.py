@@ -54,6 +54,10 @@ def interrupts_deferred():
         raise KeyboardInterrupt
 
 
+#: bytes a checkpoint's weights may take together (the shipped denoiser: a few MB)
+MAX_WEIGHT_BYTES = 512 << 20
+
+
 def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
     """Read a checkpoint written by :func:`save_checkpoint`; never unpickles anything."""
     path = Path(path)
@@ -64,7 +68,8 @@ def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
         raise InputError(
             f"{path} is not an mdvae checkpoint: its metadata {meta_path.name} is not beside it"
         )
-    tensors = {k: torch.from_numpy(a) for k, a in read_npz(path, f"checkpoint {path}").items()}
+    arrays = read_npz(path, f"checkpoint {path}", max_total=MAX_WEIGHT_BYTES)
+    tensors = {k: torch.from_numpy(a) for k, a in arrays.items()}
     try:
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:

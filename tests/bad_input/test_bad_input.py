@@ -304,3 +304,34 @@ def test_a_motion_whose_arrays_add_up_past_the_limit_is_refused_before_reading(
     assert tree_digest(tmp_path) == before
     monkeypatch.setattr(npz_io, "MAX_TOTAL", 1 << 20)  # the same file under a larger limit
     assert CliRunner().invoke(cli, [str(a) for a in args]).exit_code == 0
+
+
+@pytest.mark.parametrize("kind", ["body", "checkpoint"])
+def test_body_models_and_checkpoints_past_their_limit_are_refused_before_reading(
+    tmp_path, monkeypatch, kind
+):
+    """A body model's or a checkpoint's arrays together past the file's limit (a 3.7 MB body
+    model of an 800 MB shapedirs took 1.7 GB): refused before any array is read. The limits
+    are made small here (4 kB against the good files' own arrays)."""
+    from mdvae_cli.body import formats as body_formats
+    from mdvae_cli.model import checkpoint
+
+    (tmp_path / "in").mkdir()
+    good = tmp_path / "in" / "good.npz"
+    good.write_bytes(F.good_motion())
+    bad = tmp_path / "in" / "bad.npz"
+    if kind == "body":
+        bad.write_bytes(F.npz_bytes(F.body_members()))
+        monkeypatch.setattr(body_formats, "MAX_NPZ_BYTES", 4096)
+        args = ["export-bvh", good, "--body-model", bad, "-o", tmp_path / "out" / "o.bvh"]
+    else:
+        bad.write_bytes(F.checkpoint_with(tmp_path, None, None))
+        monkeypatch.setattr(checkpoint, "MAX_WEIGHT_BYTES", 4096)
+        args = ["denoise", good, "--denoiser", bad, "-o", tmp_path / "out" / "o.npz"]
+    before = tree_digest(tmp_path)
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(
+        result.output, bad, r"its arrays add up to [\d.]+ [kM]B unzipped, over the 4\.1 kB"
+    )
+    assert tree_digest(tmp_path) == before
