@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from mdvae_cli.body.safe_pickle import one_line
+from mdvae_cli.body.safe_pickle import expanded_bytes, one_line
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular
 from mdvae_cli.formats import safe_data
@@ -137,27 +137,8 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
 
 def _check_expanded(obj: Any, label: str) -> None:
     """InputError when what ``obj`` holds adds up to more than ``safe_data.MAX_EXPANDED``
-    bytes, counting an array or list once for each place that refers to it (a small file can
-    repeat one array thousands of times); found before any reader stacks them."""
-    sizes: dict[int, int] = {}
-
-    def size(o: Any) -> int:
-        key = id(o)
-        if key in sizes:
-            return sizes[key]
-        sizes[key] = 0  # a container that holds itself adds nothing more
-        if isinstance(o, np.ndarray):
-            n = sum(map(size, o.flat)) if o.dtype.hasobject else o.size * o.itemsize
-        elif isinstance(o, dict):
-            n = sum(size(k) + size(v) for k, v in o.items())
-        elif isinstance(o, (list, tuple, set, frozenset)):
-            n = sum(size(x) + 8 for x in o)
-        else:
-            n = len(o) if isinstance(o, (bytes, bytearray, str)) else 8
-        sizes[key] = n
-        return n
-
-    total = size(obj)
+    bytes once expanded (:func:`expanded_bytes`); found before any reader stacks them."""
+    total = expanded_bytes(obj)
     if total > safe_data.MAX_EXPANDED:
         raise _too_far(label, total)
 

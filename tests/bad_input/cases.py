@@ -645,6 +645,17 @@ BODY = [
            r"cannot rebuild 'J_regressor' \(sparse indices out of range\)"),
     Defect("body-pkl", "template-nan", _body_pkl(v_template=np.full((192, 3), np.nan)),
            r"'v_template' holds NaN or infinite values"),
+    # a 1 MB pickle whose posedirs are one 0.9 MB array referred to 4,000 times (took 10 GB)
+    Defect("body-pkl", "repeated-array",
+           lambda c: F.body_pickle(posedirs=[np.zeros((1000, 216), np.float32)] * 4000),
+           r"body model bad\.pkl: its arrays add up to 3\.22 GiB once the parts it repeats are "
+           r"expanded"),
+    Defect("body-pkl", "sparse-huge",
+           lambda c: F.body_pickle(
+            J_regressor=_sparse(_shape=(10**12, 192), data=np.ones(1), indices=np.array([5]),
+                                indptr=np.r_[0, np.ones(192, int)])
+        ),
+           r"body model bad\.pkl: its arrays add up to 1\.43e\+06 GiB"),
 ]
 # fmt: on
 
