@@ -25,6 +25,7 @@ from mdvae_cli.body.data import (
 )
 from mdvae_cli.body.safe_pickle import plain_value, read_pickle
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import check_regular
 from mdvae_cli.npz_archive import NpzArchive
 
 REQUIRED_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights",
@@ -69,6 +70,8 @@ def load_body_model(path: Path | str | None = None) -> BodyModelData:
     path = Path(path)
     name = path.name
     if not path.is_file():
+        if path.exists() and not path.is_dir():
+            check_regular(path)  # a FIFO or a device, said as such (reading one would hang)
         what = "is a directory, not a file" if path.is_dir() else "not found"
         raise InputError(f"body model {path}: {what}")
     suffix = path.suffix.lower()

@@ -10,11 +10,14 @@ status and stderr a shell sees.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import re
 import subprocess
 import sys
+import threading
+import time
 import warnings
 import zipfile
 from functools import cache
@@ -356,3 +359,42 @@ def test_bvh_motion_data_read_a_piece_at_a_time_is_the_same(tmp_path, monkeypatc
         path.write_text(text)
         with pytest.raises(InputError, match=words):
             bvh.load_bvh(path)
+
+
+def _unblock_later(fifo: Path, seconds: float = 5.0) -> None:
+    """Open ``fifo`` for writing after ``seconds`` and close it: a reader that waits on it
+    gets an empty file, so that a regression fails the test instead of hanging it."""
+
+    def unblock() -> None:
+        time.sleep(seconds)
+        with contextlib.suppress(OSError):  # nobody reading: nothing to unblock
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+
+    threading.Thread(target=unblock, daemon=True).start()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+@pytest.mark.parametrize("option", ["asf", "body-model", "checkpoint-json"])
+def test_a_fifo_named_by_an_option_is_refused_without_waiting(tmp_path, option):
+    """--asf, --body-model and a checkpoint's metadata beside it: a FIFO is said to be one
+    (it was "no such skeleton file", "not found", or a wait forever)."""
+    (tmp_path / "in").mkdir()
+    fifo = tmp_path / "in" / {"asf": "bad.asf", "body-model": "bad.npz",
+                              "checkpoint-json": "bad.json"}[option]  # fmt: skip
+    os.mkfifo(fifo)
+    good = tmp_path / "in" / "good.npz"
+    good.write_bytes(F.good_motion())
+    amc = tmp_path / "in" / "good_01.amc"
+    amc.write_text(F.amc_text(frames=32))
+    weights = tmp_path / "in" / "bad.npz"
+    if option == "checkpoint-json":
+        weights.write_bytes(F.npz_bytes({"w.npy": np.zeros(3)}))
+    args = {"asf": ["import", amc, "--asf", fifo, "-o", tmp_path / "out" / "t.npz"],
+            "body-model": ["eval", "--gt", good, "--pred", good, "--body-model", fifo],
+            "checkpoint-json": ["denoise", good, "--denoiser", weights,
+                                "-o", tmp_path / "out" / "c.npz"]}[option]  # fmt: skip
+    _unblock_later(fifo)
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(result.output, fifo, r"is a FIFO \(named pipe\), not a file")
+    assert not (tmp_path / "out").exists()
