@@ -398,3 +398,26 @@ def test_a_fifo_named_by_an_option_is_refused_without_waiting(tmp_path, option):
     assert result.exit_code == 1, result.output
     check_refusal(result.output, fifo, r"is a FIFO \(named pipe\), not a file")
     assert not (tmp_path / "out").exists()
+
+
+_JOINT_MAPS = {
+    "binary": (F.good_motion(), r"not UTF-8 text; a joint map is a JSON file"),
+    "deep": (b"[" * 100_000 + b"]" * 100_000, r"nested too deep; a joint map is one flat JSON"),
+    "a-list": (b'["LeftUpLeg"]', r'a joint map is a JSON object \{"left_hip": "LeftUpLeg"'),
+}
+
+
+@pytest.mark.parametrize("command", ["import", "denoise"])
+@pytest.mark.parametrize("defect", list(_JOINT_MAPS))
+def test_a_bad_joint_map_is_refused_in_one_line(tmp_path, command, defect):
+    (tmp_path / "in").mkdir()
+    take = tmp_path / "in" / "take.bvh"
+    take.write_text(F.bvh_text())
+    bad = tmp_path / "in" / "map.json"
+    bad.write_bytes(_JOINT_MAPS[defect][0])
+    before = tree_digest(tmp_path / "in")
+    args = [command, take, "--joint-map", bad, "-o", tmp_path / "out" / "t.npz"]
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(result.output, bad, _JOINT_MAPS[defect][1])
+    assert not (tmp_path / "out").exists() and tree_digest(tmp_path / "in") == before
