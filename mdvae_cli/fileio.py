@@ -51,6 +51,15 @@ def write_atomic(path: Path, write: Callable[[Path], None], forbid: Iterable[Pat
         raise
 
 
+def check_named_file(path: Path, what: str) -> None:
+    """InputError unless ``path`` (a file an option names: "skeleton", "body model") is a
+    regular file: a missing one is "no such WHAT file", a folder, FIFO or device said as such
+    (before anything is opened: reading a FIFO would wait forever)."""
+    if not os.path.lexists(path):
+        raise InputError(f"no such {what} file: {path}")
+    check_regular(path)
+
+
 MOTION_SUFFIXES = (".npz",)
 
 

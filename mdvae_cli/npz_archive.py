@@ -60,6 +60,7 @@ def read_npz(
     label: str | Path,
     allow_pickle: bool = False,
     pickle_option: str | None = None,
+    max_total: int | None = None,
 ) -> dict[str, np.ndarray]:
     """Every array of an ``.npz`` archive, by key (member name less ``.npy``), in archive order.
 
@@ -67,9 +68,9 @@ def read_npz(
     ``body model NAME``). Pickled (object) arrays are refused unless ``allow_pickle``, which
     runs their code; ``pickle_option``: the option that allows them, named in the refusal.
     Raises InputError with one line for every defect, before allocating what a member only
-    claims.
+    claims; ``max_total``: the bytes all its arrays may take together (None: no limit).
     """
-    with NpzArchive(source, label, pickle_option) as npz:
+    with NpzArchive(source, label, pickle_option, max_total=max_total) as npz:
         return {key: npz.read(key, allow_pickle) for key in npz.keys}
 
 
@@ -77,7 +78,7 @@ class NpzArchive:
     """An open ``.npz`` archive whose arrays are read one at a time, on demand (a body model
     file holds arrays nobody needs). ``keys``: member names less ``.npy``, in archive order.
     Use as a context manager, or call :meth:`close`. InputError when ``source`` is no zip
-    archive, or two members share a key."""
+    archive, two members share a key, or its members unzip past ``max_total`` bytes."""
 
     def __init__(
         self,
@@ -85,6 +86,7 @@ class NpzArchive:
         label: str | Path,
         pickle_option: str | None = None,
         max_member: int | None = None,
+        max_total: int | None = None,
     ):
         self.label = str(label)
         self.pickle_option = pickle_option
@@ -109,6 +111,13 @@ class NpzArchive:
                 )
             self._infos[key] = info
         self.keys = list(self._infos)
+        total = sum(i.file_size for i in self._infos.values())
+        if max_total is not None and total > max_total:
+            self.close()  # refused before any array is read: many members each under max_member
+            raise InputError(
+                f"{self.label}: its arrays add up to {_bytes(total)} unzipped, over the "
+                f"{_bytes(max_total)} one file may take"
+            )
         self.compressed = any(i.compress_type != zipfile.ZIP_STORED for i in self._infos.values())
 
     def read(self, key: str, allow_pickle: bool = False) -> np.ndarray:

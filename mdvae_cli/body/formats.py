@@ -25,6 +25,7 @@ from mdvae_cli.body.data import (
 )
 from mdvae_cli.body.safe_pickle import plain_value, read_pickle
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import check_regular
 from mdvae_cli.npz_archive import NpzArchive
 
 REQUIRED_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights",
@@ -69,6 +70,8 @@ def load_body_model(path: Path | str | None = None) -> BodyModelData:
     path = Path(path)
     name = path.name
     if not path.is_file():
+        if path.exists() and not path.is_dir():
+            check_regular(path)  # a FIFO or a device, said as such (reading one would hang)
         what = "is a directory, not a file" if path.is_dir() else "not found"
         raise InputError(f"body model {path}: {what}")
     suffix = path.suffix.lower()
@@ -91,9 +94,14 @@ def load_body_model(path: Path | str | None = None) -> BodyModelData:
 # npz
 
 
+#: bytes the arrays of a body-model .npz may take together (SMPL-X with 400 shape components
+#: and every hand and face array: about 0.3 GB)
+MAX_NPZ_BYTES = 512 << 20
+
+
 def _load_npz(path: Path) -> BodyModelData:
     """Only the arrays the model needs are read, each checked before it is allocated."""
-    with NpzArchive(path, f"body model {path.name}") as archive:
+    with NpzArchive(path, f"body model {path.name}", max_total=MAX_NPZ_BYTES) as archive:
         return _assemble(path.name, set(archive.keys), archive.read)
 
 

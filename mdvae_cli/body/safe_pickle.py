@@ -12,6 +12,7 @@ numpy: chumpy nodes evaluated, sparse matrices densified. Every failure is an
 
 from __future__ import annotations
 
+import math
 import pickle
 from pathlib import Path
 from typing import Any
@@ -130,11 +131,48 @@ class _RestrictedUnpickler(pickle.Unpickler):
         return self._stand_ins[key]
 
 
+#: bytes a body-model pickle's arrays may take once expanded (SMPL-X's: about 0.3 GB)
+MAX_EXPANDED = 1 << 30
+
+
+def expanded_bytes(obj: Any) -> int:
+    """Bytes the arrays and containers of an unpickled ``obj`` take once expanded: an array or
+    list counted once for each place that refers to it (a small pickle can repeat one array
+    thousands of times, and a reader stacking them would allocate every copy), a tensor by the
+    elements it shows, a sparse matrix by its dense size, a foreign object by its state."""
+    sizes: dict[int, int] = {}
+
+    def size(o: Any) -> int:
+        key = id(o)
+        if key in sizes:
+            return sizes[key]
+        sizes[key] = 0  # a container that holds itself adds nothing more
+        if isinstance(o, np.ndarray):
+            n = sum(map(size, o.flat)) if o.dtype.hasobject else o.size * o.itemsize
+        elif isinstance(o, dict):
+            n = sum(size(k) + size(v) for k, v in o.items())
+        elif isinstance(o, (list, tuple, set, frozenset)):
+            n = sum(size(x) + 8 for x in o)
+        elif isinstance(o, _SparseMatrix):
+            shape = o.state.get("_shape", o.state.get("shape"))
+            dense = math.prod(int(d) for d in shape) * 8 if isinstance(shape, tuple) else 0
+            n = max(dense, size(o.state))
+        elif isinstance(o, _PickledObject):
+            n = size(o.state)
+        else:
+            n = len(o) if isinstance(o, (bytes, bytearray, str)) else 8
+        sizes[key] = n
+        return n
+
+    return size(obj)
+
+
 def read_pickle(path: Path) -> dict[str, Any]:
     name = path.name
     try:
         with path.open("rb") as f:
             data = _RestrictedUnpickler(f, name).load()
+        total = expanded_bytes(data)
     except InputError:
         raise
     except MemoryError:
@@ -145,6 +183,11 @@ def read_pickle(path: Path) -> dict[str, Any]:
         truncated = isinstance(e, EOFError) or "truncated" in str(e)
         why = "it is truncated" if truncated else one_line(e).rstrip(".")
         raise InputError(f"body model {name}: not a readable body-model pickle ({why})") from None
+    if total > MAX_EXPANDED:
+        raise InputError(
+            f"body model {name}: its arrays add up to {total / 2**30:.3g} GiB once the parts it "
+            f"repeats are expanded (over {MAX_EXPANDED >> 20} MiB); the file is damaged"
+        )
     if not isinstance(data, dict):
         raise InputError(
             f"body model {name}: pickle holds a {type(data).__name__}, expected a dict"

@@ -23,6 +23,7 @@ from mdvae_cli.cli.denoise_options import denoise_options, fill_setting, fill_wo
 from mdvae_cli.cli.motion_input import motion_input_options
 from mdvae_cli.cli.takes import load_joint_map, plan_take_jobs
 from mdvae_cli.errors import InputError
+from mdvae_cli.fileio import check_named_file
 
 HELP = """Remove noise from motion files with the learned Motion-DVAE prior.
 
@@ -165,8 +166,8 @@ def _check_outputs(mesh_dir, mesh_format, view_dir, asf) -> None:
         raise InputError(f"--mesh-dir {mesh_dir} is a file; give a folder")
     if view_dir is not None and Path(view_dir).exists() and not Path(view_dir).is_dir():
         raise InputError(f"--view {view_dir} is a file; give a folder")
-    if asf is not None and not Path(asf).is_file():
-        raise InputError(f"no such skeleton file: {asf}")
+    if asf is not None:
+        check_named_file(Path(asf), "skeleton")
 
 
 def _print_kind_notes(chosen: dict) -> None:

@@ -26,7 +26,7 @@ from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, cons
 from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice, missing_option
 from mdvae_cli.cli.takes import load_joint_map
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import write_atomic
+from mdvae_cli.fileio import check_named_file, write_atomic
 from mdvae_cli.motion import cmu, corpus_plan, hdm05
 from mdvae_cli.motion.motion import check_fps
 
@@ -243,8 +243,8 @@ def _skeleton_inputs(inputs, asf):
         if asf is not None or len(asf_inputs) > 1:
             raise InputError("give one skeleton: an .asf input or --asf, not several")
         asf = asf_inputs[0]
-    if asf is not None and not Path(asf).is_file():
-        raise InputError(f"no such skeleton file: {asf}")
+    if asf is not None:
+        check_named_file(Path(asf), "skeleton")
     if not inputs and asf_inputs:
         raise InputError(f"{asf_inputs[0]} is a skeleton only: give the .amc motions too")
     return inputs, asf

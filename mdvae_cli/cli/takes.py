@@ -94,6 +94,8 @@ def load_joint_map(path: Path | str | None) -> dict[str, str] | None:
         data = json.loads(raw.decode("utf-8-sig"))
     except RecursionError:
         raise InputError(f"{path}: nested too deep; a joint map is one flat JSON object") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not UTF-8 text; a joint map is a JSON file") from None
     except (OSError, ValueError) as exc:
         why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
         raise InputError(f"{path}: cannot read the joint map ({why})") from None

@@ -10,7 +10,7 @@ import click
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, print_notes, run_batch
 from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import expand_inputs
+from mdvae_cli.fileio import check_named_file, expand_inputs
 
 
 def motion_labels(paths: list[Path]) -> list[str]:
@@ -32,8 +32,8 @@ def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path
     from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
     from mdvae_cli.retarget.take import TakeReader
 
-    if asf is not None and not Path(asf).is_file():
-        raise InputError(f"no such skeleton file: {asf}")
+    if asf is not None:
+        check_named_file(Path(asf), "skeleton")
     joint_map = load_joint_map(joint_map_file)
     options = ReadOptions(allow_pickle=allow_pickle, body=body_data, joint_map=joint_map,
                           skeleton=None if asf is None else Path(asf))  # fmt: skip

@@ -18,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from mdvae_cli.body.safe_pickle import one_line
+from mdvae_cli.body.safe_pickle import expanded_bytes, one_line
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular
+from mdvae_cli.formats import safe_data
 from mdvae_cli.formats.safe_data import TORCH_MAGIC, load_torch_legacy, load_torch_zip, unpickle
 
 #: bytes a compressed pickle may expand to (a guard against decompression bombs)
@@ -58,7 +59,7 @@ def _decompress(data: bytes) -> bytes:
         d = zlib.decompressobj()
         out = d.decompress(data, MAX_DECOMPRESSED + 1)
     if len(out) > MAX_DECOMPRESSED:
-        raise ValueError("decompresses to more than 4 GiB")
+        raise ValueError(f"decompresses to more than {MAX_DECOMPRESSED >> 20} MiB")
     return out
 
 
@@ -103,11 +104,15 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
             raise InputError(f"{label}: over {MAX_DECOMPRESSED >> 20} MiB; a pose pipeline's "
                              "output for one video is far smaller (check the file)")  # fmt: skip
     try:
-        return _load(data, label, depth=0)
+        loaded = _load(data, label, depth=0)
+        _check_expanded(loaded, label)
+        return loaded
     except InputError:
         raise
     except RecursionError:
         raise InputError(f"{label}: nested too deeply to read") from None
+    except safe_data.ExpandsTooFar:
+        raise _too_far(label, None) from None
     except MemoryError:
         raise InputError(f"{label}: an array in it is too large to load") from None
     except (
@@ -128,6 +133,26 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
         raise InputError(
             f"{label}: not a readable pickle/torch/npy file (damaged: {one_line(exc)})"
         ) from None
+
+
+def _check_expanded(obj: Any, label: str) -> None:
+    """InputError when what ``obj`` holds adds up to more than ``safe_data.MAX_EXPANDED``
+    bytes once expanded (:func:`expanded_bytes`); found before any reader stacks them."""
+    total = expanded_bytes(obj)
+    if total > safe_data.MAX_EXPANDED:
+        raise _too_far(label, total)
+
+
+def _too_far(label: str, total: int | None) -> InputError:
+    """The refusal of a file whose arrays would take more than MAX_EXPANDED bytes (``total``:
+    how many, when counted)."""
+    most = f"{safe_data.MAX_EXPANDED >> 20} MiB"
+    amount = f"{total / 2**30:.3g} GiB (over {most})" if total else f"over {most}"
+    return InputError(
+        f"{label}: its arrays add up to {amount} once the parts it repeats are expanded; a pose "
+        "pipeline's output for one video is far smaller (the file is damaged or made to exhaust "
+        "memory)"
+    )
 
 
 def _check_members(zf: zipfile.ZipFile, label: str) -> None:

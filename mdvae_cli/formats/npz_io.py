@@ -74,7 +74,8 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
         )
     if isinstance(source, io.BytesIO):
         source.seek(0)
-    with NpzArchive(source, path, "--allow-pickle", max_member=MAX_MEMBER) as npz:
+    limits = {"max_member": MAX_MEMBER, "max_total": MAX_TOTAL}
+    with NpzArchive(source, path, "--allow-pickle", **limits) as npz:
         data = {key: npz.read(key, allow_pickle) for key in npz.keys}  # in the archive's order
         compressed = npz.compressed
     motion = motion_from_arrays(data, path)
@@ -84,6 +85,8 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
 
 #: bytes one array of a motion file may take (a 10-minute SMPL-X take at 120 Hz: 57 MB)
 MAX_MEMBER = 512 << 20
+#: bytes all arrays of a motion file may take together (as much as a ``.npz.gz`` may unzip to)
+MAX_TOTAL = 512 << 20
 #: bytes a ``.npz.gz`` may expand to (a guard against decompression bombs)
 MAX_GUNZIP = 512 << 20
 

@@ -29,7 +29,9 @@ anything is built, with one :class:`InputError` line; nothing of the file has ru
 from __future__ import annotations
 
 import collections
+import functools
 import io
+import math
 import pickle
 import zipfile
 from collections.abc import Callable
@@ -55,6 +57,25 @@ TORCH_STORAGES = {
     "UntypedStorage": "u1",
 }
 TORCH_MAGIC = 0x1950A86A20F9469CFC6C  # the first pickle of torch's legacy (non-zip) format
+#: bytes the tensors of one file may be built into (a tensor may show one stored number many
+#: times: a few bytes of storage can claim gigabytes of elements)
+MAX_EXPANDED = 512 << 20
+
+
+class ExpandsTooFar(ValueError):
+    """The file's tensors would take more than MAX_EXPANDED bytes."""
+
+
+class _Budget:
+    """The bytes the tensors of one file may still be built into."""
+
+    def __init__(self) -> None:
+        self.left = MAX_EXPANDED
+
+    def take(self, nbytes: int) -> None:
+        self.left -= nbytes
+        if self.left < 0:
+            raise ExpandsTooFar()
 
 
 class _StorageType:
@@ -93,18 +114,23 @@ def _storage_array(data: bytes, dtype: str, numel: int, big_endian: bool = False
     return np.frombuffer(data, dtype=dt, count=numel).astype(dt.newbyteorder("="))
 
 
-def _rebuild_tensor(storage: Any, offset: int, size: Any, stride: Any, *_ignored: Any) -> Any:
+def _rebuild_tensor(
+    budget: _Budget, storage: Any, offset: int, size: Any, stride: Any, *_ignored: Any
+) -> Any:
     """A tensor as a numpy array: ``size`` elements of ``storage`` from ``offset`` with
-    ``stride`` (elements). Storages of torch's legacy stream are resolved later."""
+    ``stride`` (elements), its bytes taken from ``budget``. Storages of torch's legacy stream
+    are resolved later."""
     size, stride, offset = tuple(int(s) for s in size), tuple(int(s) for s in stride), int(offset)
     if isinstance(storage, _PendingStorage):
         return ("pending-tensor", storage, offset, size, stride)
     if not isinstance(storage, np.ndarray) or storage.ndim != 1:
         raise ValueError("tensor without a storage")
-    return _view(storage, offset, size, stride)
+    return _view(storage, offset, size, stride, budget)
 
 
-def _view(storage: np.ndarray, offset: int, size: tuple, stride: tuple) -> np.ndarray:
+def _view(
+    storage: np.ndarray, offset: int, size: tuple, stride: tuple, budget: _Budget
+) -> np.ndarray:
     if len(size) != len(stride) or min((*size, *stride, offset), default=0) < 0:
         raise ValueError(f"bad tensor layout: size {size}, stride {stride}, offset {offset}")
     if any(s == 0 for s in size):
@@ -113,6 +139,7 @@ def _view(storage: np.ndarray, offset: int, size: tuple, stride: tuple) -> np.nd
     if last >= storage.size:
         raise ValueError(f"tensor of size {size} reaches past its storage of {storage.size}")
     item = storage.itemsize
+    budget.take(math.prod(size) * item)  # before the copy: strides of 0 repeat an element
     view = np.lib.stride_tricks.as_strided(
         storage[offset:], shape=size, strides=tuple(s * item for s in stride), writeable=False
     )
@@ -128,8 +155,9 @@ def _plain_dict(*args: Any) -> dict:
     return {}
 
 
-def _data_globals() -> dict[tuple[str, str], Any]:
-    """The globals a data pickle may name, each mapped to what builds its value."""
+def _data_globals(budget: _Budget) -> dict[tuple[str, str], Any]:
+    """The globals a data pickle may name, each mapped to what builds its value (tensors take
+    their bytes from ``budget``)."""
     allowed = dict(numpy_globals())
     allowed[("collections", "OrderedDict")] = collections.OrderedDict
     allowed[("collections", "defaultdict")] = _plain_dict
@@ -137,8 +165,8 @@ def _data_globals() -> dict[tuple[str, str], Any]:
         for obj in (dict, list, tuple, set, frozenset, complex):
             allowed[(mod, obj.__name__)] = obj
     allowed[("joblib.numpy_pickle", "NumpyArrayWrapper")] = _JoblibArray
-    allowed[("torch._utils", "_rebuild_tensor_v2")] = _rebuild_tensor
-    allowed[("torch._utils", "_rebuild_tensor")] = _rebuild_tensor
+    allowed[("torch._utils", "_rebuild_tensor_v2")] = functools.partial(_rebuild_tensor, budget)
+    allowed[("torch._utils", "_rebuild_tensor")] = functools.partial(_rebuild_tensor, budget)
     allowed[("torch._utils", "_rebuild_parameter")] = _rebuild_parameter
     allowed[("torch", "Size")] = tuple
     allowed[("torch.storage", "_load_from_bytes")] = _load_torch_bytes
@@ -150,17 +178,19 @@ def _data_globals() -> dict[tuple[str, str], Any]:
 class DataUnpickler(pickle._Unpickler):  # the Python unpickler: BUILD can be extended
     """Unpickles data only (module docstring). ``storages(key, dtype, numel)``: the bytes of a
     torch storage named by a persistent id (None: persistent ids are refused); ``label``: the
-    file, for messages."""
+    file, for messages; ``budget``: what its tensors may take (shared by the file's pickles)."""
 
     def __init__(
         self,
         file: Any,
         label: str,
         storages: Callable[[str, str, int], np.ndarray | _PendingStorage] | None = None,
+        budget: _Budget | None = None,
     ):
         super().__init__(file, encoding="latin1")
         self._label, self._storages, self._file = label, storages, file
-        self._allowed = _data_globals()
+        self._budget = budget or _Budget()
+        self._allowed = _data_globals(self._budget)
 
     def find_class(self, module: str, name: str) -> Any:
         found = self._allowed.get((module, name))
@@ -191,7 +221,7 @@ class DataUnpickler(pickle._Unpickler):  # the Python unpickler: BUILD can be ex
         if not isinstance(dtype, np.dtype) or min(shape, default=0) < 0:
             raise ValueError("joblib array wrapper without a dtype and shape")
         if dtype.hasobject:  # joblib pickles object arrays as a nested pickle
-            return DataUnpickler(self._file, self._label, self._storages).load()
+            return DataUnpickler(self._file, self._label, self._storages, self._budget).load()
         if state.get("numpy_array_alignment_bytes") is not None:
             pad = self.read(1)
             if len(pad) != 1:
@@ -264,7 +294,8 @@ def load_torch_legacy(data: bytes, label: str) -> Any:
     def placeholder(key: str, dtype: str, numel: int) -> _PendingStorage:
         return pending.setdefault(key, _PendingStorage(key, dtype, numel))
 
-    obj = unpickle(f, label, placeholder)
+    budget = _Budget()
+    obj = DataUnpickler(f, label, placeholder, budget).load()
     keys = unpickle(f, label)
     if not isinstance(keys, list):
         raise ValueError("torch file without its storage keys")
@@ -280,21 +311,21 @@ def load_torch_legacy(data: bytes, label: str) -> Any:
         if numel < 0 or numel * width > len(data) - f.tell():
             raise ValueError("torch storage reaches past the end of the file")
         arrays[str(key)] = _storage_array(f.read(numel * width), dtype, numel, big)
-    return _resolve(obj, arrays)
+    return _resolve(obj, arrays, budget)
 
 
-def _resolve(obj: Any, arrays: dict[str, np.ndarray], depth: int = 0) -> Any:
+def _resolve(obj: Any, arrays: dict[str, np.ndarray], budget: _Budget, depth: int = 0) -> Any:
     """Replace the legacy stream's pending storages and tensors with arrays, in containers."""
     if depth > 200:
         raise ValueError("containers nested too deeply")
     if isinstance(obj, _PendingStorage):
         return arrays[obj.key]
     if isinstance(obj, tuple) and len(obj) == 5 and obj[0] == "pending-tensor":
-        return _view(arrays[obj[1].key], *obj[2:])
+        return _view(arrays[obj[1].key], *obj[2:], budget)
     if isinstance(obj, dict):
-        return type(obj)((k, _resolve(v, arrays, depth + 1)) for k, v in obj.items())
+        return type(obj)((k, _resolve(v, arrays, budget, depth + 1)) for k, v in obj.items())
     if isinstance(obj, list | tuple):
-        return type(obj)(_resolve(v, arrays, depth + 1) for v in obj)
+        return type(obj)(_resolve(v, arrays, budget, depth + 1) for v in obj)
     return obj
 
 

@@ -27,6 +27,7 @@ Pure numpy/torch math on arrays of one motion: rotations (T, J, 3) axis-angle, t
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,7 +91,8 @@ def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.nda
         d3 = np.moveaxis(d3, -1, 1).reshape(-1, *values.shape[1:-1])
     if seen is None:
         return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a channel never seen: 0, no warning
         med = np.nan_to_num(np.nanmedian(d3, axis=0)) if np.isfinite(d3).any() else d3[0] * 0
     return np.nan_to_num(med) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
 

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import write_atomic
+from mdvae_cli.fileio import check_regular, write_atomic
 from mdvae_cli.npz_archive import read_npz
 
 
@@ -54,6 +54,10 @@ def interrupts_deferred():
         raise KeyboardInterrupt
 
 
+#: bytes a checkpoint's weights may take together (the shipped denoiser: a few MB)
+MAX_WEIGHT_BYTES = 512 << 20
+
+
 def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
     """Read a checkpoint written by :func:`save_checkpoint`; never unpickles anything."""
     path = Path(path)
@@ -64,7 +68,15 @@ def load_checkpoint(path: Path) -> tuple[dict[str, torch.Tensor], dict]:
         raise InputError(
             f"{path} is not an mdvae checkpoint: its metadata {meta_path.name} is not beside it"
         )
-    tensors = {k: torch.from_numpy(a) for k, a in read_npz(path, f"checkpoint {path}").items()}
+    check_regular(path)
+    check_regular(meta_path)  # a FIFO beside it would make reading it wait forever
+    arrays = read_npz(path, f"checkpoint {path}", max_total=MAX_WEIGHT_BYTES)
+    for key, a in arrays.items():
+        if a.dtype.kind not in "biufc":  # complex is refused with the weights' other checks
+            what = "text" if a.dtype.kind in "US" else "values that are not numbers"
+            raise InputError(f"checkpoint {path}: {key!r} holds {what}, not weights (is it a "
+                             "checkpoint?)")  # fmt: skip
+    tensors = {k: torch.from_numpy(a) for k, a in arrays.items()}
     try:
         meta = json.loads(meta_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError) as exc:

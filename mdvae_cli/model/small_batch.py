@@ -193,9 +193,13 @@ class SmallBatchRegressor:
         return x0[..., None, :] + last(_silu(first(np.concatenate([hds, zs], axis=-1))))
 
     def states(self, yn: np.ndarray) -> np.ndarray:
-        """Denormalised posterior-mean states.  yn: (..., T+1, D) normalised -> (..., T+1, D)"""
-        x0 = self.x0_mean(yn)
-        x_mean = self.encode_decode(yn[..., 1:, :], x0)
+        """Denormalised posterior-mean states.  yn: (..., T+1, D) normalised -> (..., T+1, D)
+
+        A gate's exp may overflow on a wild input: inf gives the gate's limit (0 or 1), as
+        torch's sigmoid does, so numpy is not let warn of it."""
+        with np.errstate(over="ignore"):
+            x0 = self.x0_mean(yn)
+            x_mean = self.encode_decode(yn[..., 1:, :], x0)
         x_hat_n = np.concatenate([x0[..., None, :], x_mean], axis=-2)
         return x_hat_n * self.std + self.mean
 

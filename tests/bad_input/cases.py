@@ -645,6 +645,17 @@ BODY = [
            r"cannot rebuild 'J_regressor' \(sparse indices out of range\)"),
     Defect("body-pkl", "template-nan", _body_pkl(v_template=np.full((192, 3), np.nan)),
            r"'v_template' holds NaN or infinite values"),
+    # a 1 MB pickle whose posedirs are one 0.9 MB array referred to 4,000 times (took 10 GB)
+    Defect("body-pkl", "repeated-array",
+           lambda c: F.body_pickle(posedirs=[np.zeros((1000, 216), np.float32)] * 4000),
+           r"body model bad\.pkl: its arrays add up to 3\.22 GiB once the parts it repeats are "
+           r"expanded"),
+    Defect("body-pkl", "sparse-huge",
+           lambda c: F.body_pickle(
+            J_regressor=_sparse(_shape=(10**12, 192), data=np.ones(1), indices=np.array([5]),
+                                indptr=np.r_[0, np.ones(192, int)])
+        ),
+           r"body model bad\.pkl: its arrays add up to 1\.43e\+06 GiB"),
 ]
 # fmt: on
 
@@ -677,6 +688,9 @@ CHECKPOINT = [
     Defect("checkpoint", "weights-complex",
            lambda c: F.checkpoint_with(c, None, None, "prior", change=lambda a: a + 1j),
            r"weight '.*' is torch\.complex\d+, not real numbers", commands=("sample",)),
+    Defect("checkpoint", "a-motion", lambda c: F.checkpoint_with(c, F.good_motion(), None),
+           r"checkpoint .*bad\.npz: 'gender' holds text, not weights \(is it a checkpoint\?\)",
+           commands=ALL),
     Defect("checkpoint", "prior-weights",
            lambda c: F.checkpoint_with(c, None, None, "prior", drop=3),
            r"weights do not match its config: 3 missing", commands=("sample",)),
@@ -710,6 +724,17 @@ def _wham_ids(ids: np.ndarray) -> Builder:
         return data
 
     return make
+
+
+def _gvhmr_expanded(case: Path) -> bytes:
+    """A GVHMR output whose tensors show one stored zero as 4 million frames each."""
+    import torch
+
+    def z(*shape):
+        return torch.zeros(1).expand(4_000_000, *shape)
+
+    params = {"body_pose": z(63), "betas": z(10), "global_orient": z(3), "transl": z(3)}
+    return F.torch_bytes({"smpl_params_global": params, "smpl_params_incam": dict(params)})
 
 
 _REFUSED = r"refusing to load '.*' from the pickle .*nothing was run"
@@ -769,6 +794,15 @@ VIDEO = [
            r"bad\.c3d: C3D marker files are not supported", suffix=".c3d", commands=ALL),
     Defect("video-pkl", "a-video", lambda c: b"\0\0\0\x18ftypmp42",
            r"bad\.mp4: a video, not a motion file: run a video pose pipeline", suffix=".mp4"),
+    # small files that would expand to gigabytes: one 0.9 MB array referred to 4,000 times,
+    # and tensors of a 4-byte storage each claiming 4 million frames (strides of 0)
+    Defect("video-pkl", "repeated-array",
+           _hybrik(pred_thetas=[np.zeros((1000, 216), np.float32)] * 4000),
+           r"bad\.pkl: its arrays add up to 3\.22 GiB \(over 512 MiB\) once the parts it "
+           r"repeats are expanded", commands=ALL),
+    Defect("video-pt", "stride-zero", _gvhmr_expanded,
+           r"bad\.pt: its arrays add up to over 512 MiB once the parts it repeats are expanded",
+           commands=ALL),
 ]
 # fmt: on
 

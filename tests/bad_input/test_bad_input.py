@@ -10,11 +10,15 @@ status and stderr a shell sees.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import re
 import subprocess
 import sys
+import threading
+import time
+import warnings
 import zipfile
 from functools import cache
 from pathlib import Path
@@ -250,3 +254,170 @@ def test_a_failed_write_leaves_no_folder_it_made(tmp_path: Path):
     with pytest.raises(InputError, match="refused halfway"):
         write_atomic(target, fail)
     assert kept.exists() and list(kept.iterdir()) == []
+
+
+def _wild_motions() -> dict[str, dict[str, np.ndarray]]:
+    """Motions that are odd but within every limit: positions jumping 18 km between frames
+    with angles of up to 6 rad, and a take whose joints are missing in all but two frames."""
+    rng = np.random.default_rng(0)
+    wild = F.motion_arrays(T=40, width=66, num_betas=10)
+    wild["trans"] = rng.choice([-9e3, 9e3], size=(40, 3))
+    wild["poses"] = rng.uniform(-6, 6, (40, 66))
+    holes = F.motion_arrays(T=90, width=66, num_betas=10)
+    holes["poses"][1:89, 3:] = np.nan
+    return {"wild": wild, "holes": holes}
+
+
+@pytest.mark.parametrize("name", ["wild", "holes"])
+def test_odd_motions_within_the_limits_are_denoised_without_python_warnings(tmp_path, name):
+    """A gate's exp overflowing, a channel never seen: numbers numpy would warn of, not the
+    user's concern; the command says nothing in Python's words."""
+    src = tmp_path / f"{name}.npz"
+    np.savez(src, **_wild_motions()[name])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        result = CliRunner().invoke(cli, ["denoise", str(src), "-o", str(tmp_path / "o.npz")])
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    assert result.exit_code == 0, result.output
+    assert not _INTERNAL.search(result.output), result.output
+
+
+@pytest.mark.parametrize("command", ["denoise", "eval"])
+def test_a_motion_whose_arrays_add_up_past_the_limit_is_refused_before_reading(
+    tmp_path, monkeypatch, command
+):
+    """Every array under the one-array limit, together over the file's (a 11 MB file of six
+    400 MB members of zeros took 2.8 GB): refused before any array is read. The limits are
+    made small here: the file holds two extra arrays of 3 kB against 4 kB for the file."""
+    from mdvae_cli.formats import npz_io
+
+    members = F.motion_members()
+    members.update({f"extra{i}.npy": np.zeros(384) for i in range(2)})
+    src = tmp_path / "many.npz"
+    src.write_bytes(F.npz_bytes(members, compress=True))
+    good = tmp_path / "good.npz"
+    good.write_bytes(F.good_motion())
+    monkeypatch.setattr(npz_io, "MAX_TOTAL", 4096)
+    before = tree_digest(tmp_path)
+    args = {"denoise": ["denoise", src, "-o", tmp_path / "out" / "o.npz"],
+            "eval": ["eval", "--gt", src, "--pred", good]}[command]  # fmt: skip
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(result.output, src, r"its arrays add up to [\d.]+ kB unzipped, over the 4\.1 kB")
+    assert tree_digest(tmp_path) == before
+    monkeypatch.setattr(npz_io, "MAX_TOTAL", 1 << 20)  # the same file under a larger limit
+    assert CliRunner().invoke(cli, [str(a) for a in args]).exit_code == 0
+
+
+@pytest.mark.parametrize("kind", ["body", "checkpoint"])
+def test_body_models_and_checkpoints_past_their_limit_are_refused_before_reading(
+    tmp_path, monkeypatch, kind
+):
+    """A body model's or a checkpoint's arrays together past the file's limit (a 3.7 MB body
+    model of an 800 MB shapedirs took 1.7 GB): refused before any array is read. The limits
+    are made small here (4 kB against the good files' own arrays)."""
+    from mdvae_cli.body import formats as body_formats
+    from mdvae_cli.model import checkpoint
+
+    (tmp_path / "in").mkdir()
+    good = tmp_path / "in" / "good.npz"
+    good.write_bytes(F.good_motion())
+    bad = tmp_path / "in" / "bad.npz"
+    if kind == "body":
+        bad.write_bytes(F.npz_bytes(F.body_members()))
+        monkeypatch.setattr(body_formats, "MAX_NPZ_BYTES", 4096)
+        args = ["export-bvh", good, "--body-model", bad, "-o", tmp_path / "out" / "o.bvh"]
+    else:
+        bad.write_bytes(F.checkpoint_with(tmp_path, None, None))
+        monkeypatch.setattr(checkpoint, "MAX_WEIGHT_BYTES", 4096)
+        args = ["denoise", good, "--denoiser", bad, "-o", tmp_path / "out" / "o.npz"]
+    before = tree_digest(tmp_path)
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(
+        result.output, bad, r"its arrays add up to [\d.]+ [kM]B unzipped, over the 4\.1 kB"
+    )
+    assert tree_digest(tmp_path) == before
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 64, 1 << 22])
+def test_bvh_motion_data_read_a_piece_at_a_time_is_the_same(tmp_path, monkeypatch, chunk):
+    """The motion data is parsed a piece at a time into one array (a 230 MB take took 2.9 GB
+    as a list of words): pieces of any size give the same frames and the same refusals."""
+    from mdvae_cli.formats import bvh
+
+    monkeypatch.setattr(bvh, "_CHUNK", chunk)
+    path = tmp_path / "take.bvh"
+    path.write_text(F.bvh_text(frames=5))
+    rows = F.bvh_text(frames=5).split("Frame Time: 0.0333333\n")[1].split()
+    expected = np.array(rows, dtype=np.float64).reshape(5, -1)
+    np.testing.assert_array_equal(bvh.load_bvh(path, drop_first=False).layout.data, expected)
+    for text, words in ((F.bvh_text(frames=5) + "0 0\n", r"not a multiple of the 66 channels"),
+                        (F.bvh_text(frames=5) + "x\n", r"non-numeric value"),
+                        (F.bvh_text(frames=5).replace("Frames: 5", "Frames: 4"),
+                         r"header says 4 frames but the file holds 5")):  # fmt: skip
+        path.write_text(text)
+        with pytest.raises(InputError, match=words):
+            bvh.load_bvh(path)
+
+
+def _unblock_later(fifo: Path, seconds: float = 5.0) -> None:
+    """Open ``fifo`` for writing after ``seconds`` and close it: a reader that waits on it
+    gets an empty file, so that a regression fails the test instead of hanging it."""
+
+    def unblock() -> None:
+        time.sleep(seconds)
+        with contextlib.suppress(OSError):  # nobody reading: nothing to unblock
+            os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+
+    threading.Thread(target=unblock, daemon=True).start()
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
+@pytest.mark.parametrize("option", ["asf", "body-model", "checkpoint-json"])
+def test_a_fifo_named_by_an_option_is_refused_without_waiting(tmp_path, option):
+    """--asf, --body-model and a checkpoint's metadata beside it: a FIFO is said to be one
+    (it was "no such skeleton file", "not found", or a wait forever)."""
+    (tmp_path / "in").mkdir()
+    fifo = tmp_path / "in" / {"asf": "bad.asf", "body-model": "bad.npz",
+                              "checkpoint-json": "bad.json"}[option]  # fmt: skip
+    os.mkfifo(fifo)
+    good = tmp_path / "in" / "good.npz"
+    good.write_bytes(F.good_motion())
+    amc = tmp_path / "in" / "good_01.amc"
+    amc.write_text(F.amc_text(frames=32))
+    weights = tmp_path / "in" / "bad.npz"
+    if option == "checkpoint-json":
+        weights.write_bytes(F.npz_bytes({"w.npy": np.zeros(3)}))
+    args = {"asf": ["import", amc, "--asf", fifo, "-o", tmp_path / "out" / "t.npz"],
+            "body-model": ["eval", "--gt", good, "--pred", good, "--body-model", fifo],
+            "checkpoint-json": ["denoise", good, "--denoiser", weights,
+                                "-o", tmp_path / "out" / "c.npz"]}[option]  # fmt: skip
+    _unblock_later(fifo)
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(result.output, fifo, r"is a FIFO \(named pipe\), not a file")
+    assert not (tmp_path / "out").exists()
+
+
+_JOINT_MAPS = {
+    "binary": (F.good_motion(), r"not UTF-8 text; a joint map is a JSON file"),
+    "deep": (b"[" * 100_000 + b"]" * 100_000, r"nested too deep; a joint map is one flat JSON"),
+    "a-list": (b'["LeftUpLeg"]', r'a joint map is a JSON object \{"left_hip": "LeftUpLeg"'),
+}
+
+
+@pytest.mark.parametrize("command", ["import", "denoise"])
+@pytest.mark.parametrize("defect", list(_JOINT_MAPS))
+def test_a_bad_joint_map_is_refused_in_one_line(tmp_path, command, defect):
+    (tmp_path / "in").mkdir()
+    take = tmp_path / "in" / "take.bvh"
+    take.write_text(F.bvh_text())
+    bad = tmp_path / "in" / "map.json"
+    bad.write_bytes(_JOINT_MAPS[defect][0])
+    before = tree_digest(tmp_path / "in")
+    args = [command, take, "--joint-map", bad, "-o", tmp_path / "out" / "t.npz"]
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    assert result.exit_code == 1, result.output
+    check_refusal(result.output, bad, _JOINT_MAPS[defect][1])
+    assert not (tmp_path / "out").exists() and tree_digest(tmp_path / "in") == before
