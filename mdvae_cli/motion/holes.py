@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from scipy.interpolate import CubicSpline
 
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat
 from mdvae_cli.motion.motion import Motion
@@ -143,6 +142,8 @@ def _fill_quats(rotvecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 def _spline_quats(rotvecs: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Cubic-spline fill of one joint through its observed frames.  (T, 3), (T,) -> (T, 3)"""
+    from scipy.interpolate import CubicSpline
+
     seen = np.flatnonzero(mask)
     if len(seen) < 3:
         return _fill_quats(rotvecs, mask)
@@ -244,6 +245,8 @@ def _fill_values(values: np.ndarray, mask: np.ndarray, method: str) -> np.ndarra
     out[holes] = values[prev] * (1.0 - w[:, None]) + values[nxt] * w[:, None]
     seen = np.flatnonzero(mask)
     if method == "spline" and len(seen) >= 3:
+        from scipy.interpolate import CubicSpline
+
         inside = holes[(holes > seen[0]) & (holes < seen[-1])]
         out[inside] = CubicSpline(seen, values[seen], axis=0)(inside)
     return out
