@@ -127,6 +127,23 @@ class Timing:
         return self.frames / self.seconds if self.seconds > 0 else float("inf")
 
 
+def shipped_models_and_log():
+    """The shipped denoiser, the built-in body and a logger that prints seconds since now,
+    torch seeded: what each accuracy benchmark starts with.  -> (denoiser, body, log)"""
+    from mdvae_cli.body.formats import load_body_model
+    from mdvae_cli.model.denoiser import load_denoiser
+
+    torch.manual_seed(0)
+    body = BodyModel(load_body_model(None))
+    denoiser, _ = load_denoiser(None)
+    start = time.time()
+
+    def log(message: str) -> None:
+        print(f"[{time.time() - start:6.0f} s] {message}", flush=True)
+
+    return denoiser, body, log
+
+
 def write_motions(motions: Sequence[Motion], folder: Path) -> list[Path]:
     """Save motions as ``clip_00000.npz``, ... in ``folder`` (created). -> the paths, in order"""
     folder.mkdir(parents=True, exist_ok=True)

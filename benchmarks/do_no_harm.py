@@ -20,7 +20,6 @@ Three parts, each a markdown table (``--write`` puts them into ``docs/benchmarks
 from __future__ import annotations
 
 import argparse
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -32,7 +31,6 @@ try:
 except ModuleNotFoundError:  # run as a file
     import common  # type: ignore[no-redef]
 
-from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, pose_motion_chunks
 from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
@@ -42,7 +40,6 @@ from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.input_kinds import refine_config
 from mdvae_cli.metrics import joint_acceleration, v2v
-from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.contacts import FOOT_JOINTS, contacts_of_feet
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
@@ -230,13 +227,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--parts", default="sweep,high_rate,real", help="which tables")
     ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
     args = ap.parse_args(argv)
-    torch.manual_seed(0)
-    body = BodyModel(load_body_model(None))
-    denoiser, _ = load_denoiser(None)
-    start = time.time()
-
-    def log(message: str) -> None:
-        print(f"[{time.time() - start:6.0f} s] {message}", flush=True)
+    denoiser, body, log = common.shipped_models_and_log()
 
     parts = args.parts.split(",")
     text = []

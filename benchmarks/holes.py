@@ -14,7 +14,6 @@ without the hole (1.00 = the hole costs the rest nothing).
 from __future__ import annotations
 
 import argparse
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,12 +25,10 @@ try:
 except ModuleNotFoundError:  # run as a file
     import common  # type: ignore[no-redef]
 
-from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, pose_motion_chunks
 from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
 from mdvae_cli.metrics import v2v
-from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.holes import frame_holes, limb_holes, with_holes
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.train.corpus import select_files
@@ -135,13 +132,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--splits", default="test,unseen_test")
     ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
     args = ap.parse_args(argv)
-    torch.manual_seed(0)
-    body = BodyModel(load_body_model(None))
-    denoiser, _ = load_denoiser(None)
-    start = time.time()
-
-    def log(message: str) -> None:
-        print(f"[{time.time() - start:6.0f} s] {message}", flush=True)
+    denoiser, body, log = common.shipped_models_and_log()
 
     text = [split_table(s, args.clips, denoiser, body, log) for s in args.splits.split(",")]
     section = (

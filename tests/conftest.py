@@ -79,6 +79,26 @@ def make_motion_file(tmp_path: Path):
     return make
 
 
+def run_cli(*args) -> tuple[int, str, str]:
+    """``mdvae ARGS`` in-process -> (exit code, stdout, stderr); an escaped exception fails."""
+    from click.testing import CliRunner
+
+    from mdvae_cli.cli.main import cli
+
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        raise result.exception
+    return result.exit_code, result.stdout, result.stderr
+
+
+def one_error_line(code: int, out: str, err: str) -> str:
+    """The one ``error:`` line of a refusal (exit 1, no traceback, nothing else)."""
+    lines = [ln for ln in (out + err).splitlines() if ln.strip()]
+    assert code == 1 and len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert "Traceback" not in out + err
+    return lines[0]
+
+
 def file_digest(path: Path) -> str:
     """SHA-256 of a file's bytes (to check inputs are left untouched)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()

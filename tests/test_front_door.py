@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from rich.console import Console
 
 from mdvae_cli.cli.eval_cmd import results_table
@@ -20,23 +19,9 @@ from mdvae_cli.formats import registry
 from mdvae_cli.formats.registry import ReadOptions, read, write
 from mdvae_cli.metrics import EvalResult
 from tests.bad_input import files as F
+from tests.conftest import one_error_line as one_error
+from tests.conftest import run_cli as run
 from tests.conftest import tree_digest
-
-
-def run(*args) -> tuple[int, str, str]:
-    """``mdvae ARGS`` in-process -> (exit code, stdout, stderr); an escaped exception fails."""
-    result = CliRunner().invoke(cli, [str(a) for a in args])
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result.exit_code, result.stdout, result.stderr
-
-
-def one_error(code: int, out: str, err: str) -> str:
-    """The one ``error:`` line of a refusal (exit 1, no traceback, nothing else)."""
-    lines = [ln for ln in (out + err).splitlines() if ln.strip()]
-    assert code == 1 and len(lines) == 1 and lines[0].startswith("error: "), lines
-    assert "Traceback" not in out + err
-    return lines[0]
 
 
 @pytest.fixture

@@ -7,29 +7,15 @@ import json
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.npz_holes import keep_holes
 from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.infer.denoise_settings import DenoiseSettings
 from mdvae_cli.motion.holes import unfilled
 from tests.conftest import file_digest
-
-
-def run(*args) -> tuple[int, str, str]:
-    result = CliRunner().invoke(cli, [str(a) for a in args])
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result.exit_code, result.stdout, result.stderr
-
-
-def one_error(code: int, out: str, err: str) -> str:
-    assert code == 1 and "Traceback" not in out + err
-    lines = [line for line in (out + err).splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    return lines[0]
+from tests.conftest import one_error_line as one_error
+from tests.conftest import run_cli as run
 
 
 @pytest.fixture

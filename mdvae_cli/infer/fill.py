@@ -18,7 +18,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat, rotvec_unwrap
 from mdvae_cli.infer.fill_choices import FILLS
+from mdvae_cli.infer.noise_blend import noise_variance
 from mdvae_cli.motion.holes import fill_gaps, observed
 from mdvae_cli.motion.motion import Motion
 
@@ -69,13 +71,6 @@ def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Mot
     by the input's own noise s (``infer.noise_blend.noise_variance``): the result's share is
     s^4 / (s^4 + c^4) (sharp: a noisy take's input curve swings far). Outside the holes,
     ``from_result``."""
-    from mdvae_cli.geometry.rotations import (
-        quat_slerp,
-        quat_to_rotvec,
-        rotvec_to_quat,
-        rotvec_unwrap,
-    )
-    from mdvae_cli.infer.noise_blend import noise_variance
 
     rot_in = np.concatenate([from_input.root_orient[:, None], from_input.pose_body], axis=1)
     rot_res = np.concatenate([from_result.root_orient[:, None], from_result.pose_body], axis=1)
