@@ -4,8 +4,14 @@ The step is the shipped recipe's whole step (``weights_recipe/prior_config.json`
 decoder and prior over 60-frame windows, the body term on every ``body_frame_stride``-th frame,
 the backward pass, gradient clipping and Adam. Windows are random states of a realistic scale
 (the arithmetic does not depend on the values). Prints a markdown table for every device and
-batch size asked for; with ``--json``, one JSON object (with ``s_per_step`` at its top level
-when one device and one batch size were asked for).
+batch size asked for, with the step's arithmetic (GFLOP of matrix products, forward and
+backward, counted by torch) and the rate it reached against the device's rate on one plain
+matrix product of the same width (the ceiling a step made only of such products could
+reach); with ``--json``, one JSON object (with ``s_per_step`` at its top level when one device
+and one batch size were asked for).
+
+The model is the one ``train-prior`` builds from the recipe (its current layout: the decoder
+head reads z_t, the encoder reads the decoder's state and x_t), not a legacy checkpoint's.
 
     python benchmarks/train_speed.py                       # cpu (+ cuda where present), 64/256/1024
     python benchmarks/train_speed.py --device cpu --batch 64 --threads 2 --json
@@ -41,8 +47,37 @@ def synthetic_windows(n: int, cfg: TrainConfig, seed: int = 0) -> WindowSet:
     return WindowSet(x0, x, torch.zeros(n, 16))
 
 
-def time_steps(cfg: TrainConfig, device: torch.device, batch: int, steps: int) -> float:
-    """Seconds per training step (median of ``steps`` timed steps, after two warm-up ones)."""
+def matmul_rate(device: torch.device, rows: int = 1024, reps: int = 50) -> float:
+    """GFLOP/s of one (rows x H) @ (H x 3H) product, H the recipe's width (128): a GRU's gates."""
+    a = torch.randn(rows, 128, device=device)
+    w = torch.randn(128, 384, device=device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    for _ in range(3):
+        a @ w
+    sync()
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        a @ w
+    sync()
+    return 2 * rows * 128 * 384 * reps / (time.perf_counter() - t0) / 1e9
+
+
+def step_gflop(cfg: TrainConfig, batch: int) -> float:
+    """GFLOP of the matrix products in one training step (forward and backward), on CPU."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    model, body, vertex_ids, data = recipe_step_parts(cfg, torch.device("cpu"), batch)
+    with FlopCounterMode(display=False) as counter:
+        terms = prior_losses(
+            model, model.dvae, data, body, vertex_ids, 0.5, cfg.body_weight,
+            cfg.body_frame_stride, cfg.recon_weight, cfg.velocity_weight,
+        )  # fmt: skip
+        terms["loss"].backward()
+    return counter.get_total_flops() / 1e9
+
+
+def recipe_step_parts(cfg: TrainConfig, device: torch.device, batch: int):
+    """The recipe's model (normaliser fitted), body, body-term vertices and ``batch`` windows."""
     torch.manual_seed(cfg.seed)
     body = BodyModel(load_body_model(None)).to(device)
     vertex_ids = spread_vertex_ids(body.v_template.shape[0], cfg.body_vertices).to(device)
@@ -51,6 +86,12 @@ def time_steps(cfg: TrainConfig, device: torch.device, batch: int, steps: int) -
     model.normalizer.fit(data.x0, data.x)
     model.to(device)
     data = WindowSet(*(t.to(device) for t in (data.x0, data.x, data.betas)))
+    return model, body, vertex_ids, data
+
+
+def time_steps(cfg: TrainConfig, device: torch.device, batch: int, steps: int) -> float:
+    """Seconds per training step (median of ``steps`` timed steps, after two warm-up ones)."""
+    model, body, vertex_ids, data = recipe_step_parts(cfg, device, batch)
     opt = torch.optim.Adam(model.dvae.parameters(), lr=cfg.lr)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
 
@@ -84,18 +125,22 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    cfg = TrainConfig.from_dict(json.loads(args.config.read_text()))
+    cfg = TrainConfig.from_dict(json.loads(args.config.read_text()), legacy=False)
     if args.device == "auto":
         devices = ["cpu", *(["cuda"] if torch.cuda.is_available() else [])]
     else:
         devices = [args.device]
     rows = []
+    batches = [int(b) for b in args.batch.split(",")]
+    gflop = {b: step_gflop(cfg, b) for b in batches}
     for name in devices:
-        for batch in (int(b) for b in args.batch.split(",")):
+        ceiling = matmul_rate(torch.device(name))
+        for batch in batches:
             s = time_steps(cfg, torch.device(name), batch, args.steps)
             rows.append(
                 {"device": name, "batch": batch, "s_per_step": s, "steps_per_s": 1 / s,
-                 "windows_per_s": batch / s}
+                 "windows_per_s": batch / s, "gflop_per_step": gflop[batch],
+                 "gflop_per_s": gflop[batch] / s, "matmul_gflop_per_s": ceiling}
             )  # fmt: skip
     result = {
         "machine": platform.processor() or platform.machine(),
@@ -109,12 +154,13 @@ def main(argv: list[str] | None = None) -> dict:
         print(json.dumps(result))
         return result
     print(f"torch {result['torch']}, {result['threads']} CPU thread(s)\n")
-    print("| device | batch | s/step | steps/s | windows/s |")
-    print("|---|---|---|---|---|")
+    print("| device | batch | s/step | steps/s | windows/s | GFLOP/step | GFLOP/s (matmul alone) |")
+    print("|---|---|---|---|---|---|---|")
     for r in rows:
         print(
             f"| {r['device']} | {r['batch']} | {r['s_per_step']:.4f} | {r['steps_per_s']:.2f} "
-            f"| {r['windows_per_s']:,.0f} |"
+            f"| {r['windows_per_s']:,.0f} | {r['gflop_per_step']:.1f} "
+            f"| {r['gflop_per_s']:.0f} ({r['matmul_gflop_per_s']:.0f}) |"
         )
     return result
 

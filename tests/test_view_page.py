@@ -22,7 +22,7 @@ from mdvae_cli.formats.npz_io import load_motion, motion_from_arrays
 from mdvae_cli.formats.registry import ReadOptions, read
 from mdvae_cli.geometry.rotations import quat_to_rotmat, rotvec_to_rotmat
 from mdvae_cli.motion.contacts import foot_contacts
-from mdvae_cli.view.encode import Blob, decode_array, encode_array, quantise
+from mdvae_cli.view.encode import Blob, decode_array, encode_array, quantise, unzigzag, zigzag
 from mdvae_cli.view.mesh import decimate_body
 from mdvae_cli.view.page import POS_SCALE, ROT_SCALE, build_view_page
 from mdvae_cli.view.pose import (
@@ -63,6 +63,27 @@ def test_encode_round_trips_exactly_with_wrapping_differences(dtype):
     for delta in (True, False):
         blob = encode_array(values, delta=delta)
         assert (decode_array(blob) == values).all()
+    for order in (1, 2):  # each order on its own, overflowing sums included
+        blob = encode_array(values, orders=(order,))
+        assert blob.delta == order and (decode_array(blob) == values).all()
+
+
+def test_encode_picks_the_difference_order_that_packs_smaller():
+    t = np.arange(2000)[:, None]
+    smooth = np.rint(3000 * np.sin(t / 400 + np.arange(4))).astype(np.int16)  # a clean take
+    rng = np.random.default_rng(1)
+    noisy = (smooth + rng.integers(-200, 201, smooth.shape)).astype(np.int16)
+    picked = {name: encode_array(v) for name, v in (("smooth", smooth), ("noisy", noisy))}
+    assert picked["smooth"].delta == 2 and picked["noisy"].delta == 1
+    for name, v in (("smooth", smooth), ("noisy", noisy)):
+        sizes = [len(encode_array(v, orders=(o,)).text) for o in (1, 2)]
+        assert len(picked[name].text) == min(sizes)
+        assert (decode_array(picked[name]) == v).all()
+    assert len(picked["smooth"].text) < 0.95 * len(encode_array(smooth, orders=(1,)).text)
+    # zigzag: small numbers of either sign stay small (an all-zero high byte)
+    signed = np.array([0, -1, 1, -2, 2, -32768, 32767], np.int16)
+    assert zigzag(signed).tolist() == [0, 1, 2, 3, 4, 65535, 65534]
+    assert (unzigzag(zigzag(signed), "int16") == signed).all()
 
 
 def test_quantise_rounds_and_clips():

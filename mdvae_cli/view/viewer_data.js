@@ -51,30 +51,39 @@ async function decodeBlob(d) {
   else unpack8(packed, out, T, d.channels, d.delta);
   return out;
 }
-function unpack8(p, out, T, C, delta) {
+/* byte planes -> integers: an array of differences (d.delta = 1 or 2) is zigzagged (0, 1, 2, 3
+   for 0, -1, 1, -2) and summed d.delta times; sums wrap at the array's width, as encoded */
+function unpack8(p, out, T, C, order) {
   for (let c = 0, i = 0; c < C; c++) {
-    let acc = 0;
-    for (let t = 0; t < T; t++, i++) { acc = delta ? acc + p[i] : p[i]; out[i] = acc; } // the array wraps
+    let acc = 0, vel = 0;
+    for (let t = 0; t < T; t++, i++) {
+      const v = order ? (p[i] >>> 1) ^ -(p[i] & 1) : p[i];
+      if (order === 2) { vel = (vel + v) | 0; acc = (acc + vel) | 0; } else acc = order ? (acc + v) | 0 : v;
+      out[i] = acc; // the typed array wraps to its 8 bits
+    }
   }
 }
-function unpack16(p, out, T, C, delta) {
+function unpack16(p, out, T, C, order) {
   const n = T * C;
   for (let c = 0, i = 0; c < C; c++) {
-    let acc = 0;
+    let acc = 0, vel = 0;
     for (let t = 0; t < T; t++, i++) {
-      const v = ((p[n + i] << 24) >> 16) | p[i];
-      acc = delta ? ((acc + v) << 16) >> 16 : v;
+      const u = p[i] | (p[n + i] << 8);
+      const v = order ? (u >>> 1) ^ -(u & 1) : (u << 16) >> 16;
+      if (order === 2) { vel = ((vel + v) << 16) >> 16; acc = ((acc + vel) << 16) >> 16; }
+      else acc = order ? ((acc + v) << 16) >> 16 : v;
       out[i] = acc;
     }
   }
 }
-function unpack32(p, out, T, C, delta) {
+function unpack32(p, out, T, C, order) {
   const n = T * C;
   for (let c = 0, i = 0; c < C; c++) {
-    let acc = 0;
+    let acc = 0, vel = 0;
     for (let t = 0; t < T; t++, i++) {
-      const v = p[i] | (p[n + i] << 8) | (p[2 * n + i] << 16) | (p[3 * n + i] << 24);
-      acc = delta ? (acc + v) | 0 : v;
+      const u = p[i] | (p[n + i] << 8) | (p[2 * n + i] << 16) | (p[3 * n + i] << 24);
+      const v = order ? (u >>> 1) ^ -(u & 1) : u;
+      if (order === 2) { vel = (vel + v) | 0; acc = (acc + vel) | 0; } else acc = order ? (acc + v) | 0 : v;
       out[i] = acc;
     }
   }
