@@ -160,6 +160,38 @@ def test_interrupted_and_resumed_run_ends_bit_identical(tmp_path):
     assert json.loads((run / "summary.json").read_text())["steps"] == whole.steps
 
 
+def test_a_wall_clock_budget_stops_inside_an_epoch_and_resume_ends_bit_identical(
+    tmp_path, monkeypatch
+):
+    """--max-minutes: the run stops after the first step past its budget (here a clock that
+    moves 10 s at every reading), validates and saves; --resume ends with exactly the weights
+    of the run left alone."""
+    import mdvae_cli.train.train_prior as tp
+
+    data = write_corpus(tmp_path / "data", n=3, T=60)
+    cfg = tiny_config(data, epochs=2, batch_size=2)  # 8 steps an epoch
+    whole = train_prior(cfg, tmp_path / "whole")
+
+    class Clock:
+        now = 1000.0
+
+        def time(self):
+            self.now += 10.0
+            return self.now
+
+    monkeypatch.setattr(tp, "time", Clock())
+    run = tmp_path / "budget"
+    stopped = train_prior(cfg, run, max_minutes=0.5)  # 3 readings of the clock
+    monkeypatch.undo()
+    per_epoch = whole.steps // 2
+    assert 0 < stopped.steps < per_epoch  # inside the first epoch
+    meta = json.loads((run / "last.json").read_text())
+    assert meta["epoch_steps"] == stopped.steps and meta["step"] == stopped.steps
+    assert len((run / "log.jsonl").read_text().splitlines()) == 1  # validated once
+    resumed = train_prior(cfg, run, resume=True)
+    assert resumed.steps == whole.steps and resumed.rank_digests == whole.rank_digests
+
+
 def test_init_from_widens_an_older_architecture_exactly(tmp_path):
     """A prior without the decoder z-skip / encoder-reads-decoder links fine-tunes into the
     current architecture: the new input columns start at zero, so it computes the same."""

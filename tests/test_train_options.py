@@ -693,3 +693,31 @@ def test_fit_dataset_answers_json(corpus, tiny_prior, tmp_path):
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout)
     assert summary["steps"] == 1 and summary["out_dir"] == str(tmp_path / "d")
+
+
+def test_learning_rate_warm_up_then_the_cosine():
+    from mdvae_cli.model.optim import cosine_lr, warmup_cosine_lr
+
+    rates = [warmup_cosine_lr(s, 110, 4e-3, 1e-4, 10) for s in range(110)]
+    assert rates[:10] == pytest.approx([4e-3 * (s + 1) / 10 for s in range(10)])
+    assert rates[10] == pytest.approx(4e-3)  # the cosine starts at the full rate
+    assert rates[60] == pytest.approx(0.5 * (4e-3 + 1e-4))  # half-way through the decay
+    assert rates[-1] == pytest.approx(cosine_lr(99, 100, 4e-3, 1e-4))
+    # no warm-up is exactly the plain cosine
+    assert [warmup_cosine_lr(s, 50, 1e-3, 5e-5, 0) for s in range(50)] == [
+        cosine_lr(s, 50, 1e-3, 5e-5) for s in range(50)
+    ]
+    with pytest.raises(InputError, match="--lr-warmup"):
+        TrainConfig(lr_warmup_steps=-1)
+
+
+def test_cli_lr_warmup_is_saved_with_the_run(corpus, tmp_path):
+    out = tmp_path / "run"
+    res = CliRunner().invoke(
+        cli,
+        ["train-prior", str(corpus), "-o", str(out), "--epochs", "1", "--max-steps", "2",
+         "--batch-size", "4", "--lr-warmup", "3", "--latent-dim", "4", "--hidden-dim", "8",
+         "--window", "20", "--stride", "10"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert json.loads((out / "config.json").read_text())["lr_warmup_steps"] == 3

@@ -170,6 +170,13 @@ def run_options(fn: Callable) -> Callable:
     help="Adam learning rate (> 0, cosine-decayed) [default: 1e-3].",
 )
 @click.option(
+    "--lr-warmup",
+    "lr_warmup_steps",
+    type=click.IntRange(min=0),
+    help="Steps of linear learning-rate warm-up before the cosine decay (0 = none; for large "
+    "batches at a large --lr) [default: 0].",
+)
+@click.option(
     "--kl-warmup",
     "kl_warmup_steps",
     type=click.IntRange(min=0),
@@ -276,12 +283,18 @@ def run_options(fn: Callable) -> Callable:
     help="Stop once the run has taken this many steps in all, counting those before a "
     "--resume (smoke runs).",
 )
+@click.option(
+    "--max-minutes",
+    type=click.FloatRange(min=0.0, min_open=True),
+    help="Stop after the first step that ends past this many minutes of wall time (a GPU "
+    "lent for minutes): the run validates, saves, and --resume continues it exactly.",
+)
 @run_options
 @body_model_option
 @handle_errors
 def train_prior(
-    data, run_dir, split_file, config_file, resume, max_steps, threads, body_model, as_json,
-    **overrides,
+    data, run_dir, split_file, config_file, resume, max_steps, max_minutes, threads, body_model,
+    as_json, **overrides,
 ) -> None:  # fmt: skip
     """Train the Motion-DVAE prior on clean AMASS-layout motion files or folders.
 
@@ -335,6 +348,7 @@ def train_prior(
             resume=resume,
             progress=StepReporter(progress, "training"),
             max_steps=max_steps,
+            max_minutes=max_minutes,
         )
     if as_json:
         emit_json(summary_dict(summary))

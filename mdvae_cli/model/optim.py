@@ -16,6 +16,15 @@ def cosine_lr(step: int, total: int, lr: float, lr_final: float) -> float:
     return lr_final + 0.5 * (lr - lr_final) * (1 + math.cos(math.pi * frac))
 
 
+def warmup_cosine_lr(step: int, total: int, lr: float, lr_final: float, warmup: int) -> float:
+    """:func:`cosine_lr` after a linear warm-up: ``lr * (step + 1) / warmup`` for the first
+    ``warmup`` steps (large batches), then the cosine over the remaining steps. ``warmup`` 0
+    is exactly :func:`cosine_lr`."""
+    if step < warmup:
+        return lr * (step + 1) / warmup
+    return cosine_lr(step - warmup, total - warmup, lr, lr_final)
+
+
 def set_lr(opt: torch.optim.Optimizer, lr: float) -> None:
     for group in opt.param_groups:
         group["lr"] = lr

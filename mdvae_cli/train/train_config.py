@@ -31,6 +31,9 @@ class TrainConfig:
     epochs: int = 40
     lr: float = 1e-3
     lr_final: float = 1e-4
+    #: steps of linear learning-rate warm-up before the cosine decay (0 = none; large batches
+    #: with a large rate need a few)
+    lr_warmup_steps: int = 0
     kl_warmup_steps: int = 1500
     kl_max: float = 1.0
     recon_weight: float = 1.0
@@ -73,6 +76,7 @@ class TrainConfig:
             ("batch_size", "--batch-size", 1),
             ("epochs", "--epochs", 1),
             ("kl_warmup_steps", "--kl-warmup", 0),
+            ("lr_warmup_steps", "--lr-warmup", 0),
             ("body_vertices", "body_vertices", 0),
             ("body_frame_stride", "body_frame_stride", 1),
             ("max_val_windows", "max_val_windows", 1),

@@ -17,9 +17,9 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError, diverged
 from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
-from mdvae_cli.model.config import require_int
+from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.losses import kl_weight
-from mdvae_cli.model.optim import clipped_step, cosine_lr, set_lr
+from mdvae_cli.model.optim import clipped_step, set_lr, warmup_cosine_lr
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
 from mdvae_cli.model.state import VELOCITY_DIMS
 from mdvae_cli.train.corpus import WindowSet, load_windows, outside, select_files
@@ -154,24 +154,46 @@ def init_from_prior(model: PriorModel, path: Path) -> None:
         raise InputError(f"--init-from {path}: {exc}") from None
 
 
+def stop_now(step: int, max_steps: int | None, deadline: float | None, dist, device) -> bool:
+    """Whether a run stops after ``step``: its step budget, or its wall-clock ``deadline``
+    (under DDP rank 0's clock decides for all, so that every rank stops at the same step)."""
+    if max_steps is not None and step >= max_steps:
+        return True
+    if deadline is None:
+        return False
+    late = torch.tensor([time.time() >= deadline], dtype=torch.int32)
+    if dist.enabled:
+        late = late.to(device)
+        torch.distributed.broadcast(late, 0)
+        late = late.cpu()
+    return bool(late.item())
+
+
 def train_prior(
     cfg: TrainConfig,
     run_dir: Path,
     resume: bool = False,
     progress: Callable[[dict], None] | None = None,
     max_steps: int | None = None,
+    max_minutes: float | None = None,
 ) -> TrainSummary:
     """Train (or resume) a prior into ``run_dir``; works alone or under torchrun (DDP).
 
     ``progress`` receives a dict after every step (epoch, step, steps_per_epoch, loss terms)
-    and after every epoch (with ``val``). ``max_steps`` (>= 1) stops early (tests). ``cfg``
+    and after every epoch (with ``val``). ``max_steps`` (>= 1) stops early (tests);
+    ``max_minutes`` (> 0) stops after the first step that ends past that much wall time since
+    the start (a GPU lent for minutes): either way the run ends with its validation and a
+    checkpoint that ``resume`` continues exactly where it stopped. ``cfg``
     is validated here (fields may have changed since it was made). A loss or weights that
     stop being finite end the run with InputError before anything of them is saved.
     """
     cfg.validate()
     if max_steps is not None:
         require_int("--max-steps", max_steps, 1)
+    if max_minutes is not None:
+        require_number("--max-minutes", max_minutes, 0.0, open_low=True)
     start = time.time()
+    deadline = None if max_minutes is None else start + 60.0 * max_minutes
     run_dir = Path(run_dir)
     if not resume:
         refuse_to_overwrite(run_dir, ("last.npz", "best.npz"))
@@ -243,7 +265,7 @@ def train_prior(
             "body_model": body.data.name or body.data.kind,
         }
         model.train()
-        epoch = first_epoch - 1
+        epoch, stopped = first_epoch - 1, False
         for epoch in range(first_epoch, cfg.epochs):
             # the epoch's order (mod 2^64: any seed fits; the same numbers as ever below ~1e16)
             gen = torch.Generator().manual_seed((cfg.seed * 1000 + epoch) % 2**64)
@@ -254,7 +276,8 @@ def train_prior(
                 idx = mine[i * cfg.batch_size : (i + 1) * cfg.batch_size]
                 b = train.subset(idx)
                 batch = WindowSet(b.x0.to(device), b.x.to(device), b.betas.to(device))
-                set_lr(opt, cosine_lr(step, total_steps, cfg.lr, cfg.lr_final))
+                lr = warmup_cosine_lr(step, total_steps, cfg.lr, cfg.lr_final, cfg.lr_warmup_steps)
+                set_lr(opt, lr)
                 kl_w = cfg.kl_max * kl_weight(step, cfg.kl_warmup_steps)
                 terms = prior_losses(
                     model,
@@ -286,8 +309,8 @@ def train_prior(
                             **({k: v.item() for k, v in terms.items()} if report else {}),
                         }
                     )
-                if max_steps is not None and step >= max_steps:
-                    taken = i + 1
+                if stop_now(step, max_steps, deadline, dist, device):
+                    taken, stopped = i + 1, True
                     break
             if not weights_are_finite(model):  # every rank holds the same weights
                 raise diverged("training", step, "weights not finite")
@@ -318,7 +341,7 @@ def train_prior(
                     fh.write(json.dumps(json_safe(record)) + "\n")
                 if progress is not None:
                     progress({"epoch": epoch, "step": step, "val": val_terms, "epoch_end": True})
-            if max_steps is not None and step >= max_steps:
+            if stopped:  # by --max-steps or --max-minutes
                 break
         digests = gather_strings(dist, parameter_digest(model))
         summary = TrainSummary(
