@@ -225,6 +225,12 @@ def test_shipped_and_default_configs_are_valid():
             FitConfig.from_dict(meta["fit_config"])
         ModelConfig.from_dict(meta["model_config"])
     TrainConfig(), FitConfig(), ModelConfig(), DenoiserConfig(), DistillConfig()
+    recipe = Path(__file__).resolve().parents[1] / "weights_recipe"
+    for name in ("prior_config.json", "prior_gpu_config.json"):  # as --config reads them
+        cfg = TrainConfig.from_dict(json.loads((recipe / name).read_text()), legacy=False)
+        assert cfg.model == ModelConfig()  # today's architecture, the shipped prior's
+    gpu = TrainConfig.from_dict(json.loads((recipe / "prior_gpu_config.json").read_text()))
+    assert (gpu.batch_size, gpu.lr_warmup_steps, gpu.device) == (1024, 10, "auto")
 
 
 def test_fields_changed_after_construction_are_checked_before_anything_is_written(
