@@ -7,10 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from mdvae_cli.cli.main import cli
 from mdvae_cli.formats.npz_io import load_motion
+from tests.conftest import run_cli as run
 
 
 @pytest.fixture
@@ -25,14 +24,6 @@ def small_default_body(monkeypatch, tiny_body):
             "load_body_model",
             lambda path, real=real: tiny_body if path is None else real(path),
         )
-
-
-def run(*args) -> tuple[int, str, str]:
-    """Invoke ``mdvae ARGS``; return (exit code, stdout, stderr). Fails on an escaped exception."""
-    result = CliRunner().invoke(cli, [str(a) for a in args])
-    if result.exception is not None and not isinstance(result.exception, SystemExit):
-        raise result.exception
-    return result.exit_code, result.stdout, result.stderr
 
 
 def assert_one_error_line(code: int, out: str, err: str) -> str:
