@@ -40,6 +40,7 @@ from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.input_kinds import refine_config
 from mdvae_cli.metrics import joint_acceleration, v2v
+from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.contacts import FOOT_JOINTS, contacts_of_feet
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
@@ -226,8 +227,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--splits", default="test,unseen_test")
     ap.add_argument("--parts", default="sweep,high_rate,real", help="which tables")
     ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
+    ap.add_argument("--denoiser", help="denoiser checkpoint or folder (default: the shipped one)")
     args = ap.parse_args(argv)
+    if args.write and args.denoiser:
+        ap.error("--write documents the shipped weights: leave out --denoiser")
     denoiser, body, log = common.shipped_models_and_log()
+    if args.denoiser:
+        denoiser, _ = load_denoiser(args.denoiser)
 
     parts = args.parts.split(",")
     text = []

@@ -5,10 +5,12 @@ On the corpus's ``test`` and ``unseen_test`` clips (150 frames at 30 Hz), clean 
 take that lost markers) and with Pose-NDF noise sigma = 0.10 rad (a noisy estimate): one hole
 per clip of 5, 15, 30 or 60 frames (every joint), or one limb (arm or leg, three joints)
 missing for 45 frames (1.5 s). Each row is V2V (cm, root-relative) on the filled frames alone;
-the last column is the default's V2V on the observed frames over its V2V on the same take
-without the hole (1.00 = the hole costs the rest nothing).
+the last rows are the default's V2V on the observed frames over its V2V on the same take
+without the hole (1.00 = the hole costs the rest nothing), on all of them and on those within
+:data:`NEAR_SECONDS` of the hole (where a long hole leaves the frames beside it with context on
+one side only: the take is split there).
 
-    python benchmarks/holes.py [--clips 12] [--write]
+    python benchmarks/holes.py [--clips 12] [--clip-frames 150] [--write]
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ REPO = Path(__file__).resolve().parents[1]
 CLIP_FRAMES = 150
 HOLES = ((5, "frames"), (15, "frames"), (30, "frames"), (60, "frames"), (45, "limb"))
 SIGMAS = (0.0, 0.10)
+#: observed frames this close to a hole (seconds) have their own ratio row
+NEAR_SECONDS = 0.5
 
 
 def hole_masks(clips: list[Motion], length: int, kind: str) -> list[np.ndarray]:
@@ -87,15 +91,26 @@ def frame_errors(gt: list[Motion], preds: list[Motion], body: BodyModel) -> list
     return out
 
 
+def near_hole(missing: np.ndarray, frames: int) -> np.ndarray:
+    """(T,) bool: observed frames at most ``frames`` away from a missing one.
+    missing: (T,) bool, at least one True."""
+    t = np.arange(len(missing))
+    gone = np.flatnonzero(missing)
+    distance = np.abs(t[:, None] - gone[None, :]).min(axis=1)
+    return ~missing & (distance <= frames)
+
+
 def pooled(errors: list[np.ndarray], where: list[np.ndarray]) -> float:
     """The mean of every clip's errors (T,) on its frames where ``where`` (T,) is True."""
     return float(np.concatenate([e[w] for e, w in zip(errors, where, strict=True)]).mean())
 
 
-def split_table(split: str, n_clips: int, denoiser, body, log) -> str:
+def split_table(
+    split: str, n_clips: int, denoiser, body, log, clip_frames: int = CLIP_FRAMES
+) -> str:
     corpus = REPO / "data" / "corpus"
     files = select_files([corpus], corpus / "split.json", split)
-    clips = common.load_clips(files, corpus, CLIP_FRAMES, max_clips=n_clips)
+    clips = common.load_clips(files, corpus, clip_frames, max_clips=n_clips)
     gt = [c.motion for c in clips]
     rows = methods(denoiser, body)
     cols = [f"{n} frames" if kind == "frames" else f"one limb, {n} frames" for n, kind in HOLES]
@@ -105,6 +120,7 @@ def split_table(split: str, n_clips: int, denoiser, body, log) -> str:
         whole = frame_errors(gt, denoise(noisy, DenoiseSettings(), denoiser, body), body)
         table: dict[str, list[str]] = {k: [] for k in rows}
         kept: list[str] = []
+        kept_near: list[str] = []
         for n, kind in HOLES:
             masks = hole_masks(noisy, n, kind)
             missing = [~k.all(axis=1) for k in masks]
@@ -115,13 +131,18 @@ def split_table(split: str, n_clips: int, denoiser, body, log) -> str:
                     observed = [~m for m in missing]
                     obs, ref = pooled(errs, observed), pooled(whole, observed)
                     kept.append(f"{obs / ref:.3f}")
+                    near = [near_hole(m, round(NEAR_SECONDS * 30)) for m in missing]
+                    kept_near.append(f"{pooled(errs, near) / pooled(whole, near):.3f}")
             log(f"{split} sigma {sigma:g} {n} {kind}: " + ", ".join(
                 f"{k[:14]} {v[-1]}" for k, v in table.items()))  # fmt: skip
         head = [f"V2V cm on the filled frames, sigma = {sigma:g}", *cols]
         body_rows = [[k, *v] for k, v in table.items()]
         body_rows.append(["default on the observed frames / without the hole", *kept])
+        body_rows.append(
+            [f"... on those within {NEAR_SECONDS:g} s of the hole / without the hole", *kept_near]
+        )
         parts.append(common.markdown_table(head, body_rows))
-    return f"**{split}** ({len(clips)} clips of {CLIP_FRAMES} frames at 30 Hz)\n\n" + "\n\n".join(
+    return f"**{split}** ({len(clips)} clips of {clip_frames} frames at 30 Hz)\n\n" + "\n\n".join(
         parts
     )
 
@@ -130,16 +151,22 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--clips", type=int, default=12, help="clips per split (spread evenly)")
     ap.add_argument("--splits", default="test,unseen_test")
+    ap.add_argument("--clip-frames", type=int, default=CLIP_FRAMES, help="frames per clip (30 Hz)")
     ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
     args = ap.parse_args(argv)
     denoiser, body, log = common.shipped_models_and_log()
 
-    text = [split_table(s, args.clips, denoiser, body, log) for s in args.splits.split(",")]
+    text = [
+        split_table(s, args.clips, denoiser, body, log, args.clip_frames)
+        for s in args.splits.split(",")
+    ]
     section = (
         "<!-- holes:begin (written by benchmarks/holes.py) -->\n"
         "## Holes (missing frames and joints)\n\n"
         + "\n\n".join(text)
-        + f"\n\n({common.cpu_model()}; `python benchmarks/holes.py --clips {args.clips}`)\n"
+        + f"\n\n({common.cpu_model()}; `python benchmarks/holes.py --clips {args.clips}"
+        + (f" --clip-frames {args.clip_frames}" if args.clip_frames != CLIP_FRAMES else "")
+        + "`)\n"
         + "<!-- holes:end -->"
     )
     print(section)
