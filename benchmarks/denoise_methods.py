@@ -5,7 +5,6 @@ mirror; every method run file to file on every noise level."""
 
 from __future__ import annotations
 
-import copy
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -64,8 +63,7 @@ except ModuleNotFoundError:  # run as a file
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
-from mdvae_cli.infer.denoise import denoise_motions
-from mdvae_cli.infer.feet import FootLockConfig
+from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import EvalResult
 from mdvae_cli.model.denoiser import Denoiser
@@ -121,20 +119,27 @@ def _denoise(
     """Regression (steps 0) or optimisation mode; ``refine``: None = no refinement, 0 = the
     closed-form offset alone, N = N refinement steps (with the offset); ``mirror``: average
     with the mirror image's result (``mdvae denoise --mirror``); ``feet``: then hold the feet
-    still on the floor (``mdvae denoise --feet lock``). With the offset (refine not
-    None) the guard is on, as ``mdvae denoise`` runs it; the paper's modes run untouched."""
-    cfg = None
-    if refine is not None:
-        cfg = RefineConfig(steps=refine, lr=s.refine_lr, offset_std=s.refine_offset)
+    still on the floor (``mdvae denoise --feet lock``). Run through the library call
+    ``mdvae denoise`` makes (``infer.denoise_settings.denoise``), so with the offset (refine
+    not None) the input's unexplained part is blended back as the command does; the paper's
+    modes run untouched."""
+    settings = DenoiseSettings(
+        refine_steps=refine or 0,
+        refine_lr=s.refine_lr,
+        offset=refine is not None,
+        offset_std=s.refine_offset,
+        feet="lock" if feet else "off",
+        mirror=mirror,
+        optimize_steps=steps,
+        lr=s.lr,
+        seed=s.seed,
+        window=s.window,
+        overlap=s.window - s.stride,
+    )
 
     def process(motions: list[Motion]) -> list[Motion]:
-        # optimisation mode fine-tunes the networks it is given: always a fresh copy
-        model = copy.deepcopy(denoiser) if steps else denoiser
-        return denoise_motions(
-            motions, model, body, s.window, s.stride, steps, s.lr, s.batch_size, s.seed,
-            refine=cfg, mirror=mirror, guard=cfg is not None,
-            feet=FootLockConfig() if feet else None,
-        )  # fmt: skip
+        # optimisation mode fine-tunes a copy of the networks (denoise() makes it)
+        return denoise(motions, settings, denoiser, body)
 
     return process
 
@@ -183,11 +188,12 @@ def build_table(
         ),
         ROW_OFFSET: (
             f"one forward pass + closed-form slow offsets {s.refine_offset:g} rad, "
-            f"{RefineConfig.trans_offset_std:g} m on the root (`mdvae denoise`)",
+            f"{RefineConfig.trans_offset_std:g} m on the root, the input's unexplained part "
+            "blended back (`mdvae denoise --feet off`)",
             _denoise(denoiser, body, s, 0, 0),
         ),
         ROW_OFFSET_FEET: (
-            "the above, then feet held still on the floor where they are down (`--feet lock`)",
+            "the above, then feet held still on the floor where they are down (`mdvae denoise`)",
             _denoise(denoiser, body, s, 0, 0, feet=True),
         ),
         ROW_OPTIMIZATION: (

@@ -14,8 +14,13 @@ timed part is loading, denoising and saving all of them in one run:
 * regression mode: one forward pass of the denoiser;
 * optimisation mode: for each sigma, a copy of the denoiser is fine-tuned for 50 steps on all
   the test clips of that sigma at once, which then predicts them (the paper's protocol);
+* the default (``mdvae denoise``): regression mode, the closed-form slow offset, the input's
+  unexplained part blended back and the foot lock; and the same with ``--feet off``;
 * refinement (``mdvae denoise --refine 50``): regression mode, then 50 gradient steps on each
   window's own latents, with a slow rotation offset (``mdvae_cli.infer.refine``).
+
+Every row of ours runs through the library call the command makes
+(``mdvae_cli.infer.denoise_settings.denoise``), so it measures what a user gets.
 
 The metrics are root-relative V2V (cm) and the mean joint acceleration (m/s^2; the ground truth
 row gives the target value), frame-weighted over all clips. Speed is s/frame and frames/s of the

@@ -29,8 +29,8 @@ _FPS_CELL = r"(?:[^|\n]*\|){3} ([\d,]+) \|"  # after a row's name, its fourth ce
 README_QUOTES = {
     r"most accurate \(~(\d+)x slower\)": ("denoise", "refine_mirror_slowdown"),
     r"\| best tuned filter \([^|\n]*\) \|" + _FPS_CELL: ("denoise", "filter_fps"),
-    r"\| `--refine 50 --no-blend --feet off` \|" + _FPS_CELL: ("denoise", "refine_fps"),
-    r"\| `--refine 50 --mirror --no-blend --feet off` \|" + _FPS_CELL: (
+    r"\| `--refine 50 --feet off` \|" + _FPS_CELL: ("denoise", "refine_fps"),
+    r"\| `--refine 50 --mirror --feet off` \|" + _FPS_CELL: (
         "denoise",
         "refine_mirror_fps",
     ),
@@ -82,12 +82,12 @@ def denoise_figures(text: str) -> dict:
     """Speeds and the mirror's gain from ``denoise_table.py``'s test-split table."""
     rows = tables(section(text, "denoise_table"))[0]
     fps = {name: number(row(rows, name)["frames/s ↑"]) for name in (
-        "Regression mode", "Regression + offset (default)", "Latent refinement",
+        "Regression mode", "Regression + offset + blend (--feet off)", "Latent refinement",
         "Latent refinement + mirror")}  # fmt: skip
     v2v = [c for c in rows[0] if c.startswith("V2V σ=")]
     refine, mirror = row(rows, "Latent refinement"), row(rows, "Latent refinement + mirror")
     gains = [100 * (1 - number(mirror[c]) / number(refine[c])) for c in v2v]
-    one_pass = fps["Regression + offset (default)"]
+    one_pass = fps["Regression + offset + blend (--feet off)"]
     best = next(r for r in rows if r[list(r)[-1]] == "best filter")
     return {
         "filter_fps": round(number(best["frames/s ↑"])),

@@ -6,7 +6,8 @@
 Protocol. Files of a split (resampled to 30 Hz) are cut into non-overlapping clips of each
 length; at most ``--max-clips`` per length, spread evenly over the files. Pose-NDF noise
 (sigma = 0.10 / 0.15 / 0.20 rad, a seed per clip and sigma) is added; the default
-(`mdvae denoise`: regression mode + the closed-form slow offset) and every filter setting of a
+(`mdvae denoise` as it runs: regression mode, the closed-form slow offset, the blend and the
+foot lock) and every filter setting of a
 grid run on them. The filter row is, per length and sigma, the grid's best setting *on those
 very clips* (an oracle: it knows the answer it is scored on). Columns: V2V (cm, root-relative,
 frame-weighted), the mean joint acceleration (m/s^2; the ground truth's beside it), the default's
@@ -35,8 +36,7 @@ except ModuleNotFoundError:  # run as a file
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
-from mdvae_cli.infer.denoise import denoise_motions
-from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
 from mdvae_cli.metrics import mean_result
 from mdvae_cli.model.denoiser import Denoiser
 
@@ -89,17 +89,18 @@ def short_take_rows(
     body: BodyModel,
     sigmas: Sequence[float] = SIGMAS,
     seed: int = 0,
-    refine: RefineConfig | None = None,
+    settings: DenoiseSettings | None = None,
     log: Callable[[str], None] = lambda _: None,
 ) -> list[ShortRow]:
-    """The rows of the short-take table (see the module docstring)."""
-    refine = refine or RefineConfig(steps=0)
+    """The rows of the short-take table (see the module docstring); ``settings``: what the
+    default row runs (None: ``mdvae denoise``'s defaults)."""
+    settings = settings or DenoiseSettings()
     rows = []
     for length, clips in clips_by_length.items():
         gt = [c.motion for c in clips]
         for sigma in sigmas:
             noisy = common.add_noise(clips, sigma, seed)
-            default = denoise_motions(noisy, denoiser, body, refine=refine, guard=True)
+            default = denoise(noisy, settings, denoiser, body)
             preds: dict = {"noisy": noisy, "default": default}
             for name, fn in filter_grid(length).items():
                 preds[name] = common.LazyMap(fn, noisy)

@@ -132,8 +132,8 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
         "Savitzky-Golay filter",
         "Regression mode",
         "Regression + mirror",
-        "Regression + offset (default)",
-        "Regression + offset + feet lock",
+        "Regression + offset + blend (--feet off)",
+        "Default (offset + blend + feet lock)",
     ):
         assert float(cell(row, "s/frame ↓")) > 0 and float(cell(row, "1 clip, warm (ms)")) > 0
     for row in (
