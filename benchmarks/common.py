@@ -127,15 +127,16 @@ class Timing:
         return self.frames / self.seconds if self.seconds > 0 else float("inf")
 
 
-def shipped_models_and_log():
-    """The shipped denoiser, the built-in body and a logger that prints seconds since now,
-    torch seeded: what each accuracy benchmark starts with.  -> (denoiser, body, log)"""
+def shipped_models_and_log(denoiser_path: str | Path | None = None):
+    """The shipped denoiser (or the one at ``denoiser_path``), the built-in body and a logger
+    that prints seconds since now, torch seeded: what each accuracy benchmark starts with.
+    -> (denoiser, body, log)"""
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.model.denoiser import load_denoiser
 
     torch.manual_seed(0)
     body = BodyModel(load_body_model(None))
-    denoiser, _ = load_denoiser(None)
+    denoiser, _ = load_denoiser(denoiser_path)
     start = time.time()
 
     def log(message: str) -> None:

@@ -197,7 +197,7 @@ def build_table(
             _denoise(denoiser, body, s, 0, 0, feet=True),
         ),
         ROW_OPTIMIZATION: (
-            f"{s.optimize_steps} steps on each sigma's set, lr {s.lr:g}, batch {s.batch_size}",
+            f"{s.optimize_steps} steps on each sigma's set, lr {s.lr:g} (`--optimize`)",
             _denoise(denoiser, body, s, s.optimize_steps),
         ),
         ROW_OPTIMIZATION_OFFSET: (

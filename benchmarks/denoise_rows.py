@@ -67,7 +67,7 @@ class TableSettings:
     sigmas: noise levels (rad); reference_sigma: one of them, the level for filter tuning,
     speeds, ratios and the plot; optimize_steps: optimisation-mode steps in the table;
     curve_steps: steps plotted (0 = regression mode); window/stride: denoiser windows (30 Hz
-    frames); lr, batch_size, seed: optimisation mode (seed also fixes the noise);
+    frames); lr, seed: optimisation mode (seed also fixes the noise);
     refine_steps, refine_lr, refine_offset: the latent refinement row;
     single_clip_repeats: timed repeats of the one-clip measurement.
     """
@@ -81,7 +81,6 @@ class TableSettings:
     window: int = 60
     stride: int = 45
     lr: float = 3e-4
-    batch_size: int = 64
     seed: int = 0
     refine_steps: int = RefineConfig.steps
     refine_lr: float = 0.1

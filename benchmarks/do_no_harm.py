@@ -40,7 +40,6 @@ from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.input_kinds import refine_config
 from mdvae_cli.metrics import joint_acceleration, v2v
-from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.contacts import FOOT_JOINTS, contacts_of_feet
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise, file_rng
@@ -231,9 +230,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     if args.write and args.denoiser:
         ap.error("--write documents the shipped weights: leave out --denoiser")
-    denoiser, body, log = common.shipped_models_and_log()
-    if args.denoiser:
-        denoiser, _ = load_denoiser(args.denoiser)
+    denoiser, body, log = common.shipped_models_and_log(args.denoiser)
 
     parts = args.parts.split(",")
     text = []

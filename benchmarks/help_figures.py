@@ -19,6 +19,16 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+try:
+    from benchmarks.denoise_rows import ROW_OFFSET, ROW_REFINE, ROW_REFINE_MIRROR, ROW_REGRESSION
+except ModuleNotFoundError:  # run as a file
+    from denoise_rows import (  # type: ignore[no-redef]
+        ROW_OFFSET,
+        ROW_REFINE,
+        ROW_REFINE_MIRROR,
+        ROW_REGRESSION,
+    )
+
 REPO = Path(__file__).resolve().parents[1]
 DOCS = REPO / "docs" / "benchmarks.md"
 FIGURES = REPO / "mdvae_cli" / "help_figures.json"
@@ -81,13 +91,12 @@ def sig(x: float, digits: int = 2) -> float:
 def denoise_figures(text: str) -> dict:
     """Speeds and the mirror's gain from ``denoise_table.py``'s test-split table."""
     rows = tables(section(text, "denoise_table"))[0]
-    fps = {name: number(row(rows, name)["frames/s ↑"]) for name in (
-        "Regression mode", "Regression + offset + blend (--feet off)", "Latent refinement",
-        "Latent refinement + mirror")}  # fmt: skip
+    fps = {name: number(row(rows, name)["frames/s ↑"])
+           for name in (ROW_REGRESSION, ROW_OFFSET, ROW_REFINE, ROW_REFINE_MIRROR)}  # fmt: skip
     v2v = [c for c in rows[0] if c.startswith("V2V σ=")]
-    refine, mirror = row(rows, "Latent refinement"), row(rows, "Latent refinement + mirror")
+    refine, mirror = row(rows, ROW_REFINE), row(rows, ROW_REFINE_MIRROR)
     gains = [100 * (1 - number(mirror[c]) / number(refine[c])) for c in v2v]
-    one_pass = fps["Regression + offset + blend (--feet off)"]
+    one_pass = fps[ROW_OFFSET]
     best = next(r for r in rows if r[list(r)[-1]] == "best filter")
     return {
         "filter_fps": round(number(best["frames/s ↑"])),

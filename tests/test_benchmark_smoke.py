@@ -18,7 +18,14 @@ from benchmarks.common import (
 )
 from benchmarks.denoise_methods import build_table
 from benchmarks.denoise_report import report_markdown, table_columns, table_rows
-from benchmarks.denoise_rows import ROWS, SECTION_BEGIN, SECTION_END, TableSettings
+from benchmarks.denoise_rows import (
+    ROW_OFFSET,
+    ROW_OFFSET_FEET,
+    ROWS,
+    SECTION_BEGIN,
+    SECTION_END,
+    TableSettings,
+)
 from benchmarks.denoise_table import main
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.body.skinning import BodyModel
@@ -96,7 +103,6 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
         curve_steps=(0, 1, 2),
         window=20,
         stride=15,
-        batch_size=4,
         refine_steps=2,
         single_clip_repeats=1,
     )
@@ -132,8 +138,8 @@ def test_table_builder_on_two_tiny_clips(tiny_denoiser, body, tmp_path):
         "Savitzky-Golay filter",
         "Regression mode",
         "Regression + mirror",
-        "Regression + offset + blend (--feet off)",
-        "Default (offset + blend + feet lock)",
+        ROW_OFFSET,
+        ROW_OFFSET_FEET,
     ):
         assert float(cell(row, "s/frame ↓")) > 0 and float(cell(row, "1 clip, warm (ms)")) > 0
     for row in (
