@@ -72,17 +72,58 @@ def test_sole_heights_and_vertices_match_the_whole_feet():
     )
 
 
-def test_jacobian_blocks_are_minus_skew():
-    """The pose solve writes -skew(d) straight into its Jacobian's rows and columns."""
+def test_pose_solve_normal_equations_and_tree_solve_match_the_dense_ones():
+    """The pose solve's normal equations, built from subtree moments, are J^T J and J^T r of
+    the joints' Jacobian (taken here by finite differences of the forward kinematics), and its
+    block elimination solves them as a dense solver does."""
     import torch
 
-    from mdvae_cli.geometry.rotations import skew
-    from mdvae_cli.retarget.pose_solve import _minus_skew_into
+    from mdvae_cli.body.data import SMPL_PARENTS
+    from mdvae_cli.geometry.kinematics import forward_kinematics
+    from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+    from mdvae_cli.retarget.pose_solve import _Tree, normal_equations, tree_solve
 
-    d = torch.randn(4, 22, 17, 3, generator=torch.Generator().manual_seed(0))
-    out = torch.zeros(4, 22, 3, 17, 3)
-    _minus_skew_into(out, d)
-    assert torch.equal(out, -skew(d).permute(0, 1, 3, 2, 4) + 0.0)
+    parents = list(SMPL_PARENTS[:22])
+    tree = _Tree(parents)
+    n, T = len(tree.active), 3
+    g0 = torch.Generator().manual_seed(0)
+    L = rotvec_to_rotmat(0.5 * torch.randn(T, 22, 3, generator=g0, dtype=torch.float64))
+    bones = 0.2 * torch.randn(22, 3, generator=g0, dtype=torch.float64)
+    root = torch.randn(T, 3, generator=g0, dtype=torch.float64)
+    G, p = forward_kinematics(L, bones, parents, root=root)
+    targets = p + 0.05 * torch.randn(T, 22, 3, generator=g0, dtype=torch.float64)
+    J = torch.zeros(T, 66, 3 * n + 3, dtype=torch.float64)
+    eps = 1e-6
+    for i, j in enumerate(tree.active):  # a world-frame turn of joint j's subtree about it
+        for b in range(3):
+            w = torch.zeros(3, dtype=torch.float64)
+            w[b] = eps
+            turned = L.clone()
+            turned[:, j] = L[:, j] @ rotvec_to_rotmat(G[:, j].transpose(-1, -2) @ w)
+            J[:, :, 3 * i + b] = (forward_kinematics(turned, bones, parents, root=root)[1] - p
+                                  ).reshape(T, 66) / eps  # fmt: skip
+    J[:, :, 3 * n :] = torch.eye(3, dtype=torch.float64).repeat(22, 1)
+    r = p - targets
+    H, g = normal_equations(p, r, tree)
+    dense = torch.zeros(T, 3 * n + 3, 3 * n + 3, dtype=torch.float64)
+    for x in range(n + 1):
+        for y in range(n + 1):
+            k = int(tree.block[x, y])
+            if k >= 0:
+                dense[:, 3 * x : 3 * x + 3, 3 * y : 3 * y + 3] = H[k].permute(2, 0, 1)
+                dense[:, 3 * y : 3 * y + 3, 3 * x : 3 * x + 3] = H[k].permute(2, 1, 0)
+    JT = J.transpose(1, 2)
+    torch.testing.assert_close(dense, JT @ J, atol=2e-4, rtol=1e-4)
+    gd = (JT @ r.reshape(T, 66, 1))[..., 0]
+    torch.testing.assert_close(g.permute(2, 0, 1).reshape(T, -1).double(), gd, atol=2e-4, rtol=1e-4)
+    # damped as the solve damps it, then solved both ways
+    damped = H.clone()
+    damped[tree.diagonal] += 1e-3 * torch.eye(3)[..., None]
+    dense += 1e-3 * torch.eye(3 * n + 3, dtype=torch.float64)
+    x = tree_solve(damped, g.clone(), tree).permute(2, 0, 1).reshape(T, -1)
+    want = torch.linalg.solve(dense, g.permute(2, 0, 1).reshape(T, -1, 1).double())[..., 0]
+    torch.testing.assert_close(x.double(), want, atol=1e-3, rtol=1e-3)
+    assert want.abs().max() > 0.01  # a real step, not a trivial one
 
 
 def test_reading_a_take_tells_its_progress(tmp_path):

@@ -7,7 +7,7 @@ from conftest import motion_arrays
 
 from mdvae_cli.body.builtin import builtin_body_model
 from mdvae_cli.formats.npz_io import motion_from_arrays
-from mdvae_cli.infer.loop import end_gaps, looks_like_loop, posed_joints, rest_joints
+from mdvae_cli.infer.loop import looks_like_loop, pose_gap, posed_joints, rest_joints, root_gap
 
 T = 60
 t = np.arange(T) / 30.0
@@ -38,12 +38,9 @@ def test_a_take_whose_ends_are_13_cm_apart_is_not_a_loop():
     drift = (t / t[-1])[:, None] * [0.13, 0.0, 0.0]
     trans = wander + drift + [0.0, 0.0, 0.9]
     m = cycle(trans)
-    pose_gap, root_gap = end_gaps(
-        np.concatenate([m.root_orient[:, None], m.pose_body], 1),
-        m.trans,
-        rest_joints(builtin_body_model(), m.betas),
-    )
-    assert pose_gap < 0.05 and abs(root_gap - 0.13) < 0.01
+    rot = np.concatenate([m.root_orient[:, None], m.pose_body], 1)
+    assert pose_gap(rot, rest_joints(builtin_body_model(), m.betas)) < 0.05
+    assert abs(root_gap(m.trans) - 0.13) < 0.01
     assert not looks_like_loop(m)
     m.trans[:, 2] += 0.13 * t / t[-1] - drift[:, 0]  # ends 13 cm higher instead: no loop either
     assert not looks_like_loop(m)
@@ -76,3 +73,14 @@ def test_angle_matches_the_rotation_matrix_route():
     rb = rotvec_to_rotmat(torch.as_tensor(b))
     ref = rotmat_to_rotvec(ra.transpose(-1, -2) @ rb).norm(dim=-1).mean(-1).numpy()
     np.testing.assert_allclose(_angle(a, b), ref, rtol=1e-6, atol=1e-9)
+
+
+def test_the_ends_smoothed_alone_are_the_ends_of_the_whole_take_smoothed():
+    """looks_like_loop checks the end poses from the first and last frames alone."""
+    from mdvae_cli.filters import savgol_smooth
+    from mdvae_cli.infer.loop import smoothed_ends
+
+    x = np.random.default_rng(0).normal(size=(100, 22, 3))
+    for window in (3, 5, 9):
+        assert np.array_equal(smoothed_ends(x, window), savgol_smooth(x, window, 2)[[0, -1]])
+    assert np.array_equal(smoothed_ends(x[:12], 9), savgol_smooth(x[:12], 9, 2)[[0, -1]])

@@ -86,7 +86,8 @@ def test_page_rebuilds_the_posed_joints(page):
     for i, frames in ((0, (0, 33, 59)), (1, (0, 77, 149))):
         for f in frames:
             got = np.array(tab.evaluate(f"window.mdvaeView.jointsAt({i}, {f})")).reshape(22, 3)
-            assert np.abs(got - truth[i][f]).max() < 2e-3
+            # the noisy take's rotations are stored in coarser steps (under its own noise)
+            assert np.abs(got - truth[i][f]).max() < (8e-3 if i == 0 else 2e-3)
 
 
 def test_controls_change_the_picture_without_errors(page):

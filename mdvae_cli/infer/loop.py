@@ -74,18 +74,32 @@ def looks_like_loop(
     # poses would look a step or two apart
     T = motion.num_frames
     window = min(9, T - 1 + T % 2)
-    rot = savgol_smooth(_rotations(motion), window, 2)
-    step = float(np.median(_angle(rot[:-1], rot[1:])))
-    gap = float(_angle(rot[-1:], rot[:1])[0])
-    if gap > steps * max(step, 1e-4):
-        return False
     if body is None:
         from mdvae_cli.body.builtin import builtin_body_model
 
         body = builtin_body_model()
-    trans = savgol_smooth(np.asarray(motion.trans, dtype=np.float64), window, 2)
     joints = rest_joints(body, np.asarray(motion.betas, dtype=np.float64))
-    return max(end_gaps(rot, trans, joints)) <= LOOP_DISTANCE
+    # the end poses first: they need the ends alone, and most takes fail there (a long take is
+    # then never smoothed whole)
+    rot = _rotations(motion)
+    if pose_gap(smoothed_ends(rot, window), joints) > LOOP_DISTANCE:
+        return False
+    rot = savgol_smooth(rot, window, 2)
+    step = float(np.median(_angle(rot[:-1], rot[1:])))
+    gap = float(_angle(rot[-1:], rot[:1])[0])
+    if gap > steps * max(step, 1e-4):
+        return False
+    trans = savgol_smooth(np.asarray(motion.trans, dtype=np.float64), window, 2)
+    return root_gap(trans) <= LOOP_DISTANCE
+
+
+def smoothed_ends(x: np.ndarray, window: int) -> np.ndarray:
+    """The first and last frames of ``savgol_smooth(x, window, 2)``, from the first and last
+    ``window`` frames alone (the smoothing fits the end frames to them).  (T, ...) -> (2, ...)"""
+    if x.shape[0] <= 2 * window:
+        return savgol_smooth(x, window, 2)[[0, -1]]
+    return np.stack([savgol_smooth(x[:window], window, 2)[0],
+                     savgol_smooth(x[-window:], window, 2)[-1]])  # fmt: skip
 
 
 def rest_joints(body: BodyModelData, betas: np.ndarray) -> np.ndarray:
@@ -106,22 +120,22 @@ def posed_joints(rot: np.ndarray, joints: np.ndarray) -> np.ndarray:
     return forward_kinematics(rotations_np.rotvec_to_rotmat(rot), offsets, parents)[1]
 
 
-def end_gaps(rot: np.ndarray, trans: np.ndarray, joints: np.ndarray) -> tuple[float, float]:
-    """How far apart a take's ends are (m): (the mean distance of the first and last poses'
-    joints, the root's translation removed; how far the root ends from where it started,
-    less the loop's displacement when the take travels steadily: its root ends at least
-    STEADY_TRAVEL of its horizontal path length from its start).
-
-    rot: (T, 22, 3) axis-angles; trans: (T, 3) root translation (z up); joints: (22, 3) rest
-    joints
-    """
+def pose_gap(rot: np.ndarray, joints: np.ndarray) -> float:
+    """The mean distance (m) of the first and last poses' joints, the root's translation
+    removed.  rot: (T, 22, 3) axis-angles (only the first and last frames are read); joints:
+    (22, 3) rest joints"""
     ends = posed_joints(rot[[0, -1]], joints)
-    pose_gap = float(np.linalg.norm(ends[1] - ends[0], axis=-1).mean())
+    return float(np.linalg.norm(ends[1] - ends[0], axis=-1).mean())
+
+
+def root_gap(trans: np.ndarray) -> float:
+    """How far (m) the root ends from where it started, less the loop's displacement when the
+    take travels steadily (its root ends at least STEADY_TRAVEL of its horizontal path length
+    from its start).  trans: (T, 3) root translation (z up)"""
     moved = trans[-1] - trans[0]
     path = float(np.linalg.norm(np.diff(trans[:, :2], axis=0), axis=-1).sum())
     steady = float(np.linalg.norm(moved[:2])) >= STEADY_TRAVEL * max(path, 1e-9)
-    root_gap = abs(float(moved[2])) if steady else float(np.linalg.norm(moved))
-    return pose_gap, root_gap
+    return abs(float(moved[2])) if steady else float(np.linalg.norm(moved))
 
 
 def displacement(motion: Motion) -> np.ndarray:

@@ -10,7 +10,7 @@ import torch
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.geometry.kinematics import forward_kinematics
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, skew
 from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.retarget.joint_map import (
     JointMap,
@@ -48,6 +48,126 @@ def _ancestors(parents: list[int]) -> torch.Tensor:
     return A
 
 
+class _Tree:
+    """The pose solve's index tables for one joint tree. Unknowns: a rotation for each joint
+    with children ("active", in the tree's order, 0 .. n-1) and the root's translation (n,
+    above every joint). The normal equations' 3x3 blocks are kept only where they can be
+    non-zero, between a joint and itself or one of its ancestors: ``block[deep, high]`` is
+    the place of the block H[deep, high] in the list of kept blocks."""
+
+    def __init__(self, parents: list[int]):
+        anc = _ancestors(parents)
+        self.active = [j for j in range(_N) if j in parents[1:]]
+        act = torch.as_tensor(self.active)
+        n = len(self.active)
+        self.subtree = anc[:, act].T.to(torch.float64)  # (n, 22): k in the subtree of active j
+        A = anc[act][:, act]  # (n, n): active j' is active j or one of its ancestors
+        pairs = [(i, a) for i in range(n) for a in range(n) if A[i, a]]
+        self.deep, self.high = (torch.as_tensor(v) for v in zip(*pairs, strict=True))
+        pairs += [(i, n) for i in range(n)] + [(n, n)]
+        self.block = torch.full((n + 1, n + 1), -1, dtype=torch.long)
+        for k, (i, a) in enumerate(pairs):
+            self.block[i, a] = k
+        self.diagonal = self.block[range(n + 1), range(n + 1)]
+        # each joint's neighbours when it is eliminated (children before their parents):
+        # the translation, then its active ancestors from the root down, each "deeper" than
+        # the one before; and the kept blocks among them (x deeper than or equal to y)
+        self.above, self.updates = [], []
+        for i in range(n):
+            nb = [n] + [a for a in range(i) if A[i, a]]
+            xy = [(x, y) for x in range(len(nb)) for y in range(x + 1)]
+            px, py = (torch.as_tensor(v) for v in zip(*xy, strict=True))
+            nb = torch.as_tensor(nb)
+            self.above.append(nb)
+            self.updates.append((px, py, self.block[nb[px], nb[py]]))
+
+
+def normal_equations(p, r, tree: _Tree):
+    """The Gauss-Newton normal equations of joint positions in the rotation increments of
+    the joints with children (world frame, each turning its subtree about it) and the root's
+    translation, built from subtree moments without the Jacobian. Frames go last, so that
+    every operation, and the blocks' elimination (:func:`tree_solve`), moves whole rows of
+    frames.
+
+    p: (T, 22, 3) joint positions; r: (T, 22, 3) residuals p - target.
+    -> H (blocks, 3, 3, T): the kept 3x3 blocks of J^T J (``tree.block``); g (n + 1, 3, T) =
+    J^T r
+    """
+    T, n = p.shape[0], len(tree.active)
+    # (22, 3, T), centred on the root joint; float32 is plenty for a Gauss-Newton step
+    q = (p - p[:, :1]).permute(1, 2, 0).to(torch.float32, memory_format=torch.contiguous_format)
+    r = r.permute(1, 2, 0).to(torch.float32, memory_format=torch.contiguous_format)
+    S = tree.subtree.to(q.dtype)  # (n, 22)
+    count = S.sum(1)  # (n,)
+    s = (S @ q.reshape(_N, -1)).reshape(n, 3, T)  # sum of q_k over each subtree
+    qq = (q[:, :, None] * q[:, None]).reshape(_N, -1)
+    Q = (S @ qq).reshape(n, 3, 3, T)  # sum of q_k q_k^T over each subtree
+    qa = q[tree.active]  # (n, 3, T) the active joints themselves
+    # blocks H[m, a] (m deep, a one of its ancestors or m itself): the sum over the subtree
+    # of m of (d_m . d_a) I - d_a d_m^T, with d_m = q_k - q_m, d_a = q_k - q_a
+    m, a = tree.deep, tree.high
+    sm, pm, pa, cm = s[m], qa[m], qa[a], count[m, None]
+    Qm = Q[m]
+    dot = (Qm[:, 0, 0] + Qm[:, 1, 1] + Qm[:, 2, 2]
+           - (sm * (pm + pa)).sum(1) + cm * (pm * pa).sum(1))  # fmt: skip
+    outer = Qm - sm[:, :, None] * pm[:, None] - pa[:, :, None] * sm[:, None]
+    outer += cm[..., None, None] * pa[:, :, None] * pm[:, None]
+    eye = torch.eye(3, dtype=q.dtype)[..., None]
+    pair_blocks = dot[:, None, None] * eye - outer  # (pairs, 3, 3, T)
+    # the translation's column: the sum of skew(q_k - q_j) over the subtree of j
+    translation = skew((s - count[:, None, None] * qa).transpose(1, 2)).permute(0, 2, 3, 1)
+    H = torch.cat([pair_blocks, translation, (_N * eye).expand(1, 3, 3, T)])
+    # the gradient: the sum over the subtree of (q_k - q_j) x r_k, and of r_k
+    qxr = (S @ torch.linalg.cross(q, r, dim=1).reshape(_N, -1)).reshape(n, 3, T)
+    R = (S @ r.reshape(_N, -1)).reshape(n, 3, T)
+    g = torch.cat([qxr - torch.linalg.cross(qa, R, dim=1), r.sum(0, keepdim=True)])
+    return H, g
+
+
+def tree_solve(H: torch.Tensor, g: torch.Tensor, tree: _Tree) -> torch.Tensor:
+    """Solve H x = g, H as :func:`normal_equations` lays it out (positive definite), by block
+    elimination from the leaves up: joints are eliminated before their ancestors, so the
+    elimination fills no block that was zero (the tree's joints that are not each other's
+    ancestors stay uncoupled). H and g are overwritten.
+
+    H: (blocks, 3, 3, T); g: (n + 1, 3, T) -> x (n + 1, 3, T)
+    """
+    n = len(tree.active)
+    inverses, rows = [None] * n, [None] * n
+    for j in reversed(range(n)):
+        nb = tree.above[j]
+        px, py, kept = tree.updates[j]
+        Dinv = _inverse3(H[tree.diagonal[j]])
+        V = H[tree.block[j, nb]]  # (m, 3, 3, T): H[j, a] for each neighbour a
+        Z = _matmul(Dinv, V)  # Dinv @ H[j, a]
+        # H[x, y] -= H[j, x]^T Dinv H[j, y]
+        H[kept] -= _matmul(V[px].transpose(1, 2), Z[py])
+        u = (Dinv * g[j]).sum(1)
+        g[nb] -= (V * u[:, None]).sum(1)
+        inverses[j], rows[j] = Dinv, V
+    x = torch.empty_like(g)
+    x[n] = (_inverse3(H[tree.diagonal[n]]) * g[n]).sum(1)
+    for j in range(n):
+        rest = (rows[j] * x[tree.above[j], None]).sum((0, 2))  # sum of H[j, a] x[a]
+        x[j] = (inverses[j] * (g[j] - rest)).sum(1)
+    return x
+
+
+def _matmul(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
+    """3x3 matrix products, frames last.  (..., 3, 3, T) x (..., 3, 3, T) -> (..., 3, 3, T)"""
+    return sum(A[..., :, k, None, :] * B[..., None, k, :, :] for k in range(3))
+
+
+def _inverse3(M: torch.Tensor) -> torch.Tensor:
+    """Inverse of invertible 3x3 matrices by their cofactors, frames last.
+    (3, 3, T) -> (3, 3, T)"""
+    r0, r1, r2 = M
+    c = torch.stack([torch.linalg.cross(r1, r2, dim=0), torch.linalg.cross(r2, r0, dim=0),
+                     torch.linalg.cross(r0, r1, dim=0)], dim=1)  # fmt: skip
+    det = (r0 * c[:, 0]).sum(0)
+    return c / det
+
+
 def solve_pose(
     targets: torch.Tensor,
     L_init: torch.Tensor,
@@ -56,7 +176,7 @@ def solve_pose(
     twist_weight: float = 0.02,
     iterations: int = 3,
     damping: float = 1e-6,
-    chunk: int = 256,
+    chunk: int = 1024,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Fit local rotations and the root to joint targets, all frames at once.
 
@@ -64,61 +184,39 @@ def solve_pose(
     radians) by damped Gauss-Newton. Parameters per frame: a world-frame rotation increment for
     each joint that has children (turning its subtree about it) and the root position; joints
     without children (feet, wrists, head) keep their start rotation, which positions cannot see.
+    Each step's normal equations are built from subtree sums (:func:`normal_equations`) and
+    solved by block elimination along the tree (:func:`tree_solve`), in float32, not from a
+    dense Jacobian and a dense factorisation: the same steps at about 0.65 of the time.
 
     targets: (T, 22, 3); L_init: (T, 22, 3, 3); X: (22, 3) rest joints; -> L (T, 22, 3, 3),
     root position (T, 3)
     """
-    if targets.shape[0] > chunk:  # frames are independent: small chunks stay in cache
+    if targets.shape[0] > chunk:  # frames are independent: a chunk at a time stays in cache
         parts = [solve_pose(targets[i : i + chunk], L_init[i : i + chunk], X, parents,
                             twist_weight, iterations, damping, chunk)
                  for i in range(0, targets.shape[0], chunk)]  # fmt: skip
         return torch.cat([a for a, _ in parts]), torch.cat([b for _, b in parts])
-    T = targets.shape[0]
-    dt = targets.dtype
+    tree = _Tree(parents)
+    active, n = tree.active, len(tree.active)
     bones = X.clone()
     bones[1:] = X[1:] - X[parents[1:]]
-    active = [j for j in range(_N) if j in parents[1:]]
-    n = len(active)
-    lin = torch.float32  # the normal equations: float32 is plenty for a Gauss-Newton step
-    A = _ancestors(parents)[:, active].to(lin)  # (22, n)
     L = L_init.clone()
     root = targets[:, 0].clone()
     w2 = twist_weight**2
-    # the Jacobian (T, 66, 3n + 3): rows (joint k, axis a); columns (active joint j, axis b),
-    # then the root's translation (identity blocks, set once)
-    Jac = torch.zeros(T, 3 * _N, 3 * n + 3, dtype=lin)
-    Jac[:, :, 3 * n :] = torch.eye(3, dtype=lin).repeat(_N, 1)
-    Jr = Jac[:, :, : 3 * n].unflatten(2, (n, 3)).unflatten(1, (_N, 3))  # (T, 22, 3, n, 3) view
-    diag = torch.full((3 * n + 3,), damping, dtype=lin)
-    diag[: 3 * n] += w2
+    eye = torch.eye(3)  # the normal equations are float32 (normal_equations)
     for _ in range(iterations):
         G, p = forward_kinematics(L, bones, parents[:_N], root=root)  # (T, 22, 3, 3), (T, 22, 3)
-        r = (p - targets).reshape(T, 3 * _N, 1).to(lin)
-        pl = p.to(lin)
-        diff = pl[:, :, None, :] - pl[:, None, active, :]  # (T, 22, n, 3): p_k - p_j
-        _minus_skew_into(Jr, diff * A[None, :, :, None])  # d p_k / d omega_j, j above k
-        JT = Jac.transpose(1, 2)
-        H = torch.baddbmm(torch.diag(diag).expand(T, -1, -1), JT, Jac)
-        g = (JT @ r)[..., 0]
+        H, g = normal_equations(p, p - targets, tree)
+        H[tree.diagonal[:n]] += (w2 + damping) * eye[..., None]
+        H[tree.diagonal[n]] += damping * eye[..., None]
         Ga = G[:, active]
         delta = rotmat_to_rotvec(L_init[:, active].transpose(-1, -2) @ L[:, active])
-        g[:, : 3 * n] += w2 * (Ga @ delta[..., None])[..., 0].reshape(T, 3 * n).to(lin)
-        chol, _ = torch.linalg.cholesky_ex(H)
-        step = -torch.cholesky_solve(g[..., None], chol)[..., 0].to(dt)
-        omega = step[:, : 3 * n].reshape(T, n, 3)
-        local = (Ga.transpose(-1, -2) @ omega[..., None])[..., 0]
+        g[:n] += w2 * (Ga @ delta[..., None])[..., 0].permute(1, 2, 0)
+        step = -tree_solve(H, g, tree).permute(2, 0, 1).to(targets.dtype)
+        local = (Ga.transpose(-1, -2) @ step[:, :n, :, None])[..., 0]
         L[:, active] = L[:, active] @ rotvec_to_rotmat(local)
-        root = root + step[:, 3 * n :]
+        root = root + step[:, n]
     return L, root
-
-
-def _minus_skew_into(out: torch.Tensor, d: torch.Tensor) -> None:
-    """Write ``-skew(d)`` (the cross product ``v -> v x d``) into ``out``, laid out as the
-    Jacobian's rows and columns.  out: (T, K, 3, n, 3) [k, a, j, b]; d: (T, K, n, 3)"""
-    x, y, z = d.unbind(-1)
-    out[:, :, 0, :, 1], out[:, :, 0, :, 2] = z, -y
-    out[:, :, 1, :, 0], out[:, :, 1, :, 2] = -z, x
-    out[:, :, 2, :, 0], out[:, :, 2, :, 1] = y, -x
 
 
 CHUNK_FRAMES = 4096  # frames solved at once (a multiple of solve_pose's own chunks)

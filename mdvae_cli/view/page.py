@@ -6,7 +6,9 @@ What goes in, per motion (:func:`encode_track`):
 * the root joint's world position, int32 mm (any take fits: it may wander 2,000 km);
 * the pose (:func:`~mdvae_cli.view.pose.rotation_channels`): the root's world quaternion and
   each joint's local quaternion (x, y, z; w >= 0 implied), int16 in steps of 1/2048
-  (~0.03 degrees); the page rebuilds the joints by forward kinematics from the rest joints;
+  (~0.03 degrees), or of up to 1/256 in a channel whose own noise is far coarser
+  (:func:`rotation_scales`: a noisy take's noise is not worth its bits); the page rebuilds
+  the joints by forward kinematics from the rest joints;
 * foot contacts (:func:`~mdvae_cli.motion.contacts.foot_contacts`), 4 bits a frame;
 * the frames with a joint missing in the file (``joint_mask``), as runs: the page shades them
   on the plot ("filled": what ``mdvae denoise`` filled, or will fill);
@@ -32,6 +34,7 @@ from mdvae_cli import __version__
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
+from mdvae_cli.infer.noise_blend import noise_variance
 from mdvae_cli.motion.contacts import (
     FOOT_JOINTS,
     HEIGHT_TOL,
@@ -56,6 +59,10 @@ PALETTE = ("#d9480f", "#1c7ed6", "#2b8a3e", "#9c36b5", "#e8a33d", "#0c8599", "#c
 #: integer units of the embedded arrays: positions in mm, quaternion components in 1/2048
 POS_SCALE = 1000
 ROT_SCALE = 2048
+#: a rotation channel's step stays under 1/NOISE_STEPS of its own noise's standard deviation
+#: (``infer.noise_blend.noise_variance``), and is 1/ROT_SCALE to 1/MIN_ROT_SCALE
+NOISE_STEPS = 16
+MIN_ROT_SCALE = 256
 _ASSETS = Path(__file__).resolve().parent
 #: the page's script, in order; the parts share one function scope
 SCRIPT_PARTS = ("viewer_data.js", "viewer_scene.js", "viewer_plot.js", "viewer_app.js")
@@ -79,11 +86,13 @@ class EncodedTrack:
     """One motion's per-frame arrays as the page gets them, and what they came from.
 
     root, rot, contacts: the encoded root position (T, 3), rotations (T, 67) and contact bits
-    (T, 1); posed: the posed skeleton; contacts_bool: (T, 4) the contacts as booleans.
+    (T, 1); rot_scales: (67,) each rotation channel's units (:func:`rotation_scales`); posed:
+    the posed skeleton; contacts_bool: (T, 4) the contacts as booleans.
     """
 
     root: Blob
     rot: Blob
+    rot_scales: np.ndarray
     contacts: Blob
     posed: PosedSkeleton
     contacts_bool: np.ndarray
@@ -92,14 +101,28 @@ class EncodedTrack:
         return {"root": self.root, "rot": self.rot, "contacts": self.contacts}
 
 
+def rotation_scales(channels: np.ndarray) -> np.ndarray:
+    """Each rotation channel's integer units per quaternion unit: ROT_SCALE, halved while the
+    step stays under 1/NOISE_STEPS of the channel's own noise (its white-noise standard
+    deviation from third differences in time), down to MIN_ROT_SCALE.
+
+    channels: (T, C) :func:`~mdvae_cli.view.pose.rotation_channels` -> (C,) int"""
+    sd = np.sqrt(noise_variance(channels))
+    halvings = np.floor(np.log2(np.maximum(sd * ROT_SCALE / NOISE_STEPS, 1.0)))
+    return np.maximum(ROT_SCALE >> halvings.astype(np.int64), MIN_ROT_SCALE)
+
+
 def encode_track(motion: Motion, body: BodyModel) -> EncodedTrack:
     """Pose ``motion`` with ``body``, find its foot contacts, quantise and encode."""
     posed = pose_skeleton(motion, body)
     contacts = foot_contacts(posed.joints, motion.fps)
     bits = (contacts * (1 << np.arange(len(FOOT_JOINTS)))).sum(axis=1).astype(np.uint8)
+    channels = rotation_channels(motion)
+    scales = rotation_scales(channels)
     return EncodedTrack(
         root=encode_array(quantise(posed.joints[:, 0], 1 / POS_SCALE, "int32")),
-        rot=encode_array(quantise(rotation_channels(motion), 1 / ROT_SCALE, "int16")),
+        rot=encode_array(quantise(channels, 1 / scales, "int16")),
+        rot_scales=scales,
         contacts=encode_array(bits[:, None], delta=False),
         posed=posed,
         contacts_bool=contacts,
@@ -171,6 +194,7 @@ def build_view_page(
             "frames": motion.num_frames,
             "duration": motion.duration,
             "data": described,
+            "rotation_scales": track.rot_scales.tolist(),
             "rest_joints": _round(track.posed.rest_joints),
             "contact_fraction": _round(track.contacts_bool.mean(axis=0), 3),
             "filled": filled_runs(motion),

@@ -118,6 +118,8 @@ class Track {
     this.index = index; this.name = m.name; this.color = m.color; this.rgb = hexRgb(m.color);
     this.fps = m.fps; this.T = m.frames;
     this.root = arrays.root; this.rot = arrays.rot; this.contacts = arrays.contacts;
+    // each rotation channel's integer units (a noisy channel's are coarser; older pages: one)
+    this.rotScales = Float64Array.from(m.rotation_scales || new Array(4 + (NJ - 1) * 3).fill(ROT));
     this.restJoints = Float64Array.from(m.rest_joints);
     this.restVerts = m.rest_vertices ? Float64Array.from(m.rest_vertices) : null;
     this.J = new Float64Array(NJ * 3); // the posed frame: joint positions (metres)
@@ -134,10 +136,11 @@ class Track {
   pose(f) {
     if (f === this.posedFrame) return this.J;
     const T = this.T, q = this.rot, J = this.J, R = this.R, RJ = this.restJoints, L = SCRATCH;
-    quatMatrix(q[f] / ROT, q[T + f] / ROT, q[2 * T + f] / ROT, q[3 * T + f] / ROT, R, 0);
+    const s = this.rotScales;
+    quatMatrix(q[f] / s[0], q[T + f] / s[1], q[2 * T + f] / s[2], q[3 * T + f] / s[3], R, 0);
     for (let k = 0; k < 3; k++) J[k] = this.root[k * T + f] / POS;
     for (let j = 1; j < NJ; j++) {
-      const c = 4 + (j - 1) * 3, x = q[c * T + f] / ROT, y = q[(c + 1) * T + f] / ROT, z = q[(c + 2) * T + f] / ROT;
+      const c = 4 + (j - 1) * 3, x = q[c * T + f] / s[c], y = q[(c + 1) * T + f] / s[c + 1], z = q[(c + 2) * T + f] / s[c + 2];
       quatMatrix(Math.sqrt(Math.max(0, 1 - x * x - y * y - z * z)), x, y, z, L, 0);
       const p = PARENTS[j], o = j * 9, po = p * 9;
       for (let r = 0; r < 3; r++) {
@@ -155,11 +158,13 @@ class Track {
   }
   /* the rotation angle of joint j relative to its parent (the root: in the world), degrees */
   rotationAngle(f, j) {
-    const T = this.T, q = this.rot;
+    const T = this.T, q = this.rot, s = this.rotScales;
     let w;
-    if (j === 0) w = Math.abs(q[f]) / (Math.sqrt(q[f] ** 2 + q[T + f] ** 2 + q[2 * T + f] ** 2 + q[3 * T + f] ** 2) || 1);
-    else {
-      const c = 4 + (j - 1) * 3, x = q[c * T + f] / ROT, y = q[(c + 1) * T + f] / ROT, z = q[(c + 2) * T + f] / ROT;
+    if (j === 0) {
+      const a = q[f] / s[0], x = q[T + f] / s[1], y = q[2 * T + f] / s[2], z = q[3 * T + f] / s[3];
+      w = Math.abs(a) / (Math.sqrt(a * a + x * x + y * y + z * z) || 1);
+    } else {
+      const c = 4 + (j - 1) * 3, x = q[c * T + f] / s[c], y = q[(c + 1) * T + f] / s[c + 1], z = q[(c + 2) * T + f] / s[c + 2];
       w = Math.sqrt(Math.max(0, 1 - x * x - y * y - z * z));
     }
     return (2 * Math.acos(Math.min(1, w)) * 180) / Math.PI;
