@@ -69,6 +69,7 @@ class _Tree:
         for k, (i, a) in enumerate(pairs):
             self.block[i, a] = k
         self.diagonal = self.block[range(n + 1), range(n + 1)]
+        self.diagonal_at = self.diagonal.tolist()  # the same, as ints (views, not copies)
         # each joint's neighbours when it is eliminated (children before their parents):
         # the translation, then its active ancestors from the root down, each "deeper" than
         # the one before; and the kept blocks among them (x deeper than or equal to y)
@@ -106,8 +107,13 @@ def normal_equations(p, r, tree: _Tree):
     # blocks H[m, a] (m deep, a one of its ancestors or m itself): the sum over the subtree
     # of m of (d_m . d_a) I - d_a d_m^T, with d_m = q_k - q_m, d_a = q_k - q_a
     m, a = tree.deep, tree.high
-    sm, pm, pa, cm = s[m], qa[m], qa[a], count[m, None]
-    Qm = Q[m]
+    sm, pm, pa, cm = (
+        s.index_select(0, m),
+        qa.index_select(0, m),
+        qa.index_select(0, a),
+        count[m, None],
+    )
+    Qm = Q.index_select(0, m)
     dot = (Qm[:, 0, 0] + Qm[:, 1, 1] + Qm[:, 2, 2]
            - (sm * (pm + pa)).sum(1) + cm * (pm * pa).sum(1))  # fmt: skip
     outer = Qm - sm[:, :, None] * pm[:, None] - pa[:, :, None] * sm[:, None]
@@ -137,18 +143,20 @@ def tree_solve(H: torch.Tensor, g: torch.Tensor, tree: _Tree) -> torch.Tensor:
     for j in reversed(range(n)):
         nb = tree.above[j]
         px, py, kept = tree.updates[j]
-        Dinv = _inverse3(H[tree.diagonal[j]])
-        V = H[tree.block[j, nb]]  # (m, 3, 3, T): H[j, a] for each neighbour a
+        Dinv = _inverse3(H[tree.diagonal_at[j]])
+        V = H.index_select(0, tree.block[j, nb])  # (m, 3, 3, T): H[j, a] for each neighbour a
         Z = _matmul(Dinv, V)  # Dinv @ H[j, a]
         # H[x, y] -= H[j, x]^T Dinv H[j, y]
-        H[kept] -= _matmul(V[px].transpose(1, 2), Z[py])
+        H.index_add_(
+            0, kept, _matmul(V.index_select(0, px).transpose(1, 2), Z.index_select(0, py)), alpha=-1
+        )
         u = (Dinv * g[j]).sum(1)
-        g[nb] -= (V * u[:, None]).sum(1)
+        g.index_add_(0, nb, (V * u[:, None]).sum(1), alpha=-1)
         inverses[j], rows[j] = Dinv, V
     x = torch.empty_like(g)
-    x[n] = (_inverse3(H[tree.diagonal[n]]) * g[n]).sum(1)
+    x[n] = (_inverse3(H[tree.diagonal_at[n]]) * g[n]).sum(1)
     for j in range(n):
-        rest = (rows[j] * x[tree.above[j], None]).sum((0, 2))  # sum of H[j, a] x[a]
+        rest = (rows[j] * x.index_select(0, tree.above[j])[:, None]).sum((0, 2))  # H[j, a] x[a]
         x[j] = (inverses[j] * (g[j] - rest)).sum(1)
     return x
 
