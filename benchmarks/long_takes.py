@@ -16,7 +16,9 @@ resident memory (``wait4``). Runs: ``default`` (`mdvae denoise take -o clean`), 
 quoted as ratios to it. With ``--baseline DIR`` (a tree holding another ``mdvae_cli``) every
 run is done there too, alternating with this tree's, and the table quotes both and how far
 the outputs are apart (npz: max |difference| of poses (rad) and trans (m); BVH: of the channel
-values).
+values). With ``--repeats N`` each run is done N times (this tree's and the baseline's in turn)
+and the table quotes the median wall time and the largest peak: on a shared machine one run's
+time can move by a fifth.
 """
 
 from __future__ import annotations
@@ -142,6 +144,12 @@ def run_process(args: list[str], tree: Path, threads: int) -> Run:
     return Run(seconds, usage.ru_maxrss / 1024, out)
 
 
+def typical(runs: list[Run]) -> Run:
+    """Repeats of one run: the median wall time, the largest peak, the last output."""
+    return Run(float(np.median([r.seconds for r in runs])), max(r.peak_mb for r in runs),
+               runs[-1].output)  # fmt: skip
+
+
 def commands(kind: str, take: Path, out: Path) -> list[str]:
     """The process arguments of one run on ``take`` writing ``out``."""
     cli = ["-m", "mdvae_cli.cli.main"]
@@ -199,13 +207,17 @@ def measure(args) -> list[Row]:
                 suffix = ".html" if kind == "view" else f".{fmt}"
                 trees = [("now", REPO)] + ([("before", Path(args.baseline))] if args.baseline
                                            else [])  # fmt: skip
-                runs, outs = {}, {}
-                for name, tree in trees:
-                    outs[name] = work / name / f"{kind}_{minutes:g}min{suffix}"
-                    outs[name].parent.mkdir(parents=True, exist_ok=True)
-                    runs[name] = run_process(commands(kind, take, outs[name]), tree, args.threads)
-                    print(f"{fmt} {minutes:g} min {kind} [{name}]: {runs[name].seconds:.1f} s, "
-                          f"{runs[name].peak_mb:.0f} MB", file=sys.stderr, flush=True)  # fmt: skip
+                done: dict[str, list[Run]] = {name: [] for name, _ in trees}
+                outs = {}
+                for _ in range(args.repeats):
+                    for name, tree in trees:
+                        outs[name] = work / name / f"{kind}_{minutes:g}min{suffix}"
+                        outs[name].parent.mkdir(parents=True, exist_ok=True)
+                        run = run_process(commands(kind, take, outs[name]), tree, args.threads)
+                        done[name].append(run)
+                        print(f"{fmt} {minutes:g} min {kind} [{name}]: {run.seconds:.1f} s, "
+                              f"{run.peak_mb:.0f} MB", file=sys.stderr, flush=True)  # fmt: skip
+                runs = {name: typical(rs) for name, rs in done.items()}
                 row = Row(fmt, minutes, frames, kind, runs["now"], before=runs.get("before"))
                 if kind == "view":
                     row.page_mb = outs["now"].stat().st_size / 1e6
@@ -317,6 +329,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--work", default="/tmp/mdvae_long_takes")
     parser.add_argument("--baseline", help="a tree with another mdvae_cli to compare with")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=1,
+        help="runs of each (alternating with the baseline's): the median time",
+    )
     parser.add_argument("--json", help="also save the rows here")
     parser.add_argument("--load", help="no runs: the rows saved by an earlier --json")
     parser.add_argument("--write", action="store_true",

@@ -17,6 +17,7 @@ from benchmarks.long_takes import (
     save_rows,
     section,
     table,
+    typical,
 )
 from mdvae_cli.formats.npz_io import load_motion
 
@@ -56,3 +57,8 @@ def test_rows_round_trip_and_the_sections(tmp_path):
     assert section(rows, argv).startswith(SECTION_BEGIN)
     readme = readme_table(rows)
     assert readme.startswith(README_BEGIN) and readme.endswith(README_END)
+
+
+def test_repeats_give_the_median_time_and_the_largest_peak():
+    got = typical([Run(9.0, 100.0, "a"), Run(30.0, 120.0, "b"), Run(10.0, 110.0, "c")])
+    assert (got.seconds, got.peak_mb, got.output) == (10.0, 120.0, "c")

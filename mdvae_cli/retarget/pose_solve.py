@@ -194,7 +194,7 @@ def solve_pose(
     without children (feet, wrists, head) keep their start rotation, which positions cannot see.
     Each step's normal equations are built from subtree sums (:func:`normal_equations`) and
     solved by block elimination along the tree (:func:`tree_solve`), in float32, not from a
-    dense Jacobian and a dense factorisation: the same steps at about 0.65 of the time.
+    dense Jacobian and a dense factorisation: the same steps in about 0.55 of the time.
 
     targets: (T, 22, 3); L_init: (T, 22, 3, 3); X: (22, 3) rest joints; -> L (T, 22, 3, 3),
     root position (T, 3)
