@@ -115,14 +115,14 @@ def test_pose_solve_normal_equations_and_tree_solve_match_the_dense_ones():
     JT = J.transpose(1, 2)
     torch.testing.assert_close(dense, JT @ J, atol=2e-4, rtol=1e-4)
     gd = (JT @ r.reshape(T, 66, 1))[..., 0]
-    torch.testing.assert_close(g.permute(2, 0, 1).reshape(T, -1).double(), gd, atol=2e-4, rtol=1e-4)
+    torch.testing.assert_close(g.permute(2, 0, 1).reshape(T, -1), gd, atol=2e-4, rtol=1e-4)
     # damped as the solve damps it, then solved both ways
     damped = H.clone()
-    damped[tree.diagonal] += 1e-3 * torch.eye(3)[..., None]
+    damped[tree.diagonal] += 1e-3 * torch.eye(3, dtype=torch.float64)[..., None]
     dense += 1e-3 * torch.eye(3 * n + 3, dtype=torch.float64)
     x = tree_solve(damped, g.clone(), tree).permute(2, 0, 1).reshape(T, -1)
-    want = torch.linalg.solve(dense, g.permute(2, 0, 1).reshape(T, -1, 1).double())[..., 0]
-    torch.testing.assert_close(x.double(), want, atol=1e-3, rtol=1e-3)
+    want = torch.linalg.solve(dense, g.permute(2, 0, 1).reshape(T, -1, 1))[..., 0]
+    torch.testing.assert_close(x, want, atol=1e-9, rtol=1e-9)  # float64 throughout
     assert want.abs().max() > 0.01  # a real step, not a trivial one
 
 
