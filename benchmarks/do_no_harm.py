@@ -247,6 +247,7 @@ def main(argv: list[str] | None = None) -> None:
         "<!-- do-no-harm:begin -->\n## Do no harm\n\n"
         + "\n\n".join(text)
         + f"\n\n({common.cpu_model()}; `python benchmarks/do_no_harm.py`)"
+        + "\n<!-- do-no-harm:end -->"  # without it, --write appended the section again
     )
     print(section)
     if args.write:
