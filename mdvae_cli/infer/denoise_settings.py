@@ -112,9 +112,12 @@ class DenoiseSettings:
 
 def loops_of(motions: list[Motion], settings: DenoiseSettings) -> list[bool]:
     """Which motions to denoise as cycles: the setting, or each motion's own ends."""
-    if settings.loop is not None:
+    if settings.loop is not None or not motions:
         return [settings.loop] * len(motions)
-    return [looks_like_loop(m) for m in motions]
+    from mdvae_cli.body.builtin import builtin_body_model
+
+    body = builtin_body_model()  # built once for all of them (the ends are posed on it)
+    return [looks_like_loop(m, body=body) for m in motions]
 
 
 def denoise(

@@ -81,10 +81,10 @@ def looks_like_loop(
     joints = rest_joints(body, np.asarray(motion.betas, dtype=np.float64))
     # the end poses first: they need the ends alone, and most takes fail there (a long take is
     # then never smoothed whole)
-    rot = _rotations(motion)
-    if pose_gap(smoothed_ends(rot, window), joints) > LOOP_DISTANCE:
+    raw = _rotations(motion)
+    if pose_gap(smoothed_ends(raw, window), joints) > LOOP_DISTANCE:
         return False
-    rot = savgol_smooth(rot, window, 2)
+    rot = savgol_smooth(raw, window, 2)
     step = float(np.median(_angle(rot[:-1], rot[1:])))
     gap = float(_angle(rot[-1:], rot[:1])[0])
     if gap > steps * max(step, 1e-4):

@@ -68,8 +68,8 @@ class _Tree:
         self.block = torch.full((n + 1, n + 1), -1, dtype=torch.long)
         for k, (i, a) in enumerate(pairs):
             self.block[i, a] = k
-        self.diagonal = self.block[range(n + 1), range(n + 1)]
-        self.diagonal_at = self.diagonal.tolist()  # the same, as ints (views, not copies)
+        # the diagonal blocks' places, as ints: H[k] with an int is a view, not a copy
+        self.diagonal = self.block[range(n + 1), range(n + 1)].tolist()
         # each joint's neighbours when it is eliminated (children before their parents):
         # the translation, then its active ancestors from the root down, each "deeper" than
         # the one before; and the kept blocks among them (x deeper than or equal to y)
@@ -145,18 +145,17 @@ def tree_solve(H: torch.Tensor, g: torch.Tensor, tree: _Tree) -> torch.Tensor:
     for j in reversed(range(n)):
         nb = tree.above[j]
         px, py, kept = tree.updates[j]
-        Dinv = _inverse3(H[tree.diagonal_at[j]])
+        Dinv = _inverse3(H[tree.diagonal[j]])
         V = H.index_select(0, tree.block[j, nb])  # (m, 3, 3, T): H[j, a] for each neighbour a
         Z = _matmul(Dinv, V)  # Dinv @ H[j, a]
         # H[x, y] -= H[j, x]^T Dinv H[j, y]
-        H.index_add_(
-            0, kept, _matmul(V.index_select(0, px).transpose(1, 2), Z.index_select(0, py)), alpha=-1
-        )
+        update = _matmul(V.index_select(0, px).transpose(1, 2), Z.index_select(0, py))
+        H.index_add_(0, kept, update, alpha=-1)
         u = (Dinv * g[j]).sum(1)
         g.index_add_(0, nb, (V * u[:, None]).sum(1), alpha=-1)
         inverses[j], rows[j] = Dinv, V
     x = torch.empty_like(g)
-    x[n] = (_inverse3(H[tree.diagonal_at[n]]) * g[n]).sum(1)
+    x[n] = (_inverse3(H[tree.diagonal[n]]) * g[n]).sum(1)
     for j in range(n):
         rest = (rows[j] * x.index_select(0, tree.above[j])[:, None]).sum((0, 2))  # H[j, a] x[a]
         x[j] = (inverses[j] * (g[j] - rest)).sum(1)

@@ -196,9 +196,9 @@ def kind_rows(
 
 def mark_loops(runs: Sequence[FileRun], base: DenoiseSettings) -> None:
     """Set each track's ``loop``: the setting, or whether its ends meet."""
-    for run in runs:
-        for track in run.tracks:
-            track.loop = loops_of([track.motion], base)[0]
+    tracks = [track for run in runs for track in run.tracks]
+    for track, loop in zip(tracks, loops_of([t.motion for t in tracks], base), strict=True):
+        track.loop = loop
 
 
 def denoise_files(
