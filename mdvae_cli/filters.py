@@ -100,9 +100,10 @@ def gaussian_coefficients(sigma_frames: float) -> np.ndarray:
 
 
 def _smooth_local_poly(
-    x: np.ndarray, half: int, order: int, weight: Weights, slide: bool
+    x: np.ndarray, half: int, order: int, weight: Weights, slide: bool, at: np.ndarray | None = None
 ) -> np.ndarray:
-    """Smooth along axis 0 with local polynomial fits.  x: (T, ...) -> (T, ...)
+    """Smooth along axis 0 with local polynomial fits.  x: (T, ...) -> (T, ...), or only the
+    frames ``at`` (sorted frame indices, (n,)) -> (n, ...): the rows of the whole result there.
 
     Frames whose centred window of 2*half + 1 frames fits inside the clip use one shared
     coefficient row, applied as a convolution. The first and last ``half`` frames get their
@@ -110,20 +111,31 @@ def _smooth_local_poly(
     """
     x = np.asarray(x, dtype=np.float64)
     T = x.shape[0]
+    frames = np.arange(T) if at is None else np.asarray(at, dtype=np.int64)
     if T == 0 or half == 0:
-        return x.copy()
+        return x[frames].copy() if at is not None else x.copy()
     W = 2 * half + 1
-    out = np.empty_like(x)
-    if T >= W:
+    out = np.empty((len(frames), *x.shape[1:]))
+    inner = (frames >= half) & (frames < T - half)
+    if inner.any():
         offsets = np.arange(-half, half + 1)
         w = np.asarray(weight(offsets), dtype=np.float64)
         c = _edge_coefficients(W, order, half, w.tobytes())  # the centre row, cached too
-        inner = out[half : T - half]
-        inner[...] = c[0] * x[: T - W + 1]
-        for k in range(1, W):
-            inner += c[k] * x[k : T - W + 1 + k]
-    edge = sorted(set(range(min(half, T))) | set(range(max(T - half, 0), T)))
-    for t in edge:
+        if at is None:  # every frame: shifted slices, no gathers
+            rows = out[half : T - half]
+            np.multiply(x[: T - W + 1], c[0], out=rows)
+            term = np.empty_like(rows)  # one buffer: a new array each term costs more
+            for k in range(1, W):
+                rows += np.multiply(x[k : T - W + 1 + k], c[k], out=term)
+        else:
+            centre = frames[inner]
+            rows = c[0] * x[centre - half]
+            term = np.empty_like(rows)
+            for k in range(1, W):
+                rows += np.multiply(x[centre - half + k], c[k], out=term)
+            out[inner] = rows
+    for i in np.flatnonzero(~inner):
+        t = int(frames[i])
         if slide:
             lo = min(max(t - half, 0), max(T - W, 0))
             hi = min(lo + W, T)
@@ -132,7 +144,7 @@ def _smooth_local_poly(
         idx = np.arange(lo, hi)
         w = np.asarray(weight(idx - t), dtype=np.float64)
         c = _edge_coefficients(hi - lo, order, t - lo, w.tobytes())
-        out[t] = np.tensordot(c, x[lo:hi], axes=1)
+        out[i] = np.tensordot(c, x[lo:hi], axes=1)
     return out
 
 
@@ -145,20 +157,23 @@ def savgol_smooth(x: np.ndarray, window: int, order: int) -> np.ndarray:
     return _smooth_local_poly(x, window // 2, order, np.ones_like, slide=True)
 
 
-def gaussian_smooth(x: np.ndarray, sigma_frames: float) -> np.ndarray:
-    """Gaussian smoothing along axis 0 (linear fit at the ends).  x: (T, ...) -> (T, ...)
+def gaussian_smooth(x: np.ndarray, sigma_frames: float, at: np.ndarray | None = None) -> np.ndarray:
+    """Gaussian smoothing along axis 0 (linear fit at the ends).  x: (T, ...) -> (T, ...);
+    at: sorted frame indices (n,) -> only those rows, (n, ...)
 
     sigma_frames: standard deviation in frames, >= 0 (0 returns a copy).
     """
     _check_sigma(sigma_frames)
     if sigma_frames == 0:
-        return np.array(x, dtype=np.float64)
+        x = np.asarray(x, dtype=np.float64)
+        return x.copy() if at is None else x[np.asarray(at, dtype=np.int64)]
     return _smooth_local_poly(
         x,
         _gaussian_radius(sigma_frames),
         1,
         lambda d: np.exp(-0.5 * (d / sigma_frames) ** 2),
         slide=False,
+        at=at,
     )
 
 
@@ -190,17 +205,25 @@ def one_euro_smooth(
 # rotations
 
 
-def smooth_rotvecs(rotvec: np.ndarray, smooth: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+def smooth_rotvecs(
+    rotvec: np.ndarray, smooth: Callable[[np.ndarray], np.ndarray], at: np.ndarray | None = None
+) -> np.ndarray:
     """Smooth axis-angle tracks over time as sign-continuous quaternions.
 
-    rotvec: (T, ..., 3); smooth: a filter along axis 0, (T, D) -> (T, D). -> (T, ..., 3), each
-    frame on its input frame's axis-angle branch (see the module docstring).
+    rotvec: (T, ..., 3); smooth: a filter along axis 0, (T, D) -> (T, D), or, with ``at``
+    (frame indices, (n,)), -> (n, D): the filtered rows at those frames alone. -> (T, ..., 3)
+    or (n, ..., 3), each frame on its input frame's axis-angle branch (see the module
+    docstring).
     """
     rotvec = np.asarray(rotvec, dtype=np.float64)
     T = rotvec.shape[0]
     q_in = rotvec_to_quat(rotvec)
     q = quat_continuous(q_in)
-    q_hat = smooth(q.reshape(T, -1)).reshape(q.shape)
+    q_hat = smooth(q.reshape(T, -1))
+    if at is not None:
+        at = np.asarray(at, dtype=np.int64)
+        q_in, q = q_in[at], q[at]
+    q_hat = q_hat.reshape(q.shape)
     norm = np.linalg.norm(q_hat, axis=-1, keepdims=True)
     q_hat = np.where(norm > 1e-6, q_hat / np.maximum(norm, 1e-12), q)  # degenerate: keep input
     q_hat = np.where(np.sum(q_hat * q_in, axis=-1, keepdims=True) < 0, -q_hat, q_hat)

@@ -244,3 +244,48 @@ def test_one_euro_motion_filter_and_its_parameter_checks():
     for bad in ((0.0, 0.1), (1.0, -1.0), (float("nan"), 0.0)):
         with pytest.raises(InputError, match="One-Euro"):
             one_euro_filter_motion(m, *bad)
+
+
+def test_gaussian_smoothing_at_some_frames_gives_the_whole_results_rows_there():
+    """``at`` works out the smoothing at those frames alone (ends included), for plain signals
+    and rotation tracks; the result is the whole smoothing's rows there."""
+    from mdvae_cli.filters import gaussian_smooth, smooth_rotvecs
+
+    rng = np.random.default_rng(3)
+    x = np.cumsum(rng.normal(size=(101, 4, 3)), 0)
+    frames = np.array([0, 1, 5, 6, 7, 50, 94, 99, 100])
+    np.testing.assert_allclose(gaussian_smooth(x, 2.5, at=frames), gaussian_smooth(x, 2.5)[frames],
+                               atol=1e-12)  # fmt: skip
+    np.testing.assert_array_equal(gaussian_smooth(x, 0.0, at=frames), x[frames])
+    rot = np.cumsum(rng.normal(0, 0.3, size=(101, 4, 3)), 0)  # runs past pi
+
+    def smooth(q):
+        return gaussian_smooth(q, 2.5)
+
+    def smooth_at(q):
+        return gaussian_smooth(q, 2.5, at=frames)
+
+    np.testing.assert_allclose(smooth_rotvecs(rot, smooth_at, at=frames),
+                               smooth_rotvecs(rot, smooth)[frames], atol=1e-12)  # fmt: skip
+
+
+def test_the_model_rate_take_smooths_only_the_frames_it_samples_and_matches_smoothing_all():
+    """A faster take at 30 Hz: the Gaussian worked out only at the frames the samples read
+    gives what smoothing every frame and then resampling gives (whole and fractional ratios)."""
+    from mdvae_cli.filters import gaussian_filter_motion
+    from mdvae_cli.infer.native_rate import to_model_rate
+    from mdvae_cli.motion.motion import Motion
+    from mdvae_cli.motion.resample import resample_motion
+
+    rng = np.random.default_rng(4)
+    for fps, T in ((120.0, 243), (100.0, 207), (50.0, 61)):
+        rv = np.cumsum(rng.normal(0, 0.1, (T, 22, 3)), 0)
+        trans = np.cumsum(rng.normal(0, 0.01, (T, 3)), 0)
+        m = Motion(root_orient=rv[:, 0], pose_body=rv[:, 1:], trans=trans, betas=np.zeros(10),
+                   fps=fps)  # fmt: skip
+        got = to_model_rate(m)
+        want = resample_motion(gaussian_filter_motion(m, 0.4 * fps / 30.0), 30.0)
+        assert got.num_frames == want.num_frames and got.fps == 30.0
+        for a, b in ((got.root_orient, want.root_orient), (got.pose_body, want.pose_body),
+                     (got.trans, want.trans)):  # fmt: skip
+            np.testing.assert_allclose(a, b, atol=1e-10)

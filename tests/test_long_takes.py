@@ -126,6 +126,45 @@ def test_pose_solve_normal_equations_and_tree_solve_match_the_dense_ones():
     assert want.abs().max() > 0.01  # a real step, not a trivial one
 
 
+def test_pose_solve_early_steps_in_float32_land_where_float64_steps_do():
+    """The pose solve's steps before the last run in float32, the last in float64: the result
+    is where float64 throughout lands (far closer than three steps come to the optimum), and
+    the fit is as good."""
+    import torch
+
+    from mdvae_cli.body.data import SMPL_PARENTS
+    from mdvae_cli.geometry.kinematics import forward_kinematics
+    from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+    from mdvae_cli.retarget.pose_solve import solve_pose
+
+    parents = list(SMPL_PARENTS[:22])
+    g0 = torch.Generator().manual_seed(1)
+    T = 200
+    X = 0.15 * torch.randn(22, 3, generator=g0, dtype=torch.float64)
+    X[0] = 0.0
+    bones = X.clone()
+    bones[1:] = X[1:] - X[parents[1:]]
+    truth = rotvec_to_rotmat(0.6 * torch.randn(T, 22, 3, generator=g0, dtype=torch.float64))
+    root = torch.randn(T, 3, generator=g0, dtype=torch.float64)
+    targets = forward_kinematics(truth, bones, parents, root=root)[1]
+    turn = 0.1 * torch.randn(T, 22, 3, generator=g0, dtype=torch.float64)
+    start = truth @ rotvec_to_rotmat(turn)
+    mixed, r_mixed = solve_pose(targets, start, X, parents)
+    wide, r_wide = solve_pose(targets, start, X, parents, early_dtype=torch.float64)
+    best, _ = solve_pose(targets, start, X, parents, iterations=12, early_dtype=torch.float64)
+    assert mixed.dtype == torch.float64
+    gap = (mixed - wide).abs().flatten(1).amax(1)  # per frame
+    short = (wide - best).abs().flatten(1).amax(1)  # how far three steps stop from the optimum
+    assert gap.max() < 1e-3 and gap.median() < 0.1 * short.median()
+    assert (r_mixed - r_wide).abs().max().item() < 1e-5
+
+    def error(L, r):
+        return (forward_kinematics(L, bones, parents, root=r)[1] - targets).norm(dim=-1).mean()
+
+    assert error(mixed, r_mixed) < 1.001 * error(wide, r_wide)
+    assert error(wide, r_wide) < 0.2 * error(start, root)
+
+
 def test_reading_a_take_tells_its_progress(tmp_path):
     from mdvae_cli.formats.registry import ReadOptions, read
     from tests.test_bvh_out import write_rig

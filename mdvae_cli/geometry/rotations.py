@@ -201,7 +201,9 @@ def rotvec_wrap(rotvec: torch.Tensor) -> torch.Tensor:
     return torch.where(theta > math.pi, rotvec * (wrapped / theta.clamp_min(1.0)), rotvec)
 
 
-def rotvec_unwrap(rotvec: torch.Tensor, dim: int = 0) -> torch.Tensor:
+def rotvec_unwrap(
+    rotvec: torch.Tensor, dim: int = 0, quats: torch.Tensor | None = None
+) -> torch.Tensor:
     """Make an axis-angle sequence continuous along ``dim`` (vectorised).
 
     Axis-angle jumps by nearly 2*pi when a joint turns past pi, which finite differences and
@@ -210,10 +212,11 @@ def rotvec_unwrap(rotvec: torch.Tensor, dim: int = 0) -> torch.Tensor:
     the result is continuous for sequences that turn less than a further half turn from the
     first frame's representation, which covers any short window of human motion.
 
-    rotvec: (..., T, ..., 3) -> same shape, same rotations
+    rotvec: (..., T, ..., 3); quats: their quaternions (rotvec_to_quat), when at hand -> same
+    shape, same rotations
     """
     r = rotvec.movedim(dim, 0)
-    q = rotvec_to_quat(r)
+    q = rotvec_to_quat(r) if quats is None else quats.movedim(dim, 0)
     if q.shape[0] > 1:
         dots = (q[1:] * q[:-1]).sum(-1, keepdim=True)
         steps = torch.where(dots < 0, -torch.ones_like(dots), torch.ones_like(dots))

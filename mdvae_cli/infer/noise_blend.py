@@ -129,12 +129,16 @@ def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.
 
 
 def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Convolve along axis 0 with edge values repeated.  x: (T, ...) -> (T, ...)"""
-    r = len(kernel) // 2
+    """Convolve along axis 0 with edge values repeated, by a symmetric kernel (odd length).
+    x: (T, ...) -> (T, ...)"""
+    r, T = len(kernel) // 2, x.shape[0]
     padded = np.concatenate([np.repeat(x[:1], r, 0), x, np.repeat(x[-1:], r, 0)])
-    out = np.zeros_like(x)
-    for k, w in enumerate(kernel):
-        out += w * padded[k : k + x.shape[0]]
+    out = kernel[r] * x
+    pair = np.empty_like(out)  # the kernel is symmetric: a tap pair at a time, in place
+    for k in range(r):
+        np.add(padded[k : k + T], padded[2 * r - k : 2 * r - k + T], out=pair)
+        pair *= kernel[k]
+        out += pair
     return out
 
 
@@ -210,8 +214,9 @@ def blend_rotations(
     src = torch.as_tensor(source, dtype=torch.float64)
     q_den = rotvec_to_quat(torch.as_tensor(denoised, dtype=torch.float64))
     q_den_inv = q_den * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
-    residual = quat_to_rotvec(quat_multiply(q_den_inv, rotvec_to_quat(src))).numpy()
-    unwrapped = rotvec_unwrap(src, dim=0).numpy()
+    q_src = rotvec_to_quat(src)
+    residual = quat_to_rotvec(quat_multiply(q_den_inv, q_src)).numpy()
+    unwrapped = rotvec_unwrap(src, dim=0, quats=q_src).numpy()
     noise = noise_variance(unwrapped, None if missing is None else ~missing)  # (J,)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
     if missing is not None:

@@ -67,8 +67,29 @@ def resample_motion(motion: Motion, fps_out: float) -> Motion:
     """
     if abs(motion.fps - fps_out) < 1e-9:
         return motion
+    src = resample_times(motion.num_frames, motion.fps, fps_out)
+    return sampled_motion(
+        motion,
+        src,
+        fps_out,
+        interp_rotvec(motion.root_orient, src),
+        interp_rotvec(motion.pose_body, src),
+        interp_linear(motion.trans, src),
+    )
+
+
+def sampled_motion(
+    motion: Motion,
+    src: np.ndarray,
+    fps_out: float,
+    root_orient: np.ndarray,
+    pose_body: np.ndarray,
+    trans: np.ndarray,
+) -> Motion:
+    """``motion`` at the fractional frames ``src`` (T',), with its body parameters there
+    given (root_orient (T', 3), pose_body (T', 21, 3), trans (T', 3)) and the rest
+    interpolated as :func:`resample_motion` does."""
     T = motion.num_frames
-    src = resample_times(T, motion.fps, fps_out)
     extra = motion.pose_extra
     if extra.shape[1] % 3 == 0 and extra.shape[1] > 0:
         extra = interp_rotvec(extra.reshape(T, -1, 3), src).reshape(len(src), -1)
@@ -82,9 +103,9 @@ def resample_motion(motion: Motion, fps_out: float) -> Motion:
     if motion.joint_mask is not None:
         mask = motion.joint_mask[np.clip(np.rint(src).astype(int), 0, T - 1)]
     return Motion(
-        root_orient=interp_rotvec(motion.root_orient, src),
-        pose_body=interp_rotvec(motion.pose_body, src),
-        trans=interp_linear(motion.trans, src),
+        root_orient=root_orient,
+        pose_body=pose_body,
+        trans=trans,
         betas=motion.betas.copy(),
         fps=float(fps_out),
         pose_extra=extra,
