@@ -168,6 +168,26 @@ def test_way_back_in_chunks_is_the_way_back_in_one_piece(tmp_path, joints):
         np.testing.assert_allclose(write_back_data(*args, chunk=chunk), whole, atol=1e-9)
 
 
+def test_the_way_back_reuses_the_readers_rotations_and_gets_the_same_pose(tmp_path, joints):
+    """The reader keeps the local rotations it made (the SourceMotion's own array, no copy);
+    the way back's file pose from them is the one it would make from the channels again, and
+    a take written back with and without them is the same."""
+    path = write_rig(tmp_path / "take.bvh")
+    take = read_take(path, joints)
+    layout = take.source.layout
+    assert layout.rotations is take.source.rotations
+    data = layout.data[layout.rows]
+    again = file_pose(take.source, layout, data)
+    kept = file_pose(take.source, layout, data, layout.rotations)
+    for a, b in zip(again, kept, strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    cleaned = take.motion.with_body(pose_body=take.motion.pose_body * 0.9)
+    args = (take.source, take.retarget, take.motion, cleaned, joints)
+    with_kept = write_back_data(*args)
+    layout.rotations = None
+    np.testing.assert_allclose(write_back_data(*args), with_kept, atol=1e-9)
+
+
 def _change(take, data):
     layout = take.source.layout
     L0, _, _, P0 = file_pose(take.source, layout, layout.data)

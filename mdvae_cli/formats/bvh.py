@@ -153,6 +153,9 @@ class BvhLayout:
     metres_per_unit: the scale the SourceMotion is in. world_channels: joints whose position
     channels hold world positions (ignored on reading, rewritten on writing).
     moving: joints other than the root whose position channels move the joint.
+    rotations: (T, J, 3, 3) the local rotations the reader made from the channels of the rows
+    ``rows`` (the SourceMotion's own array while it keeps it), so that the way back need not
+    make them again; None when not kept.
     """
 
     header: str
@@ -164,6 +167,7 @@ class BvhLayout:
     metres_per_unit: float
     world_channels: tuple[int, ...] = ()
     moving: tuple[int, ...] = ()
+    rotations: np.ndarray | None = None
 
     def joint_columns(self, j: int, kind: str) -> list[tuple[int, str]]:
         """(column, axis) of joint j's channels of one kind ("t" or "r"), in file order."""
@@ -330,6 +334,7 @@ def load_bvh(
             angles = np.deg2rad(data[:, [c for c, _ in rot]])
             check_angles(angles, f"joint {names[j]}", path)
             rotations[:, j] = euler_to_rotmat(angles, "".join(a for _, a in rot))
+    layout.rotations = rotations
     rest, local = _split_positions(names, parents, offsets, layout, data, rotations, root_pos,
                                    notes)  # fmt: skip
     for j in layout.moving:

@@ -41,13 +41,15 @@ def interp_cubic(values: np.ndarray, src: np.ndarray) -> np.ndarray:
     padded = np.concatenate([2 * values[:1] - values[1:2], values, 2 * values[-1:] - values[-2:-1]])
     i = np.clip(np.floor(src).astype(int), 0, T - 2)
     t = (src - i).reshape(-1, *([1] * (values.ndim - 1)))
-    p0, p1, p2, p3 = padded[i], padded[i + 1], padded[i + 2], padded[i + 3]
-    return 0.5 * (
-        2 * p1
-        + (p2 - p0) * t
-        + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t**2
-        + (3 * (p1 - p2) + p3 - p0) * t**3
-    )
+    t2, t3 = t * t, t * t * t
+    # the curve's weights on its four points p0..p3 (p1 at t = 0, p2 at t = 1)
+    weights = (0.5 * (2 * t2 - t - t3), 0.5 * (2 - 5 * t2 + 3 * t3),
+               0.5 * (t + 4 * t2 - 3 * t3), 0.5 * (t3 - t2))  # fmt: skip
+    out = padded[i] * weights[0]
+    term = np.empty_like(out)
+    for k in (1, 2, 3):
+        out += np.multiply(padded[i + k], weights[k], out=term)
+    return out
 
 
 def interp_rotvec(rotvecs: np.ndarray, src: np.ndarray) -> np.ndarray:

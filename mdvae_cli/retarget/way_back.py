@@ -96,15 +96,17 @@ def pelvis_point(
     return target + shift - (D[:, 0] @ arm[..., None])[..., 0]
 
 
-def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray):
+def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=None):
     """Local rotations (T, J, 3, 3), translations (T, J, 3; the root's is its position) and
-    world rotations and positions of the file's own frames ``data`` (T, C), in file units."""
+    world rotations and positions of the file's own frames ``data`` (T, C), in file units.
+    rotations: the local rotations of these frames, when at hand (the reader's), else made
+    from their channels."""
     T, J = data.shape[0], src.num_joints
-    L = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
+    L = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy() if rotations is None else rotations
     t = np.tile(layout.offsets, (T, 1, 1))
     for j in range(J):
         rot = layout.joint_columns(j, "r")
-        if rot:
+        if rot and rotations is None:
             L[:, j] = euler_to_rotmat(np.deg2rad(data[:, [c for c, _ in rot]]),
                                       "".join(a for _, a in rot))  # fmt: skip
         cols = layout.joint_columns(j, "t")
@@ -167,7 +169,8 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     scale = layout.metres_per_unit
     D, shift = smpl_change(rt, original, cleaned, body, scale)
 
-    L, t, G, P = file_pose(src, layout, data)
+    kept = None if layout.rotations is None else layout.rotations[frames]
+    L, t, G, P = file_pose(src, layout, data, kept)
     drive = drivers(rt.jmap, src.num_joints)
     G2 = G.copy()
     for j in range(src.num_joints):
