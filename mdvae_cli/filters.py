@@ -99,6 +99,11 @@ def gaussian_coefficients(sigma_frames: float) -> np.ndarray:
     return k / k.sum()
 
 
+#: frames convolved at once (a long take's whole array, streamed through memory once per
+#: term, costs several times what pieces that stay in cache do)
+_PIECE = 4096
+
+
 def _smooth_local_poly(
     x: np.ndarray, half: int, order: int, weight: Weights, slide: bool, at: np.ndarray | None = None
 ) -> np.ndarray:
@@ -121,12 +126,15 @@ def _smooth_local_poly(
         offsets = np.arange(-half, half + 1)
         w = np.asarray(weight(offsets), dtype=np.float64)
         c = _edge_coefficients(W, order, half, w.tobytes())  # the centre row, cached too
-        if at is None:  # every frame: shifted slices, no gathers
-            rows = out[half : T - half]
-            np.multiply(x[: T - W + 1], c[0], out=rows)
-            term = np.empty_like(rows)  # one buffer: a new array each term costs more
-            for k in range(1, W):
-                rows += np.multiply(x[k : T - W + 1 + k], c[k], out=term)
+        if at is None:  # every frame: shifted slices, no gathers, a piece at a time (in cache)
+            n_inner = T - W + 1
+            for a in range(0, n_inner, _PIECE):
+                n = min(_PIECE, n_inner - a)
+                rows = out[half + a : half + a + n]
+                np.multiply(x[a : a + n], c[0], out=rows)
+                term = np.empty_like(rows)  # one buffer: a new array each term costs more
+                for k in range(1, W):
+                    rows += np.multiply(x[a + k : a + k + n], c[k], out=term)
         else:
             centre = frames[inner]
             rows = c[0] * x[centre - half]

@@ -289,3 +289,16 @@ def test_the_model_rate_take_smooths_only_the_frames_it_samples_and_matches_smoo
         for a, b in ((got.root_orient, want.root_orient), (got.pose_body, want.pose_body),
                      (got.trans, want.trans)):  # fmt: skip
             np.testing.assert_allclose(a, b, atol=1e-10)
+
+
+def test_the_smoothers_convolve_a_piece_at_a_time_with_the_same_result(monkeypatch):
+    """Long takes are convolved a piece of frames at a time (in cache): the same values as in
+    one pass, ends included."""
+    import mdvae_cli.filters as f
+
+    x = np.cumsum(np.random.default_rng(6).normal(size=(3001, 4, 3)), 0)
+    monkeypatch.setattr(f, "_PIECE", 10**9)
+    whole = (f.gaussian_smooth(x, 2.5), f.savgol_smooth(x, 9, 2))
+    monkeypatch.setattr(f, "_PIECE", 500)
+    np.testing.assert_array_equal(f.gaussian_smooth(x, 2.5), whole[0])
+    np.testing.assert_array_equal(f.savgol_smooth(x, 9, 2), whole[1])

@@ -188,3 +188,30 @@ def test_video_estimates_get_the_slow_band_alone():
     both, _ = keep_unexplained(jitter, quiet, none, 30.0, with_fast=True)
     assert np.abs(slow_only).mean() < 0.3 * np.abs(both).mean()
     assert np.abs(both - jitter).mean() < 0.01 * np.abs(jitter).mean()  # nearly all of it
+
+
+def test_the_blend_a_chunk_of_frames_at_a_time_is_the_blend_of_the_whole(monkeypatch):
+    """The blend's per-frame and local steps go a chunk of frames at a time (in cache on long
+    takes): the same result, bit for bit, as in one piece, with the input's unwrapping carried
+    across the chunks (tracks that turn past half a turn many times) and holes."""
+    import mdvae_cli.infer.noise_blend as nb
+
+    rng = np.random.default_rng(5)
+    T = 2500
+    src = np.cumsum(rng.normal(0, 0.08, (T, 22, 3)), 0)
+    den = src + rng.normal(0, 0.02, src.shape)
+    missing = rng.random((T, 22)) < 0.01
+    monkeypatch.setattr(nb, "FRAME_CHUNK", 10**9)
+    whole = nb.blend_rotations(src, den, 120.0, True, missing)
+    assert np.abs(whole[0] - src).max() > 0.01  # something was blended
+    for chunk in (997, 128):
+        monkeypatch.setattr(nb, "FRAME_CHUNK", chunk)
+        parts = nb.blend_rotations(src, den, 120.0, True, missing)
+        for a, b in zip(parts, whole, strict=True):
+            np.testing.assert_array_equal(a, b)
+        x = rng.normal(size=(T, 5))
+        kernel = nb.gaussian_coefficients(3.0)
+        monkeypatch.setattr(nb, "FRAME_CHUNK", 10**9)
+        one = nb.smooth_in_time(x, kernel)
+        monkeypatch.setattr(nb, "FRAME_CHUNK", chunk)
+        np.testing.assert_array_equal(nb.smooth_in_time(x, kernel), one)

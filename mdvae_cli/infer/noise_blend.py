@@ -128,17 +128,28 @@ def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.
     return out
 
 
+#: frames worked on at once by the blend's per-frame and local steps: a long take's arrays
+#: (hundreds of MB at 120 Hz) streamed through memory once per operation cost several times
+#: what the same work on pieces that stay in cache does
+FRAME_CHUNK = 4096
+
+
 def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Convolve along axis 0 with edge values repeated, by a symmetric kernel (odd length).
-    x: (T, ...) -> (T, ...)"""
+    """Convolve along axis 0 with edge values repeated, by a symmetric kernel (odd length),
+    :data:`FRAME_CHUNK` frames at a time.  x: (T, ...) -> (T, ...)"""
     r, T = len(kernel) // 2, x.shape[0]
     padded = np.concatenate([np.repeat(x[:1], r, 0), x, np.repeat(x[-1:], r, 0)])
-    out = kernel[r] * x
-    pair = np.empty_like(out)  # the kernel is symmetric: a tap pair at a time, in place
-    for k in range(r):
-        np.add(padded[k : k + T], padded[2 * r - k : 2 * r - k + T], out=pair)
-        pair *= kernel[k]
-        out += pair
+    out = np.empty(x.shape)
+    for a in range(0, T, FRAME_CHUNK):
+        n = min(FRAME_CHUNK, T - a)
+        seg = padded[a : a + n + 2 * r]
+        part = kernel[r] * seg[r : r + n]
+        pair = np.empty_like(part)  # the kernel is symmetric: a tap pair at a time, in place
+        for k in range(r):
+            np.add(seg[k : k + n], seg[2 * r - k : 2 * r - k + n], out=pair)
+            pair *= kernel[k]
+            part += pair
+        out[a : a + n] = part
     return out
 
 
@@ -212,17 +223,33 @@ def blend_rotations(
     of the slow difference put back (T, J): 0 = the denoiser's, 1 = the input's; spikes (T, J))
     """
     src = torch.as_tensor(source, dtype=torch.float64)
-    q_den = rotvec_to_quat(torch.as_tensor(denoised, dtype=torch.float64))
-    q_den_inv = q_den * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
-    q_src = rotvec_to_quat(src)
-    residual = quat_to_rotvec(quat_multiply(q_den_inv, q_src)).numpy()
-    unwrapped = rotvec_unwrap(src, dim=0, quats=q_src).numpy()
+    den = torch.as_tensor(denoised, dtype=torch.float64)
+    conjugate = torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
+    residual, unwrapped = np.empty(src.shape), np.empty(src.shape)
+    before = None  # the chunk before's last frame: its rotation vector, its unwrapped quaternion
+    for a in range(0, len(src), FRAME_CHUNK):  # per frame (the unwrap carried across)
+        s, frames = src[a : a + FRAME_CHUNK], slice(a, a + FRAME_CHUNK)
+        q_src = rotvec_to_quat(s)
+        residual[frames] = quat_to_rotvec(
+            quat_multiply(rotvec_to_quat(den[frames]) * conjugate, q_src)
+        ).numpy()
+        skip = 0 if before is None else 1
+        if before is not None:  # start the sign-continuous quaternions where the last chunk ended
+            s, q_src = torch.cat([before[0], s]), torch.cat([before[1], q_src])
+        flipped = rotvec_unwrap(s, dim=0, quats=q_src)
+        unwrapped[frames] = flipped[skip:].numpy()
+        # an unwrapped vector past half a turn gives the flipped quaternion (w < 0) back
+        before = (s[-1:], rotvec_to_quat(flipped[-1:]))
     noise = noise_variance(unwrapped, None if missing is None else ~missing)  # (J,)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
     if missing is not None:
         spikes = spikes & ~missing
     kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
-    out = quat_to_rotvec(quat_multiply(q_den, rotvec_to_quat(torch.as_tensor(kept)))).numpy()
+    out = np.empty(src.shape)
+    for a in range(0, len(src), FRAME_CHUNK):
+        frames = slice(a, a + FRAME_CHUNK)
+        q_kept = rotvec_to_quat(torch.as_tensor(kept[frames]))
+        out[frames] = quat_to_rotvec(quat_multiply(rotvec_to_quat(den[frames]), q_kept)).numpy()
     return out, share, spikes
 
 
