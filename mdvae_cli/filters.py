@@ -99,9 +99,10 @@ def gaussian_coefficients(sigma_frames: float) -> np.ndarray:
     return k / k.sum()
 
 
-#: frames convolved at once (a long take's whole array, streamed through memory once per
-#: term, costs several times what pieces that stay in cache do)
-_PIECE = 4096
+#: frames worked on at once by the smoothers here and the blend's steps (``infer.noise_blend``):
+#: a long take's arrays (hundreds of MB at 120 Hz) streamed through memory once per operation
+#: cost several times what the same work on pieces that stay in cache does
+CACHE_FRAMES = 4096
 
 
 def _smooth_local_poly(
@@ -128,8 +129,8 @@ def _smooth_local_poly(
         c = _edge_coefficients(W, order, half, w.tobytes())  # the centre row, cached too
         if at is None:  # every frame: shifted slices, no gathers, a piece at a time (in cache)
             n_inner = T - W + 1
-            for a in range(0, n_inner, _PIECE):
-                n = min(_PIECE, n_inner - a)
+            for a in range(0, n_inner, CACHE_FRAMES):
+                n = min(CACHE_FRAMES, n_inner - a)
                 rows = out[half + a : half + a + n]
                 np.multiply(x[a : a + n], c[0], out=rows)
                 term = np.empty_like(rows)  # one buffer: a new array each term costs more

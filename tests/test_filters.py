@@ -297,8 +297,8 @@ def test_the_smoothers_convolve_a_piece_at_a_time_with_the_same_result(monkeypat
     import mdvae_cli.filters as f
 
     x = np.cumsum(np.random.default_rng(6).normal(size=(3001, 4, 3)), 0)
-    monkeypatch.setattr(f, "_PIECE", 10**9)
+    monkeypatch.setattr(f, "CACHE_FRAMES", 10**9)
     whole = (f.gaussian_smooth(x, 2.5), f.savgol_smooth(x, 9, 2))
-    monkeypatch.setattr(f, "_PIECE", 500)
+    monkeypatch.setattr(f, "CACHE_FRAMES", 500)
     np.testing.assert_array_equal(f.gaussian_smooth(x, 2.5), whole[0])
     np.testing.assert_array_equal(f.savgol_smooth(x, 9, 2), whole[1])

@@ -201,17 +201,17 @@ def test_the_blend_a_chunk_of_frames_at_a_time_is_the_blend_of_the_whole(monkeyp
     src = np.cumsum(rng.normal(0, 0.08, (T, 22, 3)), 0)
     den = src + rng.normal(0, 0.02, src.shape)
     missing = rng.random((T, 22)) < 0.01
-    monkeypatch.setattr(nb, "FRAME_CHUNK", 10**9)
+    monkeypatch.setattr(nb, "CACHE_FRAMES", 10**9)
     whole = nb.blend_rotations(src, den, 120.0, True, missing)
     assert np.abs(whole[0] - src).max() > 0.01  # something was blended
     for chunk in (997, 128):
-        monkeypatch.setattr(nb, "FRAME_CHUNK", chunk)
+        monkeypatch.setattr(nb, "CACHE_FRAMES", chunk)
         parts = nb.blend_rotations(src, den, 120.0, True, missing)
         for a, b in zip(parts, whole, strict=True):
             np.testing.assert_array_equal(a, b)
         x = rng.normal(size=(T, 5))
         kernel = nb.gaussian_coefficients(3.0)
-        monkeypatch.setattr(nb, "FRAME_CHUNK", 10**9)
+        monkeypatch.setattr(nb, "CACHE_FRAMES", 10**9)
         one = nb.smooth_in_time(x, kernel)
-        monkeypatch.setattr(nb, "FRAME_CHUNK", chunk)
+        monkeypatch.setattr(nb, "CACHE_FRAMES", chunk)
         np.testing.assert_array_equal(nb.smooth_in_time(x, kernel), one)

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from mdvae_cli.filters import gaussian_coefficients
+from mdvae_cli.filters import CACHE_FRAMES, gaussian_coefficients
 from mdvae_cli.geometry.rotations import (
     quat_multiply,
     quat_to_rotvec,
@@ -128,20 +128,14 @@ def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.
     return out
 
 
-#: frames worked on at once by the blend's per-frame and local steps: a long take's arrays
-#: (hundreds of MB at 120 Hz) streamed through memory once per operation cost several times
-#: what the same work on pieces that stay in cache does
-FRAME_CHUNK = 4096
-
-
 def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     """Convolve along axis 0 with edge values repeated, by a symmetric kernel (odd length),
-    :data:`FRAME_CHUNK` frames at a time.  x: (T, ...) -> (T, ...)"""
+    :data:`CACHE_FRAMES` frames at a time.  x: (T, ...) -> (T, ...)"""
     r, T = len(kernel) // 2, x.shape[0]
     padded = np.concatenate([np.repeat(x[:1], r, 0), x, np.repeat(x[-1:], r, 0)])
     out = np.empty(x.shape)
-    for a in range(0, T, FRAME_CHUNK):
-        n = min(FRAME_CHUNK, T - a)
+    for a in range(0, T, CACHE_FRAMES):
+        n = min(CACHE_FRAMES, T - a)
         seg = padded[a : a + n + 2 * r]
         part = kernel[r] * seg[r : r + n]
         pair = np.empty_like(part)  # the kernel is symmetric: a tap pair at a time, in place
@@ -227,8 +221,8 @@ def blend_rotations(
     conjugate = torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
     residual, unwrapped = np.empty(src.shape), np.empty(src.shape)
     before = None  # the chunk before's last frame: its rotation vector, its unwrapped quaternion
-    for a in range(0, len(src), FRAME_CHUNK):  # per frame (the unwrap carried across)
-        s, frames = src[a : a + FRAME_CHUNK], slice(a, a + FRAME_CHUNK)
+    for a in range(0, len(src), CACHE_FRAMES):  # per frame (the unwrap carried across)
+        s, frames = src[a : a + CACHE_FRAMES], slice(a, a + CACHE_FRAMES)
         q_src = rotvec_to_quat(s)
         residual[frames] = quat_to_rotvec(
             quat_multiply(rotvec_to_quat(den[frames]) * conjugate, q_src)
@@ -246,8 +240,8 @@ def blend_rotations(
         spikes = spikes & ~missing
     kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
     out = np.empty(src.shape)
-    for a in range(0, len(src), FRAME_CHUNK):
-        frames = slice(a, a + FRAME_CHUNK)
+    for a in range(0, len(src), CACHE_FRAMES):
+        frames = slice(a, a + CACHE_FRAMES)
         q_kept = rotvec_to_quat(torch.as_tensor(kept[frames]))
         out[frames] = quat_to_rotvec(quat_multiply(rotvec_to_quat(den[frames]), q_kept)).numpy()
     return out, share, spikes
