@@ -19,7 +19,7 @@ from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
 from mdvae_cli.infer.input_kinds import kind_settings, refine_config
-from mdvae_cli.infer.loop import looks_like_loop
+from mdvae_cli.infer.loop import which_loop
 from mdvae_cli.infer.noise_blend import BlendReport
 from mdvae_cli.infer.rest_pose import keep_rest_frames
 from mdvae_cli.infer.settings import RefineConfig
@@ -112,12 +112,9 @@ class DenoiseSettings:
 
 def loops_of(motions: list[Motion], settings: DenoiseSettings) -> list[bool]:
     """Which motions to denoise as cycles: the setting, or each motion's own ends."""
-    if settings.loop is not None or not motions:
+    if settings.loop is not None:
         return [settings.loop] * len(motions)
-    from mdvae_cli.body.builtin import builtin_body_model
-
-    body = builtin_body_model()  # built once for all of them (the ends are posed on it)
-    return [looks_like_loop(m, body=body) for m in motions]
+    return which_loop(motions)
 
 
 def denoise(

@@ -74,10 +74,7 @@ def looks_like_loop(
     # poses would look a step or two apart
     T = motion.num_frames
     window = min(9, T - 1 + T % 2)
-    if body is None:
-        from mdvae_cli.body.builtin import builtin_body_model
-
-        body = builtin_body_model()
+    body = _default_body() if body is None else body
     joints = rest_joints(body, np.asarray(motion.betas, dtype=np.float64))
     # the end poses first: they need the ends alone, and most takes fail there (a long take is
     # then never smoothed whole)
@@ -91,6 +88,20 @@ def looks_like_loop(
         return False
     trans = savgol_smooth(np.asarray(motion.trans, dtype=np.float64), window, 2)
     return root_gap(trans) <= LOOP_DISTANCE
+
+
+def which_loop(motions: list[Motion]) -> list[bool]:
+    """:func:`looks_like_loop` on each motion, its ends posed on the built-in body, built once
+    for all of them."""
+    body = _default_body() if motions else None
+    return [looks_like_loop(m, body=body) for m in motions]
+
+
+def _default_body() -> BodyModelData:
+    """The built-in body the ends are posed on (imported here: it is built only when asked)."""
+    from mdvae_cli.body.builtin import builtin_body_model
+
+    return builtin_body_model()
 
 
 def smoothed_ends(x: np.ndarray, window: int) -> np.ndarray:

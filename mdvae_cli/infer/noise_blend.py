@@ -227,11 +227,11 @@ def blend_rotations(
         residual[frames] = quat_to_rotvec(
             quat_multiply(rotvec_to_quat(den[frames]) * conjugate, q_src)
         ).numpy()
-        skip = 0 if before is None else 1
+        n = len(s)
         if before is not None:  # start the sign-continuous quaternions where the last chunk ended
             s, q_src = torch.cat([before[0], s]), torch.cat([before[1], q_src])
-        flipped = rotvec_unwrap(s, dim=0, quats=q_src)
-        unwrapped[frames] = flipped[skip:].numpy()
+        flipped = rotvec_unwrap(s, dim=0, quats=q_src)[-n:]
+        unwrapped[frames] = flipped.numpy()
         # an unwrapped vector past half a turn gives the flipped quaternion (w < 0) back
         before = (s[-1:], rotvec_to_quat(flipped[-1:]))
     noise = noise_variance(unwrapped, None if missing is None else ~missing)  # (J,)
@@ -240,6 +240,8 @@ def blend_rotations(
         spikes = spikes & ~missing
     kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
     out = np.empty(src.shape)
+    # the denoised quaternions are made again chunk by chunk rather than kept whole: on a long
+    # take a whole array of them is a large share of the peak memory, and cheap to make
     for a in range(0, len(src), CACHE_FRAMES):
         frames = slice(a, a + CACHE_FRAMES)
         q_kept = rotvec_to_quat(torch.as_tensor(kept[frames]))
