@@ -246,7 +246,7 @@ def main(argv: list[str] | None = None) -> None:
     section = (
         "<!-- do-no-harm:begin -->\n## Do no harm\n\n"
         + "\n\n".join(text)
-        + f"\n\n({common.cpu_model()}; `python benchmarks/do_no_harm.py`)"
+        + f"\n\n({common.cpu_model()}; `python benchmarks/do_no_harm.py --clips {args.clips}`)"
         + "\n<!-- do-no-harm:end -->"  # without it, --write appended the section again
     )
     print(section)

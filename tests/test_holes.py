@@ -14,7 +14,14 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.geometry.rotations import rotvec_to_quat
 from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
-from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from
+from mdvae_cli.infer.fill import (
+    CURVE_NOISE_RAD,
+    fill_holes,
+    has_holes,
+    holes_from,
+    input_curve,
+    result_shares,
+)
 from mdvae_cli.infer.noise_blend import blend_motion
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.holes import (
@@ -145,6 +152,41 @@ def test_fill_holes_writes_only_the_holes():
     np.testing.assert_array_equal(taken.pose_body[miss], result.pose_body[miss])
     with pytest.raises(InputError, match="fill must be one of"):
         DenoiseSettings(fill="spline")
+
+
+def smooth_take_with_a_fast_joint(T: int = 150) -> Motion:
+    """Slow sinusoids on every joint, and the left elbow (pose_body row 17) swinging at 4 Hz."""
+    t = np.arange(T)[:, None, None] / 30.0
+    phase = np.arange(22)[None, :, None] * 0.3 + np.arange(3)[None, None, :]
+    rot = 0.3 * np.sin(2 * np.pi * 0.5 * t + phase)
+    rot[:, 18] = 0.6 * np.sin(2 * np.pi * 4.0 * t[:, 0] + phase[0, 18])
+    return Motion.from_poses(
+        rot.reshape(T, 66), 0.1 * np.sin(t[:, 0] + np.arange(3)), np.zeros(10), 30.0
+    )
+
+
+def test_a_clean_takes_fast_joint_is_filled_from_its_own_frames():
+    take = smooth_take_with_a_fast_joint()
+    mask = frame_holes(150, 5, 1, np.random.default_rng(1), margin=40)
+    holed = with_holes(take, mask)
+    share, _ = result_shares(holed)
+    from mdvae_cli.infer.noise_blend import noise_variance
+
+    own = np.sqrt(noise_variance(take.pose_body, None))
+    assert own[17] > 2 * CURVE_NOISE_RAD  # a per-joint rule would read the elbow as noisy
+    assert share.max() < 1e-3
+    result = take.with_body(pose_body=take.pose_body + 0.05)  # a result off by 0.05 rad
+    filled = fill_holes(holed, result, "curve")
+    miss = ~mask[:, 0]
+    np.testing.assert_allclose(
+        filled.pose_body[miss], input_curve(holed).pose_body[miss], atol=1e-3
+    )
+    # the same take with white noise of 0.03 rad: every joint takes the result's curve
+    noisy = take.with_body(
+        pose_body=take.pose_body + np.random.default_rng(0).normal(0, 0.03, take.pose_body.shape)
+    )
+    share, _ = result_shares(with_holes(noisy, mask))
+    assert share[1:].min() > 0.9 and share[0] < 1e-3  # the root came clean
 
 
 @pytest.fixture(scope="module")

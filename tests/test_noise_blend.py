@@ -18,6 +18,7 @@ from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
 from mdvae_cli.infer.noise_blend import (
+    SPIKE_FLOOR_RAD,
     blend_motion,
     blend_rotations,
     noise_variance,
@@ -27,6 +28,7 @@ from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.metrics import evaluate_pair, joint_acceleration
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.model.state import BodyParams
+from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise
 from mdvae_cli.motion.resample import interp_cubic, resample_motion
 
@@ -96,6 +98,30 @@ def test_a_spike_in_the_input_is_replaced_and_a_fast_move_is_not():
     assert not spike_frames(step, noise_variance(step), 0.15).any()
 
 
+def test_a_clean_takes_spike_is_filled_from_its_own_frames_not_the_denoisers():
+    truth = smooth_track(120, 30.0)  # (T, 22, 3), clean
+    glitch = truth.copy()
+    glitch[50, 7] += 0.8  # one frame of one joint flipped
+    path = np.stack([np.linspace(0, 2, 120), np.sin(np.arange(120) / 20), np.zeros(120)], 1)
+    jumped = path.copy()
+    jumped[80, 1] += 0.3  # and the root's translation jumps 30 cm for a frame
+    take = Motion.from_poses(glitch.reshape(120, 66), jumped, np.zeros(10), 30.0)
+    # a denoiser's output that smooths a fast move away: 0.2 rad and 5 cm off everywhere
+    den = take.with_body(
+        root_orient=truth[:, 0] + 0.2, pose_body=truth[:, 1:] + 0.2, trans=path + 0.05
+    )
+    out, report = blend_motion(take, den)
+    assert report.spike_share == 1 / 120
+    # the glitches: the take's own curve through them (not the denoiser's frame)
+    assert np.abs(out.pose_body[50, 6] - truth[50, 7]).max() < 0.01
+    assert np.abs(out.trans[80] - path[80]).max() < 0.005
+    # the rest comes back as it came (the root's rotation at the jump too)
+    rest = np.ones(120, bool)
+    rest[50] = False
+    np.testing.assert_allclose(out.pose_body[rest], glitch[rest, 1:], atol=5e-3)
+    np.testing.assert_allclose(out.root_orient, truth[:, 0], atol=5e-3)
+
+
 def test_cubic_resampling_passes_through_its_samples_and_carries_on_past_the_end():
     ramp = np.arange(10.0)[:, None] * np.array([[1.0, -2.0]])
     src = np.array([0.0, 2.5, 9.0, 9.5])
@@ -155,7 +181,18 @@ def test_blend_motion_reports_what_it_kept():
     assert 0.9 < report.input_share <= 1.0
     assert report.spike_share < 0.15  # the walk's toes flicker on a few frames
     change = np.abs(out.pose_body - walk.pose_body)
-    assert change.mean() < 0.005 and change.max() < 0.06  # the 10 % was not noise: kept
+    rot = np.concatenate([walk.root_orient[:, None], walk.pose_body], axis=1)
+    flicker = spike_frames(rot, noise_variance(rot), SPIKE_FLOOR_RAD)[:, 1:]
+    assert flicker.any()
+    # the 10 % was not noise: kept, but where a toe flickers
+    assert change.mean() < 0.005 and change[~flicker].max() < 0.06
+    # there the flicker is filled from the walk's own frames beside it, not the scaled output
+    t, j = np.nonzero(flicker)
+    mid = 0.5 * (walk.pose_body[t - 1, j] + walk.pose_body[t + 1, j])
+    ratio = np.linalg.norm(out.pose_body[t, j] - mid, axis=-1) / np.linalg.norm(
+        walk.pose_body[t, j] - mid, axis=-1
+    )
+    assert ratio.max() < 0.6 and np.median(ratio) < 0.3  # (some flicker two frames running)
 
 
 def test_cli_says_how_much_was_kept(tmp_path):

@@ -259,7 +259,7 @@ def blend_translation(
     """The root translation, blended as :func:`blend_rotations` does.
 
     source, denoised: (T, 3); missing: (T,) bool or None -> (blended (T, 3), slow share put
-    back (T,))"""
+    back (T,), spikes (T,))"""
     seen = None if missing is None else ~missing[:, None]
     noise = noise_variance(source[:, None, :], seen)  # (1,)
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M)
@@ -267,7 +267,7 @@ def blend_translation(
         (source - denoised)[:, None, :], noise, spikes, fps, fast,
         None if missing is None else missing[:, None],
     )  # fmt: skip
-    return denoised + kept[:, 0], share[:, 0]
+    return denoised + kept[:, 0], share[:, 0], spikes[:, 0]
 
 
 def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[Motion, BlendReport]:
@@ -282,7 +282,7 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
     rot_den = np.concatenate([denoised.root_orient[:, None], denoised.pose_body], axis=1)
     missing = None if source.joint_mask is None else ~np.asarray(source.joint_mask, bool)
     rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps, fast, missing)
-    trans, _ = blend_translation(
+    trans, _, trans_spikes = blend_translation(
         np.asarray(source.trans, np.float64),
         np.asarray(denoised.trans, np.float64),
         source.fps,
@@ -295,4 +295,8 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
         pose_body=rot[:, 1:].astype(dtype),
         trans=trans.astype(denoised.trans.dtype),
     )
+    if spikes.any() or trans_spikes.any():
+        from mdvae_cli.infer.fill import fill_spikes  # fill reads this module's noise estimate
+
+        out = fill_spikes(source, out, spikes, trans_spikes)
     return out, BlendReport(float(share.mean()), float(spikes.any(axis=1).mean()))
