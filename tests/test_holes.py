@@ -22,7 +22,7 @@ from mdvae_cli.infer.fill import (
     input_curve,
     result_shares,
 )
-from mdvae_cli.infer.noise_blend import blend_motion
+from mdvae_cli.infer.noise_blend import blend_motion, noise_variance
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.holes import (
     LIMBS,
@@ -170,8 +170,6 @@ def test_a_clean_takes_fast_joint_is_filled_from_its_own_frames():
     mask = frame_holes(150, 5, 1, np.random.default_rng(1), margin=40)
     holed = with_holes(take, mask)
     share, _ = result_shares(holed)
-    from mdvae_cli.infer.noise_blend import noise_variance
-
     own = np.sqrt(noise_variance(take.pose_body, None))
     assert own[17] > 2 * CURVE_NOISE_RAD  # a per-joint rule would read the elbow as noisy
     assert share.max() < 1e-3
