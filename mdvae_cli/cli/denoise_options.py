@@ -115,7 +115,9 @@ OPTIONS = [
         help="Put back what of the input's difference from the denoised motion its own noise "
         "does not explain, joint by joint and second by second: a clean take (or a clean "
         "stretch, or a joint that is clean) comes back as it came, a noisy one cleaned, and a "
-        "spike in the input is replaced. The share kept is in the summary and in --json "
+        "spike in the input (one frame jumping away and back) is filled as a short hole: from "
+        "the take's own frames beside it in a clean take, from the denoised frame in a noisy "
+        "one. The share kept is in the summary and in --json "
         '("input_share"). On by default, except with --outliers, whose heavy-tailed noise '
         "model already weighs the spikes (such takes come out more accurate without the blend). "
         "Not with --no-offset, which is the paper's regression mode untouched.",

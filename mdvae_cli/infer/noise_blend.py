@@ -17,8 +17,9 @@ The input's noise is measured on the input alone, from its third differences in 
 noise of variance s^2 gives third differences of variance 20 s^2, while a smooth motion's third
 differences are small at any rate of 24 Hz and up; the median keeps fast moves from inflating
 it. Spikes (a marker swap, a solver flip) are not white noise: a frame that jumps away from
-both of its neighbours by far more than the noise is an outlier of the input, and there the
-denoiser's frame is taken whole.
+both of its neighbours by far more than the noise is an outlier of the input: an observation
+it does not have, filled as a short hole (``infer.fill.fill_spikes``: the take's own curve
+through it in a clean take, the denoiser's frame in a noisy one).
 
 Pure numpy/torch math on arrays of one motion: rotations (T, J, 3) axis-angle, translation
 (T, 3).
@@ -66,7 +67,7 @@ class BlendReport:
     """How much of a motion came back as it came: ``input_share`` is the mean share of the
     input's slow difference from the denoiser's output that was put back (0 = the denoiser's
     motion, 1 = the input's), ``spike_share`` the share of frames where the input had a spike
-    (the denoiser's frame taken there)."""
+    in a rotation (filled there as a short hole, :func:`blend_motion`)."""
 
     input_share: float
     spike_share: float
@@ -273,7 +274,9 @@ def blend_translation(
 def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[Motion, BlendReport]:
     """``denoised`` (the denoiser's output at the source's frame times) with what the
     source's own noise does not explain put back (``fast``: the fast band too), and how much
-    was. Where the source misses a joint (``joint_mask`` False) the denoiser's value stays.
+    was. Where the source misses a joint (``joint_mask`` False) the denoiser's value stays;
+    its spikes (rotations and translation) are filled as short holes
+    (``infer.fill.fill_spikes``).
 
     -> (the blended motion: a copy of ``denoised`` with new body parameters, its report)"""
     if source.num_frames < 4:  # too short to tell noise from motion: the denoiser's
