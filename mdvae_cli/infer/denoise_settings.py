@@ -165,7 +165,7 @@ def denoise(
             on_fallback=on_fallback,
             # cycles are judged on the motions as denoised (rest-pose frames cut off)
             loops=loops if loops is not None else loops_of(ms, settings),
-            feet=FootLockConfig() if settings.feet == "lock" else None,
+            feet=lock_config(settings),
             blend=settings.blend and refine is not None,
             on_blend=on_blend,
             blend_fast=kind_settings(settings.input_kind).blend_fast,
@@ -173,3 +173,13 @@ def denoise(
         )
 
     return keep_rest_frames(motions, run) if settings.rest_pose else run(motions)
+
+
+def lock_config(settings: DenoiseSettings) -> FootLockConfig | None:
+    """The foot lock's settings for ``settings`` (None with ``feet="off"``): a kind whose feet
+    may read clean and still jitter (video) has them smoothed as the lock's goal."""
+    if settings.feet != "lock":
+        return None
+    if kind_settings(settings.input_kind).feet_as_came:
+        return FootLockConfig()
+    return FootLockConfig(clean_jitter=0.0)

@@ -92,7 +92,10 @@ class FootLockConfig:
     before and after it; keep: the share of its own horizontal movement a held joint keeps
     (0 = nailed to its anchor); trust_below, distrust_above (m): the input's foot jitter under
     which its own feet are the goal, and over which they are ignored; reference_smooth_s: std
-    of the Gaussian on the input's feet used as goal; passes: IK passes (a second puts the
+    of the Gaussian on the input's feet used as goal; clean_jitter (m): under this foot
+    jitter the input's feet are goals nearer as they came, that smoothing and the lift of a
+    foot joint under its height over the floor scaled by jitter / clean_jitter (0: always in
+    full); passes: IK passes (a second puts the
     soles on the floor as posed by the first); knee_stiffness, bend_stiffness (m/rad): how far
     an ankle may miss a goal further from (nearer to) the hip than the knee's bend gives,
     rather than straighten (bend) the knee by a radian; sunk_tol (m): a foot deeper than this
@@ -113,6 +116,7 @@ class FootLockConfig:
     trust_below: float = 0.02
     distrust_above: float = 0.08
     reference_smooth_s: float = 0.05
+    clean_jitter: float = 0.015
     passes: int = 1
     knee_stiffness: float = 0.5
     bend_stiffness: float = 0.5
@@ -126,7 +130,8 @@ class FootLockConfig:
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
-                     "trust_below", "reference_smooth_s", "keep_smooth_s"):  # fmt: skip
+                     "trust_below", "reference_smooth_s", "clean_jitter",
+                     "keep_smooth_s"):  # fmt: skip
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not (self.height_tol > 0 and self.speed_tol > 0):
@@ -224,8 +229,15 @@ def input_trust(
     if src is None:
         src = feet_of(pose_legs(source, model, soles=False)[0])
     if len(src) > 1:
-        src = gaussian_smooth(src, cfg.reference_smooth_s * source.fps)
+        src = gaussian_smooth(src, clean_scale(cfg, jitter) * cfg.reference_smooth_s * source.fps)
     return trust, src, jitter
+
+
+def clean_scale(cfg: FootLockConfig, jitter: float) -> float:
+    """How far the lock may move an input's own feet, by their jitter (m): 1 at
+    ``clean_jitter`` and over, down to 0 for a take whose feet do not shake at all (its feet
+    are the goal as they came: a clean take's roll and toe-off are its own)."""
+    return 1.0 if cfg.clean_jitter == 0 else min(1.0, jitter / cfg.clean_jitter)
 
 
 def for_noise(cfg: FootLockConfig, jitter: float) -> FootLockConfig:
@@ -262,13 +274,15 @@ def lock_feet(
     if source is not None and source.num_frames != motion.num_frames:
         raise ValueError(f"{motion.num_frames} frames to lock, {source.num_frames} in the input")
     model = LegModel.build(body, motion.betas)
-    trust, reference = 0.0, None
+    trust, reference, lift_share = 0.0, None, 1.0
     if source is not None:
         same = np.array_equal(source.betas, motion.betas)
         trust, reference, jitter = input_trust(
             source, model if same else LegModel.build(body, source.betas), cfg
         )
         cfg = for_noise(cfg, jitter)
+        # a clean take's feet are lifted only by the share of the goal that is not its own
+        lift_share = 1.0 - trust * (1.0 - clean_scale(cfg, jitter))
     pos, soles = pose_legs(motion, model)
     feet = feet_of(pos)
     contacts = detect_contacts(feet, motion.fps, cfg)
@@ -299,7 +313,8 @@ def lock_feet(
         goals[..., 2] = heights
         goal = goals if reference is None else trust * reference + (1 - trust) * goals
         targets = hold_targets(feet, contacts, goal, weights)[f]
-        targets[..., 2] = np.where(free, np.maximum(targets[..., 2], heights[f]), targets[..., 2])
+        lift = lift_share * np.maximum(heights[f] - targets[..., 2], 0.0)
+        targets[..., 2] = np.where(free, targets[..., 2] + lift, targets[..., 2])
         last = i == cfg.passes - 1
         clearance, new_rotvecs = _solve_legs(
             motion, model, f, targets[:, columns], held[f][:, columns], sunk[f], cfg, last

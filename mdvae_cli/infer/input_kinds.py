@@ -28,6 +28,9 @@ class KindSettings:
     rot_unit, trans_unit: the noise levels (rad, m) the noise prior centres on.
     blend_fast: whether ``--blend`` also puts back the fast band of what the noise does not
         explain (a video tracker's jitter is not white: its fast band would come back as jitter).
+    feet_as_came: whether the foot lock keeps feet that read clean as they came
+        (``FootLockConfig.clean_jitter``; a video tracker's feet can read clean and still
+        jitter: they are smoothed as the lock's goal whatever their jitter).
     """
 
     lam: float = 0.0
@@ -37,6 +40,7 @@ class KindSettings:
     rot_unit: float = 0.2
     trans_unit: float = 0.05
     blend_fast: bool = True
+    feet_as_came: bool = True
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -51,7 +55,7 @@ INPUT_KINDS: dict[str, KindSettings] = {
     # 3, 5 and 10 score alike, 10 is --outliers. The blend's slow band only: on 40 test clips
     # with --preset video, MPJPE 10.05 -> 8.98 cm for acceleration error 6.0 -> 7.1 m/s^2 (both
     # bands: 9.06 cm, 27.8 m/s^2)
-    "video": KindSettings(lam=10.0, blend_fast=False),
+    "video": KindSettings(lam=10.0, blend_fast=False, feet_as_came=False),
 }
 
 
