@@ -95,11 +95,11 @@ class FootLockConfig:
     of the Gaussian on the input's feet used as goal; clean_jitter (m): under this foot
     jitter the input's feet are goals nearer as they came, that smoothing and the lift of a
     foot joint under its height over the floor scaled by jitter / clean_jitter (0: always in
-    full); passes: IK passes (a second puts the
-    soles on the floor as posed by the first); knee_stiffness, bend_stiffness (m/rad): how far
-    an ankle may miss a goal further from (nearer to) the hip than the knee's bend gives,
-    rather than straighten (bend) the knee by a radian; sunk_tol (m): a foot deeper than this
-    under the floor bends its knee as far as needed to be lifted (None, the default: never);
+    full); passes: IK passes (a second puts the soles on the floor as posed by the first);
+    knee_stiffness, bend_stiffness (m/rad): how far an ankle may miss a goal further from
+    (nearer to) the hip than the knee's bend gives, rather than straighten (bend) the knee by
+    a radian; sunk_tol (m): a foot deeper than this under the floor bends its knee as far as
+    needed to be lifted (None, the default: never);
     keep_smooth_s: std of the Gaussian on the movement a held joint keeps (``keep``);
     noisy_from, noisy_to (m): the input's foot jitter over which height_tol, speed_tol and keep
     go linearly to noisy_height_tol, noisy_speed_tol and noisy_keep (:func:`for_noise`).
