@@ -22,7 +22,8 @@ from mdvae_cli.infer.fill import (
     input_curve,
     result_shares,
 )
-from mdvae_cli.infer.noise_blend import blend_motion, noise_variance
+from mdvae_cli.infer.input_noise import noise_variance
+from mdvae_cli.infer.noise_blend import blend_motion
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.holes import (
     LIMBS,

@@ -16,12 +16,12 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.cli.main import cli
 from mdvae_cli.formats.npz_io import load_motion, save_motion
 from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.input_noise import noise_variance
 from mdvae_cli.infer.native_rate import to_input_rate, to_model_rate
 from mdvae_cli.infer.noise_blend import (
     SPIKE_FLOOR_RAD,
     blend_motion,
     blend_rotations,
-    noise_variance,
     spike_frames,
 )
 from mdvae_cli.infer.settings import RefineConfig

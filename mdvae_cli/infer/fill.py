@@ -20,7 +20,7 @@ import torch
 
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat, rotvec_unwrap
 from mdvae_cli.infer.fill_choices import FILLS
-from mdvae_cli.infer.noise_blend import noise_variance
+from mdvae_cli.infer.input_noise import noise_variance
 from mdvae_cli.motion.holes import fill_gaps, observed
 from mdvae_cli.motion.motion import Motion
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import torch
 
 from mdvae_cli.filters import savgol_smooth
+from mdvae_cli.infer.input_noise import CHI2_MEDIAN
 from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.state import POSE, ROOT
 from mdvae_cli.motion.motion import Motion
@@ -29,8 +30,6 @@ GUARD_RATIO = 2.0
 #: ... and at least this far (rad, RMS over the rotations): on (nearly) clean input the noise
 #: estimate is tiny and any correction would otherwise look large
 GUARD_FLOOR = 0.03
-#: the median of a chi-square variable with one degree of freedom (Gaussian noise)
-_CHI2_MEDIAN = 0.4549
 _ROTATIONS = torch.tensor([*range(ROOT.start, ROOT.stop), *range(POSE.start, POSE.stop)])
 
 
@@ -42,7 +41,7 @@ def input_noise_variance(obs: torch.Tensor) -> torch.Tensor:
     if rot.shape[1] < 3:
         return rot.new_full((rot.shape[0],), float("nan"))
     d2 = rot[:, 2:] - 2 * rot[:, 1:-1] + rot[:, :-2]
-    return (d2**2).flatten(1).median(dim=1).values / (6.0 * _CHI2_MEDIAN)
+    return (d2**2).flatten(1).median(dim=1).values / (6.0 * CHI2_MEDIAN)
 
 
 def moved(x_hat: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:

@@ -13,10 +13,10 @@ came, a noisy one cleaned. Per joint (each joint has its own noise: a video trac
 jitter more than its pelvis) and per stretch of about a second (the denoiser errs more on some
 moves than on others).
 
-The input's noise is measured on the input alone, from its third differences in time: white
-noise of variance s^2 gives third differences of variance 20 s^2, while a smooth motion's third
-differences are small at any rate of 24 Hz and up; the median keeps fast moves from inflating
-it. Spikes (a marker swap, a solver flip) are not white noise: a frame that jumps away from
+The input's noise is measured on the input alone (``infer.input_noise``), from its third
+differences in time: white noise of variance s^2 gives third differences of variance 20 s^2,
+while a smooth motion's third differences are small at any rate of 24 Hz and up; the median
+keeps fast moves from inflating it. Spikes (a marker swap, a solver flip) are not white noise: a frame that jumps away from
 both of its neighbours by far more than the noise is an outlier of the input: an observation
 it does not have, filled as a short hole (``infer.fill.fill_spikes``: the take's own curve
 through it in a clean take, the denoiser's frame in a noisy one).
@@ -27,8 +27,6 @@ Pure numpy/torch math on arrays of one motion: rotations (T, J, 3) axis-angle, t
 
 from __future__ import annotations
 
-import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,13 +39,10 @@ from mdvae_cli.geometry.rotations import (
     rotvec_to_quat,
     rotvec_unwrap,
 )
+from mdvae_cli.infer.fill import fill_spikes
+from mdvae_cli.infer.input_noise import noise_variance
 from mdvae_cli.motion.motion import Motion
 
-#: the median of a chi-square variable with one degree of freedom over its mean
-_CHI2_MEDIAN = 0.4549
-#: the order of the differences the noise is read from (white noise of unit variance gives
-#: differences of variance C(2n, n): 20 for the third)
-NOISE_ORDER = 3
 #: the stretch over which the denoiser's change is measured (seconds)
 BLEND_SECONDS = 1.0
 #: a frame this many noise levels away from its neighbours' midpoint (and back) is a spike
@@ -71,31 +66,6 @@ class BlendReport:
 
     input_share: float
     spike_share: float
-
-
-def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
-    """The white-noise variance of each channel from its third differences in time.
-
-    values: (T, C, ...); seen: (T, C) bool, where the values are the input's own (a hole's
-    placeholders are a straight line, no noise: differences that reach into one are left out),
-    or None -> (C, ...) (per channel, the median over time and the remaining trailing axis
-    when there is one per channel); zeros for T < 4 or a channel with no difference left."""
-    if values.shape[0] < NOISE_ORDER + 1:
-        return np.zeros(values.shape[1:-1] if values.ndim > 2 else values.shape[1:])
-    d3 = np.diff(values, n=NOISE_ORDER, axis=0) ** 2
-    if seen is not None:
-        ok = np.ones(d3.shape[:2], bool)
-        for k in range(NOISE_ORDER + 1):
-            ok &= seen[k : k + len(d3)]
-        d3 = np.where(ok.reshape(*ok.shape, *([1] * (d3.ndim - 2))), d3, np.nan)
-    if values.ndim > 2:  # pool the components of a channel (x, y, z)
-        d3 = np.moveaxis(d3, -1, 1).reshape(-1, *values.shape[1:-1])
-    if seen is None:
-        return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a channel never seen: 0, no warning
-        med = np.nan_to_num(np.nanmedian(d3, axis=0)) if np.isfinite(d3).any() else d3[0] * 0
-    return np.nan_to_num(med) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * _CHI2_MEDIAN)
 
 
 def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
@@ -299,7 +269,5 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
         trans=trans.astype(denoised.trans.dtype),
     )
     if spikes.any() or trans_spikes.any():
-        from mdvae_cli.infer.fill import fill_spikes  # fill reads this module's noise estimate
-
         out = fill_spikes(source, out, spikes, trans_spikes)
     return out, BlendReport(float(share.mean()), float(spikes.any(axis=1).mean()))

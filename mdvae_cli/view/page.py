@@ -34,7 +34,7 @@ from mdvae_cli import __version__
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
-from mdvae_cli.infer.noise_blend import noise_variance
+from mdvae_cli.infer.input_noise import noise_variance
 from mdvae_cli.motion.contacts import (
     FOOT_JOINTS,
     HEIGHT_TOL,
@@ -60,7 +60,7 @@ PALETTE = ("#d9480f", "#1c7ed6", "#2b8a3e", "#9c36b5", "#e8a33d", "#0c8599", "#c
 POS_SCALE = 1000
 ROT_SCALE = 2048
 #: a rotation channel's step stays under 1/NOISE_STEPS of its own noise's standard deviation
-#: (``infer.noise_blend.noise_variance``), and is 1/ROT_SCALE to 1/MIN_ROT_SCALE
+#: (``infer.input_noise.noise_variance``), and is 1/ROT_SCALE to 1/MIN_ROT_SCALE
 NOISE_STEPS = 16
 MIN_ROT_SCALE = 256
 _ASSETS = Path(__file__).resolve().parent

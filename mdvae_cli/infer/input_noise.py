@@ -1,0 +1,44 @@
+"""A take's own noise, read from the take alone: the white-noise variance of each channel from
+its third differences in time. White noise of variance s^2 gives third differences of variance
+20 s^2, while a smooth motion's third differences are small at any rate of 24 Hz and up; the
+median keeps fast moves from inflating it. Read by the blend (``infer.noise_blend``), the hole
+fill (``infer.fill``) and the page's noise band (``view.page``).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+#: the median of a chi-square variable with one degree of freedom over its mean
+CHI2_MEDIAN = 0.4549
+#: the order of the differences the noise is read from (white noise of unit variance gives
+#: differences of variance C(2n, n): 20 for the third)
+NOISE_ORDER = 3
+
+
+def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
+    """The white-noise variance of each channel from its third differences in time.
+
+    values: (T, C, ...); seen: (T, C) bool, where the values are the input's own (a hole's
+    placeholders are a straight line, no noise: differences that reach into one are left out),
+    or None -> (C, ...) (per channel, the median over time and the remaining trailing axis
+    when there is one per channel); zeros for T < 4 or a channel with no difference left."""
+    if values.shape[0] < NOISE_ORDER + 1:
+        return np.zeros(values.shape[1:-1] if values.ndim > 2 else values.shape[1:])
+    d3 = np.diff(values, n=NOISE_ORDER, axis=0) ** 2
+    if seen is not None:
+        ok = np.ones(d3.shape[:2], bool)
+        for k in range(NOISE_ORDER + 1):
+            ok &= seen[k : k + len(d3)]
+        d3 = np.where(ok.reshape(*ok.shape, *([1] * (d3.ndim - 2))), d3, np.nan)
+    if values.ndim > 2:  # pool the components of a channel (x, y, z)
+        d3 = np.moveaxis(d3, -1, 1).reshape(-1, *values.shape[1:-1])
+    if seen is None:
+        return np.median(d3, axis=0) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * CHI2_MEDIAN)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a channel never seen: 0, no warning
+        med = np.nan_to_num(np.nanmedian(d3, axis=0)) if np.isfinite(d3).any() else d3[0] * 0
+    return np.nan_to_num(med) / (math.comb(2 * NOISE_ORDER, NOISE_ORDER) * CHI2_MEDIAN)
