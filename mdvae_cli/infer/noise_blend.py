@@ -16,10 +16,11 @@ moves than on others).
 The input's noise is measured on the input alone (``infer.input_noise``), from its third
 differences in time: white noise of variance s^2 gives third differences of variance 20 s^2,
 while a smooth motion's third differences are small at any rate of 24 Hz and up; the median
-keeps fast moves from inflating it. Spikes (a marker swap, a solver flip) are not white noise: a frame that jumps away from
-both of its neighbours by far more than the noise is an outlier of the input: an observation
-it does not have, filled as a short hole (``infer.fill.fill_spikes``: the take's own curve
-through it in a clean take, the denoiser's frame in a noisy one).
+keeps fast moves from inflating it. Spikes (a marker swap, a solver flip) are not white
+noise: a frame that jumps away from both of its neighbours by far more than the noise is an
+outlier of the input: an observation it does not have, filled as a short hole
+(``infer.fill.fill_spikes``: the take's own curve through it in a clean take, the denoiser's
+frame in a noisy one).
 
 Pure numpy/torch math on arrays of one motion: rotations (T, J, 3) axis-angle, translation
 (T, 3).
