@@ -186,33 +186,45 @@ def _positions(data, cols, offset) -> np.ndarray:
 def _split_positions(names, parents, offsets, layout, data, rotations, root_pos, notes):
     """Sort the non-root joints with position channels: fixed (their value becomes the
     offset), world positions (written by some exporters; ignored) or moving local ones
-    (kept per frame).  -> rest offsets (J, 3), local positions (T, J, 3) or None"""
+    (kept per frame).  -> rest offsets (J, 3), local positions (T, J, 3) or None
+
+    Joints' world poses are made only when a joint's position channels move (most files have
+    none, and on a 30-minute 120 Hz take they would be 600 MB), and then only down to the
+    deepest such joint's parent."""
     rest = offsets.copy()
     J, T = len(names), data.shape[0]
-    local = np.tile(offsets, (T, 1, 1))
-    G = np.empty((T, J, 3, 3))
-    P = np.empty((T, J, 3))
-    world, moving = [], []
-    for j in range(J):
+    varying: dict[int, np.ndarray] = {}
+    for j in range(1, J):
         cols = layout.joint_columns(j, "t")
-        t = _positions(data, cols, offsets[j]) if j else np.zeros((T, 3))
-        p = parents[j]
-        if j and cols:
+        if cols:
+            t = _positions(data, cols, offsets[j])
             if np.ptp(t, axis=0).max() <= 1e-3 * max(1.0, np.abs(t).max()):
-                rest[j] = local[:, j] = t.mean(0)
+                rest[j] = t.mean(0)
             else:
-                at_offset = P[:, p] + G[:, p] @ offsets[j]
-                far = np.median(np.linalg.norm(t - offsets[j], axis=1))
-                off_world = np.median(np.linalg.norm(t - at_offset, axis=1))
-                if far > 0.5 * max(np.linalg.norm(offsets[j]), 1e-9) and off_world < 0.2 * far:
-                    world.append(j)
-                    notes.append(f"joint {names[j]}'s position channels hold world positions; "
-                                 "its OFFSET is used")  # fmt: skip
-                else:
-                    moving.append(j)
-                    local[:, j] = t
-        G[:, j] = rotations[:, j] if p < 0 else G[:, p] @ rotations[:, j]
-        P[:, j] = root_pos if p < 0 else P[:, p] + (G[:, p] @ local[:, j, :, None])[..., 0]
+                varying[j] = t
+    if not varying:
+        return rest, None
+    local = np.tile(rest, (T, 1, 1))
+    G = np.empty((T, max(varying), 3, 3))
+    P = np.empty((T, max(varying), 3))
+    world, moving = [], []
+    for j in range(max(varying) + 1):
+        p = parents[j]
+        if j in varying:
+            t = varying[j]
+            at_offset = P[:, p] + G[:, p] @ offsets[j]
+            far = np.median(np.linalg.norm(t - offsets[j], axis=1))
+            off_world = np.median(np.linalg.norm(t - at_offset, axis=1))
+            if far > 0.5 * max(np.linalg.norm(offsets[j]), 1e-9) and off_world < 0.2 * far:
+                world.append(j)
+                notes.append(f"joint {names[j]}'s position channels hold world positions; "
+                             "its OFFSET is used")  # fmt: skip
+            else:
+                moving.append(j)
+                local[:, j] = t
+        if j < G.shape[1]:
+            G[:, j] = rotations[:, j] if p < 0 else G[:, p] @ rotations[:, j]
+            P[:, j] = root_pos if p < 0 else P[:, p] + (G[:, p] @ local[:, j, :, None])[..., 0]
     layout.world_channels, layout.moving = tuple(world), tuple(moving)
     return rest, (local if moving else None)
 
@@ -268,10 +280,10 @@ def load_bvh(
     if tok.pos != len(tok.items):
         raise InputError(f"{path}: unexpected {tok.items[tok.pos]!r} after the root joint")
 
-    motion = text[split.end() :]
-    head = re.match(
-        r"\s*Frames:\s*(\S+)\s+Frame\s+Time:\s*(\S+)", motion, flags=re.IGNORECASE
-    )  # fmt: skip
+    # matched and parsed in place: a copy of a long take's motion text is as large as the file
+    head = re.compile(r"\s*Frames:\s*(\S+)\s+Frame\s+Time:\s*(\S+)", re.IGNORECASE).match(
+        text, split.end()
+    )
     if head is None:
         raise InputError(f"{path}: MOTION section lacks 'Frames:' and 'Frame Time:' lines")
     try:
@@ -284,9 +296,11 @@ def load_bvh(
     if C == 0:
         raise InputError(f"{path}: the skeleton has no channels")
     try:
-        values, count = _numbers(motion, head.end(), n_frames * C)
+        values, count = _numbers(text, head.end(), n_frames * C)
     except ValueError:
         raise InputError(f"{path}: non-numeric value in the motion data") from None
+    header = text[: split.end()].rstrip() + "\n"
+    del text
     if count % C:
         raise InputError(f"{path}: motion data has {count} values, not a multiple of "
                          f"the {C} channels (truncated or malformed line?)")  # fmt: skip
@@ -296,7 +310,7 @@ def load_bvh(
     if not np.all(np.isfinite(values)):
         raise InputError(f"{path}: motion data contains NaN or infinite values")
     data = values.reshape(found, C)
-    layout = BvhLayout(header=text[: split.end()].rstrip() + "\n", channels=channels, data=data,
+    layout = BvhLayout(header=header, channels=channels, data=data,
                        rows=np.arange(found), frame_time=head.group(2), offsets=offsets,
                        metres_per_unit=1.0)  # fmt: skip
 

@@ -9,6 +9,7 @@ file's own. :func:`bvh_text` builds a file from scratch (``mdvae export-bvh``).
 from __future__ import annotations
 
 import io
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,11 @@ from mdvae_cli.fileio import write_atomic
 DECIMALS = 6
 
 
+#: motion rows formatted and written at a time (a long take's whole text at once was
+#: several times the file's size in memory: its lines, their join and its bytes)
+ROWS_PER_PIECE = 4096
+
+
 def format_rows(data: np.ndarray) -> str:
     """Channel values as BVH motion lines (``DECIMALS`` decimals, space separated)."""
     buf = io.StringIO()
@@ -26,28 +32,36 @@ def format_rows(data: np.ndarray) -> str:
     return buf.getvalue()
 
 
+def motion_pieces(header: str, data: np.ndarray, frame_time: str) -> Iterator[str]:
+    """A BVH file in pieces: ``header`` (through the MOTION line), the frame count, the frame
+    time as given, then the rows of ``data`` (F, C), ``ROWS_PER_PIECE`` at a time."""
+    yield f"{header.rstrip()}\nFrames: {data.shape[0]}\nFrame Time: {frame_time}\n"
+    for start in range(0, data.shape[0], ROWS_PER_PIECE):
+        yield format_rows(data[start : start + ROWS_PER_PIECE])
+
+
 def motion_text(header: str, data: np.ndarray, frame_time: str) -> str:
-    """A BVH file: ``header`` (through the MOTION line), the frame count, the frame time as
-    given and the rows of ``data`` (F, C)."""
-    return f"{header.rstrip()}\nFrames: {data.shape[0]}\nFrame Time: {frame_time}\n" + format_rows(
-        data
-    )
+    """:func:`motion_pieces` as one string."""
+    return "".join(motion_pieces(header, data, frame_time))
 
 
-def write_text(path: Path | str, text: str, forbid: tuple[Path, ...] = ()) -> None:
-    """Write ``text`` atomically as UTF-8 (bytes a reader kept with "surrogateescape" as they
-    were), newlines as given; a name ending in ``.gz`` is gzip-compressed."""
+def write_text(path: Path | str, text: str | Iterable[str], forbid: tuple[Path, ...] = ()) -> None:
+    """Write ``text`` (a string, or its pieces in order) atomically as UTF-8 (bytes a reader
+    kept with "surrogateescape" as they were), newlines as given; a name ending in ``.gz`` is
+    gzip-compressed."""
     path = Path(path)
-    raw = text.encode("utf-8", errors="surrogateescape")
+    pieces = (text,) if isinstance(text, str) else text
 
     def write(tmp: Path) -> None:
         if path.suffix.lower() == ".gz":
             import gzip
 
-            with gzip.open(tmp, "wb", compresslevel=6) as fh:
-                fh.write(raw)
+            fh = gzip.open(tmp, "wb", compresslevel=6)
         else:
-            tmp.write_bytes(raw)
+            fh = open(tmp, "wb")  # noqa: SIM115 (closed below)
+        with fh:
+            for piece in pieces:
+                fh.write(piece.encode("utf-8", errors="surrogateescape"))
 
     write_atomic(path, write, forbid=forbid)
 
@@ -55,7 +69,7 @@ def write_text(path: Path | str, text: str, forbid: tuple[Path, ...] = ()) -> No
 def write_bvh(layout, data: np.ndarray, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:
     """Write every frame ``data`` (F, C) under the file's own header (``layout``: a
     :class:`~mdvae_cli.formats.bvh.BvhLayout`), atomically."""
-    write_text(path, motion_text(layout.header, data, layout.frame_time), forbid=forbid)
+    write_text(path, motion_pieces(layout.header, data, layout.frame_time), forbid=forbid)
 
 
 def bvh_text(
