@@ -235,7 +235,8 @@ def _chain_bvh(path: Path, a_positions: np.ndarray, root_x: np.ndarray) -> Path:
         "  JOINT B\n  {\n   OFFSET 0 -40 0\n   CHANNELS 3 Zrotation Xrotation Yrotation\n"
         "   End Site\n   {\n    OFFSET 0 -10 0\n   }\n  }\n }\n}\n"
         f"MOTION\nFrames: {T}\nFrame Time: 0.0333333\n"
-        + "\n".join(" ".join(f"{v:.6f}" for v in r) for r in rows) + "\n"
+        + "\n".join(" ".join(f"{v:.6f}" for v in r) for r in rows)
+        + "\n"
     )
     path.write_text(text)
     return path

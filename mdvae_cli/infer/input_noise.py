@@ -36,8 +36,10 @@ def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.nda
     # a channel at a time: the same medians as over the whole array at once, without its
     # copies (three of the take's size: 340 MB a copy on a 30-minute 120 Hz take)
     return np.stack(
-        [_channel_noise(values[:, c], None if ok is None else ok[:, c], values.ndim > 2)
-         for c in range(values.shape[1])]  # fmt: skip
+        [
+            _channel_noise(values[:, c], None if ok is None else ok[:, c], values.ndim > 2)
+            for c in range(values.shape[1])
+        ]  # fmt: skip
     )
 
 
