@@ -12,7 +12,11 @@ Three parts, each a markdown table (``--write`` puts them into ``docs/benchmarks
   clean takes' acceleration against the input's;
 * **real files**: the shared real BVH takes before and after the default: mean change (V2V
   between input and output, cm), knee-flexion peak change (deg), acceleration and foot skate
-  in -> out, the share of the input kept as it came and of frames the guard replaced.
+  in -> out, the share of the input kept as it came and of frames the guard replaced;
+* **clean and spiky takes** (``clean_long``): 150-frame clips of both splits, clean and with
+  ``benchmarks/outliers.py``'s spikes (clean, or with Pose-NDF noise of sigma 0.05): V2V (cm)
+  of the input and of the default, and how many joint-frames (the root and 21 body joints)
+  each turns by more than 20 degrees from the truth.
 
     python benchmarks/do_no_harm.py [--clips 40] [--write]
 """
@@ -27,15 +31,17 @@ import numpy as np
 import torch
 
 try:
-    from benchmarks import common
+    from benchmarks import common, outliers
 except ModuleNotFoundError:  # run as a file
     import common  # type: ignore[no-redef]
+    import outliers  # type: ignore[no-redef]
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, pose_motion_chunks
 from mdvae_cli.filters import gaussian_filter_motion, savgol_filter_motion
 from mdvae_cli.foot_metrics import contact_slide_speeds
 from mdvae_cli.formats.registry import ReadOptions, read
+from mdvae_cli.geometry.rotations_np import rotvec_to_quat
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.input_kinds import refine_config
@@ -64,6 +70,17 @@ CLEAN_TAKES = (
 VIDEO_TAKES = ("video_zup_mm/cxk.bvh.gz", "smpl_fbx_rig/dance2.bvh.gz")
 HIGH_RATE = CLEAN_TAKES[:5]
 KNEES = (3, 4)  # left and right knee in pose_body
+#: the clean and spiky takes: clip length, and the scenarios (clean first)
+LONG_FRAMES = 150
+SPIKY = (
+    outliers.Scenario(0.0),
+    outliers.Scenario(0.0, 0.01, 1.0),
+    outliers.Scenario(0.0, 0.02, 0.3),
+    outliers.Scenario(0.05, 0.02, 1.0),
+    outliers.Scenario(0.05, 0.05, 0.5),
+)
+#: a joint-frame turned by more than this from the truth counts as moved (degrees)
+MOVED_DEG = 20.0
 
 
 def methods(denoiser, body) -> dict[str, Callable[[list[Motion]], list[Motion]]]:
@@ -220,11 +237,48 @@ def high_rate(denoiser, body, log) -> str:
     return common.markdown_table(head, rows)
 
 
+def turned_degrees(a: Motion, b: Motion) -> np.ndarray:
+    """The angle between two motions' rotations of the root and 21 body joints, per frame and
+    joint, degrees.  -> (T, 22)"""
+    qa, qb = (
+        rotvec_to_quat(np.concatenate([m.root_orient[:, None], m.pose_body[:, :21]], axis=1))
+        for m in (a, b)
+    )
+    dot = np.clip(np.abs((qa * qb).sum(-1)), 0.0, 1.0)
+    return np.degrees(2.0 * np.arccos(dot))
+
+
+def clean_and_spiky(split: str, n_clips: int, denoiser, body, log) -> str:
+    """The default on clean 150-frame clips and on the same clips with spikes."""
+    corpus = REPO / "data" / "corpus"
+    files = select_files([corpus], corpus / "split.json", split)
+    clips = common.load_clips(files, corpus, LONG_FRAMES, max_clips=n_clips)
+    gt = [c.motion for c in clips]
+    default = next(iter(methods(denoiser, body).values()))
+    rows = []
+    for sc in SPIKY:
+        noisy = outliers.noisy_clips(clips, sc, 0) if sc.spike_frac or sc.sigma else list(gt)
+        out = default(noisy)
+        res = common.evaluate_clips(gt, {"in": noisy, "out": out}, body)
+        moved = [
+            sum(int((turned_degrees(g, m) > MOVED_DEG).sum()) for g, m in zip(gt, ms, strict=True))
+            for ms in (noisy, out)
+        ]
+        label = "clean" if sc == SPIKY[0] else sc.label
+        rows.append([label, f"{res['in'].v2v_cm:.3f}", f"{res['out'].v2v_cm:.3f}",
+                     f"{moved[0]} → {moved[1]}"])  # fmt: skip
+        log(f"{split} {label}: {rows[-1][1:]}")
+    head = ["input", "V2V cm, input", "the default",
+            f"joint-frames > {MOVED_DEG:g}° from the truth, input → default"]  # fmt: skip
+    return (f"**{split}, clean and spiky** ({len(clips)} clips of {LONG_FRAMES} frames)\n\n"
+            + common.markdown_table(head, rows))  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--clips", type=int, default=40, help="clips per split (spread evenly)")
     ap.add_argument("--splits", default="test,unseen_test")
-    ap.add_argument("--parts", default="sweep,high_rate,real", help="which tables")
+    ap.add_argument("--parts", default="sweep,high_rate,real,clean_long", help="which tables")
     ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
     ap.add_argument("--denoiser", help="denoiser checkpoint or folder (default: the shipped one)")
     args = ap.parse_args(argv)
@@ -243,6 +297,9 @@ def main(argv: list[str] | None = None) -> None:
         text.append(
             "**Real files** (the default, before → after)\n\n" + real_files(denoiser, body, log)
         )
+    if "clean_long" in parts:
+        for split in args.splits.split(","):
+            text.append(clean_and_spiky(split, args.clips, denoiser, body, log))
     section = (
         "<!-- do-no-harm:begin -->\n## Do no harm\n\n"
         + "\n\n".join(text)

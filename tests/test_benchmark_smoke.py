@@ -229,3 +229,23 @@ def test_script_main_end_to_end(tiny_denoiser, tmp_path):
     ]
     assert all(0 <= r["worse_than_noisy"] <= r["clips"] for r in short)
     assert main(["--corpus", str(tmp_path / "nothing")]) == 2  # a clear error, no traceback
+
+
+def test_do_no_harm_counts_joint_frames_turned_from_the_truth():
+    """The clean-and-spiky table's count: a joint turned by 30 degrees on one frame, and by
+    10 on another, is one joint-frame past 20 degrees; the sign of a quaternion is no turn."""
+    from benchmarks.do_no_harm import MOVED_DEG, turned_degrees
+    from mdvae_cli.motion.motion import Motion
+
+    T = 5
+    a = Motion(root_orient=np.zeros((T, 3)), pose_body=np.zeros((T, 21, 3)), trans=np.zeros((T, 3)),
+               betas=np.zeros(10), fps=30.0)  # fmt: skip
+    b = a.with_body(pose_body=a.pose_body.copy())
+    b.pose_body[1, 4, 0] = np.radians(30.0)
+    b.pose_body[3, 7, 2] = np.radians(10.0)
+    turned = turned_degrees(a, b)
+    assert turned.shape == (T, 22)
+    assert np.isclose(turned[1, 5], 30.0) and np.isclose(turned[3, 8], 10.0)
+    assert int((turned > MOVED_DEG).sum()) == 1
+    c = a.with_body(root_orient=np.tile([2 * np.pi, 0.0, 0.0], (T, 1)))  # a full turn: none
+    assert turned_degrees(a, c).max() < 1e-6
