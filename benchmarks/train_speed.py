@@ -12,14 +12,19 @@ and one batch size were asked for).
 
 The model is the one ``train-prior`` builds from the recipe (its current layout: the decoder
 head reads z_t, the encoder reads the decoder's state and x_t), not a legacy checkpoint's.
+``--hidden 128,256`` times each recurrent width (the capacity point) and adds what the width
+costs at inference: one regression-mode pass (encoder means, then the decoder, no gradient)
+over 300 windows of 60 frames, a 10-minute take's worth at 30 Hz.
 
     python benchmarks/train_speed.py                       # cpu (+ cuda where present), 64/256/1024
     python benchmarks/train_speed.py --device cpu --batch 64 --threads 2 --json
+    python benchmarks/train_speed.py --device cpu --batch 64 --hidden 128,256
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import time
@@ -114,6 +119,29 @@ def time_steps(cfg: TrainConfig, device: torch.device, batch: int, steps: int) -
     return sorted(times)[len(times) // 2]
 
 
+def inference_seconds(cfg: TrainConfig, device: torch.device, windows: int = 300) -> float:
+    """Seconds of one regression-mode pass of the networks over ``windows`` windows (the
+    encoder's means, then the decoder, no gradient): median of three after one warm-up."""
+    model, _, _, data = recipe_step_parts(cfg, device, windows)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    times = []
+    with torch.no_grad():
+        for _ in range(4):
+            sync()
+            t0 = time.perf_counter()
+            model.dvae.encode_decode(data.x, data.x0, sample=False)
+            sync()
+            times.append(time.perf_counter() - t0)
+    return sorted(times[1:])[1]
+
+
+def with_hidden(cfg: TrainConfig, hidden: int | None) -> TrainConfig:
+    """The recipe with another recurrent width (None: its own)."""
+    if hidden is None:
+        return cfg
+    return dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, hidden_dim=hidden))
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto (cpu, and cuda if present)")
@@ -122,6 +150,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--steps", type=int, default=10, help="timed steps per row")
     ap.add_argument("--config", type=Path, default=RECIPE, help="training config (the recipe)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead")
+    ap.add_argument("--hidden", default=None,
+                    help="recurrent widths to time, comma-separated (default: the recipe's); "
+                         "adds a regression-mode pass per width")  # fmt: skip
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -132,16 +163,22 @@ def main(argv: list[str] | None = None) -> dict:
         devices = [args.device]
     rows = []
     batches = [int(b) for b in args.batch.split(",")]
-    gflop = {b: step_gflop(cfg, b) for b in batches}
-    for name in devices:
-        ceiling = matmul_rate(torch.device(name))
-        for batch in batches:
-            s = time_steps(cfg, torch.device(name), batch, args.steps)
-            rows.append(
-                {"device": name, "batch": batch, "s_per_step": s, "steps_per_s": 1 / s,
-                 "windows_per_s": batch / s, "gflop_per_step": gflop[batch],
-                 "gflop_per_s": gflop[batch] / s, "matmul_gflop_per_s": ceiling}
-            )  # fmt: skip
+    widths = [None] if args.hidden is None else [int(h) for h in args.hidden.split(",")]
+    for hidden in widths:
+        c = with_hidden(cfg, hidden)
+        gflop = {b: step_gflop(c, b) for b in batches}
+        for name in devices:
+            device = torch.device(name)
+            ceiling = matmul_rate(device)
+            infer = inference_seconds(c, device) if hidden is not None else None
+            for batch in batches:
+                s = time_steps(c, device, batch, args.steps)
+                rows.append(
+                    {"device": name, "hidden": c.model.hidden_dim, "batch": batch,
+                     "s_per_step": s, "steps_per_s": 1 / s, "windows_per_s": batch / s,
+                     "gflop_per_step": gflop[batch], "gflop_per_s": gflop[batch] / s,
+                     "matmul_gflop_per_s": ceiling, "regression_pass_s": infer}
+                )  # fmt: skip
     result = {
         "machine": platform.processor() or platform.machine(),
         "threads": torch.get_num_threads(),
@@ -154,13 +191,15 @@ def main(argv: list[str] | None = None) -> dict:
         print(json.dumps(result))
         return result
     print(f"torch {result['torch']}, {result['threads']} CPU thread(s)\n")
-    print("| device | batch | s/step | steps/s | windows/s | GFLOP/step | GFLOP/s (matmul alone) |")
-    print("|---|---|---|---|---|---|---|")
+    print("| device | hidden | batch | s/step | steps/s | windows/s | GFLOP/step "
+          "| GFLOP/s (matmul alone) | regression pass, 18,000 frames (s) |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
+        infer = "" if r["regression_pass_s"] is None else f"{r['regression_pass_s']:.3f}"
         print(
-            f"| {r['device']} | {r['batch']} | {r['s_per_step']:.4f} | {r['steps_per_s']:.2f} "
-            f"| {r['windows_per_s']:,.0f} | {r['gflop_per_step']:.1f} "
-            f"| {r['gflop_per_s']:.0f} ({r['matmul_gflop_per_s']:.0f}) |"
+            f"| {r['device']} | {r['hidden']} | {r['batch']} | {r['s_per_step']:.4f} "
+            f"| {r['steps_per_s']:.2f} | {r['windows_per_s']:,.0f} | {r['gflop_per_step']:.1f} "
+            f"| {r['gflop_per_s']:.0f} ({r['matmul_gflop_per_s']:.0f}) | {infer} |"
         )
     return result
 

@@ -249,3 +249,21 @@ def test_do_no_harm_counts_joint_frames_turned_from_the_truth():
     assert int((turned > MOVED_DEG).sum()) == 1
     c = a.with_body(root_orient=np.tile([2 * np.pi, 0.0, 0.0], (T, 1)))  # a full turn: none
     assert turned_degrees(a, c).max() < 1e-6
+
+
+def test_train_speed_times_each_width_and_its_regression_pass(capsys):
+    """``benchmarks/train_speed.py --hidden``: a row per width, each with its training step,
+    its arithmetic (more for the wider one) and a regression-mode pass; one row's JSON has
+    ``s_per_step`` at its top level."""
+    from benchmarks.train_speed import main as train_speed
+
+    out = train_speed(["--device", "cpu", "--batch", "2", "--steps", "1", "--hidden", "8,16",
+                       "--json"])  # fmt: skip
+    rows = out["rows"]
+    assert [r["hidden"] for r in rows] == [8, 16]
+    assert all(r["s_per_step"] > 0 and r["regression_pass_s"] > 0 for r in rows)
+    assert rows[1]["gflop_per_step"] > rows[0]["gflop_per_step"]
+    assert json.loads(capsys.readouterr().out)["rows"][0]["hidden"] == 8
+    one = train_speed(["--device", "cpu", "--batch", "2", "--steps", "1", "--json"])
+    assert one["s_per_step"] == one["rows"][0]["s_per_step"]
+    assert one["rows"][0]["regression_pass_s"] is None
