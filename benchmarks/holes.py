@@ -1,5 +1,6 @@
 """Holes: frames and joints a take is missing, filled by ``mdvae denoise`` and by what studio
-tools do (slerp / lerp between the hole's ends, a cubic spline through the take).
+tools do (slerp / lerp between the hole's ends, a cubic spline through the take, a pattern
+fill from a matching stretch of the take).
 
 On the corpus's ``test`` and ``unseen_test`` clips (150 frames at 30 Hz), clean (a studio
 take that lost markers) and with Pose-NDF noise sigma = 0.10 rad (a noisy estimate): one hole
@@ -33,6 +34,7 @@ from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
 from mdvae_cli.metrics import v2v
 from mdvae_cli.motion.holes import frame_holes, limb_holes, with_holes
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.pattern import pattern_fill
 from mdvae_cli.train.corpus import select_files
 
 REPO = Path(__file__).resolve().parents[1]
@@ -59,6 +61,11 @@ def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray
     def classical(method: str):
         return lambda ms, masks: [with_holes(m, k, method) for m, k in zip(ms, masks, strict=True)]
 
+    def pattern(ms, masks):
+        holed = [with_holes(m, k) for m, k in zip(ms, masks, strict=True)]
+        return [pattern_fill(h, with_holes(m, k, "spline"))[0]
+                for h, m, k in zip(holed, ms, masks, strict=True)]  # fmt: skip
+
     def ours(**kw):
         settings = DenoiseSettings(**kw)
         return lambda ms, masks: denoise(
@@ -69,6 +76,7 @@ def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray
         "slerp / lerp": classical("slerp"),
         "cubic spline": classical("spline"),
         "cubic Hermite (ends fitted to 6 frames)": classical("hermite"),
+        "pattern fill (the take's own frames; the spline where none matches)": pattern,
         "`mdvae denoise` (default)": ours(),
         "`--refine 50`": ours(refine_steps=50),
     }

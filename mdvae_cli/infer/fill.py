@@ -7,8 +7,10 @@ drop them (the joint mask weighs the observations). What ends up in a hole is th
 
 * ``"curve"``: per joint, a cubic spline through the input's own frames and a cubic Hermite
   curve from the values and velocities of the *result's* frames beside the hole
-  (``motion.holes.fill_gaps``), mixed by the input's own noise (:func:`mix_by_noise`): a clean
-  take is filled from its own frames, a noisy one from its cleaned frames;
+  (``motion.holes.fill_gaps``), each replaced over a long hole of every joint by a stretch of
+  the same frames that matches the hole's ends, where one does (``motion.pattern``), and
+  mixed by the input's own noise (:func:`mix_by_noise`): a clean take is filled from its own
+  frames, a noisy one from its cleaned frames;
 * ``"model"``: the denoiser's own frames (its prior's continuation of the placeholders);
 * ``"off"``: the input's values as they came.
 """
@@ -23,6 +25,7 @@ from mdvae_cli.infer.fill_choices import FILLS
 from mdvae_cli.infer.input_noise import noise_variance
 from mdvae_cli.motion.holes import fill_gaps, observed
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.pattern import pattern_fill
 
 
 def has_holes(motion: Motion) -> bool:
@@ -41,11 +44,10 @@ def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
     out = result.with_body()
     out.joint_mask = mask
     if method == "curve":
-        return mix_by_noise(
-            input_curve(source),
-            fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES),
-            source,
-        )
+        # the result's curve: a stretch of the cleaned take that matches the hole's ends where
+        # one does, the Hermite curve from its frames beside the hole elsewhere
+        from_result = pattern_fill(out, fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES))[0]
+        return mix_by_noise(input_curve(source), from_result, source)
     if method == "off":
         return take_holes(out, source, mask)
     return out
@@ -186,7 +188,9 @@ def _cubic_stencils(seen: np.ndarray, spikes: np.ndarray):
 
 def input_curve(source: Motion) -> Motion:
     """The holes of ``source`` filled from its own frames: the spline over short holes, the
-    Hermite curve over long ones (:data:`SPLINE_SECONDS`), joint by joint."""
+    Hermite curve over long ones (:data:`SPLINE_SECONDS`), joint by joint; a long hole of
+    every joint from a stretch of the take that matches its ends, where one does
+    (``motion.pattern``)."""
     spline, hermite = (
         fill_gaps(source.with_body(), "spline"),
         fill_gaps(source.with_body(), "hermite"),
@@ -198,7 +202,7 @@ def input_curve(source: Motion) -> Motion:
         edges = np.diff(np.concatenate([[0], missing[:, j].astype(int), [0]]))
         for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
             long[a:b, j] = b - a > longest
-    return take_holes(spline, hermite, ~long)
+    return pattern_fill(source, take_holes(spline, hermite, ~long))[0]
 
 
 def take_holes(motion: Motion, other: Motion, mask: np.ndarray) -> Motion:
