@@ -192,7 +192,9 @@ OPTIONS = [
         help="on: fill the holes of a take (frames and joints that are missing: NaN in an npz, "
         "frames a video track skips, what --missing names in a BVH/AMC take) by the default "
         f"way, {DEFAULT_FILL}: a cubic curve per joint from the frames beside the hole (the "
-        "take's own on a clean take, the cleaned ones on a noisy one); the summary and --json "
+        "take's own on a clean take, the cleaned ones on a noisy one), or over a hole of every "
+        "joint of 0.3 s or more a stretch of the take whose frames either side match the "
+        "hole's, where one does; the summary and --json "
         'say how many ("filled_frames", "filled_joints"). off: leave them as they came (an npz '
         "gets its NaN back, a take its own frames).",
     ),
