@@ -299,8 +299,8 @@ def load_bvh(
         values, count = _numbers(text, head.end(), n_frames * C)
     except ValueError:
         raise InputError(f"{path}: non-numeric value in the motion data") from None
-    header = text[: split.end()].rstrip() + "\n"
-    del text
+    header, frame_text = text[: split.end()].rstrip() + "\n", head.group(2)
+    del text, head, split  # the matches hold the text too
     if count % C:
         raise InputError(f"{path}: motion data has {count} values, not a multiple of "
                          f"the {C} channels (truncated or malformed line?)")  # fmt: skip
@@ -311,7 +311,7 @@ def load_bvh(
         raise InputError(f"{path}: motion data contains NaN or infinite values")
     data = values.reshape(found, C)
     layout = BvhLayout(header=header, channels=channels, data=data,
-                       rows=np.arange(found), frame_time=head.group(2), offsets=offsets,
+                       rows=np.arange(found), frame_time=frame_text, offsets=offsets,
                        metres_per_unit=1.0)  # fmt: skip
 
     notes: list[str] = []

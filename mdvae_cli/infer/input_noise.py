@@ -26,7 +26,7 @@ def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.nda
     placeholders are a straight line, no noise: differences that reach into one are left out),
     or None -> (C, ...) (per channel, the median over time and the remaining trailing axis
     when there is one per channel); zeros for T < 4 or a channel with no difference left."""
-    if values.shape[0] < NOISE_ORDER + 1:
+    if values.shape[0] < NOISE_ORDER + 1 or values.shape[1] == 0:
         return np.zeros(values.shape[1:-1] if values.ndim > 2 else values.shape[1:])
     ok = None
     if seen is not None:
@@ -39,7 +39,7 @@ def noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.nda
         [
             _channel_noise(values[:, c], None if ok is None else ok[:, c], values.ndim > 2)
             for c in range(values.shape[1])
-        ]  # fmt: skip
+        ]
     )
 
 
