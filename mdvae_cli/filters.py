@@ -261,10 +261,7 @@ def filter_motions(
         by_len.setdefault(m.num_frames, []).append(i)
     for T, idx in by_len.items():
         rot = np.stack(
-            [
-                np.concatenate([motions[i].root_orient[:, None], motions[i].pose_body], 1)
-                for i in idx
-            ],
+            [motions[i].joint_rotations for i in idx],
             axis=1,
         )  # (T, N, 22, 3)
         trans = np.stack([np.asarray(motions[i].trans, dtype=np.float64) for i in idx], axis=1)

@@ -75,8 +75,8 @@ def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Mot
     """Per joint, the hole curves drawn from the input's frames and from the result's, mixed
     by the input's own noise (:func:`result_shares`). Outside the holes, ``from_result``."""
     share, share_t = result_shares(source)
-    rot_in = np.concatenate([from_input.root_orient[:, None], from_input.pose_body], axis=1)
-    rot_res = np.concatenate([from_result.root_orient[:, None], from_result.pose_body], axis=1)
+    rot_in = from_input.joint_rotations
+    rot_res = from_result.joint_rotations
     w = torch.as_tensor(share)[None].expand(len(rot_in), -1)
     q = quat_slerp(rotvec_to_quat(torch.as_tensor(rot_in, dtype=torch.float64)),
                    rotvec_to_quat(torch.as_tensor(rot_res, dtype=torch.float64)), w)  # fmt: skip
@@ -107,7 +107,7 @@ def result_shares(source: Motion) -> tuple[np.ndarray, float]:
     The translation's share is t^4 / (t^4 + :data:`CURVE_NOISE_M`^4) for its own noise t.
 
     -> ((22,) shares, the translation's)"""
-    src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
+    src = source.joint_rotations
     seen = observed(source)
     s2 = noise_variance(rotvec_unwrap(torch.as_tensor(src, dtype=torch.float64), 0).numpy(), seen)
     take2 = float(np.median(s2))
@@ -134,8 +134,8 @@ def fill_spikes(
     marked = source.with_body()
     marked.joint_mask = seen & ~spikes & ~trans_spikes[:, None]
     share, share_t = result_shares(marked)
-    rot_src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
-    rot = np.concatenate([blended.root_orient[:, None], blended.pose_body], axis=1).copy()
+    rot_src = source.joint_rotations
+    rot = blended.joint_rotations.copy()
     for j in np.flatnonzero(spikes.any(axis=0)):
         frames, idx, weights = _cubic_stencils(seen[:, j] & ~spikes[:, j], spikes[:, j])
         if len(frames) == 0:
@@ -209,8 +209,8 @@ def take_holes(motion: Motion, other: Motion, mask: np.ndarray) -> Motion:
     """``motion`` with its entries where ``mask`` (T, 22) is False taken from ``other`` (the
     root translation follows the pelvis)."""
     miss = ~np.asarray(mask, bool)
-    rot = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
-    rot_other = np.concatenate([other.root_orient[:, None], other.pose_body], axis=1)
+    rot = motion.joint_rotations
+    rot_other = other.joint_rotations
     rot = np.where(miss[..., None], rot_other.astype(rot.dtype), rot)
     trans = np.where(miss[:, :1], np.asarray(other.trans, motion.trans.dtype), motion.trans)
     return motion.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
@@ -249,10 +249,10 @@ def observed_pieces(motion: Motion, least: int) -> list[tuple[int, int]] | None:
 def join_pieces(source: Motion, pieces: list[tuple[int, int]], results: list[Motion]) -> Motion:
     """``source`` with each piece's frames [a, b) taken from its result (the rest, holes and
     pieces too short to denoise, as they came)."""
-    rot = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1).copy()
+    rot = source.joint_rotations.copy()
     trans = np.array(source.trans, dtype=np.float64)
     for (a, b), r in zip(pieces, results, strict=True):
-        rot[a:b] = np.concatenate([r.root_orient[:, None], r.pose_body], axis=1)
+        rot[a:b] = r.joint_rotations
         trans[a:b] = r.trans
     out = source.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
     out.notes = [*source.notes, *(n for r in results for n in r.notes if n not in source.notes)]

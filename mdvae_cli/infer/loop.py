@@ -44,7 +44,7 @@ STEADY_TRAVEL = 0.5
 
 def _rotations(motion: Motion) -> np.ndarray:
     """(T, 22, 3): root orientation then the 21 body joints."""
-    return np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+    return motion.joint_rotations
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -187,7 +187,7 @@ def untile(denoised: Motion, motion: Motion, copies: int = COPIES) -> Motion:
     cycle. Written into a copy of ``motion`` (the input cycle)."""
     T = motion.num_frames
     mid = (copies // 2) * T
-    rot = np.concatenate([denoised.root_orient[:, None], denoised.pose_body], axis=1)
+    rot = denoised.joint_rotations
     # continuous axis-angles over the middle copy and the first frame of the next one
     seq = rotvec_unwrap(torch.as_tensor(rot[mid : mid + T + 1], dtype=torch.float64)).numpy()
     ramp = (np.arange(T) / T)[:, None, None]

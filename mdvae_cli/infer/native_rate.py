@@ -67,7 +67,7 @@ def to_model_rate(motion: Motion) -> Motion:
     def smooth(x: np.ndarray) -> np.ndarray:
         return gaussian_smooth(x, sigma, at=frames)
 
-    body = np.concatenate([motion.root_orient[:, None], motion.pose_body], 1)
+    body = motion.joint_rotations
     rot = smooth_rotvecs(body, smooth, at=frames)
     rot = interp_rotvec(rot, at)
     trans = interp_linear(smooth(np.asarray(motion.trans, np.float64)), at)

@@ -289,8 +289,8 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
     -> (the blended motion: a copy of ``denoised`` with new body parameters, its report)"""
     if source.num_frames < 4:  # too short to tell noise from motion: the denoiser's
         return denoised, BlendReport(0.0, 0.0)
-    rot_src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
-    rot_den = np.concatenate([denoised.root_orient[:, None], denoised.pose_body], axis=1)
+    rot_src = source.joint_rotations
+    rot_den = denoised.joint_rotations
     missing = None if source.joint_mask is None else ~np.asarray(source.joint_mask, bool)
     rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps, fast, missing)
     trans, _, trans_spikes = blend_translation(

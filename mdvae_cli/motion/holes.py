@@ -83,7 +83,7 @@ def fill_gaps(
     mask = observed(motion)
     if mask.all():
         return motion
-    rot = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+    rot = motion.joint_rotations
     rot = np.array(rot, dtype=np.float64)
     trans = np.array(motion.trans, dtype=np.float64)
     fill = {"slerp": _fill_quats, "spline": _spline_quats,
@@ -106,8 +106,8 @@ def unfilled(result: Motion, source: Motion) -> Motion:
     mask = observed(source)
     if mask.all() or result.num_frames != source.num_frames:
         return result
-    rot = np.concatenate([result.root_orient[:, None], result.pose_body], axis=1).copy()
-    src = np.concatenate([source.root_orient[:, None], source.pose_body], axis=1)
+    rot = result.joint_rotations.copy()
+    src = source.joint_rotations
     rot[~mask] = src[~mask]
     trans = np.array(result.trans, dtype=np.float64)
     trans[~mask[:, 0]] = source.trans[~mask[:, 0]]

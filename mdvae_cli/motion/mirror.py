@@ -35,7 +35,7 @@ def mirror_body(motion: Motion, pelvis_rest: np.ndarray) -> Motion:
     so the translation mirrors as ``M (trans + pelvis) - pelvis``).
     """
     T = motion.num_frames
-    full = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+    full = motion.joint_rotations
     flipped = mirror_rotvecs(full)
     mask = None if motion.joint_mask is None else motion.joint_mask[:, MIRROR_JOINTS]
     out = motion.with_body(

@@ -92,6 +92,12 @@ class Motion:
              self.pose_extra.reshape(T, -1)], axis=1,
         )  # fmt: skip
 
+    @property
+    def joint_rotations(self) -> np.ndarray:
+        """The pelvis's and the body joints' axis-angles in one array, pelvis first.
+        -> (T, 22, 3)"""
+        return np.concatenate([self.root_orient[:, None], self.pose_body], axis=1)
+
     def with_body(self, root_orient=None, pose_body=None, trans=None) -> Motion:
         """A copy with some body parameters replaced (same T)."""
         return replace(

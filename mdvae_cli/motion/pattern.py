@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.geometry.rotations import quat_multiply, quat_slerp, quat_to_rotvec, rotvec_to_quat
+from mdvae_cli.model.windows import heading, rotation_about_z
 from mdvae_cli.motion.motion import Motion
 
 #: whole-frame holes this long or longer (seconds) are pattern-filled where a match is found;
@@ -55,9 +56,9 @@ def pattern_fill(motion: Motion, base: Motion) -> tuple[Motion, list[tuple[int, 
     edges = np.diff(np.concatenate([[0], whole_hole.astype(int), [0]]))
     holes = list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True))
     least = max(2, int(round(MIN_SECONDS * motion.fps)))
-    rot = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+    rot = motion.joint_rotations
     q = rotvec_to_quat(torch.as_tensor(rot, dtype=torch.float64))  # (T, 22, 4)
-    out_rot = np.concatenate([base.root_orient[:, None], base.pose_body], axis=1).astype(float)
+    out_rot = base.joint_rotations.astype(float)
     out_trans = np.array(base.trans, dtype=float)
     trans = np.asarray(motion.trans, dtype=float)
     unseen_before = np.concatenate([[0], np.cumsum(~frame_seen)])  # frames not seen in [0, t)
@@ -144,10 +145,8 @@ def stretch_rows(
     u = torch.arange(1, n + 1, dtype=q.dtype)[:, None] / (n + 1)  # (n, 1)
     fix = quat_slerp(start[None].expand(n, -1, -1), end[None].expand(n, -1, -1), u)
     rot = quat_to_rotvec(quat_multiply(fix, q[s : s + n])).numpy()
-    w, x, y, z = start[0].tolist()  # the pelvis's change of heading (about z, up)
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    turn = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0],
-                     [0.0, 0.0, 1.0]])  # fmt: skip
+    yaw = heading(quat_to_rotvec(q[[a - 1, s - 1], 0]))  # the pelvis's headings either side
+    turn = rotation_about_z(yaw[0] - yaw[1]).numpy()
     moved = (trans[s : s + n + 1] - trans[s - 1]) @ turn.T  # (n + 1, 3)
     miss = trans[a + n] - (trans[a - 1] + moved[-1])
     return rot, trans[a - 1] + moved[:-1] + u.numpy() * miss

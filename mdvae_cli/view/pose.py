@@ -44,7 +44,7 @@ def rotation_channels(motion: Motion) -> np.ndarray:
     over time, then each body joint's local quaternion as (x, y, z) with w >= 0 implied
     (w = sqrt(1 - x^2 - y^2 - z^2): a joint turns less than 180 degrees from its parent).
     -> (T, 4 + 21 * 3)"""
-    rotvecs = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+    rotvecs = motion.joint_rotations
     q = rotvec_to_quat(torch.as_tensor(rotvecs, dtype=torch.float64)).numpy()
     root = quat_continuous(q[:, 0], first_positive=True)
     local = q[:, 1:] * np.where(q[:, 1:, :1] < 0, -1.0, 1.0)
@@ -91,7 +91,7 @@ def bend_angles(joints: np.ndarray) -> np.ndarray:
 def rotation_angles(motion: Motion) -> np.ndarray:
     """Each joint's rotation angle relative to its parent (the file's own axis-angle size),
     degrees in [0, 180].  -> (T, 22)"""
-    rotvecs = np.concatenate([motion.root_orient[:, None], motion.pose_body], axis=1)
+    rotvecs = motion.joint_rotations
     angles = np.linalg.norm(rotvecs, axis=-1)
     return np.degrees(np.abs((angles + np.pi) % (2 * np.pi) - np.pi))
 
