@@ -99,6 +99,41 @@ def load_clips(
     return pick_evenly(clips, max_clips)
 
 
+def join_files(
+    files: Sequence[Path],
+    minutes: float,
+    fps: float,
+    floor: Callable[[Motion, np.ndarray], float] | None = None,
+) -> Motion:
+    """One long take from ``files`` end to end (again from the first when they run out),
+    ``minutes`` long at ``fps``: each one's root moved on to where the last one ended, and,
+    with ``floor(motion, betas)`` (its floor height, z-up), lowered onto one floor; the first
+    file's shape and gender."""
+    need = int(round(minutes * 60 * fps))
+    parts, n, end, first = [], 0, np.zeros(3), None
+    while n < need:
+        for f in files:
+            m = resample_motion(load_motion(f), fps)
+            first = m if first is None else first
+            trans = np.array(m.trans, dtype=np.float64)
+            trans[:, :2] += end[:2] - trans[0, :2]
+            if floor is not None:
+                trans[:, 2] -= floor(m, np.asarray(first.betas))
+            end = trans[-1]
+            parts.append((m.root_orient, m.pose_body, trans))
+            n += m.num_frames
+            if n >= need:
+                break
+    return Motion(
+        root_orient=np.concatenate([p[0] for p in parts])[:need],
+        pose_body=np.concatenate([p[1] for p in parts])[:need],
+        trans=np.concatenate([p[2] for p in parts])[:need],
+        betas=np.asarray(first.betas),
+        fps=fps,
+        gender=first.gender,
+    )
+
+
 def add_noise(clips: Sequence[Clip], sigma: float, seed: int) -> list[Motion]:
     """Pose-NDF noise on every clip, with a stream fixed by (seed, clip name, sigma): the same
     clip gets the same noise whatever the selection or order of the others."""

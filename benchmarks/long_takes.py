@@ -76,36 +76,13 @@ def make_take(corpus: Path, minutes: float, fps: float, path: Path, sigma: float
     made once)."""
     if path.exists():
         return path
-    from mdvae_cli.formats.npz_io import load_motion
     from mdvae_cli.formats.registry import write
-    from mdvae_cli.motion.motion import Motion
     from mdvae_cli.motion.noise import add_pose_noise
-    from mdvae_cli.motion.resample import resample_motion
 
     files = sorted(corpus.rglob("*.npz"))
     if not files:
         raise SystemExit(f"no .npz files under {corpus}: pass --corpus")
-    need = int(round(minutes * 60 * fps))
-    parts, n, end, first = [], 0, np.zeros(3), None
-    while n < need:
-        for f in files:
-            m = resample_motion(load_motion(f), fps)
-            first = m if first is None else first
-            trans = np.array(m.trans, dtype=np.float64)
-            trans[:, :2] += end[:2] - trans[0, :2]
-            end = trans[-1]
-            parts.append((m.root_orient, m.pose_body, trans))
-            n += m.num_frames
-            if n >= need:
-                break
-    take = Motion(
-        root_orient=np.concatenate([p[0] for p in parts])[:need],
-        pose_body=np.concatenate([p[1] for p in parts])[:need],
-        trans=np.concatenate([p[2] for p in parts])[:need],
-        betas=np.asarray(first.betas),
-        fps=fps,
-        gender=first.gender,
-    )
+    take = common.join_files(files, minutes, fps)
     noisy = add_pose_noise(take, sigma, np.random.default_rng(0))
     path.parent.mkdir(parents=True, exist_ok=True)
     write(noisy, path)

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.bvh_rotations import channel_rotations
 from mdvae_cli.formats.source import (
     BVH_UNIT_GUESSES,
     CMU_UNIT,
@@ -29,7 +30,6 @@ from mdvae_cli.formats.source import (
     read_text,
     skeleton_height,
 )
-from mdvae_cli.geometry.euler import euler_to_rotmat
 
 # --- BVH ---------------------------------------------------------------------------------------
 
@@ -341,13 +341,11 @@ def load_bvh(
                   "cmuconvert": cmuconvert, "frames_in_file": n_frames}  # fmt: skip
     J = len(names)
     root_pos = _positions(data, layout.joint_columns(0, "t"), np.zeros(3)) + offsets[0]
-    rotations = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy()
     for j in range(J):
         rot = layout.joint_columns(j, "r")
         if rot:
-            angles = np.deg2rad(data[:, [c for c, _ in rot]])
-            check_angles(angles, f"joint {names[j]}", path)
-            rotations[:, j] = euler_to_rotmat(angles, "".join(a for _, a in rot))
+            check_angles(np.deg2rad(data[:, [c for c, _ in rot]]), f"joint {names[j]}", path)
+    rotations = channel_rotations(layout, data, J)
     layout.rotations = rotations
     rest, local = _split_positions(names, parents, offsets, layout, data, rotations, root_pos,
                                    notes)  # fmt: skip

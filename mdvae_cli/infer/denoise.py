@@ -22,7 +22,7 @@ from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_feet
 from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from, join_pieces, observed_pieces
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL
-from mdvae_cli.infer.guard import fallback_stretches, guard
+from mdvae_cli.infer.guard import fallback_stretches, guard, guard_note
 from mdvae_cli.infer.native_rate import to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
 from mdvae_cli.infer.progress import CORE_PHASES, more_phases, phase, staged
@@ -252,9 +252,7 @@ def denoise_motions(
             more_phases(progress, 1), refine, mirror, guard, on_fallback, loops, blend=blend,
             on_blend=on_blend, blend_fast=blend_fast, fill=fill,
         )  # fmt: skip
-        # in a hole the lock reads the filled motion as the input's
-        sources = [holes_from(s, m) for m, s in zip(cleaned, motions, strict=True)]
-        out = [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]
+        out = lock_motions(cleaned, motions, body, feet)
         done = CORE_PHASES + blend + 1
         phase(progress, "feet locked", done, done)
         return out
@@ -330,18 +328,22 @@ def denoise_motions(
         out = assemble(motions, motions30, groups, preds)
         phase(progress, "stitched", 2, CORE_PHASES)
     for mi, stretches in fallback_stretches(fallbacks or [], motions30, window).items():
-        seconds = sum(b - a for a, b in stretches)
         duration = max((motions30[mi].num_frames - 1) / MODEL_FPS, 1e-9)
-        where = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in stretches)
-        out[mi].notes = [  # a new list: the input's is not to change
-            *out[mi].notes,
-            f"guard: {100 * min(seconds / duration, 1.0):.0f} % of the take ({where}) moved "
-            "further from the input than its noise explains and is the input smoothed instead",
-        ]
+        # a new list: the input's is not to change
+        out[mi].notes = [*out[mi].notes, guard_note(stretches, duration)]
         if on_fallback is not None:
             for a, b in stretches:
                 on_fallback(mi, a, b)
     return out
+
+
+def lock_motions(
+    cleaned: list[Motion], inputs: list[Motion], body: BodyModel, feet: FootLockConfig
+) -> list[Motion]:
+    """The foot lock (``infer.feet.lock_feet``) on denoised motions, each with its input as
+    the source; in a hole the lock reads the filled motion as the input's."""
+    sources = [holes_from(s, m) for m, s in zip(cleaned, inputs, strict=True)]
+    return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]
 
 
 def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:

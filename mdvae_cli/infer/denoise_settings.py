@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.denoise import denoise_motions, lock_motions
 from mdvae_cli.infer.feet import FootLockConfig
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
 from mdvae_cli.infer.input_kinds import kind_settings, refine_config
@@ -23,6 +23,7 @@ from mdvae_cli.infer.loop import which_loop
 from mdvae_cli.infer.noise_blend import BlendReport
 from mdvae_cli.infer.rest_pose import keep_rest_frames
 from mdvae_cli.infer.settings import RefineConfig
+from mdvae_cli.infer.time_pieces import denoise_in_pieces
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
 
@@ -148,7 +149,7 @@ def denoise(
     refine = settings.refine()
     model = copy.deepcopy(denoiser) if settings.optimize_steps else denoiser
 
-    def run(ms: list[Motion]) -> list[Motion]:
+    def run(ms, lps, progress_, on_fallback_, on_blend_, piece=False) -> list[Motion]:
         return denoise_motions(
             ms,
             model,
@@ -158,21 +159,32 @@ def denoise(
             optimize_steps=settings.optimize_steps,
             lr=settings.lr,
             seed=settings.seed,
-            progress=progress,
+            progress=progress_,
             refine=refine,
             mirror=settings.mirror,
             guard=settings.guard and refine is not None,
-            on_fallback=on_fallback,
-            # cycles are judged on the motions as denoised (rest-pose frames cut off)
-            loops=loops if loops is not None else loops_of(ms, settings),
-            feet=lock_config(settings),
+            on_fallback=on_fallback_,
+            loops=lps,
+            feet=None if piece else lock_config(settings),  # a piece's lock: on the whole
             blend=settings.blend and refine is not None,
-            on_blend=on_blend,
+            on_blend=on_blend_,
             blend_fast=kind_settings(settings.input_kind).blend_fast,
             fill=settings.fill,
         )
 
-    return keep_rest_frames(motions, run) if settings.rest_pose else run(motions)
+    def run_all(ms: list[Motion]) -> list[Motion]:
+        # cycles are judged on the motions as denoised (rest-pose frames cut off)
+        lps = loops if loops is not None else loops_of(ms, settings)
+        if settings.optimize_steps:  # the networks adapt to all of the motions at once
+            return run(ms, lps, progress, on_fallback, on_blend)
+        feet = lock_config(settings)
+
+        def lock(joined: Motion, source: Motion) -> Motion:
+            return joined if feet is None else lock_motions([joined], [source], body, feet)[0]
+
+        return denoise_in_pieces(ms, lps, run, progress, on_fallback, on_blend, finish=lock)
+
+    return keep_rest_frames(motions, run_all) if settings.rest_pose else run_all(motions)
 
 
 def lock_config(settings: DenoiseSettings) -> FootLockConfig | None:

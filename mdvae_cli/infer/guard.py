@@ -102,3 +102,21 @@ def fallback_stretches(
         else:
             spans.append((a, b))
     return out
+
+
+GUARD_NOTE = "guard: "
+
+
+def guard_note(stretches: list[tuple[float, float]], duration: float) -> str:
+    """The note a motion gets for the guard's stretches (seconds) of its ``duration`` s."""
+    seconds = sum(b - a for a, b in stretches)
+    where = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in stretches)
+    return (
+        f"{GUARD_NOTE}{100 * min(seconds / max(duration, 1e-9), 1.0):.0f} % of the take ({where}) "
+        "moved further from the input than its noise explains and is the input smoothed instead"
+    )
+
+
+def is_guard_note(note: str) -> bool:
+    """Whether a motion's note is :func:`guard_note`'s."""
+    return note.startswith(GUARD_NOTE)

@@ -78,9 +78,11 @@ def looks_like_loop(
     joints = rest_joints(body, np.asarray(motion.betas, dtype=np.float64))
     # the end poses first: they need the ends alone, and most takes fail there (a long take is
     # then never smoothed whole)
-    raw = _rotations(motion)
-    if pose_gap(smoothed_ends(raw, window), joints) > LOOP_DISTANCE:
+    near = slice(None) if T <= 2 * window else np.r_[:window, T - window : T]
+    ends = np.concatenate([motion.root_orient[near][:, None], motion.pose_body[near]], axis=1)
+    if pose_gap(smoothed_ends(ends, window), joints) > LOOP_DISTANCE:
         return False
+    raw = _rotations(motion)
     rot = savgol_smooth(raw, window, 2)
     step = float(np.median(_angle(rot[:-1], rot[1:])))
     gap = float(_angle(rot[-1:], rot[:1])[0])

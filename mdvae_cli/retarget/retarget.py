@@ -191,6 +191,14 @@ def fit_ground(contacts: np.ndarray, max_tilt: float, tilt: bool = True) -> np.n
     return np.array([coef[0], 0.0, 0.0])
 
 
+def _turn_in_place(x: torch.Tensor, Q: torch.Tensor, drop: torch.Tensor) -> torch.Tensor:
+    """``x @ Q^T - drop`` written over x a chunk of frames at a time (a second array of a
+    30-minute 120 Hz take's joints is 114 MB).  x: (T, J, 3) -> x"""
+    for frames in frame_chunks(x.shape[0]):
+        x[frames] = x[frames] @ Q.T - drop
+    return x
+
+
 def retarget(
     src: SourceMotion,
     body: BodyJoints,
@@ -256,8 +264,8 @@ def retarget(
     drop = torch.tensor([0.0, 0.0, floor], dtype=torch.float64)
     trans = root @ Q.T - drop - X[0]
     root_orient = rotmat_to_rotvec(Q @ G_root)
-    joints = p @ Q.T - drop
-    targets_z = targets @ Q.T - drop
+    joints = _turn_in_place(p, Q, drop)
+    targets_z = _turn_in_place(targets, Q, drop)
 
     direct = torch.as_tensor(jmap.direct)
     record = {

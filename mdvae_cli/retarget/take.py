@@ -20,6 +20,7 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
 from mdvae_cli.formats.amc_write import write_amc
 from mdvae_cli.formats.asf import AsfSkeleton, load_asf
+from mdvae_cli.formats.bvh_rotations import let_go_of_rotations
 from mdvae_cli.formats.bvh_write import write_bvh
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.motion import cmu
@@ -90,7 +91,8 @@ def read_take(
         raise InputError(f"{path}: {exc}") from None
     if not np.isfinite(rt.mean_error):
         raise InputError(f"{path}: the retarget to the body gave non-finite values")
-    return Take(path=path, source=src, retarget=rt, body=body)
+    # the way back makes the take's rotations again a chunk at a time: not held meanwhile
+    return Take(path=path, source=let_go_of_rotations(src), retarget=rt, body=body)
 
 
 def with_missing(take: Take, rules: tuple[str, ...]) -> Motion:

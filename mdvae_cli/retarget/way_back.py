@@ -20,8 +20,9 @@ import torch
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.bvh import BvhLayout, _positions
+from mdvae_cli.formats.bvh_rotations import channel_rotations
 from mdvae_cli.formats.source import SourceMotion
-from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
+from mdvae_cli.geometry.euler import rotmat_to_euler
 from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion, slice_frames
@@ -102,13 +103,9 @@ def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=
     rotations: the local rotations of these frames, when at hand (the reader's), else made
     from their channels."""
     T, J = data.shape[0], src.num_joints
-    L = np.broadcast_to(np.eye(3), (T, J, 3, 3)).copy() if rotations is None else rotations
+    L = channel_rotations(layout, data, J) if rotations is None else rotations
     t = np.tile(layout.offsets, (T, 1, 1))
     for j in range(J):
-        rot = layout.joint_columns(j, "r")
-        if rot and rotations is None:
-            L[:, j] = euler_to_rotmat(np.deg2rad(data[:, [c for c, _ in rot]]),
-                                      "".join(a for _, a in rot))  # fmt: skip
         cols = layout.joint_columns(j, "t")
         if j == 0:
             t[:, 0] = _positions(data, cols, np.zeros(3)) + layout.offsets[0]
