@@ -134,6 +134,10 @@ def denoise(
     denoiser / body: None loads the shipped weights / the built-in body. ``loops``: which
     motions are cycles (None: :func:`loops_of`). Optimisation mode fine-tunes a copy of the
     denoiser, never the one passed. The callbacks: see ``infer.denoise.denoise_motions``.
+    A take longer than 1.5 ``infer.time_pieces.PIECE_FRAMES`` frames that is no cycle is
+    denoised a piece of time at a time and joined, its foot lock then run on the whole of it
+    (memory flat in the take's length; not in optimisation mode, whose networks adapt to all
+    of the motions at once).
     """
     import copy
 
