@@ -92,15 +92,21 @@ def fallback_stretches(
 ) -> dict[int, list[tuple[float, float]]]:
     """The guard's fallen-back windows (motion index, 30 Hz start) as merged stretches of
     seconds per motion (overlapping windows make one stretch)."""
-    out: dict[int, list[tuple[float, float]]] = {}
-    for mi, start in sorted(fallbacks):
+    spans: dict[int, list[tuple[float, float]]] = {}
+    for mi, start in fallbacks:
         n = min(window + 1, motions30[mi].num_frames)
-        a, b = start / MODEL_FPS, (start + n - 1) / MODEL_FPS
-        spans = out.setdefault(mi, [])
-        if spans and a <= spans[-1][1]:
-            spans[-1] = (spans[-1][0], max(spans[-1][1], b))
+        spans.setdefault(mi, []).append((start / MODEL_FPS, (start + n - 1) / MODEL_FPS))
+    return {mi: merged_stretches(s) for mi, s in sorted(spans.items())}
+
+
+def merged_stretches(stretches: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Stretches of seconds, sorted, those that touch or overlap made one."""
+    out: list[tuple[float, float]] = []
+    for a, b in sorted(stretches):
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
         else:
-            spans.append((a, b))
+            out.append((a, b))
     return out
 
 

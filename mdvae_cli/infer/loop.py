@@ -79,8 +79,7 @@ def looks_like_loop(
     # the end poses first: they need the ends alone, and most takes fail there (a long take is
     # then never smoothed whole)
     near = slice(None) if T <= 2 * window else np.r_[:window, T - window : T]
-    ends = np.concatenate([motion.root_orient[near][:, None], motion.pose_body[near]], axis=1)
-    if pose_gap(smoothed_ends(ends, window), joints) > LOOP_DISTANCE:
+    if pose_gap(smoothed_ends(motion.joint_rotations_at(near), window), joints) > LOOP_DISTANCE:
         return False
     raw = _rotations(motion)
     rot = savgol_smooth(raw, window, 2)

@@ -39,3 +39,16 @@ def more_phases(progress: Progress, extra: int) -> Progress:
         progress(info)
 
     return tell
+
+
+def one_of_runs(progress: Progress, k: int, runs: int) -> Progress:
+    """``progress`` for the k-th of ``runs`` runs of the same kind (a long take's pieces):
+    each step counted among all of theirs."""
+    if progress is None or runs == 1:
+        return progress
+
+    def tell(info: dict) -> None:
+        steps = int(info["steps"])
+        progress({**info, "step": k * steps + int(info["step"]), "steps": runs * steps})
+
+    return tell

@@ -25,8 +25,10 @@ import numpy as np
 import torch
 
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat
-from mdvae_cli.infer.guard import guard_note, is_guard_note
+from mdvae_cli.infer.guard import guard_note, is_guard_note, merged_stretches
 from mdvae_cli.infer.noise_blend import BlendReport
+from mdvae_cli.infer.progress import one_of_runs
+from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion, slice_frames
 
 #: frames in a piece of a long take (4.5 minutes at 120 Hz, 18 at 30 Hz); a take of up to 1.5
@@ -143,7 +145,7 @@ def denoise_in_pieces(
     """
     piece = PIECE_FRAMES if piece is None else piece
     plans = [
-        None if lp else plan_pieces(_observed(m), m.fps, piece)
+        None if lp else plan_pieces(observed(m).all(axis=1), m.fps, piece)
         for m, lp in zip(motions, loops, strict=True)
     ]
     if all(p is None for p in plans):
@@ -156,7 +158,7 @@ def denoise_in_pieces(
         results = run(
             [motions[i] for i in whole],
             [loops[i] for i in whole],
-            _one_of(progress, done, runs),
+            one_of_runs(progress, done, runs),
             None if on_fallback is None else lambda j, a, b: on_fallback(whole[j], a, b),
             None if on_blend is None else lambda j, r: on_blend(whole[j], r),
         )
@@ -192,7 +194,7 @@ def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_
 
         part = slice_frames(m, lo, hi)
         part.notes = list(m.notes)
-        r = run([part], [False], _one_of(progress, done + k, runs), tell,
+        r = run([part], [False], one_of_runs(progress, done + k, runs), tell,
                 lambda _j, rep, reports=reports: reports.append(rep), True)[0]  # fmt: skip
         for rep in reports:
             shares += (own_b - own_a) * np.array([rep.input_share, rep.spike_share])
@@ -220,39 +222,9 @@ def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_
     joined = m.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
     joined.joint_mask = mask if mask is not None else m.joint_mask
     if stretches:
-        notes.append(guard_note(_merged(stretches), m.duration))
+        notes.append(guard_note(merged_stretches(stretches), m.duration))
     joined.notes = notes
     if on_blend is not None and told:
         input_share, spike_share = shares / T
         on_blend(index, BlendReport(float(input_share), float(spike_share)))
     return joined
-
-
-def _observed(m: Motion) -> np.ndarray:
-    """(T,) bool: frames where no body joint is missing."""
-    if m.joint_mask is None:
-        return np.ones(m.num_frames, dtype=bool)
-    return np.asarray(m.joint_mask, bool).all(axis=1)
-
-
-def _merged(stretches: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """Stretches of seconds, sorted, those that touch or overlap made one."""
-    out: list[tuple[float, float]] = []
-    for a, b in sorted(stretches):
-        if out and a <= out[-1][1] + 1e-9:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
-        else:
-            out.append((a, b))
-    return out
-
-
-def _one_of(progress, k: int, runs: int):
-    """``progress`` for the k-th of ``runs`` runs: its steps counted among all of theirs."""
-    if progress is None or runs == 1:
-        return progress
-
-    def tell(info: dict) -> None:
-        steps = int(info["steps"])
-        progress({**info, "step": k * steps + int(info["step"]), "steps": runs * steps})
-
-    return tell

@@ -96,7 +96,12 @@ class Motion:
     def joint_rotations(self) -> np.ndarray:
         """The pelvis's and the body joints' axis-angles in one array, pelvis first.
         -> (T, 22, 3)"""
-        return np.concatenate([self.root_orient[:, None], self.pose_body], axis=1)
+        return self.joint_rotations_at(slice(None))
+
+    def joint_rotations_at(self, frames) -> np.ndarray:
+        """:attr:`joint_rotations` of some frames only (a slice or index array; the others
+        are not copied).  -> (n, 22, 3)"""
+        return np.concatenate([self.root_orient[frames][:, None], self.pose_body[frames]], axis=1)
 
     def with_body(self, root_orient=None, pose_body=None, trans=None) -> Motion:
         """A copy with some body parameters replaced (same T)."""
