@@ -34,10 +34,10 @@ import torch
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
-from mdvae_cli.model.optim import clipped_step
 from mdvae_cli.model.prior_model import PriorModel
 from mdvae_cli.train.corpus import WindowSet
 from mdvae_cli.train.prior_loss import prior_losses, spread_vertex_ids
+from mdvae_cli.train.prior_step import WARM_STEPS, PriorStep
 from mdvae_cli.train.train_config import TrainConfig
 
 RECIPE = Path(__file__).resolve().parents[1] / "weights_recipe" / "prior_config.json"
@@ -94,29 +94,30 @@ def recipe_step_parts(cfg: TrainConfig, device: torch.device, batch: int):
     return model, body, vertex_ids, data
 
 
-def time_steps(cfg: TrainConfig, device: torch.device, batch: int, steps: int) -> float:
-    """Seconds per training step (median of ``steps`` timed steps, after two warm-up ones)."""
+def time_steps(cfg: TrainConfig, device: torch.device, batch: int, steps: int,
+               graph: bool = False) -> tuple[float, str | None]:  # fmt: skip
+    """Seconds per training step (median of ``steps`` timed steps, after the warm-up ones:
+    two eager, or a graphed step's eager ones and its capture), as ``train-prior`` takes it
+    (``train.prior_step.PriorStep``), and why the capture failed where it did."""
     model, body, vertex_ids, data = recipe_step_parts(cfg, device, batch)
     opt = torch.optim.Adam(model.dvae.parameters(), lr=cfg.lr)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
-
-    def step() -> None:
-        terms = prior_losses(
-            model, model.dvae, data, body, vertex_ids, 0.5, cfg.body_weight,
-            cfg.body_frame_stride, cfg.recon_weight, cfg.velocity_weight,
-        )  # fmt: skip
-        clipped_step(opt, terms["loss"], model.dvae.parameters(), cfg.grad_clip)
-
-    for _ in range(2):
-        step()
+    step = PriorStep(
+        model, model.dvae, body, vertex_ids, opt, model.dvae.parameters(),
+        recon_w=cfg.recon_weight, velocity_w=cfg.velocity_weight, body_w=cfg.body_weight,
+        body_stride=cfg.body_frame_stride, grad_clip=cfg.grad_clip, graph=graph,
+    )  # fmt: skip
+    warm = WARM_STEPS + 2 if graph else 2
+    for i in range(warm):
+        step(data, cfg.lr, 0.5, i + 1)
     times = []
-    for _ in range(steps):
+    for i in range(steps):
         sync()
         t0 = time.perf_counter()
-        step()
+        step(data, cfg.lr, 0.5, warm + i + 1)
         sync()
         times.append(time.perf_counter() - t0)
-    return sorted(times)[len(times) // 2]
+    return sorted(times)[len(times) // 2], step.failure
 
 
 def inference_seconds(cfg: TrainConfig, device: torch.device, windows: int = 300) -> float:
@@ -150,6 +151,16 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--steps", type=int, default=10, help="timed steps per row")
     ap.add_argument("--config", type=Path, default=RECIPE, help="training config (the recipe)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead")
+    ap.add_argument(
+        "--json-lines",
+        action="store_true",
+        help="also print each row as a JSON line as soon as it is timed",
+    )
+    ap.add_argument(
+        "--no-graph",
+        action="store_true",
+        help="on a GPU, time the eager step alone (default: eager and graphed)",
+    )
     ap.add_argument("--hidden", default=None,
                     help="recurrent widths to time, comma-separated (default: the recipe's); "
                          "adds a regression-mode pass per width")  # fmt: skip
@@ -171,14 +182,18 @@ def main(argv: list[str] | None = None) -> dict:
             device = torch.device(name)
             ceiling = matmul_rate(device)
             infer = inference_seconds(c, device) if hidden is not None else None
-            for batch in batches:
-                s = time_steps(c, device, batch, args.steps)
+            modes = ["eager", "graph"] if name == "cuda" and not args.no_graph else ["eager"]
+            for mode, batch in ((m, b) for m in modes for b in batches):
+                s, failure = time_steps(c, device, batch, args.steps, graph=mode == "graph")
                 rows.append(
-                    {"device": name, "hidden": c.model.hidden_dim, "batch": batch,
+                    {"device": name, "mode": mode if failure is None else "graph failed",
+                     "failure": failure, "hidden": c.model.hidden_dim, "batch": batch,
                      "s_per_step": s, "steps_per_s": 1 / s, "windows_per_s": batch / s,
                      "gflop_per_step": gflop[batch], "gflop_per_s": gflop[batch] / s,
                      "matmul_gflop_per_s": ceiling, "regression_pass_s": infer}
                 )  # fmt: skip
+                if args.json_lines:  # as it comes (a GPU lent for minutes)
+                    print(json.dumps(rows[-1]), flush=True)
     result = {
         "machine": platform.processor() or platform.machine(),
         "threads": torch.get_num_threads(),
@@ -191,13 +206,13 @@ def main(argv: list[str] | None = None) -> dict:
         print(json.dumps(result))
         return result
     print(f"torch {result['torch']}, {result['threads']} CPU thread(s)\n")
-    print("| device | hidden | batch | s/step | steps/s | windows/s | GFLOP/step "
+    print("| device | step | hidden | batch | s/step | steps/s | windows/s | GFLOP/step "
           "| GFLOP/s (matmul alone) | regression pass, 18,000 frames (s) |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         infer = "" if r["regression_pass_s"] is None else f"{r['regression_pass_s']:.3f}"
         print(
-            f"| {r['device']} | {r['hidden']} | {r['batch']} | {r['s_per_step']:.4f} "
+            f"| {r['device']} | {r['mode']} | {r['hidden']} | {r['batch']} | {r['s_per_step']:.4f} "
             f"| {r['steps_per_s']:.2f} | {r['windows_per_s']:,.0f} | {r['gflop_per_step']:.1f} "
             f"| {r['gflop_per_s']:.0f} ({r['matmul_gflop_per_s']:.0f}) | {infer} |"
         )

@@ -13,6 +13,7 @@ import torch
 from click.testing import CliRunner
 
 import mdvae_cli.train.distill as distill_module
+import mdvae_cli.train.prior_step as prior_step_module
 import mdvae_cli.train.train_prior as tp
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
@@ -231,6 +232,7 @@ def test_shipped_and_default_configs_are_valid():
         assert cfg.model == ModelConfig()  # today's architecture, the shipped prior's
     gpu = TrainConfig.from_dict(json.loads((recipe / "prior_gpu_config.json").read_text()))
     assert (gpu.batch_size, gpu.lr_warmup_steps, gpu.device) == (1024, 10, "auto")
+    assert (gpu.lr, gpu.epochs, gpu.val_every_epochs, gpu.cuda_graph) == (8e-3, 25, 2, True)
 
 
 def test_fields_changed_after_construction_are_checked_before_anything_is_written(
@@ -270,7 +272,8 @@ def test_prior_divergence_stops_and_keeps_the_last_good_checkpoint(corpus, tmp_p
             terms["loss"] = terms["loss"] * NAN
         return terms
 
-    monkeypatch.setattr(tp, "prior_losses", nan_from_the_fourth_step)
+    monkeypatch.setattr(tp, "prior_losses", nan_from_the_fourth_step)  # validation
+    monkeypatch.setattr(prior_step_module, "prior_losses", nan_from_the_fourth_step)  # steps
     run = tmp_path / "run"
     # 3 clips, 1 held out: 2 x 4 windows of 20 frames, 2 steps of 4 per epoch
     cfg = tiny_config(corpus, epochs=5, batch_size=4)
@@ -306,7 +309,11 @@ def test_non_finite_weights_are_never_saved(corpus, tiny_prior, tmp_path, monkey
     models = []
     real_model = tp.PriorModel
     monkeypatch.setattr(tp, "PriorModel", lambda cfg: models.append(real_model(cfg)) or models[-1])
-    monkeypatch.setattr(tp, "clipped_step", poison_after(lambda: models[0], tp.clipped_step, 2))
+    monkeypatch.setattr(
+        prior_step_module,
+        "clipped_step",
+        poison_after(lambda: models[0], prior_step_module.clipped_step, 2),
+    )
     run = tmp_path / "run"
     with pytest.raises(InputError, match=r"^training diverged at step 2 \(weights not finite\)"):
         train_prior(tiny_config(corpus, epochs=2, batch_size=4), run)

@@ -43,14 +43,13 @@ def batch_rigid_transform(
     points to posed points for each joint.
     """
     B, n = J.shape[:2]
-    rel = J.clone()
-    rel[:, 1:] = J[:, 1:] - J[:, parents[1:]]
     world_R = [rotmats[:, 0]]
     world_t = [J[:, 0]]
-    for j in range(1, n):
+    for j in range(1, n):  # plain indices: a list index is a host copy (no CUDA graph holds it)
         p = parents[j]
+        bone = J[:, j] - J[:, p]
         world_R.append(world_R[p] @ rotmats[:, j])
-        world_t.append(world_t[p] + (world_R[p] @ rel[:, j, :, None])[..., 0])
+        world_t.append(world_t[p] + (world_R[p] @ bone[..., None])[..., 0])
     R = torch.stack(world_R, dim=1)
     t = torch.stack(world_t, dim=1)
     # A maps a rest point x to R (x - J_rest) + t

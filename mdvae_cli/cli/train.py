@@ -245,6 +245,18 @@ def run_options(fn: Callable) -> Callable:
     help="Encoder also reads the decoder's state after z_{1:t-1} [default: on for new runs].",
 )
 @click.option(
+    "--val-every",
+    "val_every_epochs",
+    type=click.IntRange(min=1),
+    help="Validate and write checkpoints every this many epochs (and at the end) [default: 1].",
+)
+@click.option(
+    "--cuda-graph/--no-cuda-graph",
+    default=None,
+    help="On a GPU, capture the training step once as a CUDA graph and replay it (the step "
+    "is bound by kernel launches there); no effect on a CPU or under torchrun [default: on].",
+)
+@click.option(
     "--mirror-augment/--no-mirror-augment",
     default=None,
     help="Also train on the left-right mirror image of every training motion: twice the "

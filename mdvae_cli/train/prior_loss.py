@@ -28,9 +28,8 @@ def body_points(
     (B, T, P, 3) in metres."""
     B, T = x.shape[:2]
     p = state_to_params(x.reshape(B * T, -1))
-    out = body(
-        p.root_orient, p.pose_body, p.trans, betas.repeat_interleave(T, 0), vertex_ids=vertex_ids
-    )
+    per_frame = betas[:, None].expand(B, T, betas.shape[-1]).reshape(B * T, -1)
+    out = body(p.root_orient, p.pose_body, p.trans, per_frame, vertex_ids=vertex_ids)
     pts = torch.cat([out.joints, out.markers, out.vertices], dim=1)
     return pts.reshape(B, T, -1, 3)
 
@@ -46,6 +45,9 @@ def prior_losses(
     frame_stride: int = 1,
     recon_w: float = 1.0,
     velocity_w: float = 1.0,
+    *,
+    frames: torch.Tensor | None = None,
+    velocity_dims: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """Negative ELBO (per frame) + body regulariser for a batch.
 
@@ -54,7 +56,10 @@ def prior_losses(
     columns (a wider variance there). ``recon`` is reported unweighted.
 
     ``forward`` is the (possibly DDP-wrapped) ``model.dvae``. The body term is evaluated on
-    every ``frame_stride``-th frame from a random phase (an unbiased, cheaper estimate).
+    every ``frame_stride``-th frame from a random phase (an unbiased, cheaper estimate), or on
+    the frame indices ``frames`` (T',) where given (a CUDA graph's step sets them before each
+    replay). ``kl_w`` may be a 0-d device tensor, and ``velocity_dims`` the device tensor of
+    :data:`VELOCITY_DIMS` (a captured step copies nothing from the host).
     Returns the terms and ``loss``.
     """
     norm = model.normalizer
@@ -62,15 +67,20 @@ def prior_losses(
     x_mean, _, post, prior = forward(xn, x0n)
     recon = 0.5 * ((xn - x_mean) ** 2).sum(-1).mean()
     kl = gaussian_kl(post.mean, post.logvar, prior.mean, prior.logvar).mean()
-    phase = int(torch.randint(frame_stride, (1,))) if frame_stride > 1 else 0
-    frames = slice(phase, None, frame_stride)
-    pts_hat = body_points(body, norm.denormalize(x_mean[:, frames]), batch.betas, vertex_ids)
+    if frames is None:
+        phase = int(torch.randint(frame_stride, (1,))) if frame_stride > 1 else 0
+        x_hat, x_gt = x_mean[:, phase::frame_stride], batch.x[:, phase::frame_stride]
+    else:
+        x_hat, x_gt = x_mean.index_select(1, frames), batch.x.index_select(1, frames)
+    pts_hat = body_points(body, norm.denormalize(x_hat), batch.betas, vertex_ids)
     with torch.no_grad():
-        pts_gt = body_points(body, batch.x[:, frames], batch.betas, vertex_ids)
+        pts_gt = body_points(body, x_gt, batch.betas, vertex_ids)
     body_mse = ((pts_hat - pts_gt) ** 2).sum(-1).mean() * 1e4  # cm^2
     if velocity_w != 1.0:
-        dims = torch.as_tensor(VELOCITY_DIMS, device=xn.device)
-        sq = ((xn - x_mean) ** 2)[..., dims].sum(-1).mean()
+        dims = velocity_dims
+        if dims is None:
+            dims = torch.as_tensor(VELOCITY_DIMS, device=xn.device)
+        sq = ((xn - x_mean) ** 2).index_select(-1, dims).sum(-1).mean()
         fit = recon + 0.5 * (velocity_w - 1.0) * sq
     else:
         fit = recon

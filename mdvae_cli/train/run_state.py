@@ -7,13 +7,24 @@ import torch
 
 
 def optimizer_to_tensors(opt: torch.optim.Optimizer) -> tuple[dict[str, torch.Tensor], dict]:
-    """Split an optimizer state dict into flat tensors and JSON-able groups."""
+    """Split an optimizer state dict into flat tensors and JSON-able groups. A graphed
+    step's Adam (``capturable``, its rate a device tensor: ``train.prior_step``) is saved as
+    a plain one, its step counts on the CPU, so that any device resumes it."""
     sd = opt.state_dict()
     tensors = {}
     for idx, state in sd["state"].items():
         for key, value in state.items():
-            tensors[f"optim/{idx}/{key}"] = torch.as_tensor(value)
-    return tensors, {"param_groups": sd["param_groups"]}
+            value = torch.as_tensor(value)
+            tensors[f"optim/{idx}/{key}"] = value.cpu() if key == "step" else value
+    groups = []
+    for group in sd["param_groups"]:
+        group = dict(group)
+        if isinstance(group.get("lr"), torch.Tensor):
+            group["lr"] = float(group["lr"])
+        if group.get("capturable"):
+            group["capturable"] = False
+        groups.append(group)
+    return tensors, {"param_groups": groups}
 
 
 def optimizer_from_tensors(tensors: dict[str, torch.Tensor], groups: dict) -> dict:

@@ -62,6 +62,12 @@ class TrainConfig:
     data_fraction: float = 1.0
     #: the split-file lists whose windows choose the best checkpoint (e.g. ["val", "unseen_val"])
     val_splits: list[str] = field(default_factory=lambda: ["val"])
+    #: validate and checkpoint every this many epochs (and at the end, or where a budget stops
+    #: the run): a small share of the data on a GPU makes epochs of seconds
+    val_every_epochs: int = 1
+    #: on a GPU, capture the step as a CUDA graph and replay it (train.prior_step); no effect
+    #: on a CPU or under DDP
+    cuda_graph: bool = True
     model: ModelConfig = field(default_factory=ModelConfig)
 
     def __post_init__(self):
@@ -80,6 +86,7 @@ class TrainConfig:
             ("body_vertices", "body_vertices", 0),
             ("body_frame_stride", "body_frame_stride", 1),
             ("max_val_windows", "max_val_windows", 1),
+            ("val_every_epochs", "--val-every", 1),
         ):
             require_int(option, getattr(self, name), low)
         require_seed("--seed", self.seed)
@@ -99,6 +106,7 @@ class TrainConfig:
                 f"train_only must be one of {', '.join(TRAINABLE)}, got {self.train_only!r}"
             )
         require_bool("--mirror-augment", self.mirror_augment)
+        require_bool("--cuda-graph", self.cuda_graph)
         if not isinstance(self.speeds, (list, tuple)) or not self.speeds:
             raise InputError(f"--speeds must be a list of play speeds, got {self.speeds!r}")
         for speed in self.speeds:

@@ -19,7 +19,7 @@ from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.losses import kl_weight
-from mdvae_cli.model.optim import clipped_step, set_lr, warmup_cosine_lr
+from mdvae_cli.model.optim import warmup_cosine_lr
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
 from mdvae_cli.model.state import VELOCITY_DIMS
 from mdvae_cli.train.corpus import WindowSet, load_windows, outside, select_files
@@ -32,12 +32,12 @@ from mdvae_cli.train.distributed import (
 from mdvae_cli.train.guards import (
     checkpoint_to_resume,
     json_safe,
-    loss_is_finite,
     pick_device,
     refuse_to_overwrite,
     weights_are_finite,
 )
 from mdvae_cli.train.prior_loss import prior_losses, spread_vertex_ids
+from mdvae_cli.train.prior_step import PriorStep, graph_possible
 from mdvae_cli.train.run_state import (
     optimizer_from_tensors,
     optimizer_to_tensors,
@@ -61,9 +61,19 @@ def evaluate(
 ) -> dict[str, float]:
     """Validation: the full-weight loss terms with a fixed noise seed."""
     model.eval()
-    torch_state = torch.random.get_rng_state()
-    torch.manual_seed(1234)
     totals: dict[str, float] = {}
+    n = 0
+    # the generators as they were afterwards (the GPU's too: a training step's noise must not
+    # restart from the validation seed every epoch)
+    with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
+        torch.manual_seed(1234)
+        n = _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size, totals)
+    model.train()
+    return {k: v / n for k, v in totals.items()}
+
+
+def _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size, totals) -> int:
+    """Add each validation batch's terms, weighted by its windows, into ``totals``."""
     n = 0
     for i in range(0, len(data), batch_size):
         batch = data.subset(torch.arange(i, min(i + batch_size, len(data))))
@@ -83,9 +93,7 @@ def evaluate(
         for k, v in terms.items():
             totals[k] = totals.get(k, 0.0) + float(v) * len(batch)
         n += len(batch)
-    torch.random.set_rng_state(torch_state)
-    model.train()
-    return {k: v / n for k, v in totals.items()}
+    return n
 
 
 @dataclass
@@ -98,6 +106,9 @@ class TrainSummary:
     train_windows: int
     val_windows: int
     rank_digests: list[str]
+    #: whether the step ran as a CUDA graph, and why not where its capture failed
+    graphed: bool = False
+    graph_failure: str | None = None
 
 
 def _save(run_dir: Path, name: str, model, opt, meta: dict, device=None) -> None:
@@ -259,6 +270,13 @@ def train_prior(
             (run_dir / "summary.json").unlink(missing_ok=True)
             (run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
         forward = DistributedDataParallel(model.dvae) if dist.enabled else model.dvae
+        take_step = PriorStep(
+            model, forward, body, vertex_ids, opt, model.dvae.parameters(),
+            recon_w=cfg.recon_weight, velocity_w=cfg.velocity_weight, body_w=cfg.body_weight,
+            body_stride=cfg.body_frame_stride, grad_clip=cfg.grad_clip, dist=dist,
+            graph=cfg.cuda_graph
+            and graph_possible(device, dist.enabled, cfg.window, cfg.body_frame_stride),
+        )  # fmt: skip
         meta_base = {
             "model_config": cfg.model.to_dict(),
             "train_config": cfg.to_dict(),
@@ -277,23 +295,8 @@ def train_prior(
                 b = train.subset(idx)
                 batch = WindowSet(b.x0.to(device), b.x.to(device), b.betas.to(device))
                 lr = warmup_cosine_lr(step, total_steps, cfg.lr, cfg.lr_final, cfg.lr_warmup_steps)
-                set_lr(opt, lr)
                 kl_w = cfg.kl_max * kl_weight(step, cfg.kl_warmup_steps)
-                terms = prior_losses(
-                    model,
-                    forward,
-                    batch,
-                    body,
-                    vertex_ids,
-                    kl_w,
-                    cfg.body_weight,
-                    cfg.body_frame_stride,
-                    cfg.recon_weight,
-                    cfg.velocity_weight,
-                )
-                if not loss_is_finite(terms["loss"], dist):  # the weights are still good
-                    raise diverged("training", step + 1, f"loss {terms['loss'].item():g}")
-                clipped_step(opt, terms["loss"], model.dvae.parameters(), cfg.grad_clip)
+                terms = take_step(batch, lr, kl_w, step + 1)
                 step += 1
                 if progress is not None and dist.is_main:
                     # the loss terms as numbers every REPORT_EVERY steps: on a GPU each
@@ -314,6 +317,9 @@ def train_prior(
                     break
             if not weights_are_finite(model):  # every rank holds the same weights
                 raise diverged("training", step, "weights not finite")
+            last_epoch = epoch == cfg.epochs - 1
+            if (epoch + 1) % cfg.val_every_epochs and not (stopped or last_epoch):
+                continue  # validation and checkpoints every val_every_epochs epochs
             if dist.is_main:
                 val_terms = evaluate(model, val, body, vertex_ids, cfg, device) if val else {}
                 val_loss = val_terms.get("loss", terms["loss"].item())
@@ -353,6 +359,8 @@ def train_prior(
             len(train),
             len(val) if val else 0,
             digests,
+            take_step.graphed,
+            take_step.failure,
         )
         if dist.is_main:
             text = json.dumps(json_safe(asdict(summary)), indent=2, allow_nan=False)
