@@ -48,8 +48,9 @@ def failure_note(exc: BaseException) -> str:
 
 
 def without_cudnn():
-    """cuDNN's recurrent layers copy their sequence lengths from the host on every call, which
-    a CUDA graph cannot hold: the graphed step runs torch's own GRU kernels instead."""
+    """The graphed step runs torch's own GRU kernels: cuDNN's recurrent layers may copy their
+    sequence lengths from the host on each call, which a CUDA graph cannot hold (a precaution:
+    not tried inside the graph; its speed there is the next thing to measure)."""
     return torch.backends.cudnn.flags(enabled=False)
 
 
