@@ -8,7 +8,9 @@ batch size asked for, with the step's arithmetic (GFLOP of matrix products, forw
 backward, counted by torch) and the rate it reached against the device's rate on one plain
 matrix product of the same width (the ceiling a step made only of such products could
 reach); with ``--json``, one JSON object (with ``s_per_step`` at its top level when one device
-and one batch size were asked for).
+and one batch size were asked for). On a GPU every batch size is timed twice: the eager step
+and the step captured as a CUDA graph (``train.prior_step``, what ``train-prior`` runs there;
+``--no-graph`` leaves it out); ``--json-lines`` prints each row as it is timed.
 
 The model is the one ``train-prior`` builds from the recipe (its current layout: the decoder
 head reads z_t, the encoder reads the decoder's state and x_t), not a legacy checkpoint's.
@@ -19,6 +21,7 @@ over 300 windows of 60 frames, a 10-minute take's worth at 30 Hz.
     python benchmarks/train_speed.py                       # cpu (+ cuda where present), 64/256/1024
     python benchmarks/train_speed.py --device cpu --batch 64 --threads 2 --json
     python benchmarks/train_speed.py --device cpu --batch 64 --hidden 128,256
+    python benchmarks/train_speed.py --device cuda --batch 64,1024 --steps 10 --json-lines
 """
 
 from __future__ import annotations

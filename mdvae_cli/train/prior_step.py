@@ -97,7 +97,10 @@ class PriorStep:
         self.graph_wanted = graph
         self.graph: torch.cuda.CUDAGraph | None = None
         self.calls = 0
+        # the graph's fixed inputs (made at its first call): the batch, the rate, the KL weight,
+        # the body term's frames (from ``frame_base`` at the step's phase), the velocity columns
         self.static: WindowSet | None = None
+        self.lr = self.kl_w = self.frame_base = self.frames = self.velocity_dims = None
         self.terms: dict[str, torch.Tensor] = {}
         #: why the capture failed, where it did (the step then runs as written)
         self.failure: str | None = None
