@@ -61,19 +61,19 @@ def evaluate(
 ) -> dict[str, float]:
     """Validation: the full-weight loss terms with a fixed noise seed."""
     model.eval()
-    totals: dict[str, float] = {}
-    n = 0
     # the generators as they were afterwards (the GPU's too: a training step's noise must not
     # restart from the validation seed every epoch)
     with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
         torch.manual_seed(1234)
-        n = _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size, totals)
+        totals, n = _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size)
     model.train()
     return {k: v / n for k, v in totals.items()}
 
 
-def _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size, totals) -> int:
-    """Add each validation batch's terms, weighted by its windows, into ``totals``."""
+def _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size):
+    """Each term summed over the validation batches, weighted by their windows, and the
+    number of windows.  -> (totals, n)"""
+    totals: dict[str, float] = {}
     n = 0
     for i in range(0, len(data), batch_size):
         batch = data.subset(torch.arange(i, min(i + batch_size, len(data))))
@@ -93,7 +93,7 @@ def _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size, to
         for k, v in terms.items():
             totals[k] = totals.get(k, 0.0) + float(v) * len(batch)
         n += len(batch)
-    return n
+    return totals, n
 
 
 @dataclass
