@@ -79,6 +79,7 @@ def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray
         "pattern fill (the take's own frames; the spline where none matches)": pattern,
         "`mdvae denoise` (default)": ours(),
         "`--refine 50`": ours(refine_steps=50),
+        "`--fill model` (the networks' own frames)": ours(fill="model"),
     }
 
 
@@ -161,8 +162,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--splits", default="test,unseen_test")
     ap.add_argument("--clip-frames", type=int, default=CLIP_FRAMES, help="frames per clip (30 Hz)")
     ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
+    ap.add_argument("--denoiser", help="denoiser checkpoint or folder (default: the shipped one)")
     args = ap.parse_args(argv)
-    denoiser, body, log = common.shipped_models_and_log()
+    if args.write and args.denoiser:
+        ap.error("--write documents the shipped weights: leave out --denoiser")
+    denoiser, body, log = common.shipped_models_and_log(args.denoiser)
 
     text = [
         split_table(s, args.clips, denoiser, body, log, args.clip_frames)

@@ -115,6 +115,13 @@ from mdvae_cli.errors import InputError
     help="How many short takes, as a share of the full windows [default: 0.25].",
 )
 @click.option(
+    "--holes",
+    type=click.FloatRange(min=0.0, max=4.0),
+    help="Also fit to copies of this share of the takes with random holes (frames and limbs "
+    "missing; 1 = every take once more), and let the networks read where takes have holes, "
+    "so that `denoise` fills them from the prior [default: 0].",
+)
+@click.option(
     "--resume",
     is_flag=True,
     help="Continue the -o run from its denoiser.npz (saved every 200 ELBO steps). The ELBO "

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from contextlib import contextmanager, nullcontext
+from contextlib import nullcontext
 
 import numpy as np
 import torch
@@ -32,7 +32,7 @@ from mdvae_cli.infer.stitch import assemble
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
 from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.denoiser import Denoiser
-from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor
+from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regressor, threads_for
 from mdvae_cli.model.state import BodyParams, state_to_params
 from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
@@ -70,19 +70,6 @@ def check_finite(motion: Motion) -> None:
 SMALL_BATCH = 8  # windows; below this, per-operation overhead dominates the networks' cost
 
 
-@contextmanager
-def threads_for(num_windows: int, small: int = SMALL_BATCH):
-    """Run a handful of windows on one CPU thread: for tiny batches, thread synchronisation
-    costs more than it saves (a 2-second clip: 21 ms on one thread, 28 ms on two)."""
-    before = torch.get_num_threads()
-    if num_windows <= small and before > 1:
-        torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
 @torch.no_grad()
 def predict_windows(
     denoiser: Denoiser,
@@ -99,11 +86,11 @@ def predict_windows(
     """
     regress = regressor(denoiser, len(group))
     outs = []
-    with threads_for(len(group)):
+    with threads_for(len(group), SMALL_BATCH):
         for i in range(0, len(group), batch_size):
             idx = torch.arange(i, min(i + batch_size, len(group)))
             g = group.batch(idx, with_y3d=False)
-            x_hat = _guarded(regress(g.yn), g, fallbacks)
+            x_hat = _guarded(regress(denoiser.read_holes(g.yn, g.read_weight)), g, fallbacks)
             outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
@@ -158,12 +145,14 @@ def refine_windows(
         idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
         g = group.batch(idx, with_y3d=False)
         joints = None if g.weight is None else g.weight[..., :22]
+        with torch.no_grad():
+            yn = denoiser.read_holes(g.yn, g.read_weight)
         if cfg.steps == 0:  # the offset alone on regression mode's states
             with torch.no_grad():
-                x_hat = add_offset(regressor(denoiser, len(idx))(g.yn), g.obs, joints, cfg)
+                x_hat = add_offset(regressor(denoiser, len(idx))(yn), g.obs, joints, cfg)
         else:
             tell = staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
-            x_hat = refine_latents(denoiser, g.yn, g.obs, joints, cfg, tell)
+            x_hat = refine_latents(denoiser, yn, g.obs, joints, cfg, tell)
         x_hat = _guarded(x_hat.detach(), g, fallbacks)
         outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
     return BodyParams(
@@ -239,7 +228,8 @@ def denoise_motions(
             blend_fast, fill="model",
         )  # fmt: skip
         return [fill_holes(src, m, "off") for m, src in zip(cleaned, motions, strict=True)]
-    pieces = [observed_pieces(m, MIN_FRAMES) for m in motions] if holes else []
+    reads = denoiser.cfg.reads_holes
+    pieces = [observed_pieces(m, MIN_FRAMES, reads) for m in motions] if holes else []
     if any(p is not None for p in pieces):  # long holes: the pieces between them on their own
         return _denoise_pieces(
             motions, pieces, denoiser, body, window, stride, optimize_steps, lr, batch_size,
@@ -302,7 +292,7 @@ def denoise_motions(
     num_windows = sum(len(motion_window_starts(m, window, stride)) for m in motions30)
     observed = optimize_steps > 0 or refining or guard
     fallbacks: list[tuple[int, int]] | None = [] if guard else None
-    with threads_for(num_windows) if optimize_steps == 0 else nullcontext():
+    with threads_for(num_windows, SMALL_BATCH) if optimize_steps == 0 else nullcontext():
         groups = make_windows(
             motions30, denoiser, body, window, stride, observed, points=optimize_steps > 0
         )
@@ -348,7 +338,8 @@ def lock_motions(
 
 def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
     """Denoise the pieces of the motions between their long holes (``infer.fill``) as
-    motions of their own, put them back, then fill the holes. ``args``: the rest of
+    motions of their own, put them back, then fill the holes (the "learned" fill's networks
+    never saw the long ones: the "curve" fills such a take). ``args``: the rest of
     :func:`denoise_motions`' arguments after ``body``, in order."""
     *head, on_fallback, loops, feet, blend, on_blend, blend_fast, fill = args
     parts, owners = [], []
@@ -369,7 +360,7 @@ def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
         cuts = cuts if cuts is not None else [(0, m.num_frames)]
         joined = join_pieces(m, cuts, done[k : k + len(cuts)])
         k += len(cuts)
-        out.append(fill_holes(m, joined, fill or "model"))
+        out.append(fill_holes(m, joined, "curve" if fill == "learned" else fill or "model"))
     return out
 
 

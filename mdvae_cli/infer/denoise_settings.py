@@ -17,7 +17,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.infer.denoise import denoise_motions, lock_motions
 from mdvae_cli.infer.feet import FootLockConfig
-from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS
+from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS, fill_for
 from mdvae_cli.infer.input_kinds import kind_settings, refine_config
 from mdvae_cli.infer.loop import which_loop
 from mdvae_cli.infer.noise_blend import BlendReport
@@ -173,7 +173,7 @@ def denoise(
             blend=settings.blend and refine is not None,
             on_blend=on_blend_,
             blend_fast=kind_settings(settings.input_kind).blend_fast,
-            fill=settings.fill,
+            fill=fill_for(settings.fill, denoiser.cfg.reads_holes),
         )
 
     def run_all(ms: list[Motion]) -> list[Motion]:

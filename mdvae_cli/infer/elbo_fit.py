@@ -84,9 +84,10 @@ def fit_denoiser(
         if lr_final is not None:
             set_lr(opt, cosine_lr(step, total, lr, lr_final))
         w = None if b.weight is None else b.weight.to(device)
+        seen = None if b.seen is None else b.seen.to(device)
         terms = denoiser.elbo(
             b.yn.to(device), b.y3d.to(device), b.betas.to(device), body, w,
-            generator=sample_generator,
+            generator=sample_generator, seen=seen,
         )  # fmt: skip
         loss = terms["loss"].item()
         if not math.isfinite(loss):  # the weights are still the last good ones

@@ -11,6 +11,9 @@ drop them (the joint mask weighs the observations). What ends up in a hole is th
   the same frames that matches the hole's ends, where one does (``motion.pattern``), and
   mixed by the input's own noise (:func:`mix_by_noise`): a clean take is filled from its own
   frames, a noisy one from its cleaned frames;
+* ``"learned"``: as ``"curve"``, with the denoiser's own frames in place of the curve from
+  the result's frames: the default for networks fitted to read holes (``fit-dataset
+  --holes``), which fill them from the prior and the frames around them;
 * ``"model"``: the denoiser's own frames (its prior's continuation of the placeholders);
 * ``"off"``: the input's values as they came.
 """
@@ -48,6 +51,8 @@ def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
         # one does, the Hermite curve from its frames beside the hole elsewhere
         from_result = pattern_fill(out, fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES))[0]
         return mix_by_noise(input_curve(source), from_result, source)
+    if method == "learned":
+        return mix_by_noise(input_curve(source), out, source)
     if method == "off":
         return take_holes(out, source, mask)
     return out
@@ -225,17 +230,24 @@ def holes_from(source: Motion, result: Motion) -> Motion:
 #: a run of frames missing every joint this long (seconds) or longer splits the take: the
 #: pieces either side are denoised on their own, never reading the placeholders between them
 SPLIT_SECONDS = 0.3
+#: the same for networks that read where the holes are (``DenoiserConfig.reads_holes``):
+#: they were fitted to whole-frame holes up to ``motion.holes.RANDOM_FRAME_HOLES``' longest
+READ_SPLIT_SECONDS = 1.5
 
 
-def observed_pieces(motion: Motion, least: int) -> list[tuple[int, int]] | None:
+def observed_pieces(
+    motion: Motion, least: int, reads_holes: bool = False
+) -> list[tuple[int, int]] | None:
     """[start, end) of the runs of frames between the motion's long whole-frame holes (at
-    least :data:`SPLIT_SECONDS`) that hold ``least`` frames at 30 Hz or more; None when it has
-    no such hole (nothing to split)."""
+    least :data:`SPLIT_SECONDS`, or :data:`READ_SPLIT_SECONDS` for networks that read holes)
+    that hold ``least`` frames at 30 Hz or more; None when it has no such hole (nothing to
+    split)."""
+    split = READ_SPLIT_SECONDS if reads_holes else SPLIT_SECONDS
     min_frames = int(np.ceil((least - 1) * motion.fps / 30.0)) + 1
     if not has_holes(motion):
         return None
     gone = ~observed(motion).any(axis=1)
-    long_gap = max(2, int(round(SPLIT_SECONDS * motion.fps)))
+    long_gap = max(2, int(round(split * motion.fps)))
     edges = np.diff(np.concatenate([[0], gone.astype(int), [0]]))
     gaps = [(a, b) for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1),
                                    strict=True) if b - a >= long_gap]  # fmt: skip

@@ -25,7 +25,9 @@ class WindowGroup:
     yn: (N, L, 138) normalised noisy states; y3d: (N, L, 65, 3); betas: (N, S);
     frame: the canonical frames; pelvis: (N, 3); owners: (motion index, start) per window;
     weight: (N, L, 65) observation weights (joint mask), or None; obs: (N, L, 138) the raw
-    noisy states (state units, canonical frame; what refinement scores), or None.
+    noisy states (state units, canonical frame; what refinement scores), or None; seen:
+    (N, L, 22) where the networks read a joint as there (1) or as a hole (0), when that is
+    not ``weight`` (training copies whose hidden frames the likelihood still scores), or None.
     """
 
     yn: torch.Tensor
@@ -36,6 +38,12 @@ class WindowGroup:
     owners: list[tuple[int, int]] = field(default_factory=list)
     weight: torch.Tensor | None = None
     obs: torch.Tensor | None = None
+    seen: torch.Tensor | None = None
+
+    @property
+    def read_weight(self) -> torch.Tensor | None:
+        """What the networks read as there or missing (``Denoiser.read_holes``)."""
+        return self.weight if self.seen is None else self.seen
 
     def __len__(self) -> int:
         return int(self.yn.shape[0])
@@ -48,6 +56,7 @@ class WindowGroup:
     def batch(self, idx: torch.Tensor, with_y3d: bool = True) -> WindowGroup:
         w = None if self.weight is None else self.weight[idx]
         obs = None if self.obs is None else self.obs[idx]
+        seen = None if self.seen is None else self.seen[idx]
         frame = CanonicalFrame(self.frame.yaw[idx], self.frame.origin[idx])
         return WindowGroup(
             self.yn[idx],
@@ -58,6 +67,7 @@ class WindowGroup:
             [self.owners[i] for i in idx.tolist()],
             w,
             obs,
+            seen,
         )
 
 
@@ -69,19 +79,23 @@ def make_windows(
     stride: int = 45,
     observations: bool = True,
     points: bool = True,
+    scored: list[Motion] | None = None,
 ) -> list[WindowGroup]:
     """Cut motions already at 30 Hz into windows of ``window + 1`` frames (shorter motions
     give one window of their own length), grouped by length.
 
     ``observations=False`` skips the observations (regression mode does not need them: the
     group then holds an empty y3d and no raw states); ``points=False`` keeps the raw states
-    but skips the 3D points (refinement scores the states only)."""
+    but skips the 3D points (refinement scores the states only). ``scored``: motions of the
+    same lengths whose values the observations are, everywhere (the networks read
+    ``motions``, whose holes become the groups' ``seen``; the likelihoods score ``scored``,
+    the frames hidden from the networks included)."""
     L = window + 1
     by_len: dict[int, list] = {}
     inputs = smooth_inputs(motions, denoiser.cfg)
     for mi, motion in enumerate(motions):
-        p = motion_to_params(motion)
-        p_in = p if inputs[mi] is motion else motion_to_params(inputs[mi])
+        p = motion_to_params(motion if scored is None else scored[mi])
+        p_in = motion_to_params(inputs[mi]) if inputs[mi] is not motion or scored else p
         betas = body.fit_betas(torch.as_tensor(motion.betas, dtype=torch.float32)[None])[0]
         length = min(L, motion.num_frames)
         for s in motion_window_starts(motion, window, stride):
@@ -99,7 +113,7 @@ def make_windows(
         betas = stack(5)
         vw = denoiser.cfg.velocity_window
         with torch.no_grad():
-            if observations and denoiser.cfg.input_window > 1:  # the raw motion too
+            if observations and (denoiser.cfg.input_window > 1 or scored):  # the raw too
                 raw = BodyParams(*(torch.stack([it[7][k] for it in items]) for k in range(3)))
                 states, raw_states, frame = chunk_state_pair(
                     params, raw, betas, body, velocity_window=vw
@@ -111,14 +125,17 @@ def make_windows(
             if observations:
                 if points:
                     y3d = observe(body, raw_states, betas)
-        weight = None
+        weight = seen = None
         if any(it[6] is not None for it in items):
             masks = [
                 it[6] if it[6] is not None else torch.ones(len(it[2]), 22, dtype=torch.bool)
                 for it in items
             ]
             joints = torch.stack(masks).float()
-            weight = torch.cat([joints, torch.ones(*joints.shape[:2], 43)], dim=-1)
+            if scored is None:
+                weight = torch.cat([joints, torch.ones(*joints.shape[:2], 43)], dim=-1)
+            else:
+                seen = joints
         groups.append(
             WindowGroup(
                 norm.normalize(states),
@@ -129,6 +146,7 @@ def make_windows(
                 [(it[0], it[1]) for it in items],
                 weight,
                 raw_states,
+                seen,
             )
         )
     return groups

@@ -19,6 +19,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from mdvae_cli.body.data import NUM_BODY_JOINTS
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.model.checkpoint import load_checkpoint, load_weights, save_checkpoint
@@ -49,6 +50,9 @@ class DenoiserConfig:
         the likelihood always scores the raw observations. Per-frame noise read raw passes
         straight into z_t and the output jitters; read through the filter, the encoder sees
         the motion's trend and the ELBO still fits the unfiltered data.
+    reads_holes: the networks also read which body joints of each frame are missing (a
+        learned offset of their input per missing joint, :meth:`Denoiser.read_holes`); set
+        when a fit trains on takes with holes (``fit-dataset --holes``).
     """
 
     lam: float = 10.0
@@ -59,6 +63,7 @@ class DenoiserConfig:
     x0_bidirectional: bool = False
     input_window: int = 11
     input_order: int = 1
+    reads_holes: bool = False
 
     def __post_init__(self):
         self.validate()
@@ -67,6 +72,7 @@ class DenoiserConfig:
         """InputError naming the first invalid setting (in ``mdvae fit-dataset``'s words)."""
         require_number("--lam", self.lam, 0.0, open_low=True)
         require_bool("x0_bidirectional", self.x0_bidirectional)
+        require_bool("reads_holes", self.reads_holes)
         require_number("--obs-unit", self.obs_unit, 0.0, open_low=True)
         for name in ("hidden_dim", "velocity_window", "x0_window"):
             require_int(name, getattr(self, name), 1)
@@ -174,11 +180,40 @@ class Denoiser(nn.Module):
         self.noise_predictor = NoisePredictor(
             mc.hidden_dim, mc.state_dim, mc.obs_dim, cfg.hidden_dim
         )
+        self.hole_reader: nn.Linear | None = None
+        if cfg.reads_holes:
+            self.add_hole_reader()
+
+    def add_hole_reader(self) -> None:
+        """Let the networks read the holes (``cfg.reads_holes``): a linear map from each
+        frame's missing joints to an offset of its input, zero at first (the networks' output
+        is unchanged until a fit on takes with holes trains it)."""
+        self.cfg.reads_holes = True
+        if self.hole_reader is None:
+            reader = nn.Linear(NUM_BODY_JOINTS, self.prior.cfg.state_dim, bias=False)
+            nn.init.zeros_(reader.weight)
+            self.hole_reader = reader.to(next(self.encoder.parameters()).device)
+
+    def read_holes(self, yn: torch.Tensor, obs_weight: torch.Tensor | None) -> torch.Tensor:
+        """What the networks read: the normalised states, offset where joints are missing.
+
+        yn: (B, T+1, D); obs_weight: (B, T+1, >= 22) 1 for observed, 0 for missing, body
+        joints first (or None: nothing missing) -> (B, T+1, D)"""
+        if self.hole_reader is None or obs_weight is None:
+            return yn
+        missing = 1.0 - obs_weight[..., :NUM_BODY_JOINTS].to(yn)
+        return yn + self.hole_reader(missing)
 
     def trainable_parameters(self) -> list[nn.Parameter]:
-        """phi, gamma, omega: encoder, noise predictor, x0 predictor."""
-        mods = (self.encoder, self.x0_predictor, self.noise_predictor)
-        return [p for m in mods for p in m.parameters()]
+        """phi, gamma, omega: encoder, noise predictor, x0 predictor (and the hole reader)."""
+        return [p for m in self.network_modules().values() for p in m.parameters()]
+
+    def network_modules(self) -> dict[str, nn.Module]:
+        """The trained networks by checkpoint name (the hole reader where there is one)."""
+        mods = {n: getattr(self, n) for n in ("encoder", "x0_predictor", "noise_predictor")}
+        if self.hole_reader is not None:
+            mods["hole_reader"] = self.hole_reader
+        return mods
 
     def train(self, mode: bool = True) -> Denoiser:
         super().train(mode)
@@ -216,12 +251,16 @@ class Denoiser(nn.Module):
         body: BodyModel,
         obs_weight: torch.Tensor | None = None,
         generator=None,
+        seen: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Negative ELBO per frame (Eq. 12-15) with one Monte-Carlo sample of x0 and z.
 
         yn: (B, T+1, D); y3d: (B, T+1, 65, 3) metres; betas: (B, S);
-        obs_weight: (B, T+1, 65) 1 for observed points, 0 for missing (or None).
+        obs_weight: (B, T+1, 65) 1 for observed points, 0 for missing (or None); the networks
+        read it too where they read holes (:meth:`read_holes`), unless ``seen`` (B, T+1, 22)
+        says what they read instead (frames hidden from them that the likelihood scores).
         """
+        yn = self.read_holes(yn, obs_weight if seen is None else seen)
         out = self.infer(yn, sample=True, generator=generator)
         B, T1 = yn.shape[:2]
         pred = observe(body, out["x_hat"], betas)
@@ -256,8 +295,8 @@ def observe(body: BodyModel, x: torch.Tensor, betas: torch.Tensor) -> torch.Tens
 def save_denoiser(path: Path, denoiser: Denoiser, meta: dict) -> None:
     """Write a denoiser checkpoint (its prior inside it) with ``meta`` beside the configs."""
     tensors = model_tensors(denoiser.prior, "prior/")
-    for name in ("encoder", "x0_predictor", "noise_predictor"):
-        tensors.update(model_tensors(getattr(denoiser, name), f"{name}/"))
+    for name, module in denoiser.network_modules().items():
+        tensors.update(model_tensors(module, f"{name}/"))
     meta = {
         **meta,
         "model_config": denoiser.prior.cfg.to_dict(),
@@ -284,9 +323,7 @@ def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
     denoiser = Denoiser(prior, DenoiserConfig.from_dict(meta["denoiser_config"]))
     for prefix, module in (
         ("prior/", denoiser.prior),
-        ("encoder/", denoiser.encoder),
-        ("x0_predictor/", denoiser.x0_predictor),
-        ("noise_predictor/", denoiser.noise_predictor),
+        *((f"{name}/", m) for name, m in denoiser.network_modules().items()),
     ):
         state = {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
         load_weights(module, state, path)

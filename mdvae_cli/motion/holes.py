@@ -292,3 +292,24 @@ def _starts(T: int, length: int, count: int, rng: np.random.Generator, margin: i
         if all(abs(s - o) >= length + margin for o in starts):
             starts.append(s)
     return sorted(starts)
+
+
+#: the holes :func:`random_holes` draws: whole-frame holes (every joint) and one-limb holes,
+#: lengths in frames at 30 Hz, drawn uniformly in [low, high]
+RANDOM_FRAME_HOLES = (3, 45)
+RANDOM_LIMB_HOLES = (10, 60)
+
+
+def random_holes(num_frames: int, rng: np.random.Generator, every: int = 120) -> np.ndarray:
+    """A (T, 22) mask with about one hole per ``every`` frames (at least one), each of every
+    joint or of one limb (even odds), of a length drawn from :data:`RANDOM_FRAME_HOLES` or
+    :data:`RANDOM_LIMB_HOLES`: what ``fit-dataset --holes`` trains the networks to read. The
+    holes are drawn independently, so two may overlap into a longer one."""
+    mask = np.ones((num_frames, NUM_JOINTS), bool)
+    for _ in range(max(1, num_frames // every)):
+        limb = bool(rng.integers(2))
+        low, high = RANDOM_LIMB_HOLES if limb else RANDOM_FRAME_HOLES
+        length = int(rng.integers(low, high + 1))
+        make = limb_holes if limb else frame_holes
+        mask &= make(num_frames, length, 1, rng, margin=2)
+    return mask

@@ -12,18 +12,15 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError, diverged
 from mdvae_cli.fileio import expand_inputs
-from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.elbo_fit import fit_denoiser
-from mdvae_cli.infer.window_groups import WindowGroup, make_windows
+from mdvae_cli.infer.window_groups import WindowGroup
 from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
-from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.config import (
     check_config_keys,
     require_bool,
@@ -33,9 +30,6 @@ from mdvae_cli.model.config import (
 )
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, save_denoiser
 from mdvae_cli.model.prior_model import load_prior
-from mdvae_cli.motion.mirror import mirror_motion
-from mdvae_cli.motion.motion import Motion, slice_frames
-from mdvae_cli.motion.resample import resample_motion
 from mdvae_cli.train.corpus import outside
 from mdvae_cli.train.distill import DistillConfig, Targets, distill, refine_targets
 from mdvae_cli.train.distributed import parameter_digest
@@ -45,6 +39,7 @@ from mdvae_cli.train.guards import (
     pick_device,
     weights_are_finite,
 )
+from mdvae_cli.train.noisy_windows import load_noisy_windows
 from mdvae_cli.train.run_state import (
     optimizer_from_tensors,
     optimizer_to_tensors,
@@ -66,7 +61,11 @@ class FitConfig:
     lengths (frames at 30 Hz, x0 included) cut from the noisy files, ``short_share`` as many
     in all as there are full windows (split evenly over the lengths): the networks then learn
     what a take of a few frames looks like instead of meeting it for the first time at
-    denoising (docs/model.md, "Short takes").
+    denoising (docs/model.md, "Short takes"). ``holes``: also fit to copies of this share
+    of the takes with random holes (whole frames and limbs missing; 1 = every take once more),
+    and let the networks read where the holes are (``DenoiserConfig.reads_holes``): the
+    likelihood drops what is missing, so they learn to fill it from the prior and the frames
+    around it.
     """
 
     data: list[str] = field(default_factory=list)
@@ -84,6 +83,7 @@ class FitConfig:
     mirror_augment: bool = False
     short_windows: list[int] = field(default_factory=list)
     short_share: float = 0.25
+    holes: float = 0.0
     denoiser: DenoiserConfig = field(default_factory=DenoiserConfig)
     distill: DistillConfig = field(default_factory=DistillConfig)
 
@@ -105,6 +105,7 @@ class FitConfig:
             if n > self.window:
                 raise InputError(f"--short-windows {n} is not shorter than --window {self.window}")
         require_number("--short-share", self.short_share, 0.0, 4.0, open_low=True)
+        require_number("--holes", self.holes, 0.0, 4.0)
         require_seed("--seed", self.seed)
         require_number("--lr", self.lr, 0.0, open_low=True)
         require_number("--lr-final", self.lr_final, 0.0)
@@ -130,57 +131,6 @@ class FitConfig:
             return cls(**d)
         except (ValueError, TypeError) as exc:
             raise InputError(f"{source} is unreadable ({exc})") from None
-
-
-def concat_groups(groups: list[WindowGroup], length: int) -> WindowGroup | None:
-    """The group of windows of exactly ``length`` frames (training uses full windows only)."""
-    same = [g for g in groups if g.yn.shape[1] == length]
-    return same[0] if same else None
-
-
-def load_noisy_windows(
-    files: list[Path],
-    denoiser: Denoiser,
-    body: BodyModel,
-    window: int,
-    stride: int,
-    mirror: bool = False,
-    short_windows: tuple[int, ...] = (),
-    short_share: float = 0.25,
-    seed: int = 0,
-) -> list[WindowGroup]:
-    """The full-length windows of noisy files at 30 Hz (with ``mirror``, also those of every
-    file's left-right mirror image: still only noisy data) as the first group, then one group
-    of short takes per length of ``short_windows`` (:func:`short_takes`)."""
-    motions = [resample_motion(load_motion(f), MODEL_FPS) for f in files]
-    if mirror:
-        motions += [mirror_motion(m, body) for m in motions]
-    groups = make_windows(motions, denoiser, body, window, stride)
-    full = concat_groups(groups, window + 1)
-    if full is None:
-        raise InputError(f"no noisy motion of at least {window + 1} frames at 30 Hz found")
-    out = [full]
-    if short_windows:
-        count = max(1, round(short_share * len(full) / len(short_windows)))
-        for length in short_windows:
-            clips = short_takes(motions, length, count, seed)
-            out += make_windows(clips, denoiser, body, window, stride)
-    return out
-
-
-def short_takes(motions: list[Motion], length: int, count: int, seed: int) -> list[Motion]:
-    """``count`` clips of ``length`` frames cut from the motions: every motion is cut into
-    consecutive clips from a seeded random start, then ``count`` of all of them are drawn
-    (seeded, without replacement; all when there are fewer)."""
-    gen = np.random.default_rng([seed, length])
-    pieces = []
-    for mi, m in enumerate(motions):
-        if m.num_frames < length:
-            continue
-        first = int(gen.integers(0, length))
-        pieces += [(mi, s) for s in range(first, m.num_frames - length + 1, length)]
-    pick = gen.permutation(len(pieces))[:count]
-    return [slice_frames(motions[mi], s, s + length) for mi, s in (pieces[i] for i in sorted(pick))]
 
 
 @dataclass
@@ -227,12 +177,16 @@ def fit_dataset(
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
     denoiser, done, distilled, history = _starting_point(cfg, out_dir, resume)
+    if cfg.holes > 0:
+        denoiser.add_hole_reader()
     body = BodyModel(load_body_model(cfg.body_model))
     files = outside([f for f, _ in expand_inputs([Path(p) for p in cfg.data])], out_dir)
     if not files:
         raise InputError("no noisy .npz files found in the given paths")
-    groups = load_noisy_windows(files, denoiser, body, cfg.window, cfg.stride, cfg.mirror_augment,
-                                tuple(cfg.short_windows), cfg.short_share, cfg.seed)  # fmt: skip
+    groups = load_noisy_windows(
+        files, denoiser, body, cfg.window, cfg.stride, cfg.mirror_augment,
+        tuple(cfg.short_windows), cfg.short_share, cfg.seed, cfg.holes,
+    )  # fmt: skip
     out_dir.mkdir(parents=True, exist_ok=True)  # the inputs are good: the run folder is made
     (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     total = math.ceil(sum(len(g) for g in groups) / cfg.batch_size) * cfg.epochs
