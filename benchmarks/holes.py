@@ -9,9 +9,12 @@ missing for 45 frames (1.5 s). Each row is V2V (cm, root-relative) on the filled
 the last rows are the default's V2V on the observed frames over its V2V on the same take
 without the hole (1.00 = the hole costs the rest nothing), on all of them and on those within
 :data:`NEAR_SECONDS` of the hole (where a long hole leaves the frames beside it with context on
-one side only: the take is split there).
+one side only: the take is split there). The "--fill model" row is what the networks
+themselves made of the hole (in a hole that splits the take, nothing: its placeholders, slerp /
+lerp; docs/model.md, "Networks that read holes"); ``--denoiser`` measures
+another denoiser (``fit-dataset --holes`` networks, say).
 
-    python benchmarks/holes.py [--clips 12] [--clip-frames 150] [--write]
+    python benchmarks/holes.py [--clips 12] [--clip-frames 150] [--denoiser RUN] [--write]
 """
 
 from __future__ import annotations

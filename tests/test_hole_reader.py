@@ -210,3 +210,32 @@ def test_the_elbo_scores_hidden_frames_while_the_networks_read_holes(den_and_bod
     assert hidden["rec"] > dropped["rec"]  # the hidden frames are scored
     hidden["loss"].backward()
     assert reader.hole_reader.weight.grad.abs().sum() > 0
+
+
+def test_the_learned_fill_takes_a_clean_takes_own_curve_and_a_noisy_takes_networks():
+    from mdvae_cli.infer.fill import fill_holes, input_curve
+    from mdvae_cli.infer.fill_choices import fill_for
+
+    assert fill_for("curve", True) == "learned" and fill_for("curve", False) == "curve"
+    assert fill_for("off", True) == "off" and fill_for("model", True) == "model"
+
+    src = clip(120, seed=3)
+    mask = np.ones((120, 22), bool)
+    mask[50:62] = False
+    miss = ~mask[:, 0]
+    result = src.with_body(pose_body=src.pose_body + 0.02)
+    # clean: the take's own curve in the hole, the result elsewhere
+    clean = with_holes(src, mask)
+    learned = fill_holes(clean, result, "learned")
+    np.testing.assert_allclose(
+        learned.pose_body[miss], input_curve(clean).pose_body[miss], atol=1e-3
+    )
+    np.testing.assert_array_equal(learned.pose_body[~miss], result.pose_body[~miss])
+    # noisy: the networks' own frames in the hole (not the curve from the result's frames)
+    rng = np.random.default_rng(0)
+    noisy = src.with_body(pose_body=src.pose_body + rng.normal(0, 0.1, src.pose_body.shape))
+    holed = with_holes(noisy, mask)
+    learned = fill_holes(holed, result, "learned")
+    np.testing.assert_allclose(learned.pose_body[miss], result.pose_body[miss], atol=1e-3)
+    curve = fill_holes(holed, result, "curve")
+    assert np.abs(curve.pose_body[miss] - result.pose_body[miss]).max() > 1e-3

@@ -194,7 +194,8 @@ OPTIONS = [
         f"way, {DEFAULT_FILL}: a cubic curve per joint from the frames beside the hole (the "
         "take's own on a clean take, the cleaned ones on a noisy one), or over a hole of every "
         "joint of 0.3 s or more a stretch of the take whose frames either side match the "
-        "hole's, where one does; the summary and --json "
+        "hole's, where one does (a --denoiser fitted with `fit-dataset --holes` reads the holes "
+        "and writes its own frames in a noisy take's); the summary and --json "
         'say how many ("filled_frames", "filled_joints"). off: leave them as they came (an npz '
         "gets its NaN back, a take its own frames).",
     ),
