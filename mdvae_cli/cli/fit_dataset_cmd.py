@@ -118,8 +118,9 @@ from mdvae_cli.errors import InputError
     "--holes",
     type=click.FloatRange(min=0.0, max=4.0),
     help="Also fit to copies of this share of the takes with random holes (frames and limbs "
-    "missing; 1 = every take once more), and let the networks read where takes have holes, "
-    "so that `denoise` fills them from the prior [default: 0].",
+    "missing; 1 = every take once more): the networks read where the holes are, the "
+    "likelihood still scores the noisy frames hidden there, so they learn to fill them "
+    "(`denoise` then writes their own frames in a noisy take's holes) [default: 0].",
 )
 @click.option(
     "--resume",

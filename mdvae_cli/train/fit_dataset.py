@@ -63,9 +63,9 @@ class FitConfig:
     what a take of a few frames looks like instead of meeting it for the first time at
     denoising (docs/model.md, "Short takes"). ``holes``: also fit to copies of this share
     of the takes with random holes (whole frames and limbs missing; 1 = every take once more),
-    and let the networks read where the holes are (``DenoiserConfig.reads_holes``): the
-    likelihood drops what is missing, so they learn to fill it from the prior and the frames
-    around it.
+    and let the networks read where the holes are (``DenoiserConfig.reads_holes``): they read
+    placeholders there while the likelihood still scores the noisy frames hidden, so filling
+    the holes is what they are fitted to (``train.noisy_windows``).
     """
 
     data: list[str] = field(default_factory=list)
