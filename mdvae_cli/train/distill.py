@@ -100,7 +100,9 @@ def refine_targets(
         idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
         g = group.batch(idx, with_y3d=False)
         joints = None if g.weight is None else g.weight[..., :22]
-        refined = refine_posterior(denoiser, read_holes(denoiser, g).detach(), g.obs, joints, cfg)
+        with torch.no_grad():
+            yn = denoiser.read_holes(g.yn, g.read_weight)
+        refined = refine_posterior(denoiser, yn, g.obs, joints, cfg)
         parts.append((refined.z, refined.x0, refined.z_logvar))
         if progress is not None:
             progress({"step": int(idx[-1]) + 1, "steps": len(group)})
@@ -180,7 +182,8 @@ def distill(
         t = all_targets[gi]
         set_lr(opt, cosine_lr(step, total, cfg.lr, cfg.lr_final))
         batch = Targets(*(x[idx].to(device) for x in (t.z, t.x0, t.z_logvar)))
-        yn = read_holes(denoiser, groups[gi].batch(idx, with_y3d=False), device)
+        read = groups[gi].read_weight
+        yn = denoiser.read_holes(groups[gi].yn[idx].to(device), None if read is None else read[idx])
         terms = distill_loss(denoiser, yn, batch, col_weight, cfg.latent_weight)
         loss = terms["loss"].item()
         if not math.isfinite(loss):  # the weights are still the last good ones
@@ -192,15 +195,6 @@ def distill(
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
     denoiser.eval()
     return losses
-
-
-def read_holes(denoiser: Denoiser, g: WindowGroup, device=None) -> torch.Tensor:
-    """What the networks read of a group's windows (:meth:`Denoiser.read_holes`), on
-    ``device`` (default where they are).  -> (N, T+1, 138)"""
-    yn = g.yn if device is None else g.yn.to(device)
-    weight = g.read_weight
-    weight = weight if weight is None or device is None else weight.to(device)
-    return denoiser.read_holes(yn, weight)
 
 
 def _batches(
