@@ -7,11 +7,13 @@ take that lost markers) and with Pose-NDF noise sigma = 0.10 rad (a noisy estima
 per clip of 5, 15, 30 or 60 frames (every joint), or one limb (arm or leg, three joints)
 missing for 45 frames (1.5 s). Each row is V2V (cm, root-relative) on the filled frames alone;
 the last rows are the default's V2V on the observed frames over its V2V on the same take
-without the hole (1.00 = the hole costs the rest nothing), on all of them and on those within
+without the hole (1.00 = the hole costs the rest nothing), on all of them, on those within
 :data:`NEAR_SECONDS` of the hole (where a long hole leaves the frames beside it with context on
-one side only: the take is split there). The "--fill model" row is what the networks
-themselves made of the hole (in a hole that splits the take, nothing: its placeholders, slerp /
-lerp; docs/model.md, "Networks that read holes"); ``--denoiser`` measures
+one side only: the take is split there) and on those beyond it; and over its V2V on the same
+observed frames when the hole is slerped over and the take denoised whole, as ``mdvae
+denoise`` read a video track's missing frames before it read holes. The "--fill model" row is
+what the networks themselves made of the hole (of one that splits the take, in its bridge:
+``infer.bridge``; docs/model.md, "Networks that read holes"); ``--denoiser`` measures
 another denoiser (``fit-dataset --holes`` networks, say).
 
     python benchmarks/holes.py [--clips 12] [--clip-frames 150] [--denoiser RUN] [--write]
@@ -86,6 +88,18 @@ def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray
     }
 
 
+def slerped_over(clips: list[Motion], masks: list[np.ndarray]) -> list[Motion]:
+    """The clips with their holes slerped / lerped over and nothing marked missing: what
+    ``mdvae denoise`` read before it read holes (a video track's missing frames were filled
+    so, and an npz with NaN was refused)."""
+    out = []
+    for m, k in zip(clips, masks, strict=True):
+        over = with_holes(m, k, "slerp")
+        over.joint_mask = None
+        out.append(over)
+    return out
+
+
 def posed(motion: Motion, body: BodyModel) -> tuple[torch.Tensor, torch.Tensor]:
     """Vertices (T, V, 3) and pelvis (T, 3) of a motion, float64."""
     chunks = list(pose_motion_chunks(motion, body, DEFAULT_CHUNK_FRAMES, vertices=True))
@@ -133,6 +147,8 @@ def split_table(
         table: dict[str, list[str]] = {k: [] for k in rows}
         kept: list[str] = []
         kept_near: list[str] = []
+        kept_far: list[str] = []
+        kept_slerped: list[str] = []
         for n, kind in HOLES:
             masks = hole_masks(noisy, n, kind)
             missing = [~k.all(axis=1) for k in masks]
@@ -145,6 +161,11 @@ def split_table(
                     kept.append(f"{obs / ref:.3f}")
                     near = [near_hole(m, round(NEAR_SECONDS * 30)) for m in missing]
                     kept_near.append(f"{pooled(errs, near) / pooled(whole, near):.3f}")
+                    far = [o & ~q for o, q in zip(observed, near, strict=True)]
+                    kept_far.append(f"{pooled(errs, far) / pooled(whole, far):.3f}")
+                    over = denoise(slerped_over(noisy, masks), DenoiseSettings(), denoiser, body)
+                    ref = pooled(frame_errors(gt, over, body), observed)
+                    kept_slerped.append(f"{obs / ref:.3f}")
             log(f"{split} sigma {sigma:g} {n} {kind}: " + ", ".join(
                 f"{k[:14]} {v[-1]}" for k, v in table.items()))  # fmt: skip
         head = [f"V2V cm on the filled frames, sigma = {sigma:g}", *cols]
@@ -153,6 +174,13 @@ def split_table(
         body_rows.append(
             [f"... on those within {NEAR_SECONDS:g} s of the hole / without the hole", *kept_near]
         )
+        body_rows.append(
+            [f"... on those beyond {NEAR_SECONDS:g} s of the hole / without the hole", *kept_far]
+        )
+        body_rows.append(
+            ["default on the observed frames / the hole slerped over and the take denoised whole",
+             *kept_slerped]
+        )  # fmt: skip
         parts.append(common.markdown_table(head, body_rows))
     return f"**{split}** ({len(clips)} clips of {clip_frames} frames at 30 Hz)\n\n" + "\n\n".join(
         parts

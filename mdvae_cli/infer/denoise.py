@@ -18,9 +18,10 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
+from mdvae_cli.infer.bridge import bridge_fills, lock_bridged
 from mdvae_cli.infer.closed_form import add_offset
-from mdvae_cli.infer.feet import FootLockConfig, lock_feet
-from mdvae_cli.infer.fill import fill_holes, has_holes, holes_from, join_pieces, observed_pieces
+from mdvae_cli.infer.feet import FootLockConfig, lock_motions
+from mdvae_cli.infer.fill import fill_holes, has_holes, join_pieces, observed_pieces
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL
 from mdvae_cli.infer.guard import fallback_stretches, guard, guard_note
 from mdvae_cli.infer.native_rate import to_model_rate
@@ -186,6 +187,7 @@ def denoise_motions(
     on_blend: Callable[[int, BlendReport], None] | None = None,
     blend_fast: bool = True,
     fill: str | None = DEFAULT_FILL,
+    split: bool = True,
 ) -> list[Motion]:
     """Denoise whole motions (any length and rate) in one batch.
 
@@ -218,18 +220,19 @@ def denoise_motions(
     ``fill``: what the inputs' holes (``joint_mask`` False) become, one of
     ``infer.fill.FILLS`` (a "curve" from the frames beside them, the "model"'s frames, or
     "off": as they came); the likelihoods drop them whatever it is. None:
-    the model's (as "model").
+    the model's (as "model"). ``split``: a long hole of every joint cuts its motion into pieces
+    denoised on their own, filled from a bridge (``infer.bridge``); False: read as a short one.
     """
     holes = any(has_holes(m) for m in motions)
     if fill == "off" and holes:  # everything as usual, then the holes as they came
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
             progress, refine, mirror, guard, on_fallback, loops, feet, blend, on_blend,
-            blend_fast, fill="model",
+            blend_fast, fill="model", split=split,
         )  # fmt: skip
         return [fill_holes(src, m, "off") for m, src in zip(cleaned, motions, strict=True)]
     reads = denoiser.cfg.reads_holes
-    pieces = [observed_pieces(m, MIN_FRAMES, reads) for m in motions] if holes else []
+    pieces = [observed_pieces(m, MIN_FRAMES, reads) for m in motions] if holes and split else []
     if any(p is not None for p in pieces):  # long holes: the pieces between them on their own
         return _denoise_pieces(
             motions, pieces, denoiser, body, window, stride, optimize_steps, lr, batch_size,
@@ -240,7 +243,7 @@ def denoise_motions(
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
             more_phases(progress, 1), refine, mirror, guard, on_fallback, loops, blend=blend,
-            on_blend=on_blend, blend_fast=blend_fast, fill=fill,
+            on_blend=on_blend, blend_fast=blend_fast, fill=fill, split=split,
         )  # fmt: skip
         out = lock_motions(cleaned, motions, body, feet)
         done = CORE_PHASES + blend + 1
@@ -249,7 +252,8 @@ def denoise_motions(
     if blend:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            more_phases(progress, 1), refine, mirror, guard, on_fallback, loops, fill=None,
+            more_phases(progress, 1), refine, mirror, guard, on_fallback, loops,
+            fill=None, split=split,
         )  # fmt: skip
         out = []
         for i, (m, src) in enumerate(zip(cleaned, motions, strict=True)):
@@ -262,7 +266,7 @@ def denoise_motions(
     if fill not in (None, "model") and holes:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
-            progress, refine, mirror, guard, on_fallback, loops, fill=None,
+            progress, refine, mirror, guard, on_fallback, loops, fill=None, split=split,
         )  # fmt: skip
         return [fill_holes(src, m, fill) for m, src in zip(cleaned, motions, strict=True)]
     if loops is not None and any(loops):
@@ -281,7 +285,7 @@ def denoise_motions(
         tell = None if on_fallback is None else lambda i, a, b: on_fallback(i % n, a, b)
         both = denoise_motions(
             [*motions, *flipped], denoiser, body, window, stride, optimize_steps, lr,
-            batch_size, seed, progress, refine, guard=guard, on_fallback=tell,
+            batch_size, seed, progress, refine, guard=guard, on_fallback=tell, split=split,
         )  # fmt: skip
         return [
             average_bodies(a, mirror_motion(b, body))
@@ -327,21 +331,14 @@ def denoise_motions(
     return out
 
 
-def lock_motions(
-    cleaned: list[Motion], inputs: list[Motion], body: BodyModel, feet: FootLockConfig
-) -> list[Motion]:
-    """The foot lock (``infer.feet.lock_feet``) on denoised motions, each with its input as
-    the source; in a hole the lock reads the filled motion as the input's."""
-    sources = [holes_from(s, m) for m, s in zip(cleaned, inputs, strict=True)]
-    return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]
-
-
 def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
-    """Denoise the pieces of the motions between their long holes (``infer.fill``) as
-    motions of their own, put them back, then fill the holes (the "learned" fill's networks
-    never saw the long ones: the "curve" fills such a take). ``args``: the rest of
-    :func:`denoise_motions`' arguments after ``body``, in order."""
+    """Denoise the pieces of the motions between their long holes (``infer.fill``) on their
+    own, put them back, fill the holes, the long ones from their bridges (``infer.bridge``;
+    the "learned" fill's networks never saw long holes: the "curve" fills such a take), then
+    lock the feet of the whole. ``args``: :func:`denoise_motions`' arguments after ``body``."""
     *head, on_fallback, loops, feet, blend, on_blend, blend_fast, fill = args
+    progress = head[6]
+    head[6] = progress if feet is None else more_phases(progress, 1)
     parts, owners = [], []
     for i, (m, cuts) in enumerate(zip(motions, pieces, strict=True)):
         for a, b in cuts if cuts is not None else [(0, m.num_frames)]:
@@ -352,15 +349,29 @@ def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
     report = None if on_blend is None else lambda j, r: on_blend(owners[j][0], r)
     done = denoise_motions(
         parts, denoiser, body, *head, on_fallback=tell,
-        loops=None, feet=feet, blend=blend,  # a piece of a take is no cycle
+        loops=None, blend=blend,  # a piece of a take is no cycle
         on_blend=report, blend_fast=blend_fast, fill=fill,
     )  # fmt: skip
-    out, k = [], 0
+    joined, k = [], 0
     for m, cuts in zip(motions, pieces, strict=True):
         cuts = cuts if cuts is not None else [(0, m.num_frames)]
-        joined = join_pieces(m, cuts, done[k : k + len(cuts)])
+        joined.append(join_pieces(m, cuts, done[k : k + len(cuts)]))
         k += len(cuts)
-        out.append(fill_holes(m, joined, "curve" if fill == "learned" else fill or "model"))
+    window, stride, _, lr, batch_size, seed, _, refine, mirror, guard = head
+
+    def bridges(stretches: list[Motion]) -> list[Motion]:  # the networks are fitted already
+        return denoise_motions(
+            stretches, denoiser, body, window, stride, 0, lr, batch_size, seed, None, refine,
+            mirror, guard, blend=blend, blend_fast=blend_fast, fill="model",
+            split=False,
+        )  # fmt: skip
+
+    out = bridge_fills(motions, pieces, joined, "curve" if fill == "learned" else fill or "model",
+                       bridges)  # fmt: skip
+    if feet is None:
+        return out
+    out = lock_bridged(out, motions, pieces, body, feet)
+    phase(progress, "feet locked", CORE_PHASES + blend + 1, CORE_PHASES + blend + 1)
     return out
 
 

@@ -15,8 +15,8 @@ from dataclasses import asdict, dataclass
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.infer.denoise import denoise_motions, lock_motions
-from mdvae_cli.infer.feet import FootLockConfig
+from mdvae_cli.infer.denoise import denoise_motions
+from mdvae_cli.infer.feet import FootLockConfig, lock_motions
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS, fill_for
 from mdvae_cli.infer.input_kinds import kind_settings, refine_config
 from mdvae_cli.infer.loop import which_loop

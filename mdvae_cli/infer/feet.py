@@ -58,6 +58,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_smooth
 from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 from mdvae_cli.infer.contact_runs import clean_contacts, fade_weights, hold_targets, run_means
+from mdvae_cli.infer.fill import holes_from
 from mdvae_cli.infer.leg_ik import (
     CHUNK_FRAMES,
     LEGS,
@@ -362,3 +363,12 @@ def _solve_legs(
             pos, G = leg_chain(root, new, pelvis, model.bones)
             clearance[sl] = feet_of(pos)[..., 2] - sole_heights(pos, G, model)[:, list(FOOT_SIDE)]
     return clearance, out
+
+
+def lock_motions(
+    cleaned: list[Motion], inputs: list[Motion], body: BodyModel, feet: FootLockConfig
+) -> list[Motion]:
+    """The foot lock (``infer.feet.lock_feet``) on denoised motions, each with its input as
+    the source; in a hole the lock reads the filled motion as the input's."""
+    sources = [holes_from(s, m) for m, s in zip(cleaned, inputs, strict=True)]
+    return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]

@@ -43,19 +43,32 @@ def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
         raise ValueError(f"fill must be one of {', '.join(FILLS)}, got {method!r}")
     if not has_holes(source):
         return result
-    mask = observed(source)
-    out = result.with_body()
-    out.joint_mask = mask
-    if method == "curve":
-        # the result's curve: a stretch of the cleaned take that matches the hole's ends where
-        # one does, the Hermite curve from its frames beside the hole elsewhere
-        from_result = pattern_fill(out, fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES))[0]
-        return mix_by_noise(input_curve(source), from_result, source)
-    if method == "learned":
-        return mix_by_noise(input_curve(source), out, source)
     if method == "off":
-        return take_holes(out, source, mask)
+        out = result.with_body()
+        out.joint_mask = observed(source)
+        return take_holes(out, source, out.joint_mask)
+    return mix_curves(source, result_curve(source, result, method), method)
+
+
+def result_curve(source: Motion, result: Motion, method: str) -> Motion:
+    """``result`` with the source's holes drawn from its own frames, as ``method`` draws them:
+    "curve", a stretch of the cleaned take that matches the hole's ends where one does, the
+    Hermite curve from its frames beside the hole elsewhere; "learned" and "model", the
+    result's own frames. The mask is the source's."""
+    out = result.with_body()
+    out.joint_mask = observed(source)
+    if method == "curve":
+        return pattern_fill(out, fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES))[0]
     return out
+
+
+def mix_curves(source: Motion, from_result: Motion, method: str) -> Motion:
+    """The holes' curve from the result (:func:`result_curve`) mixed with the input's own
+    (:func:`input_curve`) by the input's noise (:func:`mix_by_noise`), as ``method`` mixes
+    them ("model": the result's alone)."""
+    return (
+        from_result if method == "model" else mix_by_noise(input_curve(source), from_result, source)
+    )
 
 
 #: the input noise (rad per component, m for the translation) at which a hole's curve reads
