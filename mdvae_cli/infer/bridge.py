@@ -12,9 +12,9 @@ turned, joint by joint, so that it meets the pieces' own frames at both ends (th
 each end, slerped across the hole): the observed frames stay exactly as the pieces made them.
 
 On the corpus's clips with Pose-NDF noise (σ 0.10), the fill of 15-, 30- and 60-frame holes
-was 15 / 14 / 3 % closer to the clean motion on test and 12 / 6 / 2 % on unseen_test than the
-curve from the pieces' ends (docs/benchmarks.md, "Holes"); a clean take's holes are filled
-from its own frames as before (``infer.fill.result_shares``).
+came 16 / 14 / 3 % closer to the clean motion on test and 13 / 6 / 2 % on unseen_test than the
+curve from the pieces' ends (docs/model.md, "Long holes bridged"); a clean take's holes are
+filled from its own frames as before (``infer.fill.result_shares``).
 """
 
 from __future__ import annotations
