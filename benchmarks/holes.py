@@ -16,7 +16,11 @@ what the networks themselves made of the hole (of one that splits the take, in i
 ``infer.bridge``; docs/model.md, "Networks that read holes"); ``--denoiser`` measures
 another denoiser (``fit-dataset --holes`` networks, say).
 
-    python benchmarks/holes.py [--clips 12] [--clip-frames 150] [--denoiser RUN] [--write]
+With ``--noise video`` the clips carry video-like noise instead (``add-noise --preset
+video``) and ``mdvae denoise`` runs its video settings row (``--input-kind video``).
+
+    python benchmarks/holes.py [--clips 12] [--clip-frames 150] [--denoiser RUN]
+                               [--noise pose-ndf|video] [--write]
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
 from mdvae_cli.metrics import v2v
 from mdvae_cli.motion.holes import frame_holes, limb_holes, with_holes
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.noise import VideoNoise, add_video_noise, file_rng
 from mdvae_cli.motion.pattern import pattern_fill
 from mdvae_cli.train.corpus import select_files
 
@@ -60,7 +65,28 @@ def hole_masks(clips: list[Motion], length: int, kind: str) -> list[np.ndarray]:
     return out
 
 
-def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray]], list[Motion]]]:
+def conditions(noise: str) -> list[tuple[str, Callable[[list[common.Clip]], list[Motion]], str]]:
+    """Each split's tables: (what the table says of the noise, the noisy clips from the clean
+    ones, the settings row ``mdvae denoise`` runs: ``--input-kind``)."""
+    if noise == "video":
+
+        def video(clips):
+            return [add_video_noise(c.motion, VideoNoise(), file_rng(0, f"{c.name}@video"))
+                    for c in clips]  # fmt: skip
+
+        return [("video-like noise (`add-noise --preset video`; `--input-kind video`)", video,
+                 "video")]  # fmt: skip
+    return [
+        (f"sigma = {s:g}",
+         lambda clips, s=s: common.add_noise(clips, s, 0) if s > 0 else [c.motion for c in clips],
+         "mocap")
+        for s in SIGMAS
+    ]  # fmt: skip
+
+
+def methods(
+    denoiser, body, input_kind: str = "mocap"
+) -> dict[str, Callable[[list[Motion], list[np.ndarray]], list[Motion]]]:
     """The rows: each takes the noisy clips and their masks and returns the filled clips."""
 
     def classical(method: str):
@@ -72,7 +98,7 @@ def methods(denoiser, body) -> dict[str, Callable[[list[Motion], list[np.ndarray
                 for h, m, k in zip(holed, ms, masks, strict=True)]  # fmt: skip
 
     def ours(**kw):
-        settings = DenoiseSettings(**kw)
+        settings = DenoiseSettings(input_kind=input_kind, **kw)
         return lambda ms, masks: denoise(
             [with_holes(m, k) for m, k in zip(ms, masks, strict=True)], settings, denoiser, body
         )
@@ -132,18 +158,25 @@ def pooled(errors: list[np.ndarray], where: list[np.ndarray]) -> float:
 
 
 def split_table(
-    split: str, n_clips: int, denoiser, body, log, clip_frames: int = CLIP_FRAMES
+    split: str,
+    n_clips: int,
+    denoiser,
+    body,
+    log,
+    clip_frames: int = CLIP_FRAMES,
+    noise: str = "pose-ndf",
 ) -> str:
     corpus = REPO / "data" / "corpus"
     files = select_files([corpus], corpus / "split.json", split)
     clips = common.load_clips(files, corpus, clip_frames, max_clips=n_clips)
     gt = [c.motion for c in clips]
-    rows = methods(denoiser, body)
     cols = [f"{n} frames" if kind == "frames" else f"one limb, {n} frames" for n, kind in HOLES]
     parts = []
-    for sigma in SIGMAS:
-        noisy = common.add_noise(clips, sigma, 0) if sigma > 0 else list(gt)
-        whole = frame_errors(gt, denoise(noisy, DenoiseSettings(), denoiser, body), body)
+    for label, make_noisy, input_kind in conditions(noise):
+        rows = methods(denoiser, body, input_kind)
+        settings = DenoiseSettings(input_kind=input_kind)
+        noisy = make_noisy(clips)
+        whole = frame_errors(gt, denoise(noisy, settings, denoiser, body), body)
         table: dict[str, list[str]] = {k: [] for k in rows}
         kept: list[str] = []
         kept_near: list[str] = []
@@ -163,12 +196,12 @@ def split_table(
                     kept_near.append(f"{pooled(errs, near) / pooled(whole, near):.3f}")
                     far = [o & ~q for o, q in zip(observed, near, strict=True)]
                     kept_far.append(f"{pooled(errs, far) / pooled(whole, far):.3f}")
-                    over = denoise(slerped_over(noisy, masks), DenoiseSettings(), denoiser, body)
+                    over = denoise(slerped_over(noisy, masks), settings, denoiser, body)
                     ref = pooled(frame_errors(gt, over, body), observed)
                     kept_slerped.append(f"{obs / ref:.3f}")
-            log(f"{split} sigma {sigma:g} {n} {kind}: " + ", ".join(
+            log(f"{split} {label} {n} {kind}: " + ", ".join(
                 f"{k[:14]} {v[-1]}" for k, v in table.items()))  # fmt: skip
-        head = [f"V2V cm on the filled frames, sigma = {sigma:g}", *cols]
+        head = [f"V2V cm on the filled frames, {label}", *cols]
         body_rows = [[k, *v] for k, v in table.items()]
         body_rows.append(["default on the observed frames / without the hole", *kept])
         body_rows.append(
@@ -194,13 +227,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--clip-frames", type=int, default=CLIP_FRAMES, help="frames per clip (30 Hz)")
     ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
     ap.add_argument("--denoiser", help="denoiser checkpoint or folder (default: the shipped one)")
+    ap.add_argument("--noise", choices=["pose-ndf", "video"], default="pose-ndf",
+                    help="the clips clean and with Pose-NDF noise of 0.10 rad (the table in "
+                         "docs/benchmarks.md), or with video-like noise")  # fmt: skip
     args = ap.parse_args(argv)
-    if args.write and args.denoiser:
-        ap.error("--write documents the shipped weights: leave out --denoiser")
+    if args.write and (args.denoiser or args.noise != "pose-ndf"):
+        ap.error("--write documents the shipped weights on Pose-NDF noise: leave out --denoiser "
+                 "and --noise")  # fmt: skip
     denoiser, body, log = common.shipped_models_and_log(args.denoiser)
 
     text = [
-        split_table(s, args.clips, denoiser, body, log, args.clip_frames)
+        split_table(s, args.clips, denoiser, body, log, args.clip_frames, args.noise)
         for s in args.splits.split(",")
     ]
     section = (
