@@ -225,34 +225,41 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--clips", type=int, default=12, help="clips per split (spread evenly)")
     ap.add_argument("--splits", default="test,unseen_test")
     ap.add_argument("--clip-frames", type=int, default=CLIP_FRAMES, help="frames per clip (30 Hz)")
-    ap.add_argument("--write", action="store_true", help="write the section of docs/benchmarks.md")
+    ap.add_argument("--write", action="store_true",
+                    help="write the section of docs/benchmarks.md (one per --noise)")  # fmt: skip
     ap.add_argument("--denoiser", help="denoiser checkpoint or folder (default: the shipped one)")
     ap.add_argument("--noise", choices=["pose-ndf", "video"], default="pose-ndf",
                     help="the clips clean and with Pose-NDF noise of 0.10 rad (the table in "
                          "docs/benchmarks.md), or with video-like noise")  # fmt: skip
     args = ap.parse_args(argv)
-    if args.write and (args.denoiser or args.noise != "pose-ndf"):
-        ap.error("--write documents the shipped weights on Pose-NDF noise: leave out --denoiser "
-                 "and --noise")  # fmt: skip
+    if args.write and args.denoiser:
+        ap.error("--write documents the shipped weights: leave out --denoiser")
     denoiser, body, log = common.shipped_models_and_log(args.denoiser)
 
     text = [
         split_table(s, args.clips, denoiser, body, log, args.clip_frames, args.noise)
         for s in args.splits.split(",")
     ]
+    video = args.noise == "video"
+    tag = "holes_video" if video else "holes"
     section = (
-        "<!-- holes:begin (written by benchmarks/holes.py) -->\n"
-        "## Holes (missing frames and joints)\n\n"
+        f"<!-- {tag}:begin (written by benchmarks/holes.py) -->\n"
+        + (
+            "## Holes under video-like noise\n\n"
+            if video
+            else "## Holes (missing frames and joints)\n\n"
+        )  # fmt: skip
         + "\n\n".join(text)
         + f"\n\n({common.cpu_model()}; `python benchmarks/holes.py --clips {args.clips}"
         + (f" --clip-frames {args.clip_frames}" if args.clip_frames != CLIP_FRAMES else "")
+        + (" --noise video" if video else "")
         + "`)\n"
-        + "<!-- holes:end -->"
+        + f"<!-- {tag}:end -->"
     )
     print(section)
     if args.write:
         common.write_section(REPO / "docs" / "benchmarks.md", section,
-                             "<!-- holes:begin", "<!-- holes:end -->")  # fmt: skip
+                             f"<!-- {tag}:begin", f"<!-- {tag}:end -->")  # fmt: skip
 
 
 if __name__ == "__main__":

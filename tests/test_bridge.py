@@ -105,8 +105,8 @@ def test_a_long_hole_is_filled_from_both_sides_and_the_rest_comes_as_its_pieces_
     # without bridges (each side's own ends drawn over the hole) the fill is further away
     monkeypatch.setattr(
         denoise_module, "bridge_fills",
-        lambda ms, pieces, joined, method, _: [fill_holes(m, j, method)
-                                               for m, j in zip(ms, joined, strict=True)],
+        lambda ms, pieces, joined, method, _, spline: [fill_holes(m, j, method, spline)
+                                                       for m, j in zip(ms, joined, strict=True)],
     )  # fmt: skip
     plain = run([holed])[0]
     err = lambda m: rotation_gap(m.pose_body[miss], src.pose_body[miss]).mean()  # noqa: E731

@@ -236,3 +236,20 @@ def test_a_long_hole_splits_the_take_and_each_side_is_denoised_on_its_own(model)
     np.testing.assert_allclose(out.pose_body[90:], after.pose_body, atol=1e-6)
     assert np.isfinite(out.pose_body[60:90]).all()
     assert not np.allclose(out.pose_body[60:90], holed.pose_body[60:90])  # filled, not kept
+
+
+def test_a_video_estimates_short_hole_is_slerped_a_mocap_takes_splined(model):
+    den, body = model
+    src = clip(150, seed=9)
+    mask = np.ones((150, 22), bool)
+    mask[70:78] = False  # 8 frames: inside the take, not split
+    holed = with_holes(src, mask)
+    gap = {}
+    for kind in ("mocap", "video"):
+        out = denoise([holed], DenoiseSettings(input_kind=kind), den, body)[0]
+        for curve in ("slerp", "spline"):
+            ref = with_holes(src, mask, curve).pose_body[70:78]
+            gap[kind, curve] = rotation_gap(out.pose_body[70:78], ref).mean()
+    # a clean take is filled from its own frames: the spline for mocap, slerp for video
+    assert gap["mocap", "spline"] < 0.1 * gap["mocap", "slerp"]
+    assert gap["video", "slerp"] < 0.1 * gap["video", "spline"]

@@ -115,11 +115,12 @@ def bridge_fills(
     joined: list[Motion],
     method: str,
     denoise_stretches: Callable[[list[Motion]], list[Motion]],
+    spline: bool = True,
 ) -> list[Motion]:
     """Each motion's holes filled by ``method`` (``infer.fill.fill_holes``) from ``joined``
     (its pieces' result), its long holes between two pieces from their bridges
     (:func:`meet_ends`). ``denoise_stretches`` denoises the bridges (whole: the holes in them
-    read as missing, not split), all of them in one call."""
+    read as missing, not split), all of them in one call. ``spline``: as ``fill_holes``'."""
     plans, stretches = [], []
     for m, cuts in zip(motions, pieces, strict=True):
         holes = bridged_holes(m.num_frames, m.fps, cuts) if cuts else []
@@ -130,12 +131,12 @@ def bridge_fills(
     out, k = [], 0
     for m, result, (holes, spans) in zip(motions, joined, plans, strict=True):
         if not holes:
-            out.append(fill_holes(m, result, method))
+            out.append(fill_holes(m, result, method, spline))
             continue
         context = with_bridges(result, spans, done[k : k + len(spans)])
         k += len(spans)
         own = meet_ends(result_curve(m, result, method), result_curve(m, context, method), holes)
-        out.append(mix_curves(m, own, method))
+        out.append(mix_curves(m, own, method, spline))
     return out
 
 

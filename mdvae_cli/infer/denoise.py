@@ -214,7 +214,8 @@ def denoise_motions(
     its result that the input's own noise does not explain is put back
     (``infer.noise_blend``): a clean take comes back as it came, a noisy one cleaned; each
     motion's :class:`BlendReport` goes to ``on_blend(motion index, report)``; ``blend_fast``
-    False puts back the slow band alone (video estimates, whose jitter is not white).
+    False puts back the slow band alone (video estimates, whose jitter is not white) and
+    bridges short holes by slerp, not a spline through that jitter (``infer.fill.input_curve``).
     With ``feet``, the results' feet are then held still on the floor where they are down
     (``infer.feet.lock_feet``, each input as its source).
     ``fill``: what the inputs' holes (``joint_mask`` False) become, one of
@@ -258,7 +259,7 @@ def denoise_motions(
         out = []
         for i, (m, src) in enumerate(zip(cleaned, motions, strict=True)):
             blended, report = blend_motion(src, m, blend_fast)
-            out.append(fill_holes(src, blended, fill or "model"))
+            out.append(fill_holes(src, blended, fill or "model", spline=blend_fast))
             if on_blend is not None:
                 on_blend(i, report)
         phase(progress, "blended", CORE_PHASES + 1, CORE_PHASES + 1)
@@ -268,7 +269,7 @@ def denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
             progress, refine, mirror, guard, on_fallback, loops, fill=None, split=split,
         )  # fmt: skip
-        return [fill_holes(src, m, fill) for m, src in zip(cleaned, motions, strict=True)]
+        return [fill_holes(s, m, fill, blend_fast) for m, s in zip(cleaned, motions, strict=True)]
     if loops is not None and any(loops):
         return _denoise_cycles(
             motions, list(loops), denoiser, body, window, stride, optimize_steps, lr,
@@ -367,7 +368,7 @@ def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
         )  # fmt: skip
 
     out = bridge_fills(motions, pieces, joined, "curve" if fill == "learned" else fill or "model",
-                       bridges)  # fmt: skip
+                       bridges, spline=blend_fast)  # fmt: skip
     if feet is None:
         return out
     out = lock_bridged(out, motions, pieces, body, feet)

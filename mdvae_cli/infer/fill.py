@@ -36,9 +36,13 @@ def has_holes(motion: Motion) -> bool:
     return motion.joint_mask is not None and not np.asarray(motion.joint_mask, bool).all()
 
 
-def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
+def fill_holes(
+    source: Motion, result: Motion, method: str = "curve", spline: bool = True
+) -> Motion:
     """``result`` (the denoised ``source``, same frames) with the source's holes written by
-    ``method`` (see the module docstring); the result's mask is the source's."""
+    ``method`` (see the module docstring); the result's mask is the source's. ``spline``:
+    the input's own curve over short holes is a spline through its frames (:func:`input_curve`;
+    False: slerp / lerp, for a video estimate)."""
     if method not in FILLS:
         raise ValueError(f"fill must be one of {', '.join(FILLS)}, got {method!r}")
     if not has_holes(source):
@@ -47,7 +51,7 @@ def fill_holes(source: Motion, result: Motion, method: str = "curve") -> Motion:
         out = result.with_body()
         out.joint_mask = observed(source)
         return take_holes(out, source, out.joint_mask)
-    return mix_curves(source, result_curve(source, result, method), method)
+    return mix_curves(source, result_curve(source, result, method), method, spline)
 
 
 def result_curve(source: Motion, result: Motion, method: str) -> Motion:
@@ -62,13 +66,13 @@ def result_curve(source: Motion, result: Motion, method: str) -> Motion:
     return out
 
 
-def mix_curves(source: Motion, from_result: Motion, method: str) -> Motion:
+def mix_curves(source: Motion, from_result: Motion, method: str, spline: bool = True) -> Motion:
     """The holes' curve from the result (:func:`result_curve`) mixed with the input's own
     (:func:`input_curve`) by the input's noise (:func:`mix_by_noise`), as ``method`` mixes
     them ("model": the result's alone)."""
-    return (
-        from_result if method == "model" else mix_by_noise(input_curve(source), from_result, source)
-    )
+    if method == "model":
+        return from_result
+    return mix_by_noise(input_curve(source, spline), from_result, source)
 
 
 #: the input noise (rad per component, m for the translation) at which a hole's curve reads
@@ -204,13 +208,15 @@ def _cubic_stencils(seen: np.ndarray, spikes: np.ndarray):
     return frames, idx, w
 
 
-def input_curve(source: Motion) -> Motion:
+def input_curve(source: Motion, spline: bool = True) -> Motion:
     """The holes of ``source`` filled from its own frames: the spline over short holes, the
     Hermite curve over long ones (:data:`SPLINE_SECONDS`), joint by joint; a long hole of
     every joint from a stretch of the take that matches its ends, where one does
-    (``motion.pattern``)."""
-    spline, hermite = (
-        fill_gaps(source.with_body(), "spline"),
+    (``motion.pattern``). ``spline`` False: slerp / lerp over the short holes instead (a video
+    estimate's frames beside a hole carry jitter that is not white, spikes and swapped legs,
+    which a spline through every frame swings with)."""
+    short, hermite = (
+        fill_gaps(source.with_body(), "spline" if spline else "slerp"),
         fill_gaps(source.with_body(), "hermite"),
     )
     longest = max(2, int(round(SPLINE_SECONDS * source.fps)))
@@ -220,7 +226,7 @@ def input_curve(source: Motion) -> Motion:
         edges = np.diff(np.concatenate([[0], missing[:, j].astype(int), [0]]))
         for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
             long[a:b, j] = b - a > longest
-    return pattern_fill(source, take_holes(spline, hermite, ~long))[0]
+    return pattern_fill(source, take_holes(short, hermite, ~long))[0]
 
 
 def take_holes(motion: Motion, other: Motion, mask: np.ndarray) -> Motion:
