@@ -120,7 +120,8 @@ def bridge_fills(
     """Each motion's holes filled by ``method`` (``infer.fill.fill_holes``) from ``joined``
     (its pieces' result), its long holes between two pieces from their bridges
     (:func:`meet_ends`). ``denoise_stretches`` denoises the bridges (whole: the holes in them
-    read as missing, not split), all of them in one call. ``spline``: as ``fill_holes``'."""
+    read as missing, not split), all of them in one call. ``spline``: the input's own curve
+    over short holes a spline, else slerp (``infer.fill.input_curve``)."""
     plans, stretches = [], []
     for m, cuts in zip(motions, pieces, strict=True):
         holes = bridged_holes(m.num_frames, m.fps, cuts) if cuts else []

@@ -338,7 +338,7 @@ def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
     the "learned" fill's networks never saw long holes: the "curve" fills such a take), then
     lock the feet of the whole. ``args``: :func:`denoise_motions`' arguments after ``body``."""
     *head, on_fallback, loops, feet, blend, on_blend, blend_fast, fill = args
-    progress = head[6]
+    progress = head[6]  # the pieces' run: its phases, then the lock of the whole
     head[6] = progress if feet is None else more_phases(progress, 1)
     parts, owners = [], []
     for i, (m, cuts) in enumerate(zip(motions, pieces, strict=True)):
