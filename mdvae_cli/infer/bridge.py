@@ -90,8 +90,8 @@ def meet_ends(
     for _, a, b, _ in holes:
         n = b - a
         w = torch.arange(1, n + 1, dtype=torch.float64)[:, None] / (n + 1)  # (n, 1)
-        q = rotvec_to_quat(torch.as_tensor(rot, dtype=torch.float64)[[a - 1, b]])  # (2, 22, 4)
-        qb = rotvec_to_quat(torch.as_tensor(rot_b, dtype=torch.float64)[[a - 1, b]])
+        q = rotvec_to_quat(torch.as_tensor(rot[[a - 1, b]], dtype=torch.float64))  # (2, 22, 4)
+        qb = rotvec_to_quat(torch.as_tensor(rot_b[[a - 1, b]], dtype=torch.float64))
         turn = quat_multiply(q, qb * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64))
         across = quat_slerp(turn[0].expand(n, -1, -1), turn[1].expand(n, -1, -1), w)
         inside = rotvec_to_quat(torch.as_tensor(rot_b[a:b], dtype=torch.float64))
