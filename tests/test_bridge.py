@@ -12,7 +12,7 @@ from test_holes import clip, rotation_gap
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.geometry.rotations import quat_multiply, quat_to_rotvec, rotvec_to_quat
-from mdvae_cli.infer import denoise as denoise_module
+from mdvae_cli.infer import pieces as pieces_module
 from mdvae_cli.infer.bridge import bridge_spans, bridged_holes, meet_ends
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig
@@ -104,7 +104,7 @@ def test_a_long_hole_is_filled_from_both_sides_and_the_rest_comes_as_its_pieces_
     assert max(steps[139], steps[154]) < 2.5 * np.median(steps)
     # without bridges (each side's own ends drawn over the hole) the fill is further away
     monkeypatch.setattr(
-        denoise_module, "bridge_fills",
+        pieces_module, "bridge_fills",
         lambda ms, pieces, joined, method, _, spline: [fill_holes(m, j, method, spline)
                                                        for m, j in zip(ms, joined, strict=True)],
     )  # fmt: skip
@@ -112,3 +112,35 @@ def test_a_long_hole_is_filled_from_both_sides_and_the_rest_comes_as_its_pieces_
     err = lambda m: rotation_gap(m.pose_body[miss], src.pose_body[miss]).mean()  # noqa: E731
     print(f"hole error: bridged {err(out):.4f} rad, ends only {err(plain):.4f}")
     assert err(out) < 0.92 * err(plain)  # 0.217 against 0.248 rad when written
+
+
+def test_fill_off_denoises_no_bridge_and_the_frames_it_has_come_as_with_a_fill(model, monkeypatch):
+    den, body = model
+    _, holed, miss = noisy_take_with_a_long_hole()
+    phases: list[str] = []
+
+    def run(fill: str) -> Motion:
+        tell = lambda info: phases.append(info.get("phase"))  # noqa: E731
+        return denoise_motions([holed], den, body, blend=True, feet=FootLockConfig(),
+                               fill=fill, progress=tell)[0]  # fmt: skip
+
+    curve = run("curve")
+    assert [p for p in phases if p] == [
+        "windows denoised", "stitched", "blended", "holes filled", "feet locked"
+    ]  # fmt: skip
+
+    def no_bridges(*_):
+        raise AssertionError("a bridge denoised for --fill off")
+
+    monkeypatch.setattr(pieces_module, "bridge_fills", no_bridges)
+    monkeypatch.setattr(pieces_module, "lock_bridged", no_bridges)
+    phases.clear()
+    off = run("off")
+    assert [p for p in phases if p] == ["windows denoised", "stitched", "blended", "feet locked"]
+    # the frames it has: its pieces', locked piece by piece, as the curve's fill has them
+    np.testing.assert_array_equal(off.pose_body[~miss], curve.pose_body[~miss])
+    np.testing.assert_array_equal(off.trans[~miss], curve.trans[~miss])
+    # the hole: as it came, and still marked missing
+    np.testing.assert_array_equal(off.pose_body[miss], holed.pose_body[miss])
+    np.testing.assert_array_equal(off.joint_mask, holed.joint_mask)
+    assert not np.allclose(curve.pose_body[miss], holed.pose_body[miss])

@@ -58,6 +58,9 @@ def test_a_repeated_motion_fills_a_long_hole_from_its_own_cycle():
     assert rotation_error(filled, truth, slice(a, b)) < 1e-6
     assert np.abs(filled.trans[a:b] - truth.trans[a:b]).max() < 1e-6
     assert rotation_error(spline, truth, slice(a, b)) > 0.05  # the spline cannot know the cycle
+    # a hole not asked for keeps the base's fill
+    assert pattern_fill(holed, spline, which=lambda start: start != a) == (spline, [])
+    assert pattern_fill(holed, spline, which=lambda start: start == a)[1] == written
     # every frame outside the hole is the base's
     outside = np.r_[0:a, b : truth.num_frames]
     assert np.array_equal(filled.pose_body[outside], spline.pose_body[outside])

@@ -136,7 +136,12 @@ def bridge_fills(
             continue
         context = with_bridges(result, spans, done[k : k + len(spans)])
         k += len(spans)
-        own = meet_ends(result_curve(m, result, method), result_curve(m, context, method), holes)
+        # each hole's curve drawn once: the bridged ones from the bridges, the rest from the
+        # pieces' result (meet_ends takes the bridged holes' entries alone from the bridges)
+        starts = {a for _, a, _, _ in holes}
+        pieces_curve = result_curve(m, result, method, lambda a, bridged=starts: a not in bridged)
+        bridge_curve = result_curve(m, context, method, starts.__contains__)
+        own = meet_ends(pieces_curve, bridge_curve, holes)
         out.append(mix_curves(m, own, method, spline))
     return out
 
@@ -158,8 +163,31 @@ def lock_bridged(
         if not cuts:
             out.append(w)
             continue
-        parts = lock_motions([slice_frames(f, a, b) for a, b in cuts],
-                             [slice_frames(m, a, b) for a, b in cuts], body, feet)  # fmt: skip
-        kept = join_pieces(f, cuts, parts)
+        kept = _locked_pieces(f, m, cuts, body, feet)
         out.append(meet_ends(kept, w, bridged_holes(m.num_frames, m.fps, cuts)))
     return out
+
+
+def lock_pieces(
+    joined: list[Motion],
+    motions: list[Motion],
+    pieces: list[list[tuple[int, int]] | None],
+    body: BodyModel,
+    feet: FootLockConfig,
+) -> list[Motion]:
+    """The foot lock on the pieces alone, each a take of its own (as :func:`lock_bridged`
+    locks them), the frames between them as they are: a take whose holes stay as they came
+    (``--fill off``). A motion without pieces (None) is locked whole."""
+    return [
+        _locked_pieces(j, m, cuts, body, feet) if cuts else lock_motions([j], [m], body, feet)[0]
+        for j, m, cuts in zip(joined, motions, pieces, strict=True)
+    ]
+
+
+def _locked_pieces(
+    f: Motion, m: Motion, cuts: list[tuple[int, int]], body: BodyModel, feet: FootLockConfig
+) -> Motion:
+    """``f`` with each piece [a, b) of ``cuts`` locked on its own (``m``'s piece its source)."""
+    parts = lock_motions([slice_frames(f, a, b) for a, b in cuts],
+                         [slice_frames(m, a, b) for a, b in cuts], body, feet)  # fmt: skip
+    return join_pieces(f, cuts, parts)

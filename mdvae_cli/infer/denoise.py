@@ -18,14 +18,14 @@ import torch
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.infer.bridge import bridge_fills, lock_bridged
 from mdvae_cli.infer.closed_form import add_offset
 from mdvae_cli.infer.feet import FootLockConfig, lock_motions
-from mdvae_cli.infer.fill import fill_holes, has_holes, join_pieces, observed_pieces
+from mdvae_cli.infer.fill import fill_holes, has_holes, observed_pieces
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL
 from mdvae_cli.infer.guard import fallback_stretches, guard, guard_note
 from mdvae_cli.infer.native_rate import to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
+from mdvae_cli.infer.pieces import denoise_pieces
 from mdvae_cli.infer.progress import CORE_PHASES, more_phases, phase, staged
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
@@ -37,7 +37,7 @@ from mdvae_cli.model.small_batch import SmallBatchRegressor, small_batch_regress
 from mdvae_cli.model.state import BodyParams, state_to_params
 from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
-from mdvae_cli.motion.motion import Motion, slice_frames
+from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import resample_times
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
@@ -225,6 +225,14 @@ def denoise_motions(
     denoised on their own, filled from a bridge (``infer.bridge``); False: read as a short one.
     """
     holes = any(has_holes(m) for m in motions)
+    reads = denoiser.cfg.reads_holes
+    pieces = [observed_pieces(m, MIN_FRAMES, reads) for m in motions] if holes and split else []
+    if any(p is not None for p in pieces):  # long holes: the pieces between them on their own
+        return denoise_pieces(
+            motions, pieces, denoiser, body, window, stride, optimize_steps, lr, batch_size,
+            seed, progress, refine, mirror, guard, on_fallback, loops, feet, blend, on_blend,
+            blend_fast, fill,
+        )  # fmt: skip
     if fill == "off" and holes:  # everything as usual, then the holes as they came
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
@@ -232,14 +240,6 @@ def denoise_motions(
             blend_fast, fill="model", split=split,
         )  # fmt: skip
         return [fill_holes(src, m, "off") for m, src in zip(cleaned, motions, strict=True)]
-    reads = denoiser.cfg.reads_holes
-    pieces = [observed_pieces(m, MIN_FRAMES, reads) for m in motions] if holes and split else []
-    if any(p is not None for p in pieces):  # long holes: the pieces between them on their own
-        return _denoise_pieces(
-            motions, pieces, denoiser, body, window, stride, optimize_steps, lr, batch_size,
-            seed, progress, refine, mirror, guard, on_fallback, loops, feet, blend, on_blend,
-            blend_fast, fill,
-        )  # fmt: skip
     if feet is not None:
         cleaned = denoise_motions(
             motions, denoiser, body, window, stride, optimize_steps, lr, batch_size, seed,
@@ -329,50 +329,6 @@ def denoise_motions(
         if on_fallback is not None:
             for a, b in stretches:
                 on_fallback(mi, a, b)
-    return out
-
-
-def _denoise_pieces(motions, pieces, denoiser, body, *args) -> list[Motion]:
-    """Denoise the pieces of the motions between their long holes (``infer.fill``) on their
-    own, put them back, fill the holes, the long ones from their bridges (``infer.bridge``;
-    the "learned" fill's networks never saw long holes: the "curve" fills such a take), then
-    lock the feet of the whole. ``args``: :func:`denoise_motions`' arguments after ``body``."""
-    *head, on_fallback, loops, feet, blend, on_blend, blend_fast, fill = args
-    progress = head[6]  # the pieces' run: its phases, then the lock of the whole
-    head[6] = progress if feet is None else more_phases(progress, 1)
-    parts, owners = [], []
-    for i, (m, cuts) in enumerate(zip(motions, pieces, strict=True)):
-        for a, b in cuts if cuts is not None else [(0, m.num_frames)]:
-            parts.append(slice_frames(m, a, b))
-            owners.append((i, a / m.fps))
-    tell = None if on_fallback is None else (
-        lambda j, a, b: on_fallback(owners[j][0], a + owners[j][1], b + owners[j][1]))  # fmt: skip
-    report = None if on_blend is None else lambda j, r: on_blend(owners[j][0], r)
-    done = denoise_motions(
-        parts, denoiser, body, *head, on_fallback=tell,
-        loops=None, blend=blend,  # a piece of a take is no cycle
-        on_blend=report, blend_fast=blend_fast, fill=fill,
-    )  # fmt: skip
-    joined, k = [], 0
-    for m, cuts in zip(motions, pieces, strict=True):
-        cuts = cuts if cuts is not None else [(0, m.num_frames)]
-        joined.append(join_pieces(m, cuts, done[k : k + len(cuts)]))
-        k += len(cuts)
-    window, stride, _, lr, batch_size, seed, _, refine, mirror, guard = head
-
-    def bridges(stretches: list[Motion]) -> list[Motion]:  # the networks are fitted already
-        return denoise_motions(
-            stretches, denoiser, body, window, stride, 0, lr, batch_size, seed, None, refine,
-            mirror, guard, blend=blend, blend_fast=blend_fast, fill="model",
-            split=False,
-        )  # fmt: skip
-
-    out = bridge_fills(motions, pieces, joined, "curve" if fill == "learned" else fill or "model",
-                       bridges, spline=blend_fast)  # fmt: skip
-    if feet is None:
-        return out
-    out = lock_bridged(out, motions, pieces, body, feet)
-    phase(progress, "feet locked", CORE_PHASES + blend + 1, CORE_PHASES + blend + 1)
     return out
 
 

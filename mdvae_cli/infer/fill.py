@@ -20,6 +20,8 @@ drop them (the joint mask weighs the observations). What ends up in a hole is th
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -54,15 +56,19 @@ def fill_holes(
     return mix_curves(source, result_curve(source, result, method), method, spline)
 
 
-def result_curve(source: Motion, result: Motion, method: str) -> Motion:
+def result_curve(
+    source: Motion, result: Motion, method: str, which: Callable[[int], bool] | None = None
+) -> Motion:
     """``result`` with the source's holes drawn from its own frames, as ``method`` draws them:
     "curve", a stretch of the cleaned take that matches the hole's ends where one does, the
     Hermite curve from its frames beside the hole elsewhere; "learned" and "model", the
-    result's own frames. The mask is the source's."""
+    result's own frames. The mask is the source's. ``which``: whether the long hole that
+    starts at a frame is searched for a matching stretch (None: each one; the others keep
+    the Hermite curve: a caller that writes them from elsewhere)."""
     out = result.with_body()
     out.joint_mask = observed(source)
     if method == "curve":
-        return pattern_fill(out, fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES))[0]
+        return pattern_fill(out, fill_gaps(out, "hermite", RESULT_TANGENT_FRAMES), which)[0]
     return out
 
 

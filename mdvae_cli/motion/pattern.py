@@ -17,6 +17,8 @@ fill they were given (the spline or Hermite curve).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -39,12 +41,16 @@ SEARCH_SECONDS = 120.0
 _CANDIDATE_CHUNK = 2048
 
 
-def pattern_fill(motion: Motion, base: Motion) -> tuple[Motion, list[tuple[int, int, int]]]:
+def pattern_fill(
+    motion: Motion, base: Motion, which: Callable[[int], bool] | None = None
+) -> tuple[Motion, list[tuple[int, int, int]]]:
     """``base`` (``motion`` with its holes already filled, same frames) with each long
     whole-frame hole of ``motion`` that has a match written from the matched stretch.
 
-    motion: the take with ``joint_mask`` (its observed frames are searched); -> (the filled
-    motion, [(hole start, hole end, stretch start)] for each hole written)"""
+    motion: the take with ``joint_mask`` (its observed frames are searched); which: whether
+    the hole that starts at a frame is to be searched (None: every one; the others keep
+    ``base``'s fill); -> (the filled motion, [(hole start, hole end, stretch start)] for each
+    hole written)"""
     if motion.joint_mask is None:
         return base, []
     seen = np.asarray(motion.joint_mask, bool)
@@ -68,7 +74,7 @@ def pattern_fill(motion: Motion, base: Motion) -> tuple[Motion, list[tuple[int, 
     written = []
     for a, b in holes:
         n = int(b - a)
-        if n < least:
+        if n < least or (which is not None and not which(int(a))):
             continue
         s = best_stretch(body, unseen_before, int(a), n, before, after, motion.fps)
         if s is None:
