@@ -334,3 +334,47 @@ def test_real_rigs_import_upright_and_write_back_exactly(path, joints):
     data = write_back_data(take.source, take.retarget, take.motion, take.motion, joints)
     rows = take.source.layout.rows
     np.testing.assert_allclose(data[rows], take.source.layout.data[rows], atol=1e-4)
+
+
+def test_add_noise_gives_a_take_back_noisy_on_its_own_skeleton(tmp_path, joints):
+    path = write_rig(tmp_path / "take.bvh")
+    out = tmp_path / "noisy.bvh"
+    r = CliRunner().invoke(cli, ["add-noise", "--sigma", "0.1", str(path), "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    before, after = path.read_text(), out.read_text()
+    assert after.split("MOTION")[0] == before.split("MOTION")[0]  # hierarchy verbatim
+    src, noisy = load_bvh(path), load_bvh(out)
+    assert noisy.num_frames == src.num_frames == 90
+    # the root's channels and the joints the body does not drive keep their values
+    root_cols = [c for c, (j, _, _) in enumerate(src.layout.channels) if j == 0]
+    np.testing.assert_allclose(noisy.layout.data[:, root_cols], src.layout.data[:, root_cols],
+                               atol=1e-4)  # fmt: skip
+    fingers = [src.index(n) for n in ("Index1_L", "Index2_L", "Index1_R")]
+    np.testing.assert_allclose(noisy.rotations[:, fingers], src.rotations[:, fingers], atol=1e-5)
+    # the body's joints carry noise of about 0.1 rad (5.7 degrees an axis): 0.17 rad a joint
+    rot_deg, pos_mm = _change(read_take(path, joints), noisy.layout.data)
+    print(f"median joint change {rot_deg:.2f} deg, mean position change {pos_mm:.1f} mm")
+    assert 3.0 < rot_deg < 15.0 and pos_mm > 20.0, (rot_deg, pos_mm)
+
+
+def test_add_noise_with_holes_writes_takes_as_npz(tmp_path, make_motion_file):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    write_rig(folder / "take.bvh", T=60)
+    make_motion_file(folder / "walk.npz", T=60)
+    r = CliRunner().invoke(cli, ["add-noise", str(folder), "-o", str(tmp_path / "out")])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["take.bvh", "walk.npz"]
+    holes = ["--drop-frames", "10"]
+    r = CliRunner().invoke(cli, ["add-noise", str(folder), "-o", str(tmp_path / "h"), *holes])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (tmp_path / "h").iterdir()) == ["take.npz", "walk.npz"]
+    assert np.isnan(np.load(tmp_path / "h" / "take.npz")["poses"]).any()
+    # a take named as the output cannot hold them: refused in one line, nothing written
+    named = tmp_path / "x.bvh"
+    r = CliRunner().invoke(cli, ["add-noise", str(folder / "take.bvh"), "-o", str(named), *holes])
+    errors = [ln for ln in r.output.splitlines() if ln.startswith("error")]
+    assert r.exit_code != 0 and len(errors) == 1 and ".npz" in errors[0], r.output
+    assert not named.exists()
+    r = CliRunner().invoke(cli, ["add-noise", str(folder / "walk.npz"), "-o", str(named)])
+    assert r.exit_code != 0 and "export-bvh" in r.output and not named.exists()

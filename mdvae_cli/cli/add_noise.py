@@ -11,7 +11,7 @@ from mdvae_cli.cli.batch import (
     FileJob,
     emit_json,
     json_option,
-    plan_jobs,
+    no_clashes,
     run_batch,
     strip_gz,
 )
@@ -23,14 +23,11 @@ from mdvae_cli.cli.common import (
     console,
     handle_errors,
 )
-from mdvae_cli.cli.motion_input import (
-    INPUT_SUFFIXES,
-    motion_input_options,
-    read_input,
-)
+from mdvae_cli.cli.motion_input import motion_input_options, read_input
 from mdvae_cli.cli.noise_holes import HOLES, drop_holes
+from mdvae_cli.cli.takes import plan_take_jobs
 from mdvae_cli.errors import InputError
-from mdvae_cli.formats.registry import ReadOptions, write
+from mdvae_cli.formats.registry import TAKE_SUFFIXES, ReadOptions, suffix_of, write
 from mdvae_cli.motion.noise import (
     PRESETS,
     NoiseSettings,
@@ -59,7 +56,8 @@ def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
     "-o", "--out", type=click.Path(), required=True,
-    help="Output .npz (one input file) or folder (inputs mirrored below it).",
+    help="Output file (one input file: .npz, or .bvh / .amc for a take of that form) or "
+    "folder (inputs mirrored below it, each in its own form).",
 )  # fmt: skip
 @click.option(
     "--preset", type=click.Choice(sorted(PRESETS)), default=None,
@@ -126,8 +124,10 @@ def add_noise(
     Adds zero-mean Gaussian noise of std --sigma (radians) to the axis-angle of the 21 body
     joints only; root orientation, translation (unless --joint-noise) and hands are left as
     they are. With --preset video, the errors of a video pose estimator instead. INPUTS are
-    motion files (AMASS .npz, video-pipeline outputs) or folders; folders are mirrored under
-    --out.
+    motion files (AMASS .npz, video-pipeline outputs, BVH and ASF/AMC takes) or folders;
+    folders are mirrored under --out. A take comes back in its own form, on its own skeleton
+    (the noise put on its joints' rotations through the body it is read onto), unless holes
+    are asked for: BVH and AMC cannot hold them, so such takes are written as .npz.
 
     \b
     Examples:
@@ -137,6 +137,7 @@ def add_noise(
       mdvae add-noise --preset video clean.npz -o video_like.npz
       mdvae add-noise --preset video --set swap_rate=0 clean_dir/ -o noisy_dir/
       mdvae add-noise --sigma 0.05 --drop-frames 15x2 --drop-joints 30 clean.npz -o holes.npz
+      mdvae add-noise --sigma 0.1 take.bvh -o noisy_take.bvh
     """
     video = None
     if preset is not None:
@@ -151,8 +152,9 @@ def add_noise(
         raise InputError("--set changes the parameters of a --preset; give --preset too")
     sigma = 0.15 if sigma is None else sigma
     settings = NoiseSettings(sigma, joint_noise, drop_frac, spike_frac, spike_rad).validate()
-    jobs = plan_jobs(inputs, out, suffixes=INPUT_SUFFIXES,
-                     rename=lambda rel: strip_gz(rel).with_suffix(".npz"))  # fmt: skip
+    jobs = plan_take_jobs(inputs, out)
+    if drop_frac > 0 or drop_frames is not None or drop_joints is not None:
+        jobs = takes_as_npz(jobs, Path(out))
     sources = tuple(job.source for job in jobs)
 
     read_options = ReadOptions(format=input_format, fps=input_fps, track=track,
@@ -178,7 +180,7 @@ def add_noise(
                 )
             holes_rng = file_rng(seed, f"{name}#holes")  # the noise's own stream unchanged
             noisy, made = drop_holes(noisy, drop_frames, drop_joints, holes_rng, job.relpath)
-            write(noisy, output, forbid=sources)
+            write(noisy, output, take=loaded.take, forbid=sources)
             frames, outputs = frames + noisy.num_frames, [*outputs, str(output)]
             dropped = {k: dropped.get(k, 0) + v for k, v in made.items()}
         return {"frames": frames, "outputs": outputs, **dropped}
@@ -191,6 +193,23 @@ def add_noise(
         where = jobs[0].output if len(jobs) == 1 else out
         console.print(f"wrote {len(report.succeeded)} noisy file(s), {total} frames, to {where}")
     report.exit()
+
+
+def takes_as_npz(jobs: list[FileJob], out: Path) -> list[FileJob]:
+    """``jobs`` with each BVH / AMC output written as .npz instead: holes are NaN, which
+    neither form can hold. InputError when the take's output is the one named by ``-o``."""
+    fixed = []
+    for job in jobs:
+        if job.output is not None and suffix_of(job.output) in TAKE_SUFFIXES:
+            if job.output == out:
+                raise InputError(
+                    f"cannot write {out}: holes (--drop-frac, --drop-frames, --drop-joints) are "
+                    f"written as NaN, which {suffix_of(out)[1:].upper()} cannot hold; name an "
+                    ".npz output"
+                )  # fmt: skip
+            job = FileJob(job.relpath, job.source, strip_gz(job.output).with_suffix(".npz"))
+        fixed.append(job)
+    return no_clashes(fixed)
 
 
 COMMANDS = [add_noise]
