@@ -427,3 +427,23 @@ def test_cmu_take_way_back_is_exact_and_denoises(tmp_path, joints):
     for x, y in zip(a, b, strict=True):
         if x.split()[0] in ("lfingers", "rthumb", "lhipjoint"):
             assert x == y
+
+
+def test_add_noise_and_eval_read_an_amc_take_with_its_skeleton_elsewhere(tmp_path):
+    path, asf = write_take_files(tmp_path / "in", T=90)
+    lone = tmp_path / "lone" / path.name
+    lone.parent.mkdir()
+    lone.write_bytes(path.read_bytes())  # no .asf beside it
+    out = tmp_path / "noisy.amc"
+    r = CliRunner().invoke(cli, ["add-noise", str(lone), "-o", str(out)])
+    assert r.exit_code == 1 and "--asf" in r.output and not out.exists()
+    noisy = ["add-noise", "--sigma", "0.1", str(lone), "-o", str(out), "--asf", str(asf)]
+    r = CliRunner().invoke(cli, noisy)
+    assert r.exit_code == 0, r.output
+    before, after = _values(path, asf), _values(out, asf)
+    assert sorted(after) == sorted(before)  # an AMC of the same bones, noisy
+    assert max(np.abs(after[b] - before[b]).max() for b in before) > 1.0  # degrees
+    r = CliRunner().invoke(cli, ["eval", "--gt", str(lone), "--pred", str(out), "--asf",
+                                 str(asf), "--json"])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["files"][0]["result"]["v2v_cm"] > 1.0

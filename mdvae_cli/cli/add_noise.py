@@ -25,7 +25,7 @@ from mdvae_cli.cli.common import (
 )
 from mdvae_cli.cli.motion_input import motion_input_options, read_input
 from mdvae_cli.cli.noise_holes import HOLES, drop_holes
-from mdvae_cli.cli.takes import plan_take_jobs
+from mdvae_cli.cli.takes import plan_take_jobs, take_options, take_reading
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.registry import TAKE_SUFFIXES, ReadOptions, suffix_of, write
 from mdvae_cli.motion.noise import (
@@ -112,12 +112,14 @@ def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
     help="Std of a spike per axis-angle component (with --spike-frac).",
 )  # fmt: skip
 @motion_input_options
+@take_options
 @allow_pickle_option
 @json_option
 @handle_errors
 def add_noise(
     inputs, out, preset, sets, sigma, seed, joint_noise, drop_frac, drop_frames, drop_joints,
-    spike_frac, spike_rad, input_format, input_fps, track, allow_pickle, as_json,
+    spike_frac, spike_rad, input_format, input_fps, track, asf, joint_map_file, allow_pickle,
+    as_json,
 ) -> None:  # fmt: skip
     """Add Pose-NDF-style noise to motion files.
 
@@ -158,7 +160,8 @@ def add_noise(
     sources = tuple(job.source for job in jobs)
 
     read_options = ReadOptions(format=input_format, fps=input_fps, track=track,
-                               allow_pickle=allow_pickle)  # fmt: skip
+                               allow_pickle=allow_pickle,
+                               **take_reading(asf, joint_map_file))  # fmt: skip
 
     def process(job: FileJob) -> dict:
         loaded = read_input(job.source, job.relpath, read_options)

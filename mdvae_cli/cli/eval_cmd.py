@@ -19,6 +19,7 @@ from mdvae_cli.cli.common import (
     console,
     handle_errors,
 )
+from mdvae_cli.cli.takes import take_options, take_reading
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular, expand_inputs
 from mdvae_cli.foot_metrics import SLIDE_SPEED
@@ -196,16 +197,20 @@ Example:
     "--chunk-frames", type=click.IntRange(min=1), default=256, show_default=True,
     help="Frames posed at once (bounds memory on long files).",
 )  # fmt: skip
+@take_options
 @allow_pickle_option
 @json_option
 @handle_errors
-def eval_command(gt, pred, body_model, chunk_frames, allow_pickle, as_json) -> None:
+def eval_command(
+    gt, pred, body_model, chunk_frames, asf, joint_map_file, allow_pickle, as_json
+) -> None:
     from mdvae_cli.export import as_body_model
     from mdvae_cli.metrics import evaluate_pair, mean_result
 
     jobs, unmatched = pair_files(gt, pred)
     body = as_body_model(load_body_model(body_model))
-    options = ReadOptions(allow_pickle=allow_pickle, body=body.data)
+    options = ReadOptions(allow_pickle=allow_pickle, body=body.data,
+                          **take_reading(asf, joint_map_file))  # fmt: skip
     for path in unmatched:
         console.print(f"[dim]note: {escape(str(path))} has no ground truth; skipped[/]")
 

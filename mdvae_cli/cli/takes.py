@@ -1,11 +1,13 @@
 """Mocap takes (BVH, ASF/AMC) in file commands: which output form each input gets, and the
-``--joint-map`` file."""
+``--asf`` and ``--joint-map`` options."""
 
 from __future__ import annotations
 
 import json
 import os
 from pathlib import Path
+
+import click
 
 from mdvae_cli.cli.batch import (
     FileJob,
@@ -17,7 +19,7 @@ from mdvae_cli.cli.batch import (
     strip_gz,
 )
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import check_regular
+from mdvae_cli.fileio import check_named_file, check_regular
 from mdvae_cli.formats.registry import READ_SUFFIXES, TAKE_SUFFIXES
 
 #: what ``mdvae denoise`` reads: AMASS-style .npz, mocap takes, video pipelines' outputs
@@ -104,3 +106,29 @@ def load_joint_map(path: Path | str | None) -> dict[str, str] | None:
     ):
         raise InputError(f'{path}: a joint map is a JSON object {{"left_hip": "LeftUpLeg", ...}}')
     return data
+
+
+def take_options(fn):
+    """``--asf`` and ``--joint-map``: how BVH / AMC takes are read (as ``mdvae denoise``)."""
+    fn = click.option(
+        "--joint-map",
+        "joint_map_file",
+        type=click.Path(path_type=Path, dir_okay=False),
+        help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them "
+        '(SMPL joint -> yours, e.g. {"left_hip": "LeftUpLeg"}).',
+    )(fn)
+    return click.option(
+        "--asf",
+        type=click.Path(path_type=Path, dir_okay=False),
+        default=None,
+        help="The .asf skeleton of .amc inputs (default: the one next to each file).",
+    )(fn)
+
+
+def take_reading(asf: Path | None, joint_map_file: Path | None) -> dict:
+    """``formats.registry.ReadOptions``' fields for :func:`take_options`' values: the
+    skeleton (checked to be a file) and the joint map (read)."""
+    if asf is not None:
+        check_named_file(Path(asf), "skeleton")
+    return {"skeleton": None if asf is None else Path(asf),
+            "joint_map": load_joint_map(joint_map_file)}  # fmt: skip

@@ -9,8 +9,9 @@ import click
 
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, print_notes, run_batch
 from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
+from mdvae_cli.cli.takes import take_options, take_reading
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import check_named_file, expand_inputs
+from mdvae_cli.fileio import expand_inputs
 
 
 def motion_labels(paths: list[Path]) -> list[str]:
@@ -28,16 +29,12 @@ def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path
     """The report of reading every input file (folders: every motion file below them, in
     order) with a progress bar, and (label, Motion) for each file read: its first track, said
     in a note when it holds several. A file that cannot be read is one ``error:`` line."""
-    from mdvae_cli.cli.takes import load_joint_map
     from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
     from mdvae_cli.retarget.take import TakeReader
 
-    if asf is not None:
-        check_named_file(Path(asf), "skeleton")
-    joint_map = load_joint_map(joint_map_file)
-    options = ReadOptions(allow_pickle=allow_pickle, body=body_data, joint_map=joint_map,
-                          skeleton=None if asf is None else Path(asf))  # fmt: skip
-    takes = TakeReader(body_data, options.skeleton, joint_map)
+    options = ReadOptions(allow_pickle=allow_pickle, body=body_data,
+                          **take_reading(asf, joint_map_file))  # fmt: skip
+    takes = TakeReader(body_data, options.skeleton, options.joint_map)
     files = [src for src, _ in expand_inputs(inputs, READ_SUFFIXES, skip=(out,))]
     if not files:
         raise InputError(f"no motion files found in {', '.join(str(p) for p in inputs)}")
@@ -67,23 +64,6 @@ def check_output(out: Path, suffixes: tuple[str, ...], inputs) -> None:
 
 def inputs_argument(fn):
     return click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))(fn)
-
-
-def take_options(fn):
-    """``--asf`` and ``--joint-map``: how BVH / AMC takes are read (as ``mdvae denoise``)."""
-    fn = click.option(
-        "--joint-map",
-        "joint_map_file",
-        type=click.Path(path_type=Path, dir_okay=False),
-        help="For BVH/AMC takes whose joint names are not recognised: a JSON file naming them "
-        '(SMPL joint -> yours, e.g. {"left_hip": "LeftUpLeg"}).',
-    )(fn)
-    return click.option(
-        "--asf",
-        type=click.Path(path_type=Path, dir_okay=False),
-        default=None,
-        help="The .asf skeleton of .amc inputs (default: the one next to each file).",
-    )(fn)
 
 
 @click.command("view")
