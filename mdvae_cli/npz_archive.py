@@ -120,8 +120,11 @@ class NpzArchive:
             )
         self.compressed = any(i.compress_type != zipfile.ZIP_STORED for i in self._infos.values())
 
-    def read(self, key: str, allow_pickle: bool = False) -> np.ndarray:
-        """The array ``key``, its header's claims checked before it is allocated."""
+    def read(self, key: str, allow_pickle: bool = False, plain_data: bool = False) -> np.ndarray:
+        """The array ``key``, its header's claims checked before it is allocated.
+        ``plain_data``: an object array is read through the data unpickler
+        (``formats.safe_data``: numbers, strings, arrays and plain containers, nothing run)
+        and refused only when it holds anything else (unless ``allow_pickle``)."""
         info = self._infos[key]
         if not info.filename.endswith(".npy"):
             raise InputError(
@@ -137,7 +140,8 @@ class NpzArchive:
         if self.max_member is not None and info.file_size > self.max_member:
             size, most = _bytes(info.file_size), _bytes(self.max_member)
             raise InputError(f"{where} is {size}, over the {most} one array of it may take")
-        return _read_member(self._zip, info, key, self.label, allow_pickle, self.pickle_option)
+        return _read_member(self._zip, info, key, self.label, allow_pickle, self.pickle_option,
+                            plain_data)  # fmt: skip
 
     def __getitem__(self, key: str) -> np.ndarray:
         return self.read(key)
@@ -176,6 +180,7 @@ def _read_member(
     label: str,
     allow_pickle: bool,
     pickle_option: str | None,
+    plain_data: bool = False,
 ) -> np.ndarray:
     where = f"{label}: {key!r}"
     try:
@@ -187,6 +192,8 @@ def _read_member(
                             "their code)" if pickle_option else
                             "they are never loaded (they could run code): save it as plain "
                             "arrays")  # fmt: skip
+                    if plain_data:
+                        return _plain_objects(fh, where, hint)
                     raise InputError(f"{where} holds pickled Python objects; {hint}")
             else:
                 _check_size(info, shape, dtype, header_bytes, where)
@@ -211,6 +218,24 @@ def _read_member(
         if allow_pickle:
             raise InputError(f"{where}: its pickled objects cannot be loaded ({exc})") from None
         raise
+
+
+def _plain_objects(fh: BinaryIO, where: str, hint: str) -> np.ndarray:
+    """The object array whose pickle starts at ``fh`` (after its ``.npy`` header), built by
+    the data unpickler: plain data only (an AMASS SMPL-X file's ``markers_latent_vids``, a
+    dict of marker names to vertex ids), nothing run. InputError when it asks for more."""
+    from mdvae_cli.formats.safe_data import unpickle
+
+    try:
+        value = unpickle(fh, where)
+    except InputError:
+        what = "numbers, strings, arrays, lists and dicts"
+        raise InputError(
+            f"{where} holds pickled Python objects that are not plain data ({what}); {hint}"
+        ) from None
+    if not isinstance(value, np.ndarray):
+        raise InputError(f"{where} is not a readable .npy array (its pickle holds no array)")
+    return value
 
 
 def _header(fh: BinaryIO, where: str) -> tuple[tuple[int, ...], np.dtype, int]:

@@ -1,5 +1,6 @@
 """Motion files, resampling, the state vector and canonical windows."""
 
+import datetime
 import math
 
 import numpy as np
@@ -102,16 +103,29 @@ def test_not_npz_truncated_and_missing(tmp_path):
             load_motion(tmp_path / name)
 
 
-def test_pickled_arrays_need_allow_pickle(tmp_path):
+def test_pickled_arrays_of_plain_data_load_and_others_need_allow_pickle(tmp_path):
+    # AMASS SMPL-X files hold a dict of marker names to vertex ids as a pickled object array
+    vids = {"C7": 3832, "LFHD": 9135, "RFWT": 6544}
     f = write_npz(
         tmp_path / "p.npz",
         poses=np.zeros((3, 66)),
         mocap_framerate=30.0,
-        meta=np.array([{"a": 1}], dtype=object),
+        markers_latent_vids=np.array(vids, dtype=object),
+        meta=np.array([{"a": [1, 2.5, "x"]}, None], dtype=object),
     )
-    with pytest.raises(InputError, match="allow-pickle"):
-        load_motion(f)
-    assert load_motion(f, allow_pickle=True).num_frames == 3
+    m = load_motion(f)
+    assert m.extras["markers_latent_vids"].item() == vids
+    assert m.extras["meta"].tolist() == [{"a": [1, 2.5, "x"]}, None]
+    out = tmp_path / "out.npz"
+    save_motion(m, out)
+    with np.load(out, allow_pickle=True) as z:  # written back as it was
+        assert z["markers_latent_vids"].item() == vids
+    # a pickle that builds anything but data is never run without --allow-pickle
+    g = write_npz(tmp_path / "q.npz", poses=np.zeros((3, 66)), mocap_framerate=30.0,
+                  meta=np.array([datetime.date(2020, 1, 1)], dtype=object))  # fmt: skip
+    with pytest.raises(InputError, match="not plain data.*allow-pickle"):
+        load_motion(g)
+    assert load_motion(g, allow_pickle=True).num_frames == 3
 
 
 def test_resample_constant_speed_rotation_and_translation():

@@ -54,7 +54,9 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
     """Read an AMASS-layout motion file.
 
     A ``.gz`` file (``take.npz.gz``, as folders are searched) is gunzipped first. Never
-    executes pickled objects unless ``allow_pickle``. Raises InputError with a one-line
+    executes pickled objects unless ``allow_pickle``: object arrays of plain data (numbers,
+    strings, arrays, lists, dicts: AMASS SMPL-X's ``markers_latent_vids``) are built without
+    running anything and carried through; any other is refused. Raises InputError with a one-line
     message for every malformed input (missing file, not an npz, corrupt archive or member,
     a member claiming more than it holds, missing or mis-shaped keys, complex, NaN/inf or
     corrupt-looking values, no frames, frame rate <= 0 or outside FPS_RANGE). Extra keys whose
@@ -76,7 +78,8 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
         source.seek(0)
     limits = {"max_member": MAX_MEMBER, "max_total": MAX_TOTAL}
     with NpzArchive(source, path, "--allow-pickle", **limits) as npz:
-        data = {key: npz.read(key, allow_pickle) for key in npz.keys}  # in the archive's order
+        # in the archive's order; object arrays of plain data read without running anything
+        data = {key: npz.read(key, allow_pickle, plain_data=True) for key in npz.keys}
         compressed = npz.compressed
     motion = motion_from_arrays(data, path)
     motion.layout["compressed"] = compressed
