@@ -237,6 +237,19 @@ def test_add_noise_folder_into_npz_name_is_refused(make_motion_file, tmp_path):
     assert "must be a folder" in line and not (tmp_path / "x.npz").exists()
 
 
+@pytest.mark.parametrize("command", ["add-noise", "denoise", "import"])
+def test_an_output_named_as_a_pickle_is_refused_not_made_a_folder(
+    make_motion_file, tmp_path, command
+):
+    src = make_motion_file("in/a.npz", T=12)
+    for name in ("clean.pkl", "clean.pt.gz"):
+        line = assert_one_error_line(*run(command, src, "-o", tmp_path / name))
+        assert "clean.npz" in line and not (tmp_path / name).exists(), line
+    (tmp_path / "out.pkl").mkdir()  # an existing folder of that name is a folder
+    code, _, err = run(command, src, "-o", tmp_path / "out.pkl")
+    assert code == 0 and (tmp_path / "out.pkl" / "a.npz").is_file(), err
+
+
 def test_add_noise_batch_goes_on_after_a_failure(make_motion_file, tmp_path):
     make_motion_file("in/a.npz", T=5)
     make_motion_file("in/b.npz", T=5, poses=None)  # broken

@@ -165,13 +165,21 @@ def plan_jobs(
 
 def refuse_unsupported(out: Path) -> None:
     """InputError when the output name ``out`` is in a format mdvae does not write (FBX, C3D,
-    ...): it would otherwise be taken for a folder name."""
-    from mdvae_cli.formats.registry import suffix_of, unsupported
+    ..., or a video pipeline's pickle it only reads): it would otherwise be taken for a
+    folder name (``-o clean.pkl`` made a folder ``clean.pkl/`` holding ``take.npz``)."""
+    from mdvae_cli.formats.registry import VIDEO_SUFFIXES, suffix_of, unsupported
 
+    kind = suffix_of(out)
     if unsupported(out) is not None:
         raise InputError(
-            f"cannot write {out}: mdvae does not write {suffix_of(out)[1:].upper()}; write .npz "
+            f"cannot write {out}: mdvae does not write {kind[1:].upper()}; write .npz "
             "or .bvh (Blender, Maya and MotionBuilder import BVH and save it as FBX)"
+        )
+    if kind in VIDEO_SUFFIXES and not out.is_dir():
+        npz = out.with_name(Path(out.name.removesuffix(".gz")).stem + ".npz")
+        raise InputError(
+            f"cannot write {out}: mdvae writes motion as AMASS-style .npz (and takes back as "
+            f".bvh / .amc), not {kind[1:].upper()}; name the output {npz}, or a folder"
         )
 
 
