@@ -135,3 +135,25 @@ def test_rotmat_between_turns_one_direction_into_the_other_the_short_way():
     half = N.rotmat_between(x, -x)  # opposite: half a turn about a perpendicular axis
     np.testing.assert_allclose(half @ x, -x, atol=1e-12)
     np.testing.assert_allclose(half @ half, np.eye(3), atol=1e-12)
+
+
+@pytest.mark.parametrize("axes", ["yxz", "zxy"])
+def test_euler_angles_near_gimbal_lock_stay_near_the_given_ones(axes):
+    """A joint written at gimbal lock (its middle angle 90 degrees, as a rig's feet can be)
+    and turned by a hundredth of a degree: the exact angles swing by tens of degrees, the ones
+    solved near the given stay near them, with the rotation within a small fraction of a
+    degree."""
+    from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
+
+    rng = np.random.default_rng(3)
+    T = 200
+    given = np.stack([np.linspace(-0.4, 0.6, T), np.full(T, np.pi / 2), np.zeros(T)], -1)
+    turn = N.rotvec_to_rotmat(rng.normal(0, np.radians(0.01), (T, 3)))
+    R = turn @ euler_to_rotmat(given, axes)
+    exact = rotmat_to_euler(R, axes)  # no angles to stay near: the exact decomposition
+    held = rotmat_to_euler(R, axes, near=given)
+    assert np.abs(np.diff(exact[:, 0])).max() > np.radians(5)  # the plain solution jumps
+    assert np.abs(held - given).max() < np.radians(0.1)
+    assert np.abs(np.diff(held, 2, axis=0)).max() < np.radians(0.1)
+    err = N.rotmat_to_rotvec(np.swapaxes(euler_to_rotmat(held, axes), -1, -2) @ R)
+    assert np.degrees(np.linalg.norm(err, axis=-1)).max() < 0.05

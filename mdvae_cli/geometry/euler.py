@@ -53,7 +53,46 @@ def rotmat_to_euler(R: np.ndarray, axes: str, near: np.ndarray | None = None) ->
         return _wrap(one, np.zeros_like(one))
     one, two = _wrap(one, near), _wrap(two, near)
     pick = np.abs(two - near).sum(-1) < np.abs(one - near).sum(-1)
-    return np.where(pick[..., None], two, one)
+    out = np.where(pick[..., None], two, one)
+    near = np.broadcast_to(np.asarray(near, dtype=np.float64), out.shape)
+    locked = (np.abs(np.cos(out[..., 1])) < LOCK_COS) | (np.abs(np.cos(near[..., 1])) < LOCK_COS)
+    if locked.any():
+        out[locked] = _held_near(R[locked], axes, near[locked])
+    return out
+
+
+#: near gimbal lock (the middle angle within about 1.1 degrees of +-90 degrees: its cosine
+#: under this), the outer two angles are ill-determined: a turn of a hundredth of a degree can
+#: move them by tens of degrees in opposite ways (a rig whose feet sit at 90 degrees wrote
+#: channels jumping 36 degrees a frame). There the angles are solved near the given ones.
+LOCK_COS = 0.02
+#: how much staying near the given angles weighs (per rad^2) against matching the rotation
+#: (squared Frobenius distance) near gimbal lock
+LOCK_PULL = 1e-2
+
+
+def _held_near(R: np.ndarray, axes: str, near: np.ndarray, steps: int = 10) -> np.ndarray:
+    """Angles (n, 3) for rotations R (n, 3, 3) near gimbal lock: the minimum of ``|R(angles) -
+    R|^2 + LOCK_PULL |angles - near|^2``, by Gauss-Newton from ``near`` (n, 3)."""
+    theta = near.copy()
+    gens = []
+    for axis in axes:
+        K = np.zeros((3, 3))
+        i = "xyz".index(axis)
+        a, b = (i + 1) % 3, (i + 2) % 3
+        K[b, a], K[a, b] = 1.0, -1.0
+        gens.append(K)
+    eye = np.eye(3)
+    for _ in range(steps):
+        R0, R1, R2 = (euler_to_rotmat(theta[:, k : k + 1], axes[k]) for k in range(3))
+        F = R0 @ R1 @ R2
+        J = np.stack([gens[0] @ F, R0 @ gens[1] @ R1 @ R2, F @ gens[2]], axis=-1)  # (n,3,3,3)
+        J = J.reshape(-1, 9, 3)
+        r = (F - R).reshape(-1, 9)
+        H = np.swapaxes(J, -1, -2) @ J + LOCK_PULL * eye
+        g = (np.swapaxes(J, -1, -2) @ r[..., None])[..., 0] + LOCK_PULL * (theta - near)
+        theta = theta - np.linalg.solve(H, g[..., None])[..., 0]
+    return theta
 
 
 def _wrap(angles: np.ndarray, near: np.ndarray) -> np.ndarray:

@@ -39,7 +39,13 @@ from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
-from mdvae_cli.retarget.way_back import drivers, pelvis_point, smpl_change, smpl_globals
+from mdvae_cli.retarget.way_back import (
+    driven_rotations,
+    drivers,
+    pelvis_point,
+    smpl_change,
+    smpl_globals,
+)
 
 
 def _unit(layout: AmcLayout) -> float:
@@ -165,9 +171,11 @@ def write_back_amc(
     if original.num_frames != T or cleaned.num_frames != T:
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     scale = layout.metres_per_unit
-    D, shift = smpl_change(rt, original, cleaned, body, scale)
+    change = smpl_change(rt, original, cleaned, body, scale)
+    D, shift = change.turn, change.shift
     L, t, G, P = amc_pose(src, layout, vals)
     drive = drivers(rt.jmap, src.num_joints)
+    driven = driven_rotations(change, G, drive, src.fps)
     a = int(rt.jmap.anchor["pelvis"])
     new_a = pelvis_point(rt, D, shift, P[:, a], scale)
     carried = _carried(rt, src, layout, drive, (original, cleaned), body, P, G, new_a - P[:, a])
@@ -179,7 +187,7 @@ def write_back_amc(
         chain, R = [j], None
         if drive[j] >= 0:
             chain = _chain(src, layout, drive, j)
-            R = D[:, drive[j]] @ G[:, j]
+            R = driven[:, j]
             top = int(src.parents[chain[0]])
             if top >= 0:
                 R = np.swapaxes(G2[:, top], -1, -2) @ R
