@@ -86,6 +86,23 @@ def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
     return np.where(q[..., :1] < 0, -q, q)
 
 
+def quat_to_rotmat(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices of quaternions (scalar first; normalised here).  (..., 4) -> (..., 3, 3)"""
+    q = np.asarray(quat, dtype=np.float64)
+    w, x, y, z = np.moveaxis(q / np.linalg.norm(q, axis=-1, keepdims=True), -1, 0)
+    out = np.empty((*q.shape[:-1], 3, 3))
+    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    out[..., 0, 1] = 2 * (x * y - w * z)
+    out[..., 0, 2] = 2 * (x * z + w * y)
+    out[..., 1, 0] = 2 * (x * y + w * z)
+    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    out[..., 1, 2] = 2 * (y * z - w * x)
+    out[..., 2, 0] = 2 * (x * z - w * y)
+    out[..., 2, 1] = 2 * (y * z + w * x)
+    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return out
+
+
 def rotmat_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Axis-angles with angles in [0, pi].  (..., 3, 3) -> (..., 3)"""
     return quat_to_rotvec(rotmat_to_quat(R))

@@ -25,13 +25,19 @@ import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.errors import InputError
-from mdvae_cli.filters import gaussian_smooth, smooth_rotvecs
+from mdvae_cli.filters import gaussian_smooth
 from mdvae_cli.formats.bvh import BvhLayout, _positions
 from mdvae_cli.formats.bvh_rotations import channel_rotations
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.geometry.euler import rotmat_to_euler
 from mdvae_cli.geometry.kinematics import forward_kinematics
-from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import (
+    quat_continuous,
+    quat_to_rotmat,
+    rotmat_to_quat,
+    rotmat_to_rotvec,
+    rotvec_to_rotmat,
+)
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.joint_map import JointMap
@@ -107,8 +113,9 @@ def smpl_change(rt, original: Motion, cleaned: Motion, body: BodyJoints, scale: 
     M = np.asarray(rt.to_output)
     Go, Po = smpl_globals(original, body)
     Gc, Pc = smpl_globals(cleaned, body)
-    D = M.T @ (Gc @ np.swapaxes(Go, -1, -2)) @ M  # matmuls: einsum's 4-operand loop is slow
-    return SmplChange(D, M.T @ Go, M.T @ Gc, (Pc[:, 0] - Po[:, 0]) @ M / scale)
+    before, after = M.T @ Go, M.T @ Gc  # matmuls: einsum's 4-operand loop is slow
+    turn = after @ np.swapaxes(before, -1, -2)
+    return SmplChange(turn, before, after, (Pc[:, 0] - Po[:, 0]) @ M / scale)
 
 
 def driven_rotations(
@@ -128,22 +135,27 @@ def driven_rotations(
     alone (a turn under :data:`STEADY_FROM_DEG`), the joint is ``turn @ G`` exactly (its
     channels as they were)."""
     out = G.copy()
-    sigma = STEADY_SECONDS * fps
-    for j in np.flatnonzero(drive >= 0):
-        d = int(drive[j])
-        turn = change.turn[:, d]
-        turned = turn @ G[:, j]
-        cos = np.clip((np.trace(turn, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-        angle = np.degrees(np.arccos(cos))
-        w = np.clip((angle - STEADY_FROM_DEG) / (STEADY_TURN_DEG - STEADY_FROM_DEG), 0.0, 1.0)
-        if not w.any():
-            out[:, j] = turned
-            continue
-        Y = np.swapaxes(change.before[:, d], -1, -2) @ G[:, j]
-        steady = smooth_rotvecs(rotmat_to_rotvec(Y), lambda x: gaussian_smooth(x, sigma))
-        step = rotmat_to_rotvec(np.swapaxes(Y, -1, -2) @ rotvec_to_rotmat(steady))
-        R = change.after[:, d] @ Y @ rotvec_to_rotmat(w[:, None] * step)
-        out[:, j] = np.where((w > 0)[:, None, None], R, turned)
+    js = np.flatnonzero(drive >= 0)
+    ds = drive[js]
+    turn = change.turn[:, ds]  # (T, n, 3, 3): every driven joint at once
+    turned = turn @ G[:, js]
+    cos = np.clip((np.trace(turn, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.degrees(np.arccos(cos))
+    w = np.clip((angle - STEADY_FROM_DEG) / (STEADY_TURN_DEG - STEADY_FROM_DEG), 0.0, 1.0)
+    out[:, js] = turned
+    if not w.any():
+        return out
+    Y = np.swapaxes(change.before[:, ds], -1, -2) @ G[:, js]
+    q = quat_continuous(rotmat_to_quat(Y))  # (T, n, 4), smoothed as sign-continuous quaternions
+    steady = quat_to_rotmat(gaussian_smooth(q.reshape(len(q), -1), STEADY_SECONDS * fps)
+                            .reshape(q.shape))  # fmt: skip
+    R = change.after[:, ds] @ steady
+    part = (w > 0) & (w < 1)  # a small turn: the step towards the smoothed offset scaled by it
+    if part.any():
+        Yp = Y[part]
+        step = rotmat_to_rotvec(np.swapaxes(Yp, -1, -2) @ steady[part])
+        R[part] = change.after[:, ds][part] @ Yp @ rotvec_to_rotmat(w[part][:, None] * step)
+    out[:, js] = np.where((w > 0)[..., None, None], R, turned)
     return out
 
 
