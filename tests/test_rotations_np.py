@@ -157,3 +157,13 @@ def test_euler_angles_near_gimbal_lock_stay_near_the_given_ones(axes):
     assert np.abs(np.diff(held, 2, axis=0)).max() < np.radians(0.1)
     err = N.rotmat_to_rotvec(np.swapaxes(euler_to_rotmat(held, axes), -1, -2) @ R)
     assert np.degrees(np.linalg.norm(err, axis=-1)).max() < 0.05
+
+
+def test_quat_to_rotmat_inverts_rotmat_to_quat_and_matches_rotvec_to_rotmat():
+    rng = np.random.default_rng(11)
+    rotvec = rng.normal(0, 1.5, (6, 5, 3))
+    R = N.rotvec_to_rotmat(rotvec)
+    q = N.rotmat_to_quat(R)
+    np.testing.assert_allclose(N.quat_to_rotmat(q), R, atol=1e-12)
+    np.testing.assert_allclose(N.quat_to_rotmat(-3.0 * q), R, atol=1e-12)  # sign and scale
+    np.testing.assert_allclose(N.quat_to_rotmat(N.rotvec_to_quat(rotvec)), R, atol=1e-12)
