@@ -55,20 +55,29 @@ def rotmat_to_euler(R: np.ndarray, axes: str, near: np.ndarray | None = None) ->
     pick = np.abs(two - near).sum(-1) < np.abs(one - near).sum(-1)
     out = np.where(pick[..., None], two, one)
     near = np.broadcast_to(np.asarray(near, dtype=np.float64), out.shape)
-    locked = (np.abs(np.cos(out[..., 1])) < LOCK_COS) | (np.abs(np.cos(near[..., 1])) < LOCK_COS)
+    locked = np.abs(np.cos(out[..., 1])) < LOCK_COS
     if locked.any():
-        out[locked] = _held_near(R[locked], axes, near[locked])
+        held = _held_near(R[locked], axes, near[locked])
+        miss = np.swapaxes(euler_to_rotmat(held, axes), -1, -2) @ R[locked]
+        cos_miss = (np.trace(miss, axis1=-2, axis2=-1) - 1.0) / 2.0
+        good = cos_miss > np.cos(np.radians(LOCK_MISS_DEG))  # else the exact angles
+        rows = out[locked]
+        rows[good] = held[good]
+        out[locked] = rows
     return out
 
 
 #: near gimbal lock (the middle angle within about 1.1 degrees of +-90 degrees: its cosine
 #: under this), the outer two angles are ill-determined: a turn of a hundredth of a degree can
 #: move them by tens of degrees in opposite ways (a rig whose feet sit at 90 degrees wrote
-#: channels jumping 36 degrees a frame). There the angles are solved near the given ones.
+#: channels jumping 36 degrees a frame). There the angles are solved near the given ones, and
+#: kept when they give the rotation within LOCK_MISS_DEG.
 LOCK_COS = 0.02
 #: how much staying near the given angles weighs (per rad^2) against matching the rotation
 #: (squared Frobenius distance) near gimbal lock
 LOCK_PULL = 1e-2
+#: angles solved near the given ones are kept only within this of the rotation (degrees)
+LOCK_MISS_DEG = 1.0
 
 
 def _held_near(R: np.ndarray, axes: str, near: np.ndarray, steps: int = 10) -> np.ndarray:
