@@ -167,3 +167,12 @@ def test_quat_to_rotmat_inverts_rotmat_to_quat_and_matches_rotvec_to_rotmat():
     np.testing.assert_allclose(N.quat_to_rotmat(q), R, atol=1e-12)
     np.testing.assert_allclose(N.quat_to_rotmat(-3.0 * q), R, atol=1e-12)  # sign and scale
     np.testing.assert_allclose(N.quat_to_rotmat(N.rotvec_to_quat(rotvec)), R, atol=1e-12)
+
+
+def test_angles_near_a_locked_input_for_a_rotation_away_from_lock_are_the_exact_ones():
+    from mdvae_cli.geometry.euler import euler_to_rotmat, rotmat_to_euler
+
+    near = np.array([[-1.74, np.radians(88.9), 1.65]])  # the file's frame at lock
+    R = euler_to_rotmat(np.array([[-0.1, np.radians(78.0), 0.09]]), "zxy")  # the output's: not
+    out = rotmat_to_euler(R, "zxy", near=near)
+    np.testing.assert_allclose(euler_to_rotmat(out, "zxy"), R, atol=1e-12)
