@@ -32,7 +32,9 @@ def rotmat_to_euler(R: np.ndarray, axes: str, near: np.ndarray | None = None) ->
 
     Of the two solutions, the one closest to ``near`` is returned, each angle moved by whole
     turns to lie nearest its ``near`` value (so a file's angles that run past 180 degrees, or
-    sit at -180 rather than 180, come back as written).
+    sit at -180 rather than 180, come back as written). Near gimbal lock (:data:`LOCK_COS`),
+    where the outer angles are ill-determined, angles solved near ``near`` are returned when
+    they give ``R`` within :data:`LOCK_MISS_DEG`.
 
     R: (..., 3, 3); axes: e.g. "zxy"; near: (..., 3) radians or None  -> (..., 3)
     """
