@@ -284,11 +284,16 @@ def test_unmapped_rig_names_the_joints_and_takes_a_joint_map(tmp_path):
         build_joint_map(load_source(path, joint_map={"left_hip": "Nope"}))
 
 
-def test_mixed_folder_each_in_its_own_form(tmp_path, make_motion_file):
-    folder = tmp_path / "in"
+def mixed_folder(folder: Path, make_motion_file, T: int) -> Path:
+    """A folder holding a BVH take (take.bvh) and an npz motion (walk.npz) of T frames."""
     folder.mkdir()
-    write_rig(folder / "take.bvh", T=40)
-    make_motion_file(folder / "walk.npz", T=40)
+    write_rig(folder / "take.bvh", T=T)
+    make_motion_file(folder / "walk.npz", T=T)
+    return folder
+
+
+def test_mixed_folder_each_in_its_own_form(tmp_path, make_motion_file):
+    folder = mixed_folder(tmp_path / "in", make_motion_file, 40)
     r = CliRunner().invoke(cli, ["denoise", str(folder), "-o", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "out" / "take.bvh").is_file() and (tmp_path / "out" / "walk.npz").is_file()
@@ -358,10 +363,7 @@ def test_add_noise_gives_a_take_back_noisy_on_its_own_skeleton(tmp_path, joints)
 
 
 def test_add_noise_with_holes_writes_takes_as_npz(tmp_path, make_motion_file):
-    folder = tmp_path / "in"
-    folder.mkdir()
-    write_rig(folder / "take.bvh", T=60)
-    make_motion_file(folder / "walk.npz", T=60)
+    folder = mixed_folder(tmp_path / "in", make_motion_file, 60)
     r = CliRunner().invoke(cli, ["add-noise", str(folder), "-o", str(tmp_path / "out")])
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["take.bvh", "walk.npz"]

@@ -149,12 +149,13 @@ def driven_rotations(
     q = quat_continuous(rotmat_to_quat(Y))  # (T, n, 4), smoothed as sign-continuous quaternions
     steady = quat_to_rotmat(gaussian_smooth(q.reshape(len(q), -1), STEADY_SECONDS * fps)
                             .reshape(q.shape))  # fmt: skip
-    R = change.after[:, ds] @ steady
+    after = change.after[:, ds]
+    R = after @ steady
     part = (w > 0) & (w < 1)  # a small turn: the step towards the smoothed offset scaled by it
     if part.any():
         Yp = Y[part]
         step = rotmat_to_rotvec(np.swapaxes(Yp, -1, -2) @ steady[part])
-        R[part] = change.after[:, ds][part] @ Yp @ rotvec_to_rotmat(w[part][:, None] * step)
+        R[part] = after[part] @ Yp @ rotvec_to_rotmat(w[part][:, None] * step)
     out[:, js] = np.where((w > 0)[..., None, None], R, turned)
     return out
 
