@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from mdvae_cli.cli.main import cli
 from mdvae_cli.formats.npz_io import load_motion
+from mdvae_cli.formats.registry import read
 from mdvae_cli.infer.input_kinds import INPUT_KINDS, refine_config
 
 
@@ -72,8 +73,10 @@ def test_a_folder_of_pipeline_outputs_is_mirrored(tmp_path):
     (folder / "notes.txt").write_text("not motion")
     code, _, err = run("add-noise", folder, "-o", tmp_path / "noisy", "--preset", "video")
     assert code == 0, err
-    assert (tmp_path / "noisy" / "res.npz").is_file()
-    assert (tmp_path / "noisy" / "b" / "hmr4d_results.npz").is_file()
+    # each in its own form: HybrIK's pickle, GVHMR's torch file
+    assert read(tmp_path / "noisy" / "res.pk").format == "hybrik"
+    assert read(tmp_path / "noisy" / "b" / "hmr4d_results.pt").format == "gvhmr"
+    assert not list((tmp_path / "noisy").rglob("*.npz"))
 
 
 def test_malicious_pickle_is_refused_by_every_command(tmp_path):

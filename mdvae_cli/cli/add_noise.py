@@ -12,6 +12,7 @@ from mdvae_cli.cli.batch import (
     emit_json,
     json_option,
     no_clashes,
+    print_notes,
     run_batch,
     strip_gz,
 )
@@ -27,7 +28,13 @@ from mdvae_cli.cli.motion_input import motion_input_options, read_input
 from mdvae_cli.cli.noise_holes import HOLES, drop_holes
 from mdvae_cli.cli.takes import plan_take_jobs, take_options, take_reading
 from mdvae_cli.errors import InputError
-from mdvae_cli.formats.registry import TAKE_SUFFIXES, ReadOptions, suffix_of, write
+from mdvae_cli.formats.registry import (
+    TAKE_SUFFIXES,
+    VIDEO_SUFFIXES,
+    ReadOptions,
+    suffix_of,
+    write,
+)
 from mdvae_cli.motion.noise import (
     PRESETS,
     NoiseSettings,
@@ -35,7 +42,7 @@ from mdvae_cli.motion.noise import (
     add_video_noise,
     file_rng,
 )
-from mdvae_cli.run.tracks import outputs_of
+from mdvae_cli.run.tracks import outputs_of, own_output
 
 
 def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
@@ -165,27 +172,26 @@ def add_noise(
 
     def process(job: FileJob) -> dict:
         loaded = read_input(job.source, job.relpath, read_options)
-        frames, outputs, dropped = 0, [], {}
-        for label, motion, output in outputs_of(loaded, job.output):
+        frames, outputs, dropped, noisy_tracks = 0, [], {}, []
+        target, own, why = own_output(loaded, job.output)
+        if why is not None:
+            print_notes(job.relpath, [why])
+        for label, motion, output in outputs_of(loaded, target):
             name = job.relpath if label is None else f"{job.relpath.as_posix()}#track{label}"
-            rng = file_rng(seed, name)
-            if video is not None:
-                noisy = add_video_noise(motion, video, rng)
-            else:
-                noisy = add_pose_noise(
-                    motion,
-                    settings.sigma,
-                    rng,
-                    trans_sigma=settings.trans_sigma,
-                    drop_frac=settings.drop_frac,
-                    spike_frac=settings.spike_frac,
-                    spike_rad=settings.spike_rad,
-                )
+            noisy = make_noisy(motion, file_rng(seed, name), video, settings)
             holes_rng = file_rng(seed, f"{name}#holes")  # the noise's own stream unchanged
             noisy, made = drop_holes(noisy, drop_frames, drop_joints, holes_rng, job.relpath)
-            write(noisy, output, take=loaded.take, forbid=sources)
-            frames, outputs = frames + noisy.num_frames, [*outputs, str(output)]
+            if own:
+                noisy_tracks.append((label, noisy))
+            else:
+                write(noisy, output, take=loaded.take, forbid=sources)
+                outputs.append(str(output))
+            frames += noisy.num_frames
             dropped = {k: dropped.get(k, 0) + v for k, v in made.items()}
+        if own:  # the pipeline's file back in its own form, every track in it
+            loaded.tracks = noisy_tracks
+            print_notes(job.relpath, write(loaded, target, forbid=sources))
+            outputs.append(str(target))
         return {"frames": frames, "outputs": outputs, **dropped}
 
     report = run_batch(jobs, process, "add-noise")
@@ -198,12 +204,22 @@ def add_noise(
     report.exit()
 
 
+def make_noisy(motion, rng, video, settings: NoiseSettings):
+    """``motion`` with the ``--preset``'s video noise (``video``), else Pose-NDF noise."""
+    if video is not None:
+        return add_video_noise(motion, video, rng)
+    return add_pose_noise(motion, settings.sigma, rng, trans_sigma=settings.trans_sigma,
+                          drop_frac=settings.drop_frac, spike_frac=settings.spike_frac,
+                          spike_rad=settings.spike_rad)  # fmt: skip
+
+
 def takes_as_npz(jobs: list[FileJob], out: Path) -> list[FileJob]:
-    """``jobs`` with each BVH / AMC output written as .npz instead: holes are NaN, which
-    neither form can hold. InputError when the take's output is the one named by ``-o``."""
+    """``jobs`` with each BVH / AMC output, and each video pipeline's, written as .npz
+    instead: holes are NaN, which none of those forms can hold. InputError when such an
+    output is the one named by ``-o``."""
     fixed = []
     for job in jobs:
-        if job.output is not None and suffix_of(job.output) in TAKE_SUFFIXES:
+        if job.output is not None and suffix_of(job.output) in (*TAKE_SUFFIXES, *VIDEO_SUFFIXES):
             if job.output == out:
                 raise InputError(
                     f"cannot write {out}: holes (--drop-frac, --drop-frames, --drop-joints) are "

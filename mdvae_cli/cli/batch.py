@@ -165,8 +165,9 @@ def plan_jobs(
 
 def refuse_unsupported(out: Path) -> None:
     """InputError when the output name ``out`` is in a format mdvae does not write (FBX, C3D,
-    ..., or a video pipeline's pickle it only reads): it would otherwise be taken for a
-    folder name (``-o clean.pkl`` made a folder ``clean.pkl/`` holding ``take.npz``)."""
+    ..., or a video pipeline's pickle for an input that is not one): it would otherwise be
+    taken for a folder name (``-o clean.pkl`` made a folder ``clean.pkl/`` holding
+    ``take.npz``)."""
     from mdvae_cli.formats.registry import VIDEO_SUFFIXES, suffix_of, unsupported
 
     kind = suffix_of(out)
@@ -178,8 +179,8 @@ def refuse_unsupported(out: Path) -> None:
     if kind in VIDEO_SUFFIXES and not out.is_dir():
         npz = out.with_name(Path(out.name.removesuffix(".gz")).stem + ".npz")
         raise InputError(
-            f"cannot write {out}: mdvae writes motion as AMASS-style .npz (and takes back as "
-            f".bvh / .amc), not {kind[1:].upper()}; name the output {npz}, or a folder"
+            f"cannot write {out}: mdvae writes {kind[1:].upper()} only back for a video "
+            f"pipeline's file of that form; name the output {npz}, or a folder"
         )
 
 

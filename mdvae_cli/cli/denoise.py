@@ -215,6 +215,7 @@ def _writer(runs: dict, jobs: list[FileJob], body, mesh_dir, mesh_format, view_d
         if not as_json:  # --json has them under "fallbacks"
             for track in run.tracks:
                 print_notes(job.relpath, [n for n in track.cleaned.notes if n.startswith("guard:")])
+            print_notes(job.relpath, run.written)
         return run
 
     return write

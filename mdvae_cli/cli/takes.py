@@ -20,13 +20,16 @@ from mdvae_cli.cli.batch import (
 )
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_named_file, check_regular
-from mdvae_cli.formats.registry import READ_SUFFIXES, TAKE_SUFFIXES
+from mdvae_cli.formats.registry import READ_SUFFIXES, VIDEO_SUFFIXES
 
 #: what ``mdvae denoise`` reads: AMASS-style .npz, mocap takes, video pipelines' outputs
 DENOISE_SUFFIXES = READ_SUFFIXES
 
-#: the output form of each input form: takes come back in their own, everything else as .npz
-_FORM = {**{s: ".npz" for s in READ_SUFFIXES}, **{s: s for s in TAKE_SUFFIXES}}
+#: the output form of each input form: each its own (a video pipeline's file whose format
+#: mdvae does not write back becomes .npz once read: ``run.tracks.own_output``)
+_FORM = {s: s for s in READ_SUFFIXES}
+#: the names a video pipeline's file may be written back under, by its own name
+_VIDEO_FAMILIES = ((".pkl", ".pk", ".pickle", ".joblib"), (".pt", ".pth"), (".npy",))
 
 
 def is_take(path: Path | None) -> bool:
@@ -44,34 +47,47 @@ def output_name(relpath: Path) -> Path:
     return plain.with_suffix(_FORM[_form(relpath)])
 
 
+def _same_form(form: str, wants: str) -> bool:
+    """Whether an input of ``form`` may be written as ``wants``: .npz always, else its own
+    form (a video pipeline's under any name of its family: res.pk -> clean.pkl)."""
+    if wants in (".npz", form):
+        return True
+    return any(form in f and wants in f for f in _VIDEO_FAMILIES)
+
+
 def _wrong_form(src: Path, form: str, wants: str) -> str:
-    """Why ``src`` (of ``form``) cannot be written as ``wants`` (.bvh or .amc), in one line."""
-    what = {".bvh": "a BVH", ".amc": "an AMC"}
-    kind = f"{what[form]} take" if form in what else f"a {strip_gz(src).suffix.lower()} file"
+    """Why ``src`` (of ``form``) cannot be written as ``wants``, in one line."""
+    what = {".bvh": "a BVH take", ".amc": "an AMC take"}
+    kind = what.get(form, f"a {form} file")
     forms = ".npz" if form == ".npz" else f"{form} or .npz"
     hint = " (mdvae export-bvh turns an .npz into BVH on the SMPL skeleton)"
-    return (f"{src} is {kind}, not {what[wants]} take: write it as {forms}"
+    return (f"{src} is {kind}, not {what.get(wants, f'a {wants} file')}: write it as {forms}"
             + (hint if wants == ".bvh" and form == ".npz" else ""))  # fmt: skip
 
 
 def plan_take_jobs(inputs, out) -> list[FileJob]:
     """:func:`plan_jobs` for inputs of several forms: one input file may be written to a named
-    ``.npz`` (any input), ``.bvh``/``.bvh.gz`` (a BVH input) or ``.amc``/``.amc.gz`` (an AMC
-    input); folders mirror each input in its own form. InputError for a form the input cannot
+    ``.npz`` (any input), ``.bvh``/``.bvh.gz`` (a BVH input), ``.amc``/``.amc.gz`` (an AMC
+    input) or its own video pipeline form (``.pkl``, ``.pt``, ...: a file of that pipeline);
+    folders mirror each input in its own form. InputError for a form the input cannot
     take."""
     as_folder = str(out).endswith(("/", os.sep))
     out = Path(out)
     one = len({Path(p).resolve() for p in inputs}) == 1
     if one and Path(inputs[0]).is_file() and not as_folder and not out.is_dir():
-        refuse_unsupported(out)
         src = Path(inputs[0])
         name = out.name.lower()
-        ends = (".bvh.gz", ".bvh", ".amc.gz", ".amc", ".npz")
+        known = any(is_kind(src, s) for s in DENOISE_SUFFIXES)
+        ends = (".bvh.gz", ".bvh", ".amc.gz", ".amc", ".npz",
+                *(s + ".gz" for s in VIDEO_SUFFIXES), *VIDEO_SUFFIXES)  # fmt: skip
         wants = next((s for s in ends if name.endswith(s)), "").removesuffix(".gz")
-        if wants and any(is_kind(src, s) for s in DENOISE_SUFFIXES):
-            form = _FORM[_form(src)]
-            if wants != ".npz" and wants != form:
-                raise InputError(_wrong_form(src, form, wants))
+        if not (known and wants in VIDEO_SUFFIXES and _form(src) in VIDEO_SUFFIXES):
+            refuse_unsupported(out)
+        if wants and known and not _same_form(_FORM[_form(src)], wants):
+            raise InputError(_wrong_form(src, _FORM[_form(src)], wants))
+        if wants in VIDEO_SUFFIXES and name.endswith(".gz"):
+            refuse_gz(out, wants)
+        if wants and known:
             return no_clashes([FileJob(Path(src.name), src, out)])
         if name.endswith(".gz"):
             refuse_gz(out)

@@ -152,7 +152,9 @@ def _load_video(path, name, data, fps, track, body) -> LoadedFile:
         from mdvae_cli.body.builtin import builtin_body_model
 
         body = builtin_body_model()
-    out = []
+    from mdvae_cli.formats.video_back import VideoDocument
+
+    out, document = [], VideoDocument(name, data)
     for raw in raws:
         rate = fps if fps is not None else (raw.fps or VIDEO_FPS)
         motion = track_to_motion(raw, rate, body, str(path))
@@ -161,5 +163,6 @@ def _load_video(path, name, data, fps, track, body) -> LoadedFile:
         motion.extras.setdefault("source_format", np.array(name))
         label = raw.label if len(raws) > 1 else None
         out.append((label, motion))
+        document.tracks.append((label, raw, motion))
     kind = "mocap" if name in _MOCAP_FORMATS else "video"
-    return LoadedFile(path, name, kind, out)
+    return LoadedFile(path, name, kind, out, document=document)

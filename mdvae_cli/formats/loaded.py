@@ -18,7 +18,8 @@ class LoadedFile:
     "video" for a video pipeline's estimates, "mocap" otherwise (denoise settings follow it);
     tracks: ``(label, motion)`` per person, label None when the file holds one motion; notes:
     remarks about the file as a whole; take: a BVH/AMC take as read (``retarget.take.Take``),
-    for writing it back on its own skeleton.
+    for writing it back on its own skeleton; document: a video pipeline's file as read
+    (``formats.video_back.VideoDocument``), for writing it back in its own form.
     """
 
     path: Path
@@ -27,6 +28,7 @@ class LoadedFile:
     tracks: list[tuple[str | None, Motion]]
     notes: list[str] = field(default_factory=list)
     take: Any = None
+    document: Any = None
 
     def single(self) -> Motion:
         """The one motion of the file; InputError when it holds several tracks."""

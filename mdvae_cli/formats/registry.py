@@ -6,6 +6,7 @@ a motion in any form mdvae writes.
     for label, motion in loaded.tracks: ...                      # label None for a one-person file
     motion = read("take.bvh").single()                           # exactly one motion
     write(cleaned, "clean.bvh", take=loaded.take)                # a take back on its own skeleton
+    write(cleaned, "clean.pkl", document=loaded.document)        # a WHAM file back as WHAM's
 
 What each suffix is (``.gz`` ignored):
 
@@ -16,7 +17,8 @@ What each suffix is (``.gz`` ignored):
   back on its own skeleton needs;
 * pickles, joblib, torch files and ``.npy`` (VIDEO_SUFFIXES): a video pipeline's output or
   AIST++, read without running code (``formats.data_files``) and turned upright
-  (``formats.estimates``);
+  (``formats.estimates``); :attr:`LoadedFile.document` keeps what writing the file back in
+  its own form needs (``formats.video_back``);
 * FBX, C3D, videos (UNSUPPORTED): refused in one line that says what to do instead.
 
 Every command that reads or writes motion (denoise, eval, view, plot, import, export-bvh,
@@ -176,36 +178,50 @@ def write(
     path: Path | str,
     *,
     take: Take | None = None,
+    document: Any = None,
     body: BodyModelData | None = None,
     forbid: tuple[Path, ...] = (),
     bvh_units: str = "cm",
     bvh_order: str = "ZXY",
     progress: Callable[[int, int], None] | None = None,
-) -> None:
+) -> list[str]:
     """Write a motion (atomically; never over a path in ``forbid``) in the form ``path`` names.
+    -> notes for the user about what was written (a video pipeline's form: what was left out).
 
     ``.npz``: AMASS-style (``formats.npz_io``). ``.bvh`` / ``.amc`` (``.gz`` too) with ``take``
     (or a LoadedFile read from a take): on the take's own skeleton, in its own form; ``.bvh``
     without one: on the SMPL skeleton of the motion's shape (``bvh_units``, ``bvh_order``;
-    ``body`` None: the built-in body). InputError for any other form, saying what to do.
-    progress: (frames carried back, frames) while a BVH take's way back goes.
+    ``body`` None: the built-in body). A video pipeline's form (``.pkl``, ``.pt``, ...) with
+    ``document`` (``LoadedFile.document``): the file it was read from, its tracks put back
+    (``formats.video_back``); a LoadedFile's tracks are written there together. InputError
+    for any other form, saying what to do. progress: (frames carried back, frames) while a
+    BVH take's way back goes.
     """
+    path = Path(path)
+    kind = suffix_of(path)
     if isinstance(item, LoadedFile):
         take = take if take is not None else item.take
+        document = document if document is not None else item.document
+        if kind in VIDEO_SUFFIXES and document is not None:
+            return _write_video(document, dict(item.tracks), path, forbid)
         item = item.single()
-    path = Path(path)
+    if kind in VIDEO_SUFFIXES and document is not None:
+        labels = [label for label, _, _ in document.tracks]
+        if len(labels) != 1:
+            raise InputError(f"cannot write {path}: the file holds {len(labels)} tracks; give "
+                             "them all (a LoadedFile)")  # fmt: skip
+        return _write_video(document, {labels[0]: item}, path, forbid)
     check_writable(item, path)
-    kind = suffix_of(path)
     if kind == ".npz":
         from mdvae_cli.formats.npz_io import save_motion
 
         save_motion(item, path, forbid=forbid)
-        return
+        return []
     if kind in TAKE_SUFFIXES and take is not None:
         from mdvae_cli.retarget.take import write_take
 
         write_take(take, item, path, forbid=forbid, progress=progress)
-        return
+        return []
     if kind == ".bvh":
         from mdvae_cli.formats.bvh_write import write_text
         from mdvae_cli.retarget.fit_shape import BodyJoints
@@ -213,25 +229,41 @@ def write(
 
         joints = BodyJoints(body if body is not None else _builtin())
         write_text(path, smpl_bvh(item, joints, bvh_units, bvh_order), forbid=forbid)
-        return
+        return []
     if kind == ".amc":
         raise InputError(f"cannot write {path}: AMC is written only for an AMC take (on its own "
                          "skeleton); write .npz or .bvh")  # fmt: skip
+    if kind in VIDEO_SUFFIXES:
+        raise InputError(f"cannot write {path}: a video pipeline's file is written only back "
+                         "from the file it was read from; write .npz")  # fmt: skip
     raise InputError(
         f"cannot write {path}: mdvae writes .npz and .bvh (and takes back as .amc); Blender, "
         "Maya and MotionBuilder import BVH and save it as FBX"
     )
 
 
-def check_writable(motion: Motion, path: Path) -> None:
+def _write_video(document: Any, tracks: dict, path: Path, forbid: tuple[Path, ...]) -> list[str]:
+    from mdvae_cli.formats.video_back import write_video, writes_back
+
+    if not writes_back(document, path):
+        raise InputError(f"cannot write {path}: {document.own_form()}; write .npz")
+    for motion in tracks.values():
+        check_writable(motion, path, holes=True)
+    return write_video(document, tracks, path, forbid=forbid)
+
+
+def check_writable(motion: Motion, path: Path, holes: bool = False) -> None:
     """InputError when ``motion`` holds values no motion file may (NaN, angles or distances
-    past the readers' limits): nothing is written that mdvae would refuse to read back."""
+    past the readers' limits): nothing is written that mdvae would refuse to read back.
+    holes: NaN allowed (frames a video pipeline's file keeps as they came)."""
     from mdvae_cli.formats.npz_values import ANGLE, DISTANCE
 
     for key, arr, limit in (("root_orient", motion.root_orient, ANGLE),
                             ("pose_body", motion.pose_body, ANGLE),
                             ("trans", motion.trans, DISTANCE)):  # fmt: skip
         arr = np.asarray(arr, dtype=np.float64)
+        if holes:
+            arr = arr[np.isfinite(arr)]
         if not np.isfinite(arr).all():
             raise InputError(f"cannot write {path}: its '{key}' holds NaN or infinite values; "
                              "nothing written")  # fmt: skip

@@ -64,7 +64,7 @@ def read_wham(data: dict, label: str) -> list[RawTrack]:
             extras = cam_extras(cam_root, frames_of(array(d, "trans", where), T, "trans", where))
         notes = [] if world else ["no world frame in the file: camera frame, level camera"]
         if "verts" in d:
-            notes.append("'verts' not carried (recomputed from the pose by any SMPL tool)")
+            notes.append("'verts' (made from the pose by any SMPL tool) not carried")
         tracks.append(
             RawTrack(
                 root=root,

@@ -25,24 +25,15 @@ def read_phalp(data: dict, label: str) -> list[RawTrack]:
     """4D-Humans / PHALP ``demo_<video>.pkl``: {frame name: {time, tid, smpl [{global_orient
     (1, 3, 3), body_pose (23, 3, 3), betas}], camera [(3,)], ...}}, camera frame; frames are
     grouped into tracks by ``tid``."""
-    frames = sorted(data.items(), key=lambda kv: (_time(kv[1]), str(kv[0])))
     per: dict[str, dict[str, list]] = {}
-    for index, (_, f) in enumerate(frames):
-        if not isinstance(f, dict):
-            continue
-        for i, tid in enumerate(f.get("tid", [])):
-            smpl = f.get("smpl", [None] * (i + 1))[i]
-            cams = f.get("camera", [])
-            if not isinstance(smpl, dict) or i >= len(cams):
-                continue
-            t = per.setdefault(
-                str(tid), {"root": [], "body": [], "betas": [], "cam": [], "frame": []}
-            )
-            t["root"].append(np.asarray(smpl["global_orient"]).reshape(3, 3))
-            t["body"].append(np.asarray(smpl["body_pose"]).reshape(23, 3, 3))
-            t["betas"].append(np.asarray(smpl["betas"]).reshape(-1))
-            t["cam"].append(np.asarray(cams[i]).reshape(3))
-            t["frame"].append(_time(f) if _time(f) >= 0 else index)
+    for index, f, i, tid in _entries(data):
+        smpl = f["smpl"][i]
+        t = per.setdefault(str(tid), {"root": [], "body": [], "betas": [], "cam": [], "frame": []})
+        t["root"].append(np.asarray(smpl["global_orient"]).reshape(3, 3))
+        t["body"].append(np.asarray(smpl["body_pose"]).reshape(23, 3, 3))
+        t["betas"].append(np.asarray(smpl["betas"]).reshape(-1))
+        t["cam"].append(np.asarray(f["camera"][i]).reshape(3))
+        t["frame"].append(_time(f) if _time(f) >= 0 else index)
     if not per:
         raise InputError(f"{label}: no tracked person with SMPL parameters in the file")
     tracks = []
@@ -67,6 +58,25 @@ def read_phalp(data: dict, label: str) -> list[RawTrack]:
             )
         )
     return tracks
+
+
+def _entries(data: dict):
+    """Every person entry of a PHALP result with SMPL parameters and a camera, frames in
+    time order: (frame's place, frame dict, index in its lists, track id)."""
+    frames = sorted(data.items(), key=lambda kv: (_time(kv[1]), str(kv[0])))
+    for index, (_, f) in enumerate(frames):
+        if not isinstance(f, dict):
+            continue
+        for i, tid in enumerate(f.get("tid", [])):
+            smpl = f.get("smpl", [None] * (i + 1))[i]
+            if isinstance(smpl, dict) and i < len(f.get("camera", [])):
+                yield index, f, i, tid
+
+
+def phalp_entries(data: dict, label: str | None) -> list[tuple[dict, int]]:
+    """The entries of one track of a PHALP result, in the order :func:`read_phalp` reads
+    them (its rows): (frame dict, index in the frame's lists)."""
+    return [(f, i) for _, f, i, tid in _entries(data) if label is None or str(tid) == label]
 
 
 def _time(frame: Any) -> int:

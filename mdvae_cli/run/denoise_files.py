@@ -25,7 +25,7 @@ from mdvae_cli.infer.noise_blend import BlendReport
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.run.tracks import on_floor, outputs_of, track_output
+from mdvae_cli.run.tracks import on_floor, outputs_of, own_output, track_output
 
 #: the output forms written back as a take on its own skeleton
 TAKE_OUTPUTS = (".bvh", ".amc")
@@ -71,7 +71,9 @@ class FileRun:
 
     format: the file's format name; input_kind: the settings row it is denoised with
     ("mocap" or "video"); take: a BVH/AMC take as read (written back on its own skeleton);
-    notes: ``(track label or None, remark)`` made while reading, in order; seconds: the time
+    document: a video pipeline's file as read, when it goes back in its own form (all its
+    tracks into one output); notes: ``(track label or None, remark)`` made while reading, in
+    order, and ``written``: those made while writing; seconds: the time
     the user waited for it: its reading (:func:`read_file`), its share of the denoising time
     (by frames) and its writing (:func:`write_file`).
     """
@@ -81,7 +83,9 @@ class FileRun:
     input_kind: str
     tracks: list[TrackRun]
     take: Any = None
+    document: Any = None
     notes: list[tuple[str | None, str]] = field(default_factory=list)
+    written: list[str] = field(default_factory=list)
     seconds: float = 0.0
 
     @property
@@ -151,9 +155,14 @@ def read_file(
     start = time.perf_counter()
     loaded = read(source, options, takes=takes)
     notes: list[tuple[str | None, str]] = [(None, n) for n in loaded.notes]
+    output, own, why = own_output(loaded, output)
+    if why is not None:
+        notes.append((None, why))
     tracks, short = [], []
     for label, motion, out in outputs_of(loaded, output):
-        notes += [(label, n) for n in motion.notes]
+        # the reader's "not carried" says what the .npz form leaves out; the file's own form
+        # says what it leaves out when it is written
+        notes += [(label, n) for n in motion.notes if not (own and n.endswith("not carried"))]
         if floor:
             motion = on_floor(motion, _body_data(options))
             notes.append((label, motion.notes[-1]))
@@ -169,7 +178,8 @@ def read_file(
         raise InputError(f"every track is too short to denoise ({'; '.join(short)})")
     notes += [(None, f"{s}; skipped") for s in short]
     kind = loaded.kind if input_kind == "auto" else input_kind
-    run = FileRun(source, loaded.format, kind, tracks, take=loaded.take, notes=notes)
+    run = FileRun(source, loaded.format, kind, tracks, take=loaded.take,
+                  document=loaded.document if own else None, notes=notes)  # fmt: skip
     run.seconds = time.perf_counter() - start  # the time the user waited, reading included
     return run
 
@@ -254,14 +264,17 @@ def write_file(
     progress: Callable[[int, int], None] | None = None,
 ) -> FileRun:
     """Write each denoised track of ``run`` to its output (never onto a file in ``forbid``):
-    an ``.npz``, or a ``.bvh``/``.amc`` output of a take on the take's own skeleton. With
+    an ``.npz``, a ``.bvh``/``.amc`` output of a take on the take's own skeleton, or a video
+    pipeline's file in its own form, all its tracks into one (notes in ``run.written``). With
     ``mesh_dir``, the track's meshes first (a track whose meshes fail gets no output either);
     with ``page``, a before/after page there (``<stem>.track<ID>.html`` per track).
     InputError for a result that is not finite. ``progress``: (frames carried back, frames)
     while a BVH take is written back. The time it takes is added to ``run.seconds``."""
+    from mdvae_cli.formats.loaded import LoadedFile
     from mdvae_cli.formats.registry import write
 
     start = time.perf_counter()
+    together = []  # (label, motion) of a file going back in its own form
     for track in run.tracks:
         motion = track.cleaned
         if motion is None:
@@ -278,12 +291,19 @@ def write_file(
             motion = keep_holes(motion)
         is_take = track.output.name.lower().removesuffix(".gz").endswith(TAKE_OUTPUTS)
         take = run.take if is_take else None
-        write(motion, track.output, take=take, forbid=forbid, progress=progress)
+        if run.document is not None:
+            together.append((track.label, motion))
+        else:
+            write(motion, track.output, take=take, forbid=forbid, progress=progress)
         if page is not None:
             from mdvae_cli.view.page import write_before_after
 
             where = track_output(Path(page), track.label)
             write_before_after(track.motion, motion, run.source, track.output, where, body,
                                forbid=forbid)  # fmt: skip
+    if together:
+        cleaned = LoadedFile(run.source, run.format, run.input_kind, together,
+                             document=run.document)  # fmt: skip
+        run.written = write(cleaned, run.tracks[0].output, forbid=forbid)
     run.seconds += time.perf_counter() - start  # writing included
     return run

@@ -1,7 +1,8 @@
 """The tracks of a file a command reads: where each is written, and putting one on the floor.
 
 A file of several people (a WHAM or PHALP result with several tracks) gives one output per
-track, named ``<output stem>.track<ID>.npz`` beside the output the file would have had.
+track, named ``<output stem>.track<ID>.npz`` beside the output the file would have had; in
+the pipeline's own form (``own_output``) all its tracks go back into one file.
 """
 
 from __future__ import annotations
@@ -26,8 +27,25 @@ def track_output(output: Path, label: str | None) -> Path:
 
 
 def outputs_of(loaded: LoadedFile, output: Path) -> list[tuple[str | None, Motion, Path]]:
-    """Each track of a file with its output path."""
-    return [(label, m, track_output(output, label)) for label, m in loaded.tracks]
+    """Each track of a file with its output path (all the same in the file's own form)."""
+    own = own_output(loaded, output)[1]
+    return [(lab, m, output if own else track_output(output, lab)) for lab, m in loaded.tracks]
+
+
+def own_output(loaded: LoadedFile, output: Path) -> tuple[Path, bool, str | None]:
+    """Where a video pipeline's file named for its own form (``.pkl``, ``.pt``, ...) goes:
+    -> (output, True, None) when mdvae writes its format back in that form, else the ``.npz``
+    beside it, False and a note saying why. Any other output: (output, False, None)."""
+    from mdvae_cli.formats.registry import VIDEO_SUFFIXES, suffix_of
+
+    if suffix_of(output) not in VIDEO_SUFFIXES:
+        return output, False, None
+    from mdvae_cli.formats.video_back import writes_back
+    if writes_back(loaded.document, output):
+        return output, True, None
+    npz = output.with_name(Path(output.name.removesuffix(".gz")).stem + ".npz")
+    why = "not a video pipeline's file" if loaded.document is None else loaded.document.own_form()
+    return npz, False, f"written as {npz.name} ({why})"
 
 
 def floor_height(motion: Motion, body: BodyModelData, max_tilt: float = 0.035) -> float:

@@ -1,0 +1,383 @@
+"""A video pipeline's result written back in its own form: the file as it was read, each
+cleaned track's parameters put back where the pipeline keeps them, in its frame and layout.
+
+What changes is only what the cleaning changed. For each row of a track (a frame the file
+has), the root rotation is the cleaned one taken back to the file's frame (the inverse of
+``video_tracks.track_to_motion``); the translation is the file's own plus the cleaning's
+change of the pelvis, taken back to the file's frame (so the body model's rest pelvis, which
+the reading added, cancels); each body joint the cleaning left as it was keeps the file's own
+value, bit for bit, as does every row it left alone. Camera-frame copies of a world-frame pose
+(WHAM's ``pose`` / ``trans``, GVHMR's ``smpl_params_incam``) follow by the file's own
+per-frame camera: ``R_c = R_cam R_world^T`` from the file's two roots, the new camera root
+``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``. Arrays derived from
+the old pose that would now contradict it (vertices, joints from the pose, network internals)
+are left out with a note; the pipeline's other per-frame estimates (2D and 3D keypoints it
+detected, boxes, cameras) stay as they came. Frames a track lacks in the file (gaps in its
+frame ids) get no rows: the file has none for them.
+
+    doc = loaded.document                        # formats.registry.read of a video file
+    notes = write_video(doc, {label: cleaned}, Path("clean.pkl"))
+"""
+
+from __future__ import annotations
+
+import copy
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mdvae_cli.errors import InputError
+from mdvae_cli.formats.data_write import write_data
+from mdvae_cli.formats.video_layout import track_items
+from mdvae_cli.formats.video_tracks import RawTrack, up_to_z
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.motion.motion import Motion
+
+#: the container each format is written back in (formats not named: .npz only)
+OWN_CONTAINER = {
+    "wham": "joblib",
+    "vibe": "joblib",
+    "hybrik": "pickle",
+    "aistpp": "pickle",
+    "gvhmr": "torch",
+    "tram": "npy",
+    "phalp": "joblib-zlib",
+}
+#: the file names each container is written under (``.gz`` not: the pipelines do not read it)
+CONTAINER_SUFFIXES = {
+    "joblib": (".pkl", ".pk", ".pickle", ".joblib"),
+    "joblib-zlib": (".pkl", ".pk", ".pickle", ".joblib"),
+    "pickle": (".pkl", ".pk", ".pickle", ".joblib"),
+    "torch": (".pt", ".pth"),
+    "npy": (".npy",),
+}
+
+
+@dataclass
+class VideoDocument:
+    """A video pipeline's file as read: format name, its decoded contents (``data``), and
+    per track the raw estimates (file frame), its label in ``LoadedFile.tracks`` and the
+    motion read from it."""
+
+    format: str
+    data: Any
+    tracks: list[tuple[str | None, RawTrack, Motion]] = field(default_factory=list)
+
+    @property
+    def writable(self) -> bool:
+        """Whether mdvae writes this format back in its own form."""
+        return self.format in OWN_CONTAINER
+
+    def own_form(self) -> str:
+        """The form this file is written back in, in words."""
+        if not self.writable:
+            return f"mdvae writes {self.format} results as .npz only"
+        names = " / ".join(CONTAINER_SUFFIXES[OWN_CONTAINER[self.format]])
+        return f"a {self.format} result is written back as {names}"
+
+
+def writes_back(doc: VideoDocument | None, path: Path | str) -> bool:
+    """Whether ``path`` names ``doc``'s own form (a suffix of its container, not ``.gz``)."""
+    if doc is None or not doc.writable:
+        return False
+    return Path(path).suffix.lower() in CONTAINER_SUFFIXES[OWN_CONTAINER[doc.format]]
+
+
+@dataclass
+class Rows:
+    """A cleaned track in the file's frame, one entry per row the file has for it.
+
+    root: (R, 3, 3); body: (R, 21, 3) axis-angles; transl: (R, 3) in the file's meaning
+    (model translation or pelvis); root_moved: (R,) rows whose root the cleaning changed;
+    body_moved: (R, 21) joints it changed; shift: (R, 3) the translation's change."""
+
+    root: np.ndarray
+    body: np.ndarray
+    transl: np.ndarray
+    root_moved: np.ndarray
+    body_moved: np.ndarray
+    shift: np.ndarray
+
+
+def file_rows(raw: RawTrack, before: Motion, after: Motion) -> Rows:
+    """``after`` (the cleaned ``before``, which ``raw`` was read into) back in the file's rows
+    and frame (module docstring). Frames where ``after`` is not finite (holes left unfilled)
+    keep the file's values."""
+    if after.num_frames != before.num_frames:
+        raise InputError(
+            f"the cleaned motion has {after.num_frames} frames, the file's track "
+            f"{before.num_frames}: it cannot go back in the file's own form (write .npz)"
+        )
+    R = raw.num_frames
+    if raw.frame_ids is None:
+        idx = np.arange(R)
+    else:
+        ids = np.asarray(raw.frame_ids).reshape(-1).astype(np.int64)
+        idx = ids - ids.min()
+    ok = np.isfinite(after.root_orient[idx]).all(1) & np.isfinite(after.trans[idx]).all(1)
+    root_moved = ok & np.any(after.root_orient[idx] != before.root_orient[idx], axis=1)
+    moved_t = ok & np.any(after.trans[idx] != before.trans[idx], axis=1)
+    to_file = up_to_z(raw.up).T  # (3, 3): z-up -> the file's frame
+    if raw.world is not None:  # TRAM: the camera frame, the world being per row
+        to_file = raw.world[0].transpose(0, 2, 1) @ to_file
+    to_file = np.broadcast_to(to_file, (R, 3, 3))
+    root = np.array(raw.root, dtype=np.float64)
+    root[root_moved] = to_file[root_moved] @ rotvec_to_rotmat(after.root_orient[idx][root_moved])
+    change = np.where(moved_t[:, None], after.trans[idx] - before.trans[idx], 0.0)
+    shift = np.einsum("tij,tj->ti", to_file, change)
+    a_body, b_body = after.pose_body[idx], before.pose_body[idx]
+    body_moved = np.isfinite(a_body).all(2) & np.any(a_body != b_body, axis=2)
+    body = np.where(body_moved[..., None], a_body, raw.body)
+    transl = np.asarray(raw.transl, np.float64) + shift
+    return Rows(root, body, transl, root_moved, body_moved, shift)
+
+
+# --------------------------------------------------------------------------------------------
+# putting rows into arrays of the file's layouts
+
+
+def near(new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """Of the axis-angles that give each rotation of ``new``, the one nearest the file's
+    ``old`` (an angle near 180 degrees has two: a turn of 2 pi apart), so that a value
+    the cleaning barely moved does not jump in the file.  (..., 3), (..., 3) -> (..., 3)"""
+    new = np.asarray(new, np.float64)
+    angle = np.linalg.norm(new, axis=-1, keepdims=True)
+    axis = new / np.maximum(angle, 1e-12)
+    options = [axis * (angle + k * 2 * np.pi) for k in (-1, 0, 1)]
+    gaps = np.stack([np.linalg.norm(o - old, axis=-1) for o in options])
+    return np.choose(gaps.argmin(0)[..., None], options)
+
+
+def put_axis_angle(a: Any, rows: Rows) -> np.ndarray:
+    """A copy of ``a`` ((R, >= 66) or (R, J, 3): root, then the 21 body joints, as
+    axis-angles) with the moved root and joints of ``rows``; its dtype kept."""
+    out = np.array(a, copy=True)
+    R = out.shape[0]
+    flat = out.reshape(R, -1)
+    moved = rows.root_moved
+    flat[moved, :3] = near(rotmat_to_rotvec(rows.root[moved]), flat[moved, :3])
+    body = flat[:, 3:66].reshape(R, 21, 3)
+    body[rows.body_moved] = near(rows.body[rows.body_moved], body[rows.body_moved])
+    flat[:, 3:66] = body.reshape(R, 63)
+    return flat.reshape(out.shape)
+
+
+def put_matrices(a: Any, rows: Rows) -> np.ndarray:
+    """A copy of ``a`` ((R, J * 9) or (R, J, 3, 3) rotation matrices, root first) with the
+    moved root and joints of ``rows``; the other joints' matrices as they were."""
+    out = np.array(a, copy=True)
+    R = out.shape[0]
+    m = out.reshape(R, -1, 3, 3)
+    m[rows.root_moved, 0] = rows.root[rows.root_moved]
+    body = m[:, 1:22]
+    body[rows.body_moved] = rotvec_to_rotmat(rows.body[rows.body_moved])
+    m[:, 1:22] = body
+    return m.reshape(out.shape)
+
+
+def put_root(a: Any, rows: Rows) -> np.ndarray:
+    """A copy of ``a`` ((R, 3) or (R, 1, 3) root axis-angles) with the moved roots."""
+    out = np.array(a, copy=True)
+    flat = out.reshape(out.shape[0], 3)
+    moved = rows.root_moved
+    flat[moved] = near(rotmat_to_rotvec(rows.root[moved]), flat[moved])
+    return flat.reshape(out.shape)
+
+
+def put_body(a: Any, rows: Rows) -> np.ndarray:
+    """A copy of ``a`` ((R, 63) or (R, 21, 3) body axis-angles) with the moved joints."""
+    out = np.array(a, copy=True)
+    body = out.reshape(out.shape[0], 21, 3)
+    body[rows.body_moved] = near(rows.body[rows.body_moved], body[rows.body_moved])
+    return body.reshape(out.shape)
+
+
+def shifted(a: Any, shift: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """A copy of ``a`` (R rows of 3 numbers, any shape) moved by ``shift * scale`` (R, 3)
+    where the shift is not zero; rows it leaves alone are the same bits."""
+    out = np.array(a, copy=True)
+    flat = out.reshape(out.shape[0], 3)
+    moved = np.any(shift != 0, axis=1)
+    flat[moved] = flat[moved] + (shift[moved] * scale).astype(flat.dtype)
+    return flat.reshape(out.shape)
+
+
+def camera_follows(
+    cam_root: Any, cam_transl: Any, world_root: np.ndarray, rows: Rows
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame copies of a world-frame pose moved as the world one was (module
+    docstring): per row the file's camera ``R_c = R_cam R_world^T``, the new camera root
+    ``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``.
+
+    cam_root: (R, 3) axis-angles; cam_transl: (R, 3); world_root: (R, 3, 3) the file's world
+    roots as read -> the new camera root and translation, in their arrays' dtypes"""
+    cam = np.array(cam_root, copy=True)
+    flat = cam.reshape(cam.shape[0], 3)
+    Rc = rotvec_to_rotmat(flat.astype(np.float64)) @ np.asarray(world_root).transpose(0, 2, 1)
+    moved = rows.root_moved
+    flat[moved] = near(rotmat_to_rotvec(Rc[moved] @ rows.root[moved]), flat[moved])
+    shift = np.einsum("tij,tj->ti", Rc, rows.shift)
+    return flat.reshape(cam.shape), shifted(cam_transl, shift)
+
+
+# --------------------------------------------------------------------------------------------
+# each pipeline's layout (the readers in ``formats.video_formats`` / ``video_people``)
+
+Putter = Callable[[Any, RawTrack, Rows, list[str]], None]
+
+
+def _track_dict(data: dict, raw: RawTrack) -> dict:
+    """The per-track dict of a file keyed by track id (WHAM, VIBE)."""
+    for key, _ in track_items(data):
+        if raw.label is None or key == raw.label:
+            return next(v for k, v in data.items() if str(k) == key)
+    raise InputError(f"no track {raw.label} in the file")  # the reader found it: not reached
+
+
+def _drop(d: dict, keys: tuple[str, ...], why: str, notes: list[str]) -> None:
+    gone = [k for k in keys if k in d]
+    for k in gone:
+        del d[k]
+    if gone:
+        notes.append(f"{', '.join(repr(k) for k in gone)} left out ({why})")
+
+
+def put_wham(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    d = _track_dict(data, raw)
+    world = "pose_world" in d and "trans_world" in d
+    pose, trans = ("pose_world", "trans_world") if world else ("pose", "trans")
+    d[pose] = put_axis_angle(d[pose], rows)
+    d[trans] = shifted(d[trans], rows.shift)
+    if world and "pose" in d and "trans" in d:
+        old = np.asarray(d["pose"])
+        cam_root, d["trans"] = camera_follows(old.reshape(len(old), -1)[:, :3], d["trans"],
+                                              raw.root, rows)  # fmt: skip
+        cam = put_axis_angle(old, rows)  # the body joints are the world pose's
+        cam.reshape(len(cam), -1)[:, :3] = cam_root
+        d["pose"] = cam
+    _drop(d, ("verts",), "vertices of the old pose; any SMPL tool makes them from the new", notes)
+
+
+def put_vibe(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    d = _track_dict(data, raw)
+    pose = np.asarray(d["pose"])
+    d["pose"] = put_axis_angle(pose, rows) if pose[0].size == 72 else put_matrices(pose, rows)
+    if np.any(rows.shift != 0):
+        notes.append("the file stores no translation: 'orig_cam' kept as it came")
+    _drop(d, ("verts", "joints3d"), "made from the old pose", notes)
+
+
+def put_hybrik(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    data["pred_thetas"] = put_matrices(data["pred_thetas"], rows)
+    key = "transl" if "transl" in data else "pred_cam_root"
+    data[key] = shifted(data[key], rows.shift)
+    kept = [k for k in ("pred_xyz_29", "pred_xyz_17", "pred_xyz_24_struct", "pred_uvd")
+            if k in data]  # fmt: skip
+    if kept:
+        notes.append(f"{', '.join(kept)} (the network's own joints) kept as they came")
+
+
+def put_aistpp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    scale = float(np.asarray(data.get("smpl_scaling", 1.0)).reshape(-1)[0])
+    data["smpl_poses"] = put_axis_angle(data["smpl_poses"], rows)
+    data["smpl_trans"] = shifted(data["smpl_trans"], rows.shift, scale)
+
+
+def put_gvhmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    world = isinstance(data.get("smpl_params_global"), dict)
+    params = data["smpl_params_global" if world else "smpl_params_incam"]
+    params["global_orient"] = put_root(params["global_orient"], rows)
+    params["body_pose"] = put_body(params["body_pose"], rows)
+    params["transl"] = shifted(params["transl"], rows.shift)
+    incam = data.get("smpl_params_incam")
+    if world and isinstance(incam, dict) and {"global_orient", "transl"} <= set(incam):
+        if "body_pose" in incam:
+            incam["body_pose"] = put_body(incam["body_pose"], rows)
+        incam["global_orient"], incam["transl"] = camera_follows(
+            incam["global_orient"], incam["transl"], raw.root, rows
+        )
+    _drop(data, ("net_outputs",), "the network's internals for the old pose", notes)
+
+
+def put_tram(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    data["pred_rotmat"] = put_matrices(data["pred_rotmat"], rows)
+    data["pred_trans"] = shifted(data["pred_trans"], rows.shift)
+
+
+def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    """4D-Humans / PHALP: the track's rows are its entries in the frames taken in the
+    reader's order (``video_people.read_phalp``); each entry's ``smpl`` and ``camera``."""
+    from mdvae_cli.formats.video_people import phalp_entries
+
+    for row, (frame, i) in enumerate(phalp_entries(data, raw.label)):
+        smpl = frame["smpl"][i]
+        mats = np.concatenate([np.asarray(smpl["global_orient"]).reshape(1, 3, 3),
+                               np.asarray(smpl["body_pose"]).reshape(23, 3, 3)])  # fmt: skip
+        one = Rows(rows.root[row : row + 1], rows.body[row : row + 1],
+                   rows.transl[row : row + 1], rows.root_moved[row : row + 1],
+                   rows.body_moved[row : row + 1], rows.shift[row : row + 1])  # fmt: skip
+        new = put_matrices(mats[None], one)[0]
+        dtype = np.asarray(smpl["body_pose"]).dtype
+        smpl["global_orient"] = new[:1].reshape(np.shape(smpl["global_orient"])).astype(dtype)
+        smpl["body_pose"] = new[1:].reshape(np.shape(smpl["body_pose"])).astype(dtype)
+        frame["camera"][i] = shifted(np.asarray(frame["camera"][i])[None], one.shift)[0]
+    kept = sorted({k for f in data.values() if isinstance(f, dict)
+                   for k in ("3d_joints", "2d_joints") if k in f})  # fmt: skip
+    if kept:
+        notes.append(f"{', '.join(kept)} (the old pose's joints) kept as they came")
+
+
+PUTTERS: dict[str, Putter] = {
+    "wham": put_wham,
+    "vibe": put_vibe,
+    "hybrik": put_hybrik,
+    "aistpp": put_aistpp,
+    "gvhmr": put_gvhmr,
+    "tram": put_tram,
+    "phalp": put_phalp,
+}
+
+
+def write_video(
+    doc: VideoDocument,
+    cleaned: dict[str | None, Motion],
+    path: Path | str,
+    forbid: tuple[Path, ...] = (),
+) -> list[str]:
+    """Write ``doc``'s file to ``path`` in its own form (module docstring), each track of
+    ``cleaned`` (label -> cleaned motion, labels as in ``LoadedFile.tracks``) put back; tracks
+    not in it are written as they came. -> notes for the user (what was left out or kept).
+    InputError for a format mdvae does not write back (write .npz)."""
+    if not doc.writable:
+        raise InputError(f"cannot write {path}: mdvae writes {doc.format} results as .npz only")
+    data = copy.deepcopy(doc.data)
+    notes: list[str] = []
+    for label, raw, before in doc.tracks:
+        after = cleaned.get(label)
+        if after is None:
+            continue
+        rows = file_rows(raw, before, after)
+        PUTTERS[doc.format](data, raw, rows, notes)
+        gaps = before.num_frames - len(np.unique(_ids(raw)))
+        if gaps > 0:
+            which = "" if label is None else f"track {label}: "
+            notes.append(f"{which}{gaps} frame(s) missing from the file's frame ids are not "
+                         "written (the file has no rows for them; an .npz output holds them "
+                         "filled)")  # fmt: skip
+    skipped = [str(lab) for lab, _, _ in doc.tracks if lab not in cleaned]
+    if skipped:
+        notes.append(f"track(s) {', '.join(skipped)} written as they came")
+    if doc.format == "wham" and not isinstance(data, defaultdict):
+        data = defaultdict(dict, data)  # as WHAM writes it
+    write_data(data, Path(path), OWN_CONTAINER[doc.format], forbid=forbid)
+    return list(dict.fromkeys(notes))
+
+
+def _ids(raw: RawTrack) -> np.ndarray:
+    if raw.frame_ids is None:
+        return np.arange(raw.num_frames)
+    return np.asarray(raw.frame_ids).reshape(-1)

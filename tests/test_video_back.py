@@ -1,0 +1,251 @@
+"""A video pipeline's file written back in its own form (``formats.video_back``, through
+``formats.registry.write`` and ``mdvae denoise`` / ``add-noise``)."""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import video_files as vf
+from click.testing import CliRunner
+
+from mdvae_cli.cli.main import cli
+from mdvae_cli.errors import InputError
+from mdvae_cli.formats.data_files import load_data
+from mdvae_cli.formats.registry import read, write
+from mdvae_cli.formats.video_back import near
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.motion.motion import Motion, slice_frames
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "video"
+
+
+def run(*args):
+    result = CliRunner().invoke(cli, [str(a) for a in args])
+    return result.exit_code, result.stdout, result.stderr
+
+
+def edited(m: Motion, every: int = 3) -> tuple[Motion, np.ndarray]:
+    """``m`` with every ``every``-th frame turned 0.2 rad about z, moved 5 cm and one knee
+    bent 0.1 rad more; -> (the copy, the frames changed)."""
+    sel = np.arange(m.num_frames) % every == 0
+    root, body, trans = m.root_orient.copy(), m.pose_body.copy(), m.trans.copy()
+    root[sel] = rotmat_to_rotvec(rotvec_to_rotmat(np.array([0, 0, 0.2]))
+                                 @ rotvec_to_rotmat(root[sel]))  # fmt: skip
+    trans[sel] += [0.05, -0.03, 0.02]
+    body[sel, 3, 0] += 0.1
+    return m.with_body(root_orient=root, pose_body=body, trans=trans), sel
+
+
+def same_rotations(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest angle (rad) between the rotations of two axis-angle arrays (..., 3)."""
+    d = rotvec_to_rotmat(a.reshape(-1, 3)).transpose(0, 2, 1) @ rotvec_to_rotmat(b.reshape(-1, 3))
+    return float(np.abs(rotmat_to_rotvec(d)).max())
+
+
+def write_file(kind: str, folder: Path, m: Motion) -> Path:
+    makers = {
+        "wham": lambda: vf.write_wham(folder / "wham_output.pkl", {0: (m, None)}),
+        "vibe": lambda: vf.write_vibe(folder / "vibe_output.pkl", m),
+        "pare": lambda: vf.write_vibe(folder / "pare_output.pkl", m, matrices=True),
+        "hybrik": lambda: vf.write_hybrik(folder / "res.pk", m),
+        "gvhmr": lambda: vf.write_gvhmr(folder / "hmr4d_results.pt", m),
+        "tram": lambda: vf.write_tram(folder / "tram", m),
+        "aistpp": lambda: vf.write_aistpp(folder / "aist.pkl", m),
+        "phalp": lambda: vf.write_phalp(folder / "demo.pkl", {"4": (m, list(range(m.num_frames)))}),
+    }
+    return makers[kind]()
+
+
+KINDS = ["wham", "vibe", "pare", "hybrik", "gvhmr", "tram", "aistpp", "phalp"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_cleaned_track_goes_back_in_the_files_own_form(tmp_path, kind):
+    src = write_file(kind, tmp_path, vf.clip(24, seed=3))
+    loaded = read(src)
+    before = loaded.single()
+    after, sel = edited(before)
+    out = src.parent / f"clean{src.suffix}"  # TRAM's world comes from ../camera.npy
+    write(after, out, document=loaded.document)
+    back = read(out)
+    assert back.format == loaded.format
+    got = back.single()
+    # what the cleaning changed, read back from the pipeline's own file (float32 in the file)
+    assert same_rotations(got.root_orient, after.root_orient) < 2e-6
+    assert same_rotations(got.pose_body, after.pose_body) < 2e-6
+    if kind not in ("vibe", "pare"):  # VIBE / PARE store no translation
+        assert np.abs(got.trans - after.trans).max() < 1e-5
+    # every frame the cleaning left alone is the file's own, bit for bit
+    old, new = load_data(src), load_data(out)
+    old = old.item() if isinstance(old, np.ndarray) else old
+    new = new.item() if isinstance(new, np.ndarray) else new
+    key = {"wham": "pose_world", "vibe": "pose", "pare": "pose", "hybrik": "pred_thetas",
+           "tram": "pred_rotmat", "aistpp": "smpl_poses"}.get(kind)  # fmt: skip
+    if key is not None:
+        where = {"wham": 0, "vibe": 1, "pare": 1}.get(kind)
+        o, n = (old[key], new[key]) if where is None else (old[where][key], new[where][key])
+        assert n.dtype == o.dtype and n.shape == o.shape
+        assert np.array_equal(n[~sel], o[~sel])
+        assert not np.array_equal(n[sel], o[sel])
+
+
+def test_wham_camera_copy_follows_the_world_pose_and_verts_are_left_out(tmp_path):
+    m = vf.clip(24, seed=4)
+    src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (m, None)})
+    loaded = read(src)
+    after, sel = edited(loaded.single())
+    out = tmp_path / "clean.pkl"
+    notes = write(after, out, document=loaded.document)
+    assert any("'verts' left out" in n for n in notes)
+    d = load_data(out)[np.int64(0)]
+    assert "verts" not in d and set(d) == {"pose", "trans", "betas", "frame_ids",
+                                           "pose_world", "trans_world"}  # fmt: skip
+    # the file's camera copy is what the writer of the test file makes of the cleaned motion
+    ref_root, ref_trans = vf.to_source(after, vf.CAMERA_UP)
+    assert same_rotations(d["pose"][:, :3], rotmat_to_rotvec(ref_root)) < 2e-6
+    assert np.abs(d["trans"] - ref_trans).max() < 1e-5
+    assert np.abs(d["pose"][:, 3:66] - d["pose_world"][:, 3:66]).max() == 0
+
+
+def test_gvhmr_incam_follows_tensors_and_net_outputs_left_out(tmp_path):
+    m = vf.clip(20, seed=5)
+    src = vf.write_gvhmr(tmp_path / "hmr4d_results.pt", m)
+    loaded = read(src)
+    after, _ = edited(loaded.single())
+    out = tmp_path / "clean.pt"
+    notes = write(after, out, document=loaded.document)
+    assert any("'net_outputs' left out" in n for n in notes)
+    pred = torch.load(out, weights_only=True)  # as GVHMR's own code opens it
+    assert set(pred) == {"smpl_params_global", "smpl_params_incam", "K_fullimg"}
+    incam = pred["smpl_params_incam"]
+    assert isinstance(incam["transl"], torch.Tensor) and incam["transl"].dtype == torch.float32
+    ref_root, ref_transl = vf.to_source(after, vf.CAMERA_UP)
+    assert same_rotations(incam["global_orient"].numpy(), rotmat_to_rotvec(ref_root)) < 2e-6
+    assert np.abs(incam["transl"].numpy() - ref_transl).max() < 1e-5
+
+
+def test_tracks_with_gaps_get_their_own_rows_and_others_stay_as_they_came(tmp_path):
+    a, b = vf.clip(30, seed=1), vf.clip(20, seed=2)
+    ids = np.r_[0:10, 15:35]  # a gap of 5 frames
+    src = vf.write_wham(tmp_path / "wham_output.pkl", {3: (a, ids), 7: (b, None)})
+    loaded = read(src)
+    cleaned = dict(loaded.tracks)
+    assert cleaned["3"].num_frames == 35
+    new3, _ = edited(cleaned["3"], every=2)
+    notes = write(
+        type(loaded)(src, "wham", "video", [("3", new3)], document=loaded.document),
+        tmp_path / "clean.pkl",
+    )
+    assert any("5 frame(s) missing" in n for n in notes)
+    assert any("track(s) 7 written as they came" in n for n in notes)
+    old, new = load_data(src), load_data(tmp_path / "clean.pkl")
+    assert new[np.int64(3)]["pose_world"].shape == (30, 72)  # the file's rows, no more
+    assert np.array_equal(new[np.int64(3)]["frame_ids"], ids)
+    for k, v in old[np.int64(7)].items():
+        assert np.array_equal(new[np.int64(7)][k], v)
+    back = dict(read(tmp_path / "clean.pkl").tracks)
+    seen = np.isin(np.arange(35), ids - ids[0])
+    assert same_rotations(back["3"].root_orient[seen], new3.root_orient[seen]) < 2e-6
+
+
+def test_nearest_axis_angle_keeps_a_half_turn_from_jumping():
+    old = np.array([[0.0, 0.0, np.pi - 0.01]])
+    new = np.array([[0.0, 0.0, -(np.pi - 0.02)]])  # nearly the same rotation, the other way
+    got = near(new, old)
+    assert np.allclose(got, [[0.0, 0.0, np.pi + 0.02]])
+    assert same_rotations(got, new) < 1e-9
+    assert np.array_equal(near(np.array([[0.1, 0.2, 0.3]]), np.zeros((1, 3))), [[0.1, 0.2, 0.3]])
+
+
+def test_a_pickle_names_numpy_as_every_numpy_loads_it(tmp_path):
+    src = vf.write_hybrik(tmp_path / "res.pk", vf.clip(12, seed=6))
+    loaded = read(src)
+    write(loaded.single(), tmp_path / "clean.pkl", document=loaded.document)
+    raw = (tmp_path / "clean.pkl").read_bytes()
+    assert b"numpy.core.multiarray\n_reconstruct" in raw and b"numpy._core" not in raw
+    res = pickle.loads(raw)  # HybrIK's own reader: a plain pickle
+    assert res["pred_thetas"].shape == (12, 216) and res["img_path"][3] == "img_000003.png"
+
+
+def test_joblib_loads_a_wham_file_written_back(tmp_path):
+    joblib = pytest.importorskip("joblib")
+    src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (vf.clip(16, seed=7), None)})
+    loaded = read(src)
+    write(edited(loaded.single())[0], tmp_path / "clean.pkl", document=loaded.document)
+    d = joblib.load(tmp_path / "clean.pkl")
+    assert type(d).__name__ == "defaultdict" and list(d) == [0]
+    assert d[0]["pose_world"].dtype == np.float32 and d[0]["pose_world"].shape == (16, 72)
+
+
+def test_writing_a_video_form_without_its_file_is_refused(tmp_path):
+    src = vf.write_hybrik(tmp_path / "res.pk", vf.clip(12, seed=6))
+    loaded = read(src)
+    with pytest.raises(InputError, match="written only back from the file"):
+        write(loaded.single(), tmp_path / "x.pkl")
+    with pytest.raises(InputError, match="written back as .pkl"):
+        write(loaded.single(), tmp_path / "x.pt", document=loaded.document)
+    with pytest.raises(InputError, match="cannot go back"):
+        write(slice_frames(loaded.single(), 0, 8), tmp_path / "y.pkl", document=loaded.document)
+    assert not list(tmp_path.glob("[xy].p*"))
+
+
+# --------------------------------------------------------------------------------------------
+# the commands
+
+
+def test_denoise_gives_each_pipeline_file_back_in_its_form(tmp_path):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    vf.write_wham(folder / "wham_output.pkl", {0: (vf.clip(40, seed=1), None)})
+    vf.write_gvhmr(folder / "hmr4d_results.pt", vf.clip(40, seed=2))
+    vf.write_phalp(folder / "demo_clip.pkl", {"1": (vf.clip(40, seed=3), list(range(40)))})
+    vf.write_gvhmr(folder / "renamed.pkl", vf.clip(40, seed=4))  # a torch file under .pkl
+    code, _, err = run("denoise", folder, "-o", tmp_path / "out")
+    assert code == 0, err
+    assert read(tmp_path / "out" / "wham_output.pkl").format == "wham"
+    assert read(tmp_path / "out" / "hmr4d_results.pt").format == "gvhmr"
+    assert read(tmp_path / "out" / "demo_clip.pkl").format == "phalp"
+    # a form the name cannot hold: the .npz, with a note saying so
+    assert not (tmp_path / "out" / "renamed.pkl").exists()
+    assert read(tmp_path / "out" / "renamed.npz").format == "amass"
+    assert "written as renamed.npz (a gvhmr result is written back as .pt / .pth)" in err
+    # a named output of the file's own form, and of another family refused before reading
+    code, _, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "one.pkl")
+    assert code == 0, err and (tmp_path / "one.pkl").is_file()
+    code, _, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "one.pt")
+    assert code == 1 and "write it as .pkl or .npz" in err
+    code, _, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "one.pkl.gz")
+    assert code == 1 and "not .gz" in err
+    # the .npz form is still there for the asking
+    code, _, err = run("denoise", folder / "hmr4d_results.pt", "-o", tmp_path / "one.npz")
+    assert code == 0, err and read(tmp_path / "one.npz").format == "gvhmr-npz"
+
+
+def test_add_noise_writes_a_pipeline_file_back_noisy_and_holes_as_npz(tmp_path):
+    src = vf.write_hybrik(tmp_path / "res.pk", vf.clip(40, seed=4))
+    code, _, err = run("add-noise", src, "-o", tmp_path / "noisy.pk", "--sigma", "0.1")
+    assert code == 0, err
+    clean, noisy = read(src).single(), read(tmp_path / "noisy.pk").single()
+    assert 0.02 < same_rotations(clean.pose_body, noisy.pose_body) < 1.5
+    code, _, err = run("add-noise", src, "-o", tmp_path / "holes.pk", "--drop-frames", "5x1")
+    assert code == 1 and "name an .npz output" in err
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="the shared real files are not here")
+@pytest.mark.parametrize("name", ["wham/wham_output.pkl", "gvhmr/tennis_hmr4d_results.pt",
+                                  "hybrik/res.pk"])  # fmt: skip
+def test_real_pipeline_files_come_back_in_their_form_as_the_npz_says(tmp_path, name):
+    src = REAL / name
+    own = tmp_path / f"clean{src.suffix}"
+    for out in (own, tmp_path / "clean.npz"):
+        code, _, err = run("denoise", src, "-o", out)
+        assert code == 0, err
+    a, b = read(own).single(), read(tmp_path / "clean.npz").single()
+    assert read(own).format == read(src).format
+    assert same_rotations(a.pose_body, b.pose_body) < 1e-5
+    assert same_rotations(a.root_orient, b.root_orient) < 1e-5
+    assert np.abs(a.trans - b.trans).max() < 1e-4
