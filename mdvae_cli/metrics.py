@@ -22,7 +22,7 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, as_body_model, pose_motion_chunks
 from mdvae_cli.foot_metrics import compare_feet
 from mdvae_cli.motion.contacts import foot_vertex_ids, lowest_sole_points
-from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.motion import Motion, slice_frames
 
 Array = torch.Tensor | np.ndarray
 
@@ -157,6 +157,30 @@ def check_compatible(gt: Motion, pred: Motion) -> None:
             f"lengths differ: ground truth {gt.num_frames} frames, "
             f"prediction {pred.num_frames} frames"
         )
+
+
+def common_rate(gt: Motion, pred: Motion) -> tuple[Motion, Motion, str | None]:
+    """The two motions at one frame rate, for :func:`evaluate_pair`: where the rates differ,
+    the faster one is resampled to the slower one's rate (slerp / lerp; an integer ratio
+    takes its own frames) and both are cut to the shorter when the lengths then differ by
+    at most one frame (rounding of the durations). -> (gt, pred, a note saying what was
+    done, or None when nothing was). InputError when the durations differ by more."""
+    if abs(gt.fps - pred.fps) <= 1e-6 * max(gt.fps, 1.0):
+        return gt, pred, None
+    from mdvae_cli.motion.resample import resample_motion
+
+    rate = min(gt.fps, pred.fps)
+    which = "ground truth" if gt.fps > pred.fps else "prediction"
+    fast = max(gt.fps, pred.fps)
+    gt, pred = resample_motion(gt, rate), resample_motion(pred, rate)
+    if abs(gt.num_frames - pred.num_frames) > 1:
+        raise InputError(
+            f"durations differ: ground truth {gt.num_frames / rate:.2f} s, prediction "
+            f"{pred.num_frames / rate:.2f} s (at {rate:g} fps)"
+        )
+    n = min(gt.num_frames, pred.num_frames)
+    gt, pred = slice_frames(gt, 0, n), slice_frames(pred, 0, n)
+    return gt, pred, f"evaluated at {rate:g} fps: the {which} resampled from {fast:g} fps"
 
 
 def evaluate_pair(

@@ -164,7 +164,10 @@ def test_eval_missing_prediction_fails_that_file_only(
 
 @pytest.mark.parametrize(
     "pred_kwargs, message",
-    [({"fps": 60.0}, "frame rates differ"), ({"T": 7}, "lengths differ")],
+    [
+        ({"fps": 60.0}, "durations differ: ground truth 0.20 s, prediction 0.10 s (at 30 fps)"),
+        ({"T": 7}, "lengths differ"),
+    ],  # fmt: skip
 )
 def test_eval_mismatch_is_one_error(small_default_body, make_motion_file, pred_kwargs, message):
     gt = make_motion_file("gt.npz", T=6, fps=30.0)

@@ -183,6 +183,27 @@ def test_evaluate_refuses_mismatched_rate_or_length(tiny_body):
         evaluate_pair(clip(T=40), clip(T=41), tiny_body)
 
 
+def test_files_at_two_rates_are_scored_at_the_slower(tiny_body):
+    from mdvae_cli.metrics import common_rate
+    from mdvae_cli.motion.resample import resample_motion
+
+    fast = clip(T=121, fps=120.0)
+    slow = resample_motion(fast, 30.0)  # every 4th frame, exactly
+    for gt, pred, which in ((fast, slow, "ground truth"), (slow, fast, "prediction")):
+        a, b, note = common_rate(gt, pred)
+        assert note == f"evaluated at 30 fps: the {which} resampled from 120 fps"
+        assert a.fps == b.fps == 30.0 and a.num_frames == b.num_frames == 31
+        r = evaluate_pair(a, b, tiny_body)
+        assert r.fps == 30.0 and r.v2v_cm == pytest.approx(0.0, abs=1e-6)
+    # a frame more at the fast rate rounds to the same length; a quarter second more does not
+    a, b, _ = common_rate(clip(T=124, fps=120.0), slow)
+    assert a.num_frames == b.num_frames == 31
+    with pytest.raises(InputError, match="durations differ: ground truth 1.30 s, prediction"):
+        common_rate(clip(T=156, fps=120.0), slow)
+    same = clip(T=10)
+    assert common_rate(same, same) == (same, same, None)
+
+
 def test_mean_result_is_frame_weighted():
     a = EvalResult(10, 30.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
     b = EvalResult(30, 30.0, 3.0, 4.0, 5.0, 8.0, 9.0, 10.0)

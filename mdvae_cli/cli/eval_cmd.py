@@ -12,7 +12,15 @@ from rich.markup import escape
 from rich.table import Table
 
 from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.cli.batch import FileJob, FileOutcome, emit_json, json_option, run_batch, strip_gz
+from mdvae_cli.cli.batch import (
+    FileJob,
+    FileOutcome,
+    emit_json,
+    json_option,
+    print_notes,
+    run_batch,
+    strip_gz,
+)
 from mdvae_cli.cli.common import (
     allow_pickle_option,
     body_model_option,
@@ -174,7 +182,8 @@ of its lowest sole points there); prediction (GT):
   penetr.   mean depth of each foot's lowest point under the floor, cm
   float     its mean height above the floor while the foot is down, cm
 The mean row weights every frame equally (skate: every contact pair; float:
-every foot-frame down). Frame rates and lengths must match.
+every foot-frame down). Files at different frame rates are scored at the
+slower rate (the faster one resampled, with a note); lengths must match there.
 
 \b
 Example:
@@ -205,7 +214,7 @@ def eval_command(
     gt, pred, body_model, chunk_frames, asf, joint_map_file, allow_pickle, as_json
 ) -> None:
     from mdvae_cli.export import as_body_model
-    from mdvae_cli.metrics import evaluate_pair, mean_result
+    from mdvae_cli.metrics import common_rate, evaluate_pair, mean_result
 
     jobs, unmatched = pair_files(gt, pred)
     body = as_body_model(load_body_model(body_model))
@@ -220,6 +229,8 @@ def eval_command(
         truth = read(job.source, options).single()
         guess = read(job.data, options).single()
         try:
+            truth, guess, note = common_rate(truth, guess)
+            print_notes(job.relpath, [note] if note else [])
             return evaluate_pair(truth, guess, body, chunk_frames=chunk_frames)
         except InputError as exc:
             raise InputError(f"{job.source} vs {job.data}: {exc}") from None
