@@ -152,3 +152,15 @@ def test_wrap_brings_angles_into_0_pi_and_keeps_the_rotation():
     # undoes unwrap
     seq = R.rotvec_unwrap(R.rotmat_to_rotvec(R.rotvec_to_rotmat(r[:50])))
     torch.testing.assert_close(R.rotvec_to_rotmat(R.rotvec_wrap(seq)), R.rotvec_to_rotmat(r[:50]))
+
+
+def test_quat_to_rotvec_small_angles_match_the_exact_angle():
+    """Below the small-angle switch the series must agree with 2 atan2(s, w) / s to float64
+    rounding (it once had the wrong second-order term: 5e-7 relative at the switch)."""
+    angles = torch.tensor([1e-9, 1e-6, 1e-4, 1e-3, 1.9e-3, 1.99e-3], dtype=torch.float64)
+    axis = torch.nn.functional.normalize(torch.tensor([0.3, -0.5, 0.8], dtype=torch.float64), dim=0)
+    q = torch.cat([torch.cos(angles / 2)[:, None], torch.sin(angles / 2)[:, None] * axis], dim=1)
+    assert ((q[:, 1:] ** 2).sum(-1) < 1e-6).all()  # every one on the series' side
+    got = R.quat_to_rotvec(q)
+    assert torch.allclose(got.norm(dim=-1), angles, rtol=1e-12, atol=0)
+    assert torch.allclose(got / got.norm(dim=-1, keepdim=True), axis.expand(6, 3), atol=1e-12)

@@ -244,11 +244,19 @@ def _numbers(text: str, start: int, expect: int) -> tuple[np.ndarray, int]:
     while start < len(text):
         cut = _SPACE.search(text, start + _CHUNK)
         end = cut.start() if cut else len(text)
-        part = np.array(text[start:end].split(), dtype=np.float64)
+        part = _parse_floats(text[start:end])
         room = max(0, min(part.size, expect - count))
         out[count : count + room] = part[:room]
         count, start = count + part.size, end
     return out[: min(count, expect)], count
+
+
+def _parse_floats(text: str) -> np.ndarray:
+    """The whitespace-separated numbers of ``text`` (numpy's C parser: no list of words);
+    ValueError for a word that is no number."""
+    if not text.strip():  # numpy reads a text of nothing but whitespace as [-1]
+        return np.empty(0)
+    return np.fromstring(text, sep=" ")
 
 
 def load_bvh(

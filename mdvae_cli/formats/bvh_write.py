@@ -25,11 +25,81 @@ DECIMALS = 6
 ROWS_PER_PIECE = 4096
 
 
+#: values at or above this are written by Python's formatting (their scaled integers would
+#: not be exact in float64)
+_FAST_LIMIT = 1e8
+
+
 def format_rows(data: np.ndarray) -> str:
-    """Channel values as BVH motion lines (``DECIMALS`` decimals, space separated)."""
+    """Channel values as BVH motion lines (``DECIMALS`` decimals, space separated), as
+    ``"%.6f"`` writes them.  data: (n, C)"""
+    data = np.asarray(data, dtype=np.float64)
+    if data.ndim != 2 or data.size == 0 or DECIMALS != 6:
+        return _format_rows_slow(data)
+    if not (np.isfinite(data).all() and np.abs(data).max() < _FAST_LIMIT):
+        return _format_rows_slow(data)
+    text = _fixed_point_text(data.ravel(), data.shape[1])
+    return text.tobytes().decode("ascii")
+
+
+def _format_rows_slow(data: np.ndarray) -> str:
+    """:func:`format_rows` by numpy's own text writer."""
     buf = io.StringIO()
-    np.savetxt(buf, data, fmt=f"%.{DECIMALS}f", delimiter=" ")
-    return buf.getvalue()
+    np.savetxt(buf, np.atleast_2d(data), fmt=f"%.{DECIMALS}f", delimiter=" ")
+    return buf.getvalue() if np.size(data) else ""
+
+
+def _scaled(x: np.ndarray) -> np.ndarray:
+    """|x| in millionths, rounded exactly as ``"%.6f"`` rounds (half to even on the exact
+    binary value): ``rint`` of the float product, or Python's formatting where the product
+    lies too close to a half to tell.  x: (N,) finite, |x| < _FAST_LIMIT -> (N,) int64"""
+    y = np.abs(x) * 1e6
+    q = np.rint(y)
+    near = np.abs(np.abs(y - np.floor(y)) - 0.5) <= 1e-15 * y + 1e-300
+    out = q.astype(np.int64)
+    for i in np.flatnonzero(near):
+        out[i] = int(f"{abs(float(x[i])):.6f}".replace(".", ""))
+    return out
+
+
+def _words(texts: list[str]) -> np.ndarray:
+    """Texts of up to four ASCII characters as 4-byte words, right-aligned (0 bytes on the
+    left: no character), in the machine's byte order.  -> (len(texts),) uint32"""
+    raw = b"".join(t.encode("ascii").rjust(4, b"\0") for t in texts)
+    return np.frombuffer(raw, dtype=np.uint32)
+
+
+#: four-byte words of 0..999: zero-padded; as the leading digits of a number, then with a
+#: minus sign (1000 + v); '.' and three digits; three digits and a space, or a newline
+_PADDED = _words([f"{v:03d}" for v in range(1000)])
+_LEADING = _words([f"{v}" for v in range(1000)] + [f"-{v}" for v in range(1000)])
+_POINT = _words([f".{v:03d}" for v in range(1000)])
+_SPACE, _NEWLINE = (_words([f"{v:03d}{end}"[-4:] for v in range(1000)]) for end in " \n")
+
+
+def _fixed_point_text(x: np.ndarray, columns: int) -> np.ndarray:
+    """The ASCII bytes of ``"%.6f"`` of every value, a space after each and a newline after
+    every ``columns``-th: each value a row of 4-byte words (its integer part's three-digit
+    groups, '.' and three decimals, three decimals and the separator), read out without the
+    empty bytes.  x: (N,) |x| < _FAST_LIMIT -> (bytes,) uint8"""
+    whole, frac = (v.astype(np.int32) for v in np.divmod(_scaled(x), 10**6))
+    groups = -(-len(str(int(whole.max()))) // 3)  # three-digit groups of the integer part
+    grid = np.empty((x.size, groups + 2), dtype=np.uint32)
+    hi, lo = np.divmod(frac, 1000)
+    grid[:, groups] = _POINT[hi]
+    grid[:, groups + 1] = _SPACE[lo]
+    ends = slice(columns - 1, None, columns)
+    grid[ends, groups + 1] = _NEWLINE[lo[ends]]
+    minus = 1000 * np.signbit(x)
+    rest = whole
+    for g in range(groups):  # from the right: padded where more digits follow, else leading
+        rest, part = np.divmod(rest, 1000)
+        lead = _LEADING[part + minus]
+        if g:
+            lead = np.where(part > 0, lead, 0)  # no digits this far left
+        grid[:, groups - 1 - g] = np.where(rest > 0, _PADDED[part], lead)
+    text = grid.view(np.uint8)
+    return text[text > 0]
 
 
 def motion_pieces(header: str, data: np.ndarray, frame_time: str) -> Iterator[str]:

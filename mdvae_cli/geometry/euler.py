@@ -10,20 +10,39 @@ import numpy as np
 def euler_to_rotmat(angles: np.ndarray, axes: str) -> np.ndarray:
     """Product of axis rotations, outermost first: ``R_axes[0](a0) @ R_axes[1](a1) @ ...``.
 
+    Built entry by entry: each turn mixes two columns of the product so far, and entries
+    still exactly 0 or 1 (from the identity) cost nothing.
     angles: (..., K) radians; axes: K letters from "xyz" -> (..., 3, 3)
     """
     angles = np.asarray(angles, dtype=np.float64)
     shape = angles.shape[:-1]
-    out = np.broadcast_to(np.eye(3), (*shape, 3, 3)).copy()
+    M: list[list] = [[1.0 if r == k else 0.0 for k in range(3)] for r in range(3)]
     for k, axis in enumerate(axes):
         c, s = np.cos(angles[..., k]), np.sin(angles[..., k])
-        R = np.zeros((*shape, 3, 3))
         i = "xyz".index(axis)
         a, b = (i + 1) % 3, (i + 2) % 3
-        R[..., i, i] = 1.0
-        R[..., a, a], R[..., a, b], R[..., b, a], R[..., b, b] = c, -s, s, c
-        out = out @ R
+        for row in M:  # (M R)[:, a] = c M[:, a] + s M[:, b]; (M R)[:, b] = c M[:, b] - s M[:, a]
+            row[a], row[b] = _mix(c, row[a], s, row[b]), _mix(c, row[b], -s, row[a])
+    out = np.empty((*shape, 3, 3))
+    for r in range(3):
+        for k in range(3):
+            out[..., r, k] = M[r][k]
     return out
+
+
+def _mix(c: np.ndarray, x, s: np.ndarray, y):
+    """``c * x + s * y`` where x and y are arrays or the exact constants 0.0 and 1.0."""
+    terms = [t for t in (_times(c, x), _times(s, y)) if t is not None]
+    if not terms:
+        return 0.0
+    return terms[0] if len(terms) == 1 else terms[0] + terms[1]
+
+
+def _times(c: np.ndarray, x):
+    """``c * x`` for x an array or the exact constants 0.0 (None: nothing) and 1.0."""
+    if isinstance(x, float):
+        return None if x == 0.0 else c if x == 1.0 else c * x
+    return c * x
 
 
 def rotmat_to_euler(R: np.ndarray, axes: str, near: np.ndarray | None = None) -> np.ndarray:

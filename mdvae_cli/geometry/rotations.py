@@ -22,7 +22,7 @@ import torch
 _SMALL = 1e-6
 
 
-def _angle_terms(theta2: torch.Tensor):
+def angle_terms(theta2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """sin(t)/t and (1-cos t)/t^2 from t^2, Taylor-expanded near zero.  theta2: (...,)"""
     small = theta2 < _SMALL
     safe2 = torch.where(small, torch.ones_like(theta2), theta2)
@@ -42,7 +42,7 @@ def skew(v: torch.Tensor) -> torch.Tensor:
 def rotvec_to_rotmat(rotvec: torch.Tensor) -> torch.Tensor:
     """Rodrigues' formula.  rotvec: (..., 3) -> (..., 3, 3)"""
     theta2 = (rotvec * rotvec).sum(-1)
-    a, b = _angle_terms(theta2)
+    a, b = angle_terms(theta2)
     k = skew(rotvec)
     eye = torch.eye(3, dtype=rotvec.dtype, device=rotvec.device).expand(k.shape)
     return eye + a[..., None, None] * k + b[..., None, None] * (k @ k)
@@ -68,9 +68,9 @@ def quat_to_rotvec(quat: torch.Tensor) -> torch.Tensor:
     small = s2 < _SMALL
     s = torch.sqrt(torch.where(small, torch.ones_like(s2), s2))
     angle = 2.0 * torch.atan2(s, w)
-    # angle / sin(angle/2): for small s, 2/w * (1 + s^2/(6 w^2)) approximately
+    # angle / s = 2 atan(x) / (w x) with x = s / w: for small s, 2/w * (1 - s^2 / (3 w^2))
     w_safe = torch.where(small, w.clamp_min(0.5), torch.ones_like(w))
-    factor = torch.where(small, 2.0 / w_safe * (1.0 + s2 / (6.0 * w_safe**2)), angle / s)
+    factor = torch.where(small, 2.0 / w_safe * (1.0 - s2 / (3.0 * w_safe**2)), angle / s)
     return v * factor[..., None]
 
 

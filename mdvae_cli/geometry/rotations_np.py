@@ -71,17 +71,16 @@ def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
     )
     a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
     d, e, f = m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]
-    cand = np.stack(
-        [
-            np.stack([pivots[..., 0], a, b, c], -1),
-            np.stack([a, pivots[..., 1], d, e], -1),
-            np.stack([b, d, pivots[..., 2], f], -1),
-            np.stack([c, e, f, pivots[..., 3]], -1),
-        ],
-        axis=-2,
-    )  # row k is 4 q_k q
+    rows = (  # row k is 4 q_k q
+        (pivots[..., 0], a, b, c),
+        (a, pivots[..., 1], d, e),
+        (b, d, pivots[..., 2], f),
+        (c, e, f, pivots[..., 3]),
+    )
     best = pivots.argmax(-1)
-    q = np.take_along_axis(cand, best[..., None, None], -2)[..., 0, :]
+    q = np.empty((*best.shape, 4))
+    for i in range(4):  # each component from the best pivot's row
+        q[..., i] = np.choose(best, [row[i] for row in rows])
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     return np.where(q[..., :1] < 0, -q, q)
 

@@ -10,7 +10,7 @@ import torch
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.geometry.kinematics import forward_kinematics
-from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat, skew
+from mdvae_cli.geometry.rotations import angle_terms, rotmat_to_rotvec, skew
 from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.retarget.joint_map import (
     JointMap,
@@ -113,16 +113,18 @@ def normal_equations(p, r, tree: _Tree):
         qa.index_select(0, a),
         count[m, None],
     )
-    Qm = Q.index_select(0, m)
-    dot = (Qm[:, 0, 0] + Qm[:, 1, 1] + Qm[:, 2, 2]
+    pairs = len(m)
+    H = q.new_empty((pairs + n + 1, 3, 3, T))
+    outer = torch.index_select(Q, 0, m, out=H[:pairs])  # Q of the subtree of m, then the blocks
+    dot = (outer[:, 0, 0] + outer[:, 1, 1] + outer[:, 2, 2]
            - (sm * (pm + pa)).sum(1) + cm * (pm * pa).sum(1))  # fmt: skip
-    outer = Qm - sm[:, :, None] * pm[:, None] - pa[:, :, None] * sm[:, None]
-    outer += cm[..., None, None] * pa[:, :, None] * pm[:, None]
-    eye = torch.eye(3, dtype=q.dtype)[..., None]
-    pair_blocks = dot[:, None, None] * eye - outer  # (pairs, 3, 3, T)
+    outer.addcmul_(sm[:, :, None], pm[:, None], value=-1)
+    outer.addcmul_(pa[:, :, None], sm[:, None], value=-1)
+    outer.addcmul_((cm[..., None] * pa)[:, :, None], pm[:, None])
+    outer.neg_().diagonal(dim1=1, dim2=2).add_(dot[..., None])  # dot I - outer
     # the translation's column: the sum of skew(q_k - q_j) over the subtree of j
-    translation = skew((s - count[:, None, None] * qa).transpose(1, 2)).permute(0, 2, 3, 1)
-    H = torch.cat([pair_blocks, translation, (_N * eye).expand(1, 3, 3, T)])
+    H[pairs:-1] = skew((s - count[:, None, None] * qa).transpose(1, 2)).permute(0, 2, 3, 1)
+    H[-1] = _N * torch.eye(3, dtype=q.dtype)[..., None]
     # the gradient: the sum over the subtree of (q_k - q_j) x r_k, and of r_k
     qxr = (S @ torch.linalg.cross(q, r, dim=1).reshape(_N, -1)).reshape(n, 3, T)
     R = (S @ r.reshape(_N, -1)).reshape(n, 3, T)
@@ -155,7 +157,8 @@ def tree_solve(H: torch.Tensor, g: torch.Tensor, tree: _Tree) -> torch.Tensor:
     x = torch.empty_like(g)
     x[n] = (_inverse3(H[tree.diagonal[n]]) * g[n]).sum(1)
     for j in range(n):
-        rest = (rows[j] * x.index_select(0, tree.above[j])[:, None]).sum((0, 2))  # H[j, a] x[a]
+        # H[j, a] x[a] (one axis summed at a time: torch's sum over two is several times slower)
+        rest = (rows[j] * x.index_select(0, tree.above[j])[:, None]).sum(2).sum(0)
         x[j] = (inverses[j] * (g[j] - rest)).sum(1)
     return x
 
@@ -233,14 +236,54 @@ def _solve_chunk(
         H[tree.diagonal[n]] += damping * eye
         Ga = G[:, active]
         if step_number > 0:  # the first step starts at L_init: no departure from it to pull back
-            delta = rotmat_to_rotvec(L_init[:, active].to(dtype).transpose(-1, -2) @ Lw[:, active])
+            delta = _turn_vector(L_init[:, active].to(dtype).transpose(-1, -2) @ Lw[:, active])
             g[:n] += w2 * (Ga @ delta[..., None])[..., 0].permute(1, 2, 0)
         step = -tree_solve(H, g, tree).permute(2, 0, 1)
         local = (Ga.transpose(-1, -2) @ step[:, :n, :, None])[..., 0]
-        L[:, active] = L[:, active] @ rotvec_to_rotmat(local.to(L.dtype))
+        L[:, active] = L[:, active] @ _turn_matrix(local.to(L.dtype))
         root = root + step[:, n].to(root.dtype)
     return L, root
 
+
+def _turn_matrix(v: torch.Tensor) -> torch.Tensor:
+    """``rotvec_to_rotmat`` written out entry by entry (Rodrigues: ``I + a K + b K^2`` with
+    ``K^2 = v v^T - |v|^2 I``), without its skew matrices and their product.
+    (..., 3) -> (..., 3, 3)"""
+    x, y, z = v.unbind(-1)
+    xx, yy, zz = x * x, y * y, z * z
+    a, b = angle_terms(xx + yy + zz)
+    ax, ay, az = a * x, a * y, a * z
+    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
+    m = [1 - b * (yy + zz), bxy - az, bxz + ay,
+         bxy + az, 1 - b * (xx + zz), byz - ax,
+         bxz - ay, byz + ax, 1 - b * (xx + yy)]  # fmt: skip
+    return torch.stack(m, -1).reshape(*v.shape, 3)
+
+
+#: turns whose cosine is under this go by ``rotmat_to_rotvec`` (near a half turn the skew
+#: part that :func:`_turn_vector` reads the axis from vanishes)
+_HALF_TURN_COS = -0.5
+
+
+def _turn_vector(M: torch.Tensor) -> torch.Tensor:
+    """``rotmat_to_rotvec`` from the trace and the skew part, ``theta / (2 sin theta)`` times
+    ``(M21 - M12, M02 - M20, M10 - M01)``; turns past 120 degrees (rare: a departure from the
+    start) by ``rotmat_to_rotvec``.  (..., 3, 3) -> (..., 3)"""
+    m = M.reshape(*M.shape[:-2], 9)
+    v = torch.stack([m[..., 7] - m[..., 5], m[..., 2] - m[..., 6], m[..., 3] - m[..., 1]], -1)
+    cos = 0.5 * (m[..., 0] + m[..., 4] + m[..., 8] - 1.0)
+    sin2 = 0.25 * (v * v).sum(-1)  # sin(theta)^2
+    theta = torch.atan2(sin2.sqrt(), cos)
+    small = sin2 < _SMALL_SIN2  # theta / sin(theta) = 1 + theta^2 / 6 + ...
+    ratio = torch.where(small, 1.0 + theta * theta / 6.0, theta / sin2.sqrt().clamp_min(1e-30))
+    out = 0.5 * ratio[..., None] * v
+    far = cos < _HALF_TURN_COS
+    if far.any():
+        out[far] = rotmat_to_rotvec(M[far])
+    return out
+
+
+_SMALL_SIN2 = 1e-12
 
 CHUNK_FRAMES = 4096  # frames solved at once (a multiple of solve_pose's own chunks)
 
@@ -266,4 +309,4 @@ def solve_frames(src: SourceMotion, frames: slice, jmap, C, X, parents, settings
     bones = X.clone()
     bones[1:] = X[1:] - X[parents[1:]]
     G, p = forward_kinematics(L, bones, parents[:_N], root=root)
-    return targets, root, p, G[:, 0], G[:, _FEET], rotmat_to_rotvec(L[:, 1:])
+    return targets, root, p, G[:, 0], G[:, _FEET], _turn_vector(L[:, 1:])

@@ -51,9 +51,7 @@ def smpl_globals(motion: Motion, model: BodyJoints) -> tuple[np.ndarray, np.ndar
     parents = [int(p) for p in SMPL_PARENTS[:_N]]
     X = model.rest_joints(torch.as_tensor(np.asarray(motion.betas, dtype=np.float64)))[:_N]
     T = motion.num_frames
-    body = np.reshape(motion.pose_body, (T, -1, 3))[:, : _N - 1]
-    pose = np.concatenate([np.reshape(motion.root_orient, (T, 1, 3)), body], axis=1)
-    L = rotvec_to_rotmat(pose)
+    L = _local_rotations(motion)
     X = X.numpy()
     G = np.empty((T, _N, 3, 3))
     P = np.empty((T, _N, 3))
@@ -63,6 +61,31 @@ def smpl_globals(motion: Motion, model: BodyJoints) -> tuple[np.ndarray, np.ndar
         G[:, j] = G[:, p] @ L[:, j]
         P[:, j] = P[:, p] + G[:, p] @ (X[j] - X[p])
     return G, P
+
+
+def _local_rotations(motion: Motion) -> np.ndarray:
+    """The body's local rotations, the root's first.  -> (T, 22, 3, 3)"""
+    T = motion.num_frames
+    body = np.reshape(motion.pose_body, (T, -1, 3))[:, : _N - 1]
+    pose = np.concatenate([np.reshape(motion.root_orient, (T, 1, 3)), body], axis=1)
+    return rotvec_to_rotmat(pose)
+
+
+def _turned_globals(motion: Motion, M: np.ndarray) -> np.ndarray:
+    """``M^T`` times the world rotations of :func:`smpl_globals` (the root's turned before
+    the chain goes down), without the positions.  M: (3, 3) -> (T, 22, 3, 3)"""
+    L = _local_rotations(motion)
+    G = np.empty_like(L)
+    G[:, 0] = M.T @ L[:, 0]
+    for j in range(1, _N):
+        G[:, j] = G[:, int(SMPL_PARENTS[j])] @ L[:, j]
+    return G
+
+
+def _pelvis(motion: Motion, model: BodyJoints) -> np.ndarray:
+    """The pelvis joint's world position (T, 3), as :func:`smpl_globals` gives it."""
+    X = model.rest_joints(torch.as_tensor(np.asarray(motion.betas, dtype=np.float64)))[0]
+    return np.asarray(motion.trans, dtype=np.float64) + X.numpy()
 
 
 def drivers(jmap: JointMap, num_joints: int) -> np.ndarray:
@@ -111,11 +134,11 @@ def smpl_change(rt, original: Motion, cleaned: Motion, body: BodyJoints, scale: 
     """:class:`SmplChange` from ``original`` to ``cleaned`` (``scale``: metres per file unit).
     rt: the take's RetargetResult."""
     M = np.asarray(rt.to_output)
-    Go, Po = smpl_globals(original, body)
-    Gc, Pc = smpl_globals(cleaned, body)
-    before, after = M.T @ Go, M.T @ Gc  # matmuls: einsum's 4-operand loop is slow
+    before, after = _turned_globals(original, M), _turned_globals(cleaned, M)
     turn = after @ np.swapaxes(before, -1, -2)
-    return SmplChange(turn, before, after, (Pc[:, 0] - Po[:, 0]) @ M / scale)
+    return SmplChange(
+        turn, before, after, (_pelvis(cleaned, body) - _pelvis(original, body)) @ M / scale
+    )
 
 
 def driven_rotations(

@@ -41,6 +41,7 @@ def own_output(loaded: LoadedFile, output: Path) -> tuple[Path, bool, str | None
     if suffix_of(output) not in VIDEO_SUFFIXES:
         return output, False, None
     from mdvae_cli.formats.video_back import writes_back
+
     if writes_back(loaded.document, output):
         return output, True, None
     npz = output.with_name(Path(output.name.removesuffix(".gz")).stem + ".npz")
