@@ -70,7 +70,9 @@ def test_a_cleaned_track_goes_back_in_the_files_own_form(tmp_path, kind):
     before = loaded.single()
     after, sel = edited(before)
     out = src.parent / f"clean{src.suffix}"  # TRAM's world comes from ../camera.npy
+    as_read = pickle.dumps(loaded.document.data)
     write(after, out, document=loaded.document)
+    assert pickle.dumps(loaded.document.data) == as_read  # the file as read is not touched
     back = read(out)
     assert back.format == loaded.format
     got = back.single()

@@ -314,6 +314,8 @@ def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     from mdvae_cli.formats.video_people import phalp_entries
 
     for row, (frame, i) in enumerate(phalp_entries(data, raw.label)):
+        if isinstance(frame["camera"], np.ndarray):  # shared with the file as read: a copy
+            frame["camera"] = frame["camera"].copy()
         smpl = frame["smpl"][i]
         mats = np.concatenate([np.asarray(smpl["global_orient"]).reshape(1, 3, 3),
                                np.asarray(smpl["body_pose"]).reshape(23, 3, 3)])  # fmt: skip
@@ -354,7 +356,7 @@ def write_video(
     InputError for a format mdvae does not write back (write .npz)."""
     if not doc.writable:
         raise InputError(f"cannot write {path}: mdvae writes {doc.format} results as .npz only")
-    data = copy.deepcopy(doc.data)
+    data = containers_copied(doc.data)
     notes: list[str] = []
     for label, raw, before in doc.tracks:
         after = cleaned.get(label)
@@ -375,6 +377,20 @@ def write_video(
         data = defaultdict(dict, data)  # as WHAM writes it
     write_data(data, Path(path), OWN_CONTAINER[doc.format], forbid=forbid)
     return list(dict.fromkeys(notes))
+
+
+def containers_copied(obj: Any) -> Any:
+    """``obj`` with its dicts and lists copied at every depth and its arrays shared: what the
+    putters change they replace, never write into, so a file's large arrays (WHAM's vertices)
+    are not held twice."""
+    if isinstance(obj, dict):
+        out = copy.copy(obj)  # keeps the dict's type (OrderedDict, defaultdict)
+        for k, v in obj.items():
+            out[k] = containers_copied(v)
+        return out
+    if isinstance(obj, list):
+        return [containers_copied(v) for v in obj]
+    return obj
 
 
 def _ids(raw: RawTrack) -> np.ndarray:
