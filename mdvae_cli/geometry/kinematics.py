@@ -5,6 +5,7 @@ joints in the retarget solves)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import lru_cache
 
 import numpy as np
 import torch
@@ -19,14 +20,44 @@ def forward_kinematics(local_rotmats, offsets, parents: Sequence[int], root=None
     parent index, -1 for the root, every parent before its children. numpy arrays or torch
     tensors (all of one kind). -> global rotations (..., J, 3, 3), positions (..., J, 3)
     """
-    is_torch = isinstance(local_rotmats, torch.Tensor)
-    G = [local_rotmats[..., 0, :, :]]
     start = offsets[..., 0, :] if root is None else root
+    if not isinstance(local_rotmats, torch.Tensor):
+        return _numpy_levels(local_rotmats, np.asarray(offsets), parents, np.asarray(start))
+    G = [local_rotmats[..., 0, :, :]]
     shape = G[0].shape[:-1]
-    P = [start.expand(shape) if is_torch else np.broadcast_to(start, shape)]
+    P = [start.expand(shape)]
     for j in range(1, len(parents)):
         p = parents[j]
         G.append(G[p] @ local_rotmats[..., j, :, :])
         P.append(P[p] + (G[p] @ offsets[..., j, :, None])[..., 0])
-    stack = torch.stack if is_torch else np.stack
-    return stack(G, -3), stack(P, -2)
+    return torch.stack(G, -3), torch.stack(P, -2)
+
+
+@lru_cache(maxsize=64)
+def tree_levels(parents: tuple[int, ...]) -> tuple[tuple[list[int], list[int]], ...]:
+    """The joints below the root grouped by depth, the shallowest first: each level's joints
+    and their parents (no joint of a level is another's ancestor). parents: (J,), every
+    parent before its children."""
+    depth = [0] * len(parents)
+    levels: dict[int, tuple[list[int], list[int]]] = {}
+    for j in range(1, len(parents)):
+        depth[j] = depth[parents[j]] + 1
+        joints, above = levels.setdefault(depth[j], ([], []))
+        joints.append(j)
+        above.append(parents[j])
+    return tuple(levels[d] for d in sorted(levels))
+
+
+def _numpy_levels(L: np.ndarray, offsets: np.ndarray, parents, start: np.ndarray):
+    """:func:`forward_kinematics` of numpy arrays, a level of the tree at a time (the same
+    products as joint by joint, in fewer calls).  -> (..., J, 3, 3), (..., J, 3)"""
+    batch = L.shape[:-3]
+    G = np.empty(L.shape, np.result_type(L))
+    P = np.empty((*batch, L.shape[-3], 3), np.result_type(L, offsets, start))
+    G[..., 0, :, :] = L[..., 0, :, :]
+    P[..., 0, :] = start
+    for joints, above in tree_levels(tuple(int(p) for p in parents)):
+        Gp = G[..., above, :, :]
+        G[..., joints, :, :] = Gp @ L[..., joints, :, :]
+        P[..., joints, :] = P[..., above, :] + (Gp @ offsets[..., joints, :, None])[..., 0]
+    return G, P

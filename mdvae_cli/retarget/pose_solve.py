@@ -9,8 +9,8 @@ import torch
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_PARENTS
 from mdvae_cli.formats.source import SourceMotion
-from mdvae_cli.geometry.kinematics import forward_kinematics
-from mdvae_cli.geometry.rotations import angle_terms, rotmat_to_rotvec, skew
+from mdvae_cli.geometry import frames_last as fl
+from mdvae_cli.geometry.rotations import skew
 from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.retarget.joint_map import (
     JointMap,
@@ -94,10 +94,14 @@ def normal_equations(p, r, tree: _Tree):
     -> H (blocks, 3, 3, T): the kept 3x3 blocks of J^T J (``tree.block``); g (n + 1, 3, T) =
     J^T r
     """
-    T, n = p.shape[0], len(tree.active)
-    # (22, 3, T), centred on the root joint, in the positions' own dtype
-    q = (p - p[:, :1]).permute(1, 2, 0).contiguous()
-    r = r.permute(1, 2, 0).contiguous()
+    p, r = (a.permute(1, 2, 0).contiguous() for a in (p, r))
+    return _normal_equations(p, r, tree)
+
+
+def _normal_equations(p, r, tree: _Tree):
+    """:func:`normal_equations` of frames-last positions and residuals (22, 3, T)."""
+    T, n = p.shape[-1], len(tree.active)
+    q = p - p[:1]  # centred on the root joint, in the positions' own dtype
     S = tree.subtree.to(q.dtype)  # (n, 22)
     count = S.sum(1)  # (n,)
     s = (S @ q.reshape(_N, -1)).reshape(n, 3, T)  # sum of q_k over each subtree
@@ -163,11 +167,7 @@ def tree_solve(H: torch.Tensor, g: torch.Tensor, tree: _Tree) -> torch.Tensor:
     return x
 
 
-def _matmul(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
-    """3x3 matrix products, frames last.  (..., 3, 3, T) x (..., 3, 3, T) -> (..., 3, 3, T)"""
-    out = A[..., :, 0, None, :] * B[..., None, 0, :, :]
-    out.addcmul_(A[..., :, 1, None, :], B[..., None, 1, :, :])
-    return out.addcmul_(A[..., :, 2, None, :], B[..., None, 2, :, :])
+_matmul = fl.matmul3
 
 
 def _inverse3(M: torch.Tensor) -> torch.Tensor:
@@ -217,73 +217,48 @@ def solve_pose(
 def _solve_chunk(
     targets, L_init, X, parents, tree: _Tree, twist_weight, iterations, damping, early_dtype
 ):
-    """:func:`solve_pose` on one chunk of frames."""
-    active, n = tree.active, len(tree.active)
+    """:func:`solve_pose` on one chunk of frames, worked on with the frames last
+    (``geometry.frames_last``)."""
+    active, n = torch.as_tensor(tree.active), len(tree.active)
     bones = X.clone()
     bones[1:] = X[1:] - X[parents[1:]]
-    L = L_init.clone()
-    root = targets[:, 0].clone()
+    start = L_init.permute(1, 2, 3, 0)[active]  # (n, 3, 3, T)
+    L = L_init.permute(1, 2, 3, 0).contiguous()  # (22, 3, 3, T)
+    y = targets.permute(1, 2, 0).contiguous()  # (22, 3, T)
+    root = y[0].clone()
     w2 = twist_weight**2
     for step_number in range(iterations):
         # the last step in float64: float32 throughout is up to 1e-3 off on a rig whose twists
         # only the twist weight holds (ill-conditioned blocks)
         dtype = torch.float64 if step_number == iterations - 1 else early_dtype
         Lw = L.to(dtype)
-        G, p = forward_kinematics(Lw, bones.to(dtype), parents[:_N], root=root.to(dtype))
-        H, g = normal_equations(p, p - targets.to(dtype), tree)
+        G, p = fl.forward_kinematics(Lw, bones.to(dtype), parents[:_N], root.to(dtype))
+        H, g = _normal_equations(p, p - y.to(dtype), tree)
         eye = torch.eye(3, dtype=dtype)[..., None]
         H[tree.diagonal[:n]] += (w2 + damping) * eye
         H[tree.diagonal[n]] += damping * eye
-        Ga = G[:, active]
+        Ga = G[active]
         if step_number > 0:  # the first step starts at L_init: no departure from it to pull back
-            delta = _turn_vector(L_init[:, active].to(dtype).transpose(-1, -2) @ Lw[:, active])
-            g[:n] += w2 * (Ga @ delta[..., None])[..., 0].permute(1, 2, 0)
-        step = -tree_solve(H, g, tree).permute(2, 0, 1)
-        local = (Ga.transpose(-1, -2) @ step[:, :n, :, None])[..., 0]
-        L[:, active] = L[:, active] @ _turn_matrix(local.to(L.dtype))
-        root = root + step[:, n].to(root.dtype)
-    return L, root
+            delta = fl.turn_vector(_matmul(start.to(dtype).transpose(1, 2), Lw[active]), -2)
+            g[:n] += w2 * fl.matvec3(Ga, delta)
+        step = tree_solve(H, g, tree).neg_()
+        local = fl.matTvec3(Ga, step[:n])
+        L[active] = _matmul(L[active], fl.turn_matrix(local.to(L.dtype), -2))
+        root = root + step[n].to(root.dtype)
+    return L.permute(3, 0, 1, 2), root.T
 
 
 def _turn_matrix(v: torch.Tensor) -> torch.Tensor:
-    """``rotvec_to_rotmat`` written out entry by entry (Rodrigues: ``I + a K + b K^2`` with
-    ``K^2 = v v^T - |v|^2 I``), without its skew matrices and their product.
+    """``rotvec_to_rotmat`` entry by entry (``geometry.frames_last.turn_matrix``).
     (..., 3) -> (..., 3, 3)"""
-    x, y, z = v.unbind(-1)
-    xx, yy, zz = x * x, y * y, z * z
-    a, b = angle_terms(xx + yy + zz)
-    ax, ay, az = a * x, a * y, a * z
-    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
-    m = [1 - b * (yy + zz), bxy - az, bxz + ay,
-         bxy + az, 1 - b * (xx + zz), byz - ax,
-         bxz - ay, byz + ax, 1 - b * (xx + yy)]  # fmt: skip
-    return torch.stack(m, -1).reshape(*v.shape, 3)
-
-
-#: turns whose cosine is under this go by ``rotmat_to_rotvec`` (near a half turn the skew
-#: part that :func:`_turn_vector` reads the axis from vanishes)
-_HALF_TURN_COS = -0.5
+    return fl.turn_matrix(v)
 
 
 def _turn_vector(M: torch.Tensor) -> torch.Tensor:
-    """``rotmat_to_rotvec`` from the trace and the skew part, ``theta / (2 sin theta)`` times
-    ``(M21 - M12, M02 - M20, M10 - M01)``; turns past 120 degrees (rare: a departure from the
-    start) by ``rotmat_to_rotvec``.  (..., 3, 3) -> (..., 3)"""
-    m = M.reshape(*M.shape[:-2], 9)
-    v = torch.stack([m[..., 7] - m[..., 5], m[..., 2] - m[..., 6], m[..., 3] - m[..., 1]], -1)
-    cos = 0.5 * (m[..., 0] + m[..., 4] + m[..., 8] - 1.0)
-    sin2 = 0.25 * (v * v).sum(-1)  # sin(theta)^2
-    theta = torch.atan2(sin2.sqrt(), cos)
-    small = sin2 < _SMALL_SIN2  # theta / sin(theta) = 1 + theta^2 / 6 + ...
-    ratio = torch.where(small, 1.0 + theta * theta / 6.0, theta / sin2.sqrt().clamp_min(1e-30))
-    out = 0.5 * ratio[..., None] * v
-    far = cos < _HALF_TURN_COS
-    if far.any():
-        out[far] = rotmat_to_rotvec(M[far])
-    return out
+    """``rotmat_to_rotvec`` from the trace and the skew part
+    (``geometry.frames_last.turn_vector``).  (..., 3, 3) -> (..., 3)"""
+    return fl.turn_vector(M)
 
-
-_SMALL_SIN2 = 1e-12
 
 CHUNK_FRAMES = 4096  # frames solved at once (a multiple of solve_pose's own chunks)
 
@@ -308,5 +283,14 @@ def solve_frames(src: SourceMotion, frames: slice, jmap, C, X, parents, settings
     L, root = solve_pose(targets, L0, X, parents, settings.twist_weight, settings.iterations)
     bones = X.clone()
     bones[1:] = X[1:] - X[parents[1:]]
-    G, p = forward_kinematics(L, bones, parents[:_N], root=root)
-    return targets, root, p, G[:, 0], G[:, _FEET], _turn_vector(L[:, 1:])
+    G, p = fl.forward_kinematics(L.permute(1, 2, 3, 0).contiguous(), bones, parents[:_N],
+                                 root.T.contiguous())  # fmt: skip
+    feet = G[_FEET].permute(3, 0, 1, 2).contiguous()
+    return (
+        targets,
+        root,
+        p.permute(2, 0, 1).contiguous(),
+        G[0].permute(2, 0, 1).contiguous(),
+        feet,
+        _turn_vector(L[:, 1:]),
+    )
