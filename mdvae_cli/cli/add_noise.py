@@ -135,8 +135,9 @@ def add_noise(
     they are. With --preset video, the errors of a video pose estimator instead. INPUTS are
     motion files (AMASS .npz, video-pipeline outputs, BVH and ASF/AMC takes) or folders;
     folders are mirrored under --out. A take comes back in its own form, on its own skeleton
-    (the noise put on its joints' rotations through the body it is read onto), unless holes
-    are asked for: BVH and AMC cannot hold them, so such takes are written as .npz.
+    (the noise put on its joints' rotations through the body it is read onto), and a video
+    pipeline's file as the pipeline wrote it, unless holes are asked for: none of those
+    forms can hold them, so such files are written as .npz.
 
     \b
     Examples:

@@ -29,8 +29,8 @@ HELP = """Remove noise from motion files with the learned Motion-DVAE prior.
 
 INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz), ASF/AMC takes (.amc,
 .amc.gz, with their .asf), the output files of video pose pipelines (WHAM, GVHMR, TRAM,
-4D-Humans/PHALP, VIBE, PARE, HybrIK, ROMP/BEV, SLAHMR: upright, z up, one output per
-person track) or folders of them (any length, any frame rate); .npz outputs keep the
+4D-Humans/PHALP, VIBE, PARE, HybrIK, ROMP/BEV, SLAHMR: upright, z up) or folders of them
+(any length, any frame rate); .npz outputs keep the
 input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
 root orientation and translation. A video pipeline's file gets the settings chosen for
 video estimates (Student-t noise, see --lam); options override them. Works out of the box
@@ -44,7 +44,11 @@ cleaned there, and each of its joints turns as its body joint did.) An AMC take 
 as AMC on its .asf the same way: same header, frame numbers, bones and dofs, angle unit
 and length unit; a bone with fewer than three rotation dofs (a knee's rx) takes the
 closest turn its dofs allow. Its .asf is copied next to the output when none is there.
--o x.npz instead writes the cleaned body motion.
+A video pipeline's file (WHAM, GVHMR, HybrIK, VIBE/PARE, TRAM, 4D-Humans, AIST++) comes
+back as the pipeline wrote it: same container, keys, dtypes and other tracks, its tracks'
+parameters cleaned (camera-frame copies follow), what the cleaning left alone bit for bit;
+arrays made from the old pose (WHAM's verts) are left out, with a note. -o x.npz instead
+writes the cleaned body motion (one output per person track).
 
 \b
 Examples:
@@ -57,8 +61,8 @@ Examples:
   mdvae denoise noisy.npz -o clean.npz --refine 50 --mirror
   mdvae denoise spiky.npz -o clean.npz --refine 50 --outliers
   mdvae denoise take.npz -o clean.npz --feet off
-  mdvae denoise wham_output.pkl -o clean.npz
-  mdvae denoise hmr4d_results.pt -o clean.npz --fps 25 --refine 50
+  mdvae denoise wham_output.pkl -o clean.pkl   (or -o clean.npz: AMASS-style)
+  mdvae denoise hmr4d_results.pt -o clean.pt --fps 25 --refine 50
   mdvae denoise take.npz -o clean.npz --mesh-dir meshes/ --mesh-format obj
   mdvae denoise takes/ -o clean/ --view pages/
 """
