@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import pickle
 from pathlib import Path
 
@@ -222,6 +223,12 @@ def test_denoise_gives_each_pipeline_file_back_in_its_form(tmp_path):
     assert code == 1 and "write it as .pkl or .npz" in err
     code, _, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "one.pkl.gz")
     assert code == 1 and "not .gz" in err
+    # --json carries the notes the console shows
+    code, out, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "j.pkl", "--json")
+    assert code == 0, err
+    notes = json.loads(out)["files"][0]["result"]["notes"]
+    assert any("'verts' left out" in n for n in notes)
+    assert any("no frame rate in the file" in n for n in notes)
     # the .npz form is still there for the asking
     code, _, err = run("denoise", folder / "hmr4d_results.pt", "-o", tmp_path / "one.npz")
     assert code == 0, err and read(tmp_path / "one.npz").format == "gvhmr-npz"

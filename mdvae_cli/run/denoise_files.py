@@ -93,7 +93,8 @@ class FileRun:
         return sum((t.motion if t.cleaned is None else t.cleaned).num_frames for t in self.tracks)
 
     def to_dict(self) -> dict[str, Any]:
-        """What ``--json`` says of the file."""
+        """What ``--json`` says of the file (``notes``: what reading and writing it remarked,
+        as the console says them)."""
         tracks = [t.to_dict() for t in self.tracks]
         return {
             "frames": sum(t["frames"] for t in tracks),
@@ -106,6 +107,8 @@ class FileRun:
             "loop": any(t["loop"] for t in tracks),
             **fill_totals(tracks),
             "tracks": tracks,
+            "notes": [n if lab is None else f"track {lab}: {n}" for lab, n in self.notes]
+            + self.written,
         }
 
 
