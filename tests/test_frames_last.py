@@ -7,7 +7,12 @@ import torch
 
 from mdvae_cli.body.data import SMPL_PARENTS
 from mdvae_cli.geometry import frames_last as fl
-from mdvae_cli.geometry.kinematics import forward_kinematics, tree_levels
+from mdvae_cli.geometry.kinematics import (
+    forward_kinematics,
+    joint_position,
+    tree_levels,
+    world_rotations,
+)
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
 
 PARENTS = [int(p) for p in SMPL_PARENTS[:22]]
@@ -63,3 +68,14 @@ def test_numpy_forward_kinematics_by_levels_is_the_joint_by_joint_one():
             assert np.array_equal(G, np.stack(Gw, 1))
             assert np.array_equal(P, np.stack(np.broadcast_arrays(*Pw), 1))
             np.testing.assert_allclose(P, Pt.numpy(), atol=1e-12)
+
+
+def test_world_rotations_and_one_joints_position_are_the_forward_kinematics_ones():
+    rng = np.random.default_rng(6)
+    parents = [-1, 0, 1, 0, 3, 4, 1, 2, 6]
+    L = rotvec_to_rotmat(torch.as_tensor(rng.normal(size=(30, 9, 3)))).numpy()
+    offsets = rng.normal(size=(30, 9, 3))
+    G, P = forward_kinematics(L, offsets, parents)
+    assert np.array_equal(world_rotations(L, parents), G)
+    for j in range(9):
+        np.testing.assert_allclose(joint_position(G, offsets, parents, j), P[:, j], atol=1e-12)

@@ -61,3 +61,27 @@ def _numpy_levels(L: np.ndarray, offsets: np.ndarray, parents, start: np.ndarray
         G[..., joints, :, :] = Gp @ L[..., joints, :, :]
         P[..., joints, :] = P[..., above, :] + (Gp @ offsets[..., joints, :, None])[..., 0]
     return G, P
+
+
+def world_rotations(L: np.ndarray, parents) -> np.ndarray:
+    """The global rotations of :func:`forward_kinematics` (numpy, by tree levels: the same
+    products) without the positions.  L: (..., J, 3, 3) -> (..., J, 3, 3)"""
+    G = np.empty(L.shape, np.result_type(L))
+    G[..., 0, :, :] = L[..., 0, :, :]
+    for joints, above in tree_levels(tuple(int(p) for p in parents)):
+        G[..., joints, :, :] = G[..., above, :, :] @ L[..., joints, :, :]
+    return G
+
+
+def joint_position(G: np.ndarray, offsets: np.ndarray, parents, j: int) -> np.ndarray:
+    """One joint's position as :func:`forward_kinematics` gives it (the same sums, down the
+    joint's own chain alone), from the global rotations ``G`` (..., J, 3, 3) and ``offsets``
+    (..., J, 3) (the root's: its world position).  -> (..., 3)"""
+    chain = [j]
+    while parents[chain[-1]] >= 0:
+        chain.append(int(parents[chain[-1]]))
+    P = offsets[..., 0, :]
+    for k in reversed(chain[:-1]):
+        p = int(parents[k])
+        P = P + (G[..., p, :, :] @ offsets[..., k, :, None])[..., 0]
+    return P

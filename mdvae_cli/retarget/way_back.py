@@ -30,7 +30,7 @@ from mdvae_cli.formats.bvh import BvhLayout, _positions
 from mdvae_cli.formats.bvh_rotations import channel_rotations
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.geometry.euler import rotmat_to_euler
-from mdvae_cli.geometry.kinematics import forward_kinematics
+from mdvae_cli.geometry.kinematics import forward_kinematics, joint_position, world_rotations
 from mdvae_cli.geometry.rotations_np import (
     quat_continuous,
     quat_to_rotmat,
@@ -160,15 +160,14 @@ def driven_rotations(
     out = G.copy()
     js = np.flatnonzero(drive >= 0)
     ds = drive[js]
-    turn = change.turn[:, ds]  # (T, n, 3, 3): every driven joint at once
-    turned = turn @ G[:, js]
+    turn, Gj = change.turn[:, ds], G[:, js]  # (T, n, 3, 3): every driven joint at once
     cos = np.clip((np.trace(turn, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
     angle = np.degrees(np.arccos(cos))
     w = np.clip((angle - STEADY_FROM_DEG) / (STEADY_TURN_DEG - STEADY_FROM_DEG), 0.0, 1.0)
-    out[:, js] = turned
     if not w.any():
+        out[:, js] = turn @ Gj
         return out
-    Y = np.swapaxes(change.before[:, ds], -1, -2) @ G[:, js]
+    Y = np.swapaxes(change.before[:, ds], -1, -2) @ Gj
     q = quat_continuous(rotmat_to_quat(Y))  # (T, n, 4), smoothed as sign-continuous quaternions
     steady = quat_to_rotmat(gaussian_smooth(q.reshape(len(q), -1), STEADY_SECONDS * fps)
                             .reshape(q.shape))  # fmt: skip
@@ -179,7 +178,10 @@ def driven_rotations(
         Yp = Y[part]
         step = rotmat_to_rotvec(np.swapaxes(Yp, -1, -2) @ steady[part])
         R[part] = after[part] @ Yp @ rotvec_to_rotmat(w[part][:, None] * step)
-    out[:, js] = np.where((w > 0)[..., None, None], R, turned)
+    alone = w == 0  # the turn alone there, made for those frames only
+    if alone.any():
+        R[alone] = turn[alone] @ Gj[alone]
+    out[:, js] = R
     return out
 
 
@@ -201,11 +203,10 @@ def pelvis_point(
     return target + shift - (D[:, 0] @ arm[..., None])[..., 0]
 
 
-def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=None):
-    """Local rotations (T, J, 3, 3), translations (T, J, 3; the root's is its position) and
-    world rotations and positions of the file's own frames ``data`` (T, C), in file units.
-    rotations: the local rotations of these frames, when at hand (the reader's), else made
-    from their channels."""
+def file_frames(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=None):
+    """Local rotations (T, J, 3, 3) and translations (T, J, 3; the root's is its position) of
+    the file's own frames ``data`` (T, C), in file units. rotations: the local rotations of
+    these frames, when at hand (the reader's), else made from their channels."""
     T, J = data.shape[0], src.num_joints
     L = channel_rotations(layout, data, J) if rotations is None else rotations
     t = np.tile(layout.offsets, (T, 1, 1))
@@ -215,6 +216,13 @@ def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=
             t[:, 0] = _positions(data, cols, np.zeros(3)) + layout.offsets[0]
         elif cols and j not in layout.world_channels:
             t[:, j] = _positions(data, cols, layout.offsets[j])
+    return L, t
+
+
+def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=None):
+    """:func:`file_frames` and the world rotations and positions of those frames.
+    -> L (T, J, 3, 3), t (T, J, 3), G (T, J, 3, 3), P (T, J, 3)"""
+    L, t = file_frames(src, layout, data, rotations)
     G, P = forward_kinematics(L, t, src.parents)
     return L, t, G, P
 
@@ -276,7 +284,8 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     D, shift = change.turn, change.shift
 
     kept = None if layout.rotations is None else layout.rotations[frames]
-    L, t, G, P = file_pose(src, layout, data, kept)
+    L, t = file_frames(src, layout, data, kept)
+    G = world_rotations(L, src.parents)  # the positions: of the joints asked for alone
     drive = drivers(rt.jmap, src.num_joints)
     G2 = driven_rotations(change, G, drive, src.fps)
     for j in range(src.num_joints):
@@ -289,11 +298,12 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     # the pelvis point (the SMPL pelvis's target) moves by the SMPL pelvis's change and turns
     # with the pelvis; the channels that carry the source pelvis take up the difference
     a = int(rt.jmap.anchor["pelvis"])
-    new_a = pelvis_point(rt, D, shift, P[:, a], scale, frames)
+    P_a = joint_position(G, t, src.parents, a)
+    new_a = pelvis_point(rt, D, shift, P_a, scale, frames)
     c = _carrier(src, layout, a)
     t2 = t.copy()
     Gp = np.broadcast_to(np.eye(3), (T, 3, 3)) if c == 0 else G2[:, src.parents[c]]
-    t2[:, c] = t[:, c] + (np.swapaxes(Gp, -1, -2) @ (new_a - P[:, a])[..., None])[..., 0]
+    t2[:, c] = t[:, c] + (np.swapaxes(Gp, -1, -2) @ (new_a - P_a)[..., None])[..., 0]
 
     new = data.copy()
     for j in range(src.num_joints):
@@ -310,7 +320,8 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     if layout.world_channels:
         _, P2 = forward_kinematics(L2, t2, src.parents)
         for j in layout.world_channels:
+            P_j = joint_position(G, t, src.parents, j)
             for col, axis in layout.joint_columns(j, "t"):
                 k = "xyz".index(axis)  # the file's value, moved as the joint moved
-                new[:, col] = data[:, col] + P2[:, j, k] - P[:, j, k]
+                new[:, col] = data[:, col] + P2[:, j, k] - P_j[:, k]
     return new
