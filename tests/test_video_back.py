@@ -17,7 +17,7 @@ from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_files import load_data
 from mdvae_cli.formats.registry import read, write
-from mdvae_cli.formats.video_back import near
+from mdvae_cli.formats.video_rows import near
 from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion, slice_frames
 

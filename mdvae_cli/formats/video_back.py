@@ -17,6 +17,9 @@ frame ids) get no rows: the file has none for them.
 
     doc = loaded.document                        # formats.registry.read of a video file
     notes = write_video(doc, {label: cleaned}, Path("clean.pkl"))
+
+The rows and the array layouts they go into: ``formats.video_rows``; the containers:
+``formats.data_write``.
 """
 
 from __future__ import annotations
@@ -33,8 +36,17 @@ import numpy as np
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_write import write_data
 from mdvae_cli.formats.video_layout import track_items
-from mdvae_cli.formats.video_tracks import RawTrack, up_to_z
-from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.formats.video_rows import (
+    Rows,
+    camera_follows,
+    file_rows,
+    put_axis_angle,
+    put_body,
+    put_matrices,
+    put_root,
+    shifted,
+)
+from mdvae_cli.formats.video_tracks import RawTrack
 from mdvae_cli.motion.motion import Motion
 
 #: the container each format is written back in (formats not named: .npz only)
@@ -85,143 +97,6 @@ def writes_back(doc: VideoDocument | None, path: Path | str) -> bool:
     if doc is None or not doc.writable:
         return False
     return Path(path).suffix.lower() in CONTAINER_SUFFIXES[OWN_CONTAINER[doc.format]]
-
-
-@dataclass
-class Rows:
-    """A cleaned track in the file's frame, one entry per row the file has for it.
-
-    root: (R, 3, 3); body: (R, 21, 3) axis-angles; transl: (R, 3) in the file's meaning
-    (model translation or pelvis); root_moved: (R,) rows whose root the cleaning changed;
-    body_moved: (R, 21) joints it changed; shift: (R, 3) the translation's change."""
-
-    root: np.ndarray
-    body: np.ndarray
-    transl: np.ndarray
-    root_moved: np.ndarray
-    body_moved: np.ndarray
-    shift: np.ndarray
-
-
-def file_rows(raw: RawTrack, before: Motion, after: Motion) -> Rows:
-    """``after`` (the cleaned ``before``, which ``raw`` was read into) back in the file's rows
-    and frame (module docstring). Frames where ``after`` is not finite (holes left unfilled)
-    keep the file's values."""
-    if after.num_frames != before.num_frames:
-        raise InputError(
-            f"the cleaned motion has {after.num_frames} frames, the file's track "
-            f"{before.num_frames}: it cannot go back in the file's own form (write .npz)"
-        )
-    R = raw.num_frames
-    if raw.frame_ids is None:
-        idx = np.arange(R)
-    else:
-        ids = np.asarray(raw.frame_ids).reshape(-1).astype(np.int64)
-        idx = ids - ids.min()
-    ok = np.isfinite(after.root_orient[idx]).all(1) & np.isfinite(after.trans[idx]).all(1)
-    root_moved = ok & np.any(after.root_orient[idx] != before.root_orient[idx], axis=1)
-    moved_t = ok & np.any(after.trans[idx] != before.trans[idx], axis=1)
-    to_file = up_to_z(raw.up).T  # (3, 3): z-up -> the file's frame
-    if raw.world is not None:  # TRAM: the camera frame, the world being per row
-        to_file = raw.world[0].transpose(0, 2, 1) @ to_file
-    to_file = np.broadcast_to(to_file, (R, 3, 3))
-    root = np.array(raw.root, dtype=np.float64)
-    root[root_moved] = to_file[root_moved] @ rotvec_to_rotmat(after.root_orient[idx][root_moved])
-    change = np.where(moved_t[:, None], after.trans[idx] - before.trans[idx], 0.0)
-    shift = np.einsum("tij,tj->ti", to_file, change)
-    a_body, b_body = after.pose_body[idx], before.pose_body[idx]
-    body_moved = np.isfinite(a_body).all(2) & np.any(a_body != b_body, axis=2)
-    body = np.where(body_moved[..., None], a_body, raw.body)
-    transl = np.asarray(raw.transl, np.float64) + shift
-    return Rows(root, body, transl, root_moved, body_moved, shift)
-
-
-# --------------------------------------------------------------------------------------------
-# putting rows into arrays of the file's layouts
-
-
-def near(new: np.ndarray, old: np.ndarray) -> np.ndarray:
-    """Of the axis-angles that give each rotation of ``new``, the one nearest the file's
-    ``old`` (an angle near 180 degrees has two: a turn of 2 pi apart), so that a value
-    the cleaning barely moved does not jump in the file.  (..., 3), (..., 3) -> (..., 3)"""
-    new = np.asarray(new, np.float64)
-    angle = np.linalg.norm(new, axis=-1, keepdims=True)
-    axis = new / np.maximum(angle, 1e-12)
-    options = [axis * (angle + k * 2 * np.pi) for k in (-1, 0, 1)]
-    gaps = np.stack([np.linalg.norm(o - old, axis=-1) for o in options])
-    return np.choose(gaps.argmin(0)[..., None], options)
-
-
-def put_axis_angle(a: Any, rows: Rows) -> np.ndarray:
-    """A copy of ``a`` ((R, >= 66) or (R, J, 3): root, then the 21 body joints, as
-    axis-angles) with the moved root and joints of ``rows``; its dtype kept."""
-    out = np.array(a, copy=True)
-    R = out.shape[0]
-    flat = out.reshape(R, -1)
-    moved = rows.root_moved
-    flat[moved, :3] = near(rotmat_to_rotvec(rows.root[moved]), flat[moved, :3])
-    body = flat[:, 3:66].reshape(R, 21, 3)
-    body[rows.body_moved] = near(rows.body[rows.body_moved], body[rows.body_moved])
-    flat[:, 3:66] = body.reshape(R, 63)
-    return flat.reshape(out.shape)
-
-
-def put_matrices(a: Any, rows: Rows) -> np.ndarray:
-    """A copy of ``a`` ((R, J * 9) or (R, J, 3, 3) rotation matrices, root first) with the
-    moved root and joints of ``rows``; the other joints' matrices as they were."""
-    out = np.array(a, copy=True)
-    R = out.shape[0]
-    m = out.reshape(R, -1, 3, 3)
-    m[rows.root_moved, 0] = rows.root[rows.root_moved]
-    body = m[:, 1:22]
-    body[rows.body_moved] = rotvec_to_rotmat(rows.body[rows.body_moved])
-    m[:, 1:22] = body
-    return m.reshape(out.shape)
-
-
-def put_root(a: Any, rows: Rows) -> np.ndarray:
-    """A copy of ``a`` ((R, 3) or (R, 1, 3) root axis-angles) with the moved roots."""
-    out = np.array(a, copy=True)
-    flat = out.reshape(out.shape[0], 3)
-    moved = rows.root_moved
-    flat[moved] = near(rotmat_to_rotvec(rows.root[moved]), flat[moved])
-    return flat.reshape(out.shape)
-
-
-def put_body(a: Any, rows: Rows) -> np.ndarray:
-    """A copy of ``a`` ((R, 63) or (R, 21, 3) body axis-angles) with the moved joints."""
-    out = np.array(a, copy=True)
-    body = out.reshape(out.shape[0], 21, 3)
-    body[rows.body_moved] = near(rows.body[rows.body_moved], body[rows.body_moved])
-    return body.reshape(out.shape)
-
-
-def shifted(a: Any, shift: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """A copy of ``a`` (R rows of 3 numbers, any shape) moved by ``shift * scale`` (R, 3)
-    where the shift is not zero; rows it leaves alone are the same bits."""
-    out = np.array(a, copy=True)
-    flat = out.reshape(out.shape[0], 3)
-    moved = np.any(shift != 0, axis=1)
-    flat[moved] = flat[moved] + (shift[moved] * scale).astype(flat.dtype)
-    return flat.reshape(out.shape)
-
-
-def camera_follows(
-    cam_root: Any, cam_transl: Any, world_root: np.ndarray, rows: Rows
-) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame copies of a world-frame pose moved as the world one was (module
-    docstring): per row the file's camera ``R_c = R_cam R_world^T``, the new camera root
-    ``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``.
-
-    cam_root: (R, 3) axis-angles; cam_transl: (R, 3); world_root: (R, 3, 3) the file's world
-    roots as read -> the new camera root and translation, in their arrays' dtypes"""
-    cam = np.array(cam_root, copy=True)
-    flat = cam.reshape(cam.shape[0], 3)
-    Rc = rotvec_to_rotmat(flat.astype(np.float64)) @ np.asarray(world_root).transpose(0, 2, 1)
-    moved = rows.root_moved
-    flat[moved] = near(rotmat_to_rotvec(Rc[moved] @ rows.root[moved]), flat[moved])
-    shift = np.einsum("tij,tj->ti", Rc, rows.shift)
-    return flat.reshape(cam.shape), shifted(cam_transl, shift)
 
 
 # --------------------------------------------------------------------------------------------
