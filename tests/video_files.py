@@ -9,7 +9,6 @@ without joblib.
 
 from __future__ import annotations
 
-import io
 import pickle
 import zlib
 from collections import OrderedDict, defaultdict
@@ -19,6 +18,7 @@ import numpy as np
 import torch
 
 from mdvae_cli.body.builtin import builtin_body_model
+from mdvae_cli.formats.data_write import pickle_bytes
 from mdvae_cli.formats.npz_io import motion_from_arrays
 from mdvae_cli.formats.video_tracks import CAMERA_UP, Y_UP, rest_pelvis, up_to_z
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
@@ -75,42 +75,11 @@ def smpl_mats(root_mat, motion: Motion) -> np.ndarray:
 # joblib's stream format
 
 
-class _JoblibPickler(pickle._Pickler):
-    """Pickles like ``joblib.dump``: each array as a NumpyArrayWrapper whose BUILD is followed,
-    outside any frame, by a padding-length byte, the padding and the array's raw bytes."""
-
-    def __init__(self, file, align: bool = True):
-        super().__init__(file, protocol=4)
-        self.out, self.align = file, align
-
-    def save(self, obj, save_persistent_id=True):
-        if isinstance(obj, np.ndarray) and not obj.dtype.hasobject:
-            self.write(pickle.GLOBAL + b"joblib.numpy_pickle\nNumpyArrayWrapper\n")
-            self.write(pickle.EMPTY_TUPLE + pickle.NEWOBJ)
-            state = {
-                "subclass": np.ndarray,
-                "shape": obj.shape,
-                "order": "C",
-                "dtype": obj.dtype,
-                "allow_mmap": True,
-            }
-            if self.align:
-                state["numpy_array_alignment_bytes"] = 16
-            super().save(state)
-            self.write(pickle.BUILD)
-            self.framer.commit_frame(force=True)
-            if self.align:
-                pad = 16 - (self.out.tell() + 1) % 16
-                self.out.write(bytes([pad]) + b"\xff" * pad)
-            self.out.write(np.ascontiguousarray(obj).tobytes())
-            return
-        super().save(obj, save_persistent_id)
-
-
 def joblib_dumps(obj, compress: bool = False, align: bool = True) -> bytes:
-    f = io.BytesIO()
-    _JoblibPickler(f, align).dump(obj)
-    data = f.getvalue()
+    """``joblib.dump``'s bytes (the product's writer, ``formats.data_write``): arrays padded
+    to 16 bytes, or unpadded (``align`` False, older joblib); zlib-compressed with
+    ``compress``."""
+    data = pickle_bytes(obj, joblib=True, alignment=16 if align else None)
     return zlib.compress(data, 3) if compress else data
 
 

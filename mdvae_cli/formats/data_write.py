@@ -53,11 +53,12 @@ class _DataPickler(pickle._Pickler):  # the Python pickler: its globals can be r
 
 class _JoblibPickler(_DataPickler):
     """Pickles as ``joblib.dump`` does: each array a ``NumpyArrayWrapper`` whose BUILD is
-    followed, outside any frame, by a padding-length byte, the padding and the raw bytes."""
+    followed, outside any frame, by a padding-length byte, the padding and the raw bytes
+    (``alignment`` None: no padding, as joblib before 0.12 wrote it)."""
 
-    def __init__(self, file: Any):
+    def __init__(self, file: Any, alignment: int | None = _JOBLIB_ALIGN):
         super().__init__(file)
-        self.out = file
+        self.out, self.alignment = file, alignment
 
     def save(self, obj: Any, save_persistent_id: bool = True) -> None:
         if not isinstance(obj, np.ndarray) or obj.dtype.hasobject:
@@ -71,20 +72,23 @@ class _JoblibPickler(_DataPickler):
             "order": "C",
             "dtype": obj.dtype,
             "allow_mmap": True,
-            "numpy_array_alignment_bytes": _JOBLIB_ALIGN,
         }
+        if self.alignment is not None:
+            state["numpy_array_alignment_bytes"] = self.alignment
         super().save(state)
         self.write(pickle.BUILD)
         self.framer.commit_frame(force=True)
-        pad = _JOBLIB_ALIGN - (self.out.tell() + 1) % _JOBLIB_ALIGN
-        self.out.write(bytes([pad]) + b"\xff" * pad)
+        if self.alignment is not None:
+            pad = self.alignment - (self.out.tell() + 1) % self.alignment
+            self.out.write(bytes([pad]) + b"\xff" * pad)
         self.out.write(np.ascontiguousarray(obj).tobytes())
 
 
-def pickle_bytes(obj: Any, joblib: bool = False) -> bytes:
-    """``obj`` pickled (module docstring), in joblib's stream format with ``joblib``."""
+def pickle_bytes(obj: Any, joblib: bool = False, alignment: int | None = _JOBLIB_ALIGN) -> bytes:
+    """``obj`` pickled (module docstring), in joblib's stream format with ``joblib`` (its
+    arrays padded to ``alignment`` bytes; None: unpadded, older joblib's format)."""
     out = io.BytesIO()
-    (_JoblibPickler if joblib else _DataPickler)(out).dump(obj)
+    (_JoblibPickler(out, alignment) if joblib else _DataPickler(out)).dump(obj)
     return out.getvalue()
 
 

@@ -151,9 +151,9 @@ def tree_solve(H: torch.Tensor, g: torch.Tensor, tree: _Tree) -> torch.Tensor:
         px, py, kept = tree.updates[j]
         Dinv = _inverse3(H[tree.diagonal[j]])
         V = H.index_select(0, tree.block[j, nb])  # (m, 3, 3, T): H[j, a] for each neighbour a
-        Z = _matmul(Dinv, V)  # Dinv @ H[j, a]
+        Z = fl.matmul3(Dinv, V)  # Dinv @ H[j, a]
         # H[x, y] -= H[j, x]^T Dinv H[j, y]
-        update = _matmul(V.index_select(0, px).transpose(1, 2), Z.index_select(0, py))
+        update = fl.matmul3(V.index_select(0, px).transpose(1, 2), Z.index_select(0, py))
         H.index_add_(0, kept, update, alpha=-1)
         u = (Dinv * g[j]).sum(1)
         g.index_add_(0, nb, (V * u[:, None]).sum(1), alpha=-1)
@@ -165,9 +165,6 @@ def tree_solve(H: torch.Tensor, g: torch.Tensor, tree: _Tree) -> torch.Tensor:
         rest = (rows[j] * x.index_select(0, tree.above[j])[:, None]).sum(2).sum(0)
         x[j] = (inverses[j] * (g[j] - rest)).sum(1)
     return x
-
-
-_matmul = fl.matmul3
 
 
 def _inverse3(M: torch.Tensor) -> torch.Tensor:
@@ -239,25 +236,13 @@ def _solve_chunk(
         H[tree.diagonal[n]] += damping * eye
         Ga = G[active]
         if step_number > 0:  # the first step starts at L_init: no departure from it to pull back
-            delta = fl.turn_vector(_matmul(start.to(dtype).transpose(1, 2), Lw[active]), -2)
+            delta = fl.turn_vector(fl.matmul3(start.to(dtype).transpose(1, 2), Lw[active]), -2)
             g[:n] += w2 * fl.matvec3(Ga, delta)
         step = tree_solve(H, g, tree).neg_()
         local = fl.matTvec3(Ga, step[:n])
-        L[active] = _matmul(L[active], fl.turn_matrix(local.to(L.dtype), -2))
+        L[active] = fl.matmul3(L[active], fl.turn_matrix(local.to(L.dtype), -2))
         root = root + step[n].to(root.dtype)
     return L.permute(3, 0, 1, 2), root.T
-
-
-def _turn_matrix(v: torch.Tensor) -> torch.Tensor:
-    """``rotvec_to_rotmat`` entry by entry (``geometry.frames_last.turn_matrix``).
-    (..., 3) -> (..., 3, 3)"""
-    return fl.turn_matrix(v)
-
-
-def _turn_vector(M: torch.Tensor) -> torch.Tensor:
-    """``rotmat_to_rotvec`` from the trace and the skew part
-    (``geometry.frames_last.turn_vector``).  (..., 3, 3) -> (..., 3)"""
-    return fl.turn_vector(M)
 
 
 CHUNK_FRAMES = 4096  # frames solved at once (a multiple of solve_pose's own chunks)
@@ -292,5 +277,5 @@ def solve_frames(src: SourceMotion, frames: slice, jmap, C, X, parents, settings
         p.permute(2, 0, 1).contiguous(),
         G[0].permute(2, 0, 1).contiguous(),
         feet,
-        _turn_vector(L[:, 1:]),
+        fl.turn_vector(L[:, 1:]),
     )
