@@ -11,6 +11,7 @@ from __future__ import annotations
 import gzip
 import io
 import pickle
+import struct
 import zipfile
 import zlib
 from pathlib import Path
@@ -118,6 +119,7 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
     except (
         EOFError,
         IndexError,
+        struct.error,  # the unpickler's short read of an opcode's argument: cut off there
         pickle.UnpicklingError,
         zipfile.BadZipFile,
         zlib.error,
