@@ -60,6 +60,7 @@ from mdvae_cli.retarget.pose_solve import (
 )
 from mdvae_cli.retarget.soles import _FEET, foot_vertex, lowest_along
 from mdvae_cli.retarget.upright import canonical_axes, stature_unit, upright_rest
+from mdvae_cli.workers import map_in_order
 
 __all__ = [
     "Y_UP_TO_Z_UP",
@@ -230,8 +231,11 @@ def retarget(
     # each chunk's results go straight into the take's arrays (keeping the chunks and joining
     # them at the end held every result twice: 840 MB on a 30-minute 120 Hz take)
     solved: list[torch.Tensor] = []
-    for frames in frame_chunks(src.num_frames):
-        part = solve_frames(src, frames, jmap, C, X, body.parents, settings)
+    chunks = frame_chunks(src.num_frames)
+    parts = map_in_order(
+        lambda frames: solve_frames(src, frames, jmap, C, X, body.parents, settings), chunks
+    )
+    for frames, part in zip(chunks, parts, strict=True):  # the chunks side by side
         if not solved:
             solved = [x.new_empty((src.num_frames, *x.shape[1:])) for x in part]
         for whole, x in zip(solved, part, strict=True):

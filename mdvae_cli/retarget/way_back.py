@@ -41,6 +41,7 @@ from mdvae_cli.geometry.rotations_np import (
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.joint_map import JointMap
+from mdvae_cli.workers import map_in_order
 
 _N = NUM_BODY_JOINTS
 _SPINE = (0, 3, 6, 9, 12, 15)
@@ -244,7 +245,7 @@ def write_back_data(
     original: Motion,
     cleaned: Motion,
     body: BodyJoints,
-    chunk: int = 4096,
+    chunk: int = 2048,
     progress: Callable[[int, int], None] | None = None,
 ) -> np.ndarray:
     """The file's channel values (F, C) with the change from ``original`` to ``cleaned`` (SMPL
@@ -261,13 +262,19 @@ def write_back_data(
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     out = layout.data.copy()
     halo = steady_halo(src.fps)
-    for i in range(0, T, chunk):  # memory flat in the take's length
+
+    def rows_of(i: int) -> np.ndarray:
         stop = min(i + chunk, T)
         # each chunk with the context its smoothed offsets read (driven_rotations), cut off
         frames = slice(max(0, i - halo), min(T, stop + halo))
         part = (slice_frames(m, frames.start, frames.stop) for m in (original, cleaned))
         rows = _write_back_rows(src, rt, *part, body, frames)
-        out[layout.rows[i:stop]] = rows[i - frames.start : stop - frames.start]
+        return rows[i - frames.start : stop - frames.start]
+
+    starts = range(0, T, chunk)  # memory flat in the take's length; the chunks side by side
+    for i, rows in zip(starts, map_in_order(rows_of, starts), strict=True):
+        stop = min(i + chunk, T)
+        out[layout.rows[i:stop]] = rows
         if progress is not None:
             progress(stop, T)
     return out

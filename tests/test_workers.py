@@ -1,0 +1,108 @@
+"""A long take's chunks worked on side by side (``mdvae_cli.workers``): the results in order,
+bounded work in flight, failures where they belong, and the BVH path the same bit for bit on
+one thread or several."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from mdvae_cli import workers
+from mdvae_cli.workers import map_in_order
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_results_come_in_the_items_order_whichever_finishes_first(n):
+    def slow_first(k):
+        time.sleep(0.02 * (5 - k))  # the first items finish last
+        return k * k
+
+    assert list(map_in_order(slow_first, range(6), workers=n)) == [k * k for k in range(6)]
+
+
+def test_at_most_one_item_per_worker_runs_ahead_of_the_one_in_use():
+    started, lock = [], threading.Lock()
+
+    def work(k):
+        with lock:
+            started.append(k)
+        return k
+
+    ahead = []
+    for k in map_in_order(work, range(20), workers=2):
+        time.sleep(0.005)
+        with lock:
+            ahead.append(max(started) - k)
+    assert max(ahead) <= 2 and len(started) == 20
+
+
+def test_a_failure_comes_where_its_result_would_and_torch_threads_come_back():
+    threads = torch.get_num_threads()
+    seen = []
+
+    def work(k):
+        if k == 3:
+            raise ValueError("chunk 3 is bad")
+        return k
+
+    with pytest.raises(ValueError, match="chunk 3"):
+        for k in map_in_order(work, range(8), workers=2):
+            assert torch.get_num_threads() == 1  # one torch thread per worker meanwhile
+            seen.append(k)
+    assert seen == [0, 1, 2]
+    assert torch.get_num_threads() == threads
+
+
+def test_a_consumer_that_stops_early_leaves_nothing_running():
+    calls = []
+
+    def work(k):
+        calls.append(k)
+        return k
+
+    gen = map_in_order(work, range(100), workers=2)
+    assert next(gen) == 0
+    gen.close()
+    n = len(calls)
+    time.sleep(0.05)
+    assert len(calls) == n <= 4
+
+
+def test_the_worker_count_follows_torch(monkeypatch):
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 3)
+    assert workers.worker_count() == 3
+
+
+def test_a_bvh_read_and_written_back_in_chunks_side_by_side_is_the_same_bits(tmp_path, monkeypatch):
+    """The pose solve and the way back, in chunks of 16 frames on one thread and on three:
+    the same motion and the same channel values, bit for bit."""
+    import mdvae_cli.retarget.retarget as retarget
+    import mdvae_cli.retarget.way_back as way_back
+    from mdvae_cli.formats.registry import read, write
+    from mdvae_cli.retarget.pose_solve import frame_chunks
+    from tests.test_bvh_out import write_rig
+
+    path = write_rig(tmp_path / "take.bvh", T=90)
+    monkeypatch.setattr(retarget, "frame_chunks", lambda n: frame_chunks(n, 16))
+    monkeypatch.setattr(way_back.write_back_data, "__defaults__", (16, None))
+    results = {}
+    for n in (1, 3):
+        monkeypatch.setattr(workers, "worker_count", lambda n=n: n)
+        loaded = read(path)
+        m = loaded.single()
+        turned = m.with_body(m.root_orient, m.pose_body * 0.9, m.trans + 0.01)
+        write(turned, tmp_path / f"back{n}.bvh", take=loaded.take)
+        results[n] = (m.poses, m.trans, (tmp_path / f"back{n}.bvh").read_bytes())
+    assert np.array_equal(results[1][0], results[3][0])
+    assert np.array_equal(results[1][1], results[3][1])
+    assert results[1][2] == results[3][2]
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_each_finished_chunk_gives_its_memory_back(monkeypatch, n):
+    given = []
+    monkeypatch.setattr(workers, "give_back_memory", lambda: given.append(1))
+    assert list(map_in_order(lambda k: k, range(5), workers=n)) == list(range(5))
+    assert len(given) == 5
