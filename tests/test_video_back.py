@@ -57,11 +57,15 @@ def write_file(kind: str, folder: Path, m: Motion) -> Path:
         "tram": lambda: vf.write_tram(folder / "tram", m),
         "aistpp": lambda: vf.write_aistpp(folder / "aist.pkl", m),
         "phalp": lambda: vf.write_phalp(folder / "demo.pkl", {"4": (m, list(range(m.num_frames)))}),
+        "romp": lambda: vf.write_romp(
+            folder / "video_results.npz", {"0": (m, list(range(m.num_frames)))}
+        ),  # fmt: skip
+        "slahmr": lambda: vf.write_slahmr(folder / "seq_world_results.npz", [m]),
     }
     return makers[kind]()
 
 
-KINDS = ["wham", "vibe", "pare", "hybrik", "gvhmr", "tram", "aistpp", "phalp"]
+KINDS = ["wham", "vibe", "pare", "hybrik", "gvhmr", "tram", "aistpp", "phalp", "romp", "slahmr"]
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -218,7 +222,8 @@ def test_denoise_gives_each_pipeline_file_back_in_its_form(tmp_path):
     assert "written as renamed.npz (a gvhmr result is written back as .pt / .pth)" in err
     # a named output of the file's own form, and of another family refused before reading
     code, _, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "one.pkl")
-    assert code == 0, err and (tmp_path / "one.pkl").is_file()
+    assert code == 0, err
+    assert (tmp_path / "one.pkl").is_file()
     code, _, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "one.pt")
     assert code == 1 and "write it as .pkl or .npz" in err
     code, _, err = run("denoise", folder / "wham_output.pkl", "-o", tmp_path / "one.pkl.gz")
@@ -231,7 +236,8 @@ def test_denoise_gives_each_pipeline_file_back_in_its_form(tmp_path):
     assert any("no frame rate in the file" in n for n in notes)
     # the .npz form is still there for the asking
     code, _, err = run("denoise", folder / "hmr4d_results.pt", "-o", tmp_path / "one.npz")
-    assert code == 0, err and read(tmp_path / "one.npz").format == "gvhmr-npz"
+    assert code == 0, err
+    assert read(tmp_path / "one.npz").format == "amass"
 
 
 def test_add_noise_writes_a_pipeline_file_back_noisy_and_holes_as_npz(tmp_path):
@@ -258,3 +264,74 @@ def test_real_pipeline_files_come_back_in_their_form_as_the_npz_says(tmp_path, n
     assert same_rotations(a.pose_body, b.pose_body) < 1e-5
     assert same_rotations(a.root_orient, b.root_orient) < 1e-5
     assert np.abs(a.trans - b.trans).max() < 1e-4
+
+
+def test_romp_goes_back_as_its_own_npz_of_per_frame_lists(tmp_path):
+    """ROMP / BEV: each track's per-frame lists stay lists of arrays of their dtypes; the
+    edited frames change, the others and the hand joints keep their bits; a second track
+    (with gaps in its frame ids) and the per-image 'results' stay as they came."""
+    a, b = vf.clip(24, seed=6), vf.clip(20, seed=7)
+    src = vf.write_romp(tmp_path / "video_results.npz",
+                        {"0": (a, list(range(24))), "1": (b, list(range(0, 40, 2)))})  # fmt: skip
+    loaded = read(src)
+    labels = [lab for lab, _ in loaded.tracks]
+    after, sel = edited(dict(loaded.tracks)[labels[0]])
+    loaded.tracks = [(labels[0], after), *loaded.tracks[1:]]
+    out = tmp_path / "clean.npz"
+    write(loaded, out)
+    assert read(out).format == "romp"
+    old, new = (np.load(p, allow_pickle=True) for p in (src, out))
+    assert set(new.files) == set(old.files) and new["results"].item() == old["results"].item()
+    o0, n0 = old["sequence_results"].item()["0"], new["sequence_results"].item()["0"]
+    assert isinstance(n0["body_pose"], list) and n0["frame_id"] == o0["frame_id"]
+    assert n0["cam_trans"][0].dtype == np.float32 and n0["body_pose"][0].shape == (69,)
+    ob, nb = np.stack(o0["body_pose"]), np.stack(n0["body_pose"])
+    assert np.array_equal(nb[~sel], ob[~sel]) and not np.array_equal(nb[sel], ob[sel])
+    assert np.array_equal(nb[:, 63:], ob[:, 63:])  # the hand joints
+    assert np.array_equal(np.stack(n0["cam_trans"])[~sel], np.stack(o0["cam_trans"])[~sel])
+    o1, n1 = old["sequence_results"].item()["1"], new["sequence_results"].item()["1"]
+    assert all(np.array_equal(np.stack(n1[k]), np.stack(o1[k])) for k in o1)
+    got = dict(read(out).tracks)[labels[0]]
+    assert same_rotations(got.pose_body, after.pose_body) < 2e-6
+    assert np.abs(got.trans - after.trans).max() < 1e-5
+
+
+def test_slahmr_goes_back_as_a_plain_npz_with_its_other_tracks_and_arrays(tmp_path):
+    a, b = vf.clip(30, seed=8), vf.clip(30, seed=9)
+    src = vf.write_slahmr(tmp_path / "seq_000300_world_results.npz", [a, b])
+    loaded = read(src)
+    after, sel = edited(loaded.tracks[1][1])
+    loaded.tracks = [loaded.tracks[0], (loaded.tracks[1][0], after)]
+    write(loaded, tmp_path / "clean.npz")
+    old, new = np.load(src), np.load(tmp_path / "clean.npz")  # plain arrays: no pickles
+    assert set(new.files) == set(old.files)
+    for k in old.files:
+        assert new[k].dtype == old[k].dtype and new[k].shape == old[k].shape
+        if k not in ("root_orient", "pose_body", "trans"):
+            assert np.array_equal(new[k], old[k]), k
+    for k in ("root_orient", "pose_body", "trans"):
+        assert np.array_equal(new[k][0], old[k][0])  # the track left alone
+        assert np.array_equal(new[k][1][~sel], old[k][1][~sel])
+        assert not np.array_equal(new[k][1][sel], old[k][1][sel])
+    got = read(tmp_path / "clean.npz").tracks[1][1]
+    assert same_rotations(got.root_orient, after.root_orient) < 2e-6
+    assert np.abs(got.trans - after.trans).max() < 1e-5
+
+
+def test_commands_give_a_romp_npz_back_as_romp_and_holes_or_import_as_amass(tmp_path):
+    src = vf.write_romp(
+        tmp_path / "video_results.npz", {"0": (vf.clip(40, seed=2), list(range(40)))}
+    )
+    code, _, err = run("denoise", src, "-o", tmp_path / "clean.npz")
+    assert code == 0, err
+    assert read(tmp_path / "clean.npz").format == "romp"
+    code, _, err = run("add-noise", src, "-o", tmp_path / "noisy.npz", "--sigma", "0.1")
+    assert code == 0, err
+    assert read(tmp_path / "noisy.npz").format == "romp"
+    code, _, err = run("add-noise", src, "-o", tmp_path / "holes.npz", "--drop-frames", "5x1")
+    assert code == 0, err
+    holed = read(tmp_path / "holes.npz")
+    assert holed.format != "romp" and not holed.single().joint_mask.all()
+    code, _, err = run("import", src, "-o", tmp_path / "amass.npz")
+    assert code == 0, err
+    assert read(tmp_path / "amass.npz").format != "romp"

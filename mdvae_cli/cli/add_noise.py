@@ -163,8 +163,8 @@ def add_noise(
     sigma = 0.15 if sigma is None else sigma
     settings = NoiseSettings(sigma, joint_noise, drop_frac, spike_frac, spike_rad).validate()
     jobs = plan_take_jobs(inputs, out)
-    if drop_frac > 0 or drop_frames is not None or drop_joints is not None:
-        jobs = takes_as_npz(jobs, Path(out))
+    holes = drop_frac > 0 or drop_frames is not None or drop_joints is not None
+    jobs = takes_as_npz(jobs, Path(out)) if holes else jobs  # NaN: an AMASS-style .npz
     sources = tuple(job.source for job in jobs)
 
     read_options = ReadOptions(format=input_format, fps=input_fps, track=track,
@@ -174,10 +174,10 @@ def add_noise(
     def process(job: FileJob) -> dict:
         loaded = read_input(job.source, job.relpath, read_options)
         frames, outputs, dropped, noisy_tracks = 0, [], {}, []
-        target, own, why = own_output(loaded, job.output)
+        target, own, why = own_output(loaded, job.output, holes)
         if why is not None:
             print_notes(job.relpath, [why])
-        for label, motion, output in outputs_of(loaded, target):
+        for label, motion, output in outputs_of(loaded, target, holes):
             name = job.relpath if label is None else f"{job.relpath.as_posix()}#track{label}"
             noisy = make_noisy(motion, file_rng(seed, name), video, settings)
             holes_rng = file_rng(seed, f"{name}#holes")  # the noise's own stream unchanged

@@ -44,11 +44,12 @@ cleaned there, and each of its joints turns as its body joint did.) An AMC take 
 as AMC on its .asf the same way: same header, frame numbers, bones and dofs, angle unit
 and length unit; a bone with fewer than three rotation dofs (a knee's rx) takes the
 closest turn its dofs allow. Its .asf is copied next to the output when none is there.
-A video pipeline's file (WHAM, GVHMR, HybrIK, VIBE/PARE, TRAM, 4D-Humans, AIST++) comes
-back as the pipeline wrote it: same container, keys, dtypes and other tracks, its tracks'
-parameters cleaned (camera-frame copies follow), what the cleaning left alone bit for bit;
-arrays made from the old pose (WHAM's verts) are left out, with a note. -o x.npz instead
-writes the cleaned body motion (one output per person track).
+A video pipeline's file (WHAM, GVHMR, HybrIK, VIBE/PARE, TRAM, 4D-Humans, AIST++, ROMP/BEV,
+SLAHMR) comes back as the pipeline wrote it: same container, keys, dtypes and other tracks,
+its tracks' parameters cleaned (camera-frame copies follow), what the cleaning left alone
+bit for bit; arrays made from the old pose (WHAM's verts) are left out, with a note. -o
+x.npz instead writes the cleaned body motion (one output per person track), except for
+ROMP and SLAHMR, whose own file is an .npz: mdvae import makes their AMASS-style .npz.
 
 \b
 Examples:

@@ -1,6 +1,7 @@
 """Write a video pipeline's result back in the container it came in: a plain pickle (HybrIK,
 AIST++), a joblib stream (WHAM, VIBE, PARE; zlib-compressed: 4D-Humans), a torch file
-(GVHMR) or ``np.save`` of a dict of tensors (TRAM). The inverse of
+(GVHMR), ``np.save`` of a dict of tensors (TRAM) or an ``np.savez`` archive (ROMP / BEV's
+object arrays, SLAHMR's plain ones). The inverse of
 ``formats.data_files.load_data`` for the data it returns (arrays, numbers, strings, plain
 containers).
 
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import io
 import pickle
+import zipfile
 import zlib
 from collections.abc import Callable
 from pathlib import Path
@@ -25,7 +27,7 @@ import numpy as np
 from mdvae_cli.fileio import write_atomic
 
 #: containers :func:`write_data` writes ("joblib-zlib": joblib's ``compress=3``)
-CONTAINERS = ("pickle", "joblib", "joblib-zlib", "torch", "npy")
+CONTAINERS = ("pickle", "joblib", "joblib-zlib", "torch", "npy", "npz")
 #: numpy's array and scalar builders under the names every numpy version loads
 _NUMPY_NAMES = {
     np.zeros(1).__reduce__()[0]: b"numpy.core.multiarray\n_reconstruct\n",
@@ -108,7 +110,8 @@ def as_tensors(obj: Any) -> Any:
 
 def write_data(obj: Any, path: Path, container: str, forbid: tuple[Path, ...] = ()) -> None:
     """Write ``obj`` to ``path`` atomically (never onto ``forbid``) in ``container``
-    (CONTAINERS). For "torch" and "npy" the arrays become tensors first (:func:`as_tensors`)."""
+    (CONTAINERS). For "torch" and "npy" the arrays become tensors first (:func:`as_tensors`);
+    for "npz" ``obj`` is a dict of arrays (the members, as ``np.savez`` takes them)."""
     if container not in CONTAINERS:
         raise ValueError(f"unknown container {container!r}")
     writers: dict[str, Callable[[Path], None]] = {
@@ -117,6 +120,7 @@ def write_data(obj: Any, path: Path, container: str, forbid: tuple[Path, ...] = 
         "joblib-zlib": lambda tmp: tmp.write_bytes(zlib.compress(pickle_bytes(obj, True), 3)),
         "torch": lambda tmp: _torch_save(as_tensors(obj), tmp),
         "npy": lambda tmp: _npy_save(as_tensors(obj), tmp),
+        "npz": lambda tmp: _npz_save(obj, tmp),
     }
     write_atomic(Path(path), writers[container], forbid=forbid)
 
@@ -132,3 +136,25 @@ def _npy_save(obj: Any, tmp: Path) -> None:
     holder[()] = obj
     with open(tmp, "wb") as fh:
         np.save(fh, holder, allow_pickle=True)
+
+
+def npy_bytes(a: np.ndarray) -> bytes:
+    """One array as an ``.npy`` file: ``np.save``'s header, then the raw bytes, or for an
+    object array its pickle (module docstring: numpy 1 and 2 both load it)."""
+    a = np.asarray(a)
+    header = np.lib.format.header_data_from_array_1_0(a)
+    out = io.BytesIO()
+    np.lib.format.write_array_header_1_0(out, header)
+    if a.dtype.hasobject:
+        out.write(pickle_bytes(a))
+    else:  # in the order the header names
+        out.write(a.tobytes("F" if header["fortran_order"] else "C"))
+    return out.getvalue()
+
+
+def _npz_save(members: dict, tmp: Path) -> None:
+    """``np.savez(tmp, **members)``, each member written by :func:`npy_bytes` (stored, not
+    compressed, as ``np.savez`` does)."""
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name, value in members.items():
+            zf.writestr(f"{name}.npy", npy_bytes(np.asarray(value)))

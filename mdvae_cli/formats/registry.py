@@ -188,10 +188,11 @@ def write(
     """Write a motion (atomically; never over a path in ``forbid``) in the form ``path`` names.
     -> notes for the user about what was written (a video pipeline's form: what was left out).
 
-    ``.npz``: AMASS-style (``formats.npz_io``). ``.bvh`` / ``.amc`` (``.gz`` too) with ``take``
-    (or a LoadedFile read from a take): on the take's own skeleton, in its own form; ``.bvh``
-    without one: on the SMPL skeleton of the motion's shape (``bvh_units``, ``bvh_order``;
-    ``body`` None: the built-in body). A video pipeline's form (``.pkl``, ``.pt``, ...) with
+    ``.npz``: AMASS-style (``formats.npz_io``), or with the ``document`` of a ROMP / SLAHMR
+    file (whose own file is an ``.npz``) that file's layout. ``.bvh`` / ``.amc`` (``.gz``
+    too) with ``take`` (or a LoadedFile read from a take): on the take's own skeleton, in its
+    own form; ``.bvh`` without one: on the SMPL skeleton of the motion's shape (``bvh_units``,
+    ``bvh_order``; ``body`` None: the built-in body). A video pipeline's form (``.pkl``, ``.pt``, ...) with
     ``document`` (``LoadedFile.document``): the file it was read from, its tracks put back
     (``formats.video_back``); a LoadedFile's tracks are written there together. InputError
     for any other form, saying what to do. progress: (frames carried back, frames) while a
@@ -202,10 +203,10 @@ def write(
     if isinstance(item, LoadedFile):
         take = take if take is not None else item.take
         document = document if document is not None else item.document
-        if kind in VIDEO_SUFFIXES and document is not None:
+        if _video_form(kind, document, path):
             return _write_video(document, dict(item.tracks), path, forbid)
         item = item.single()
-    if kind in VIDEO_SUFFIXES and document is not None:
+    if _video_form(kind, document, path):
         labels = [label for label, _, _ in document.tracks]
         if len(labels) != 1:
             raise InputError(f"cannot write {path}: the file holds {len(labels)} tracks; give "
@@ -240,6 +241,18 @@ def write(
         f"cannot write {path}: mdvae writes .npz and .bvh (and takes back as .amc); Blender, "
         "Maya and MotionBuilder import BVH and save it as FBX"
     )
+
+
+def _video_form(kind: str, document: Any, path: Path) -> bool:
+    """Whether ``path`` goes out as ``document``'s video pipeline file: a pipeline's suffix,
+    or ``.npz`` for a pipeline whose own file is one (ROMP, SLAHMR)."""
+    if document is None:
+        return False
+    if kind in VIDEO_SUFFIXES:
+        return True
+    from mdvae_cli.formats.video_back import writes_back
+
+    return kind == ".npz" and writes_back(document, path)
 
 
 def _write_video(document: Any, tracks: dict, path: Path, forbid: tuple[Path, ...]) -> list[str]:

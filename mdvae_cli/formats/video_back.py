@@ -58,6 +58,8 @@ OWN_CONTAINER = {
     "gvhmr": "torch",
     "tram": "npy",
     "phalp": "joblib-zlib",
+    "romp": "npz",
+    "slahmr": "npz",
 }
 #: the file names each container is written under (``.gz`` not: the pipelines do not read it)
 CONTAINER_SUFFIXES = {
@@ -66,6 +68,7 @@ CONTAINER_SUFFIXES = {
     "pickle": (".pkl", ".pk", ".pickle", ".joblib"),
     "torch": (".pt", ".pth"),
     "npy": (".npy",),
+    "npz": (".npz",),
 }
 
 
@@ -208,6 +211,55 @@ def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
         notes.append(f"{', '.join(kept)} (the old pose's joints) kept as they came")
 
 
+def put_romp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    """ROMP / BEV: the track's per-frame entries in ``sequence_results`` (lists of arrays or
+    arrays, kept as they were); ``cam_trans`` is the translation (``video_people.read_romp``)."""
+    holder = data["sequence_results"]
+    seq = containers_copied(holder.item() if isinstance(holder, np.ndarray) else holder)
+    d = next(v for k, v in seq.items() if str(k) == raw.label)
+    d["global_orient"] = _like(d["global_orient"], put_root(_stacked(d["global_orient"]), rows))
+    d["body_pose"] = _like(d["body_pose"], put_body(_stacked(d["body_pose"]), rows))
+    d["cam_trans"] = _like(d["cam_trans"], shifted(_stacked(d["cam_trans"]), rows.shift))
+    if isinstance(holder, np.ndarray):
+        seq_holder = np.empty((), dtype=object)
+        seq_holder[()] = seq
+        seq = seq_holder
+    data["sequence_results"] = seq
+    if "results" in data:
+        notes.append("'results' (the per-image estimates) kept as they came")
+
+
+def put_slahmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
+    """SLAHMR: track b of its (B, T, ...) arrays (a file of one track may lack the B axis)."""
+    b, batched = int(raw.label), np.ndim(data["root_orient"]) == 3
+
+    def put(key: str, fn) -> None:
+        a = np.array(data[key], copy=True)
+        if batched:
+            a[b] = fn(a[b])
+        else:
+            a = fn(a)
+        data[key] = a
+
+    put("root_orient", lambda a: put_root(a, rows))
+    put("pose_body", lambda a: put_body(a, rows))
+    put("trans", lambda a: shifted(a, rows.shift))
+
+
+def _stacked(per_frame: Any) -> np.ndarray:
+    """A per-frame list of arrays (or an array) as one array (R, ...)."""
+    return np.stack(per_frame) if isinstance(per_frame, list | tuple) else np.asarray(per_frame)
+
+
+def _like(old: Any, new: np.ndarray) -> Any:
+    """``new`` (R, ...) in ``old``'s form: a list of per-frame arrays of its entries' dtype
+    and shape, or an array of its dtype and shape."""
+    if isinstance(old, list | tuple):
+        return type(old)(np.asarray(n).astype(np.asarray(o).dtype).reshape(np.shape(o))
+                         for o, n in zip(old, new, strict=True))  # fmt: skip
+    return np.asarray(new).astype(np.asarray(old).dtype).reshape(np.shape(old))
+
+
 PUTTERS: dict[str, Putter] = {
     "wham": put_wham,
     "vibe": put_vibe,
@@ -216,6 +268,8 @@ PUTTERS: dict[str, Putter] = {
     "gvhmr": put_gvhmr,
     "tram": put_tram,
     "phalp": put_phalp,
+    "romp": put_romp,
+    "slahmr": put_slahmr,
 }
 
 
@@ -242,9 +296,13 @@ def write_video(
         gaps = before.num_frames - len(np.unique(_ids(raw)))
         if gaps > 0:
             which = "" if label is None else f"track {label}: "
-            notes.append(f"{which}{gaps} frame(s) missing from the file's frame ids are not "
-                         "written (the file has no rows for them; an .npz output holds them "
-                         "filled)")  # fmt: skip
+            holder = ("an .npz output holds them filled" if OWN_CONTAINER[doc.format] != "npz"
+                      else "the AMASS-style .npz of `mdvae import` holds them for denoise to "
+                      "fill")  # fmt: skip
+            notes.append(
+                f"{which}{gaps} frame(s) missing from the file's frame ids are not "
+                f"written (the file has no rows for them; {holder})"
+            )
     skipped = [str(lab) for lab, _, _ in doc.tracks if lab not in cleaned]
     if skipped:
         notes.append(f"track(s) {', '.join(skipped)} written as they came")

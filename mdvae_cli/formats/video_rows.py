@@ -124,11 +124,14 @@ def put_root(a: Any, rows: Rows) -> np.ndarray:
 
 
 def put_body(a: Any, rows: Rows) -> np.ndarray:
-    """A copy of ``a`` ((R, 63) or (R, 21, 3) body axis-angles) with the moved joints."""
+    """A copy of ``a`` ((R, >= 63) or (R, >= 21, 3) body axis-angles: the 21 body joints,
+    then any others, e.g. SMPL's two hand joints, kept) with the moved joints."""
     out = np.array(a, copy=True)
-    body = out.reshape(out.shape[0], 21, 3)
+    flat = out.reshape(out.shape[0], -1)
+    body = flat[:, :63].reshape(-1, 21, 3)
     body[rows.body_moved] = near(rows.body[rows.body_moved], body[rows.body_moved])
-    return body.reshape(out.shape)
+    flat[:, :63] = body.reshape(-1, 63)
+    return flat.reshape(out.shape)
 
 
 def shifted(a: Any, shift: np.ndarray, scale: float = 1.0) -> np.ndarray:

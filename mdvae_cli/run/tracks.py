@@ -26,22 +26,30 @@ def track_output(output: Path, label: str | None) -> Path:
     return output.with_name(f"{output.stem}.track{safe}{output.suffix}")
 
 
-def outputs_of(loaded: LoadedFile, output: Path) -> list[tuple[str | None, Motion, Path]]:
-    """Each track of a file with its output path (all the same in the file's own form)."""
-    own = own_output(loaded, output)[1]
+def outputs_of(
+    loaded: LoadedFile, output: Path, holes: bool = False
+) -> list[tuple[str | None, Motion, Path]]:
+    """Each track of a file with its output path (all the same in the file's own form;
+    ``holes``: as :func:`own_output`)."""
+    own = own_output(loaded, output, holes)[1]
     return [(lab, m, output if own else track_output(output, lab)) for lab, m in loaded.tracks]
 
 
-def own_output(loaded: LoadedFile, output: Path) -> tuple[Path, bool, str | None]:
-    """Where a video pipeline's file named for its own form (``.pkl``, ``.pt``, ...) goes:
-    -> (output, True, None) when mdvae writes its format back in that form, else the ``.npz``
-    beside it, False and a note saying why. Any other output: (output, False, None)."""
+def own_output(
+    loaded: LoadedFile, output: Path, holes: bool = False
+) -> tuple[Path, bool, str | None]:
+    """Where a video pipeline's file named for its own form (``.pkl``, ``.pt``, ...; ``.npz``
+    for ROMP and SLAHMR, whose own file is one) goes: -> (output, True, None) when mdvae
+    writes its format back in that form, else the ``.npz`` beside it, False and a note saying
+    why. Any other output: (output, False, None). ``holes``: the tracks are written with
+    holes (NaN), which only the AMASS-style ``.npz`` holds: an ``.npz`` output is that."""
     from mdvae_cli.formats.registry import VIDEO_SUFFIXES, suffix_of
-
-    if suffix_of(output) not in VIDEO_SUFFIXES:
-        return output, False, None
     from mdvae_cli.formats.video_back import writes_back
 
+    if suffix_of(output) == ".npz" and not holes and writes_back(loaded.document, output):
+        return output, True, None
+    if suffix_of(output) not in VIDEO_SUFFIXES:
+        return output, False, None
     if writes_back(loaded.document, output):
         return output, True, None
     npz = output.with_name(Path(output.name.removesuffix(".gz")).stem + ".npz")
