@@ -44,12 +44,14 @@ def own_output(
     why. Any other output: (output, False, None). ``holes``: the tracks are written with
     holes (NaN), which only the AMASS-style ``.npz`` holds: an ``.npz`` output is that."""
     from mdvae_cli.formats.registry import VIDEO_SUFFIXES, suffix_of
+
+    kind = suffix_of(output)
+    if kind not in VIDEO_SUFFIXES and (kind != ".npz" or holes or loaded.document is None):
+        return output, False, None
     from mdvae_cli.formats.video_back import writes_back
 
-    if suffix_of(output) == ".npz" and not holes and writes_back(loaded.document, output):
-        return output, True, None
-    if suffix_of(output) not in VIDEO_SUFFIXES:
-        return output, False, None
+    if kind == ".npz":
+        return output, writes_back(loaded.document, output), None
     if writes_back(loaded.document, output):
         return output, True, None
     npz = output.with_name(Path(output.name.removesuffix(".gz")).stem + ".npz")
