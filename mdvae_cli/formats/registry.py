@@ -194,10 +194,9 @@ def write(
     own form; ``.bvh`` without one: on the SMPL skeleton of the motion's shape (``bvh_units``,
     ``bvh_order``; ``body`` None: the built-in body). A video pipeline's form (``.pkl``,
     ``.pt``, ...) with ``document`` (``LoadedFile.document``): the file it was read from, its
-    tracks put back
-    (``formats.video_back``); a LoadedFile's tracks are written there together. InputError
-    for any other form, saying what to do. progress: (frames carried back, frames) while a
-    BVH take's way back goes.
+    tracks put back (``formats.video_back``); a LoadedFile's tracks are written there
+    together. InputError for any other form, saying what to do. progress: (frames carried
+    back, frames) while a BVH take's way back goes.
     """
     path = Path(path)
     kind = suffix_of(path)
