@@ -16,6 +16,8 @@ from click.testing import CliRunner
 from mdvae_cli.cli.main import cli
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_files import load_data
+from mdvae_cli.formats.data_write import write_data
+from mdvae_cli.formats.npz_holes import keep_holes
 from mdvae_cli.formats.registry import read, write
 from mdvae_cli.formats.video_rows import near
 from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
@@ -135,10 +137,19 @@ def test_gvhmr_incam_follows_tensors_and_net_outputs_left_out(tmp_path):
     assert np.abs(incam["transl"].numpy() - ref_transl).max() < 1e-5
 
 
-def test_tracks_with_gaps_get_their_own_rows_and_others_stay_as_they_came(tmp_path):
+def test_wham_gaps_get_rows_filled_and_other_tracks_stay_as_they_came(tmp_path):
+    """A WHAM track with 5 frames missing from its frame ids: written back with a row for
+    each, in frame order, holding the cleaned fill (its camera-frame copy by the nearest
+    row's camera, its betas the nearest row's); the rows the file had keep their values where
+    the cleaning left them; left unfilled (NaN, --fill off), no rows are added."""
     a, b = vf.clip(30, seed=1), vf.clip(20, seed=2)
     ids = np.r_[0:10, 15:35]  # a gap of 5 frames
     src = vf.write_wham(tmp_path / "wham_output.pkl", {3: (a, ids), 7: (b, None)})
+    data = load_data(src)  # a camera that pans: each row's camera-frame root turned about y
+    d3 = data[np.int64(3)]
+    pan = rotvec_to_rotmat(np.outer(0.05 * np.arange(30), [0.0, 1.0, 0.0]))
+    d3["pose"][:, :3] = rotmat_to_rotvec(pan @ rotvec_to_rotmat(d3["pose"][:, :3].astype(float)))
+    write_data(data, src, "joblib")
     loaded = read(src)
     cleaned = dict(loaded.tracks)
     assert cleaned["3"].num_frames == 35
@@ -147,16 +158,42 @@ def test_tracks_with_gaps_get_their_own_rows_and_others_stay_as_they_came(tmp_pa
         type(loaded)(src, "wham", "video", [("3", new3)], document=loaded.document),
         tmp_path / "clean.pkl",
     )
-    assert any("5 frame(s) missing" in n for n in notes)
+    assert any("5 frame(s) missing from the file's frame ids added as rows" in n for n in notes)
     assert any("track(s) 7 written as they came" in n for n in notes)
     old, new = load_data(src), load_data(tmp_path / "clean.pkl")
-    assert new[np.int64(3)]["pose_world"].shape == (30, 72)  # the file's rows, no more
-    assert np.array_equal(new[np.int64(3)]["frame_ids"], ids)
+    o3, n3 = old[np.int64(3)], new[np.int64(3)]
+    assert n3["pose_world"].shape == (35, 72) and n3["pose_world"].dtype == o3["pose_world"].dtype
+    assert np.array_equal(n3["frame_ids"], np.arange(35))
+    assert n3["frame_ids"].dtype == o3["frame_ids"].dtype
+    assert np.array_equal(n3["betas"][10:15], o3["betas"][[9, 9, 9, 10, 10]])
     for k, v in old[np.int64(7)].items():
         assert np.array_equal(new[np.int64(7)][k], v)
-    back = dict(read(tmp_path / "clean.pkl").tracks)
-    seen = np.isin(np.arange(35), ids - ids[0])
-    assert same_rotations(back["3"].root_orient[seen], new3.root_orient[seen]) < 2e-6
+    back = dict(read(tmp_path / "clean.pkl").tracks)["3"]
+    assert back.num_frames == 35
+    assert same_rotations(back.root_orient, new3.root_orient) < 2e-6
+    assert same_rotations(back.pose_body, new3.pose_body) < 2e-6
+    assert np.abs(back.trans - new3.trans).max() < 1e-5
+
+    # the camera of an added row is its nearest row's: R_c = R_cam R_world^T holds there
+    def camera(d, row):
+        return rotvec_to_rotmat(d["pose"][row, :3]) @ rotvec_to_rotmat(d["pose_world"][row, :3]).T
+
+    assert np.abs(camera(n3, 11) - camera(o3, 9)).max() < 1e-5
+    assert np.abs(camera(n3, 13) - camera(o3, 10)).max() < 1e-5
+    assert np.abs(camera(o3, 9) - camera(o3, 10)).max() > 0.04  # the camera does pan
+    assert np.abs(camera(n3, 20) - camera(o3, 15)).max() < 1e-5  # a row the file had
+    # holes left unfilled: no rows for them, and a note saying where the filled ones are
+    holed = new3.with_body()
+    holed.root_orient[10:15] = np.nan
+    holed.trans[10:15] = np.nan
+    notes = write(type(loaded)(src, "wham", "video", [("3", holed)], document=loaded.document),
+                  tmp_path / "holed.pkl")  # fmt: skip
+    assert any("5 frame(s) missing" in n and "not written" in n for n in notes)
+    assert np.array_equal(load_data(tmp_path / "holed.pkl")[np.int64(3)]["frame_ids"], ids)
+    kept = keep_holes(new3)  # --fill off: the holes hold placeholders, to stay as they came
+    write(type(loaded)(src, "wham", "video", [("3", kept)], document=loaded.document),
+          tmp_path / "kept.pkl")  # fmt: skip
+    assert np.array_equal(load_data(tmp_path / "kept.pkl")[np.int64(3)]["frame_ids"], ids)
 
 
 def test_nearest_axis_angle_keeps_a_half_turn_from_jumping():

@@ -12,8 +12,10 @@ per-frame camera: ``R_c = R_cam R_world^T`` from the file's two roots, the new c
 ``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``. Arrays derived from
 the old pose that would now contradict it (vertices, joints from the pose, network internals)
 are left out with a note; the pipeline's other per-frame estimates (2D and 3D keypoints it
-detected, boxes, cameras) stay as they came. Frames a track lacks in the file (gaps in its
-frame ids) get no rows: the file has none for them.
+detected, boxes, cameras) stay as they came. Frames a WHAM track lacks (gaps in its frame
+ids) get a row each, filled by the cleaning, its other arrays (betas, the camera its
+camera-frame copy follows) the nearest row's (:func:`gap_rows_added`); the other layouts'
+rows are per detection, and get none.
 
     doc = loaded.document                        # formats.registry.read of a video file
     notes = write_video(doc, {label: cleaned}, Path("clean.pkl"))
@@ -27,7 +29,7 @@ from __future__ import annotations
 import copy
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +37,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_write import write_data
+from mdvae_cli.formats.npz_holes import HOLES
 from mdvae_cli.formats.video_layout import track_items
 from mdvae_cli.formats.video_rows import (
     Rows,
@@ -291,11 +294,18 @@ def write_video(
         after = cleaned.get(label)
         if after is None:
             continue
+        which = "" if label is None else f"track {label}: "
+        if doc.format in ROWS_ADDED:
+            d = _track_dict(data, raw)
+            raw, before, added = gap_rows_added(d, raw, before, after, ROWS_ADDED[doc.format])
+            if added:
+                notes.append(f"{which}{added} frame(s) missing from the file's frame ids added "
+                             "as rows, filled (each other array of such a row, its camera "
+                             "too, as the nearest frame the file has)")  # fmt: skip
         rows = file_rows(raw, before, after)
         PUTTERS[doc.format](data, raw, rows, notes)
         gaps = before.num_frames - len(np.unique(_ids(raw)))
         if gaps > 0:
-            which = "" if label is None else f"track {label}: "
             holder = ("an .npz output holds them filled" if OWN_CONTAINER[doc.format] != "npz"
                       else "the AMASS-style .npz of `mdvae import` holds them for denoise to "
                       "fill")  # fmt: skip
@@ -310,6 +320,49 @@ def write_video(
         data = defaultdict(dict, data)  # as WHAM writes it
     write_data(data, Path(path), OWN_CONTAINER[doc.format], forbid=forbid)
     return list(dict.fromkeys(notes))
+
+
+#: formats whose tracks get rows for the frames missing from their frame ids (each track a
+#: dict of per-row arrays); the arrays each leaves out (not worth growing)
+ROWS_ADDED = {"wham": ("verts",)}
+
+
+def gap_rows_added(
+    d: dict, raw: RawTrack, before: Motion, after: Motion, leave: tuple[str, ...] = ()
+) -> tuple[RawTrack, Motion, int]:
+    """A track's dict (``d``, changed in place: its per-row arrays replaced) with a row for
+    each frame missing from its frame ids that ``after`` fills (finite there), in frame
+    order. A new row starts as a copy of the nearest row the file has (its betas, its
+    camera), and the track and ``before`` are made to match, so that :func:`file_rows` then
+    puts the cleaned pose into it as into a row the cleaning moved (none for a motion whose
+    holes are to stay as they came, ``npz_holes.keep_holes``); arrays named in ``leave``
+    stay as they are (the putter leaves them out). -> (the track, ``before`` as the file's
+    rows now read, rows added)"""
+    ids = _ids(raw).astype(np.int64)
+    first, T = int(ids.min()), before.num_frames
+    present = np.zeros(T, bool)
+    present[ids - first] = True
+    add = ~present & np.isfinite(after.root_orient).all(1) & np.isfinite(after.trans).all(1)
+    if not add.any() or after.layout.get(HOLES) == "as read":  # --fill off: as they came
+        return raw, before, 0
+    have = np.flatnonzero(present)
+    frames = np.flatnonzero(present | add)
+    lo = have[np.clip(np.searchsorted(have, frames) - 1, 0, len(have) - 1)]
+    hi = have[np.clip(np.searchsorted(have, frames), 0, len(have) - 1)]
+    nearest = np.where(frames - lo <= hi - frames, lo, hi)
+    row_of = np.zeros(T, np.int64)
+    row_of[ids - first] = np.arange(len(ids))
+    src = row_of[nearest]  # the file's row each row of the track now copies
+    for key, value in list(d.items()):
+        if key not in (*leave, "frame_ids") and np.ndim(value) >= 1 and len(value) == len(ids):
+            d[key] = np.asarray(value)[src]
+    d["frame_ids"] = (frames + first).astype(np.asarray(d["frame_ids"]).dtype)
+    raw = replace(raw, root=raw.root[src], body=raw.body[src],
+                  transl=np.asarray(raw.transl)[src], frame_ids=d["frame_ids"])  # fmt: skip
+    ro, pb, tr = (np.array(a, copy=True) for a in (before.root_orient, before.pose_body,
+                                                   before.trans))  # fmt: skip
+    ro[frames], pb[frames], tr[frames] = ro[nearest], pb[nearest], tr[nearest]
+    return raw, before.with_body(root_orient=ro, pose_body=pb, trans=tr), int(add.sum())
 
 
 def containers_copied(obj: Any) -> Any:
