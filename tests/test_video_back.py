@@ -305,17 +305,21 @@ def test_real_pipeline_files_come_back_in_their_form_as_the_npz_says(tmp_path, n
 
 def test_romp_goes_back_as_its_own_npz_of_per_frame_lists(tmp_path):
     """ROMP / BEV: each track's per-frame lists stay lists of arrays of their dtypes; the
-    edited frames change, the others and the hand joints keep their bits; a second track
-    (with gaps in its frame ids) and the per-image 'results' stay as they came."""
-    a, b = vf.clip(24, seed=6), vf.clip(20, seed=7)
+    edited frames change, the others and the hand joints keep their bits; a track with gaps
+    in its frame ids gets an entry for each (the nearest entry's betas), a track not given
+    and the per-image 'results' stay as they came."""
+    a, b, c = vf.clip(24, seed=6), vf.clip(20, seed=7), vf.clip(10, seed=8)
     src = vf.write_romp(tmp_path / "video_results.npz",
-                        {"0": (a, list(range(24))), "1": (b, list(range(0, 40, 2)))})  # fmt: skip
+                        {"0": (a, list(range(24))), "1": (b, list(range(0, 40, 2))),
+                         "2": (c, list(range(10)))})  # fmt: skip
     loaded = read(src)
-    labels = [lab for lab, _ in loaded.tracks]
-    after, sel = edited(dict(loaded.tracks)[labels[0]])
-    loaded.tracks = [(labels[0], after), *loaded.tracks[1:]]
+    tracks = dict(loaded.tracks)
+    after, sel = edited(tracks["0"])
+    gappy, _ = edited(tracks["1"])
+    loaded.tracks = [("0", after), ("1", gappy)]
     out = tmp_path / "clean.npz"
-    write(loaded, out)
+    notes = write(loaded, out)
+    assert any("track 1: 19 frame(s) missing" in n and "added" in n for n in notes)
     assert read(out).format == "romp"
     old, new = (np.load(p, allow_pickle=True) for p in (src, out))
     assert set(new.files) == set(old.files) and new["results"].item() == old["results"].item()
@@ -327,10 +331,16 @@ def test_romp_goes_back_as_its_own_npz_of_per_frame_lists(tmp_path):
     assert np.array_equal(nb[:, 63:], ob[:, 63:])  # the hand joints
     assert np.array_equal(np.stack(n0["cam_trans"])[~sel], np.stack(o0["cam_trans"])[~sel])
     o1, n1 = old["sequence_results"].item()["1"], new["sequence_results"].item()["1"]
-    assert all(np.array_equal(np.stack(n1[k]), np.stack(o1[k])) for k in o1)
-    got = dict(read(out).tracks)[labels[0]]
-    assert same_rotations(got.pose_body, after.pose_body) < 2e-6
-    assert np.abs(got.trans - after.trans).max() < 1e-5
+    assert n1["frame_id"] == list(range(39)) and all(type(i) is int for i in n1["frame_id"])
+    assert all(isinstance(n1[k], list) and len(n1[k]) == 39 for k in o1)
+    assert np.array_equal(n1["smpl_betas"][1], o1["smpl_betas"][0])  # frame 1: as frame 0
+    o2, n2 = old["sequence_results"].item()["2"], new["sequence_results"].item()["2"]
+    assert all(np.array_equal(np.stack(n2[k]), np.stack(o2[k])) for k in o2)
+    back = dict(read(out).tracks)
+    assert same_rotations(back["0"].pose_body, after.pose_body) < 2e-6
+    assert np.abs(back["0"].trans - after.trans).max() < 1e-5
+    assert same_rotations(back["1"].pose_body, gappy.pose_body) < 2e-6
+    assert np.abs(back["1"].trans - gappy.trans).max() < 1e-5
 
 
 def test_slahmr_goes_back_as_a_plain_npz_with_its_other_tracks_and_arrays(tmp_path):

@@ -12,10 +12,10 @@ per-frame camera: ``R_c = R_cam R_world^T`` from the file's two roots, the new c
 ``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``. Arrays derived from
 the old pose that would now contradict it (vertices, joints from the pose, network internals)
 are left out with a note; the pipeline's other per-frame estimates (2D and 3D keypoints it
-detected, boxes, cameras) stay as they came. Frames a WHAM track lacks (gaps in its frame
-ids) get a row each, filled by the cleaning, its other arrays (betas, the camera its
-camera-frame copy follows) the nearest row's (:func:`gap_rows_added`); the other layouts'
-rows are per detection, and get none.
+detected, boxes, cameras) stay as they came. Frames a WHAM or ROMP track lacks (gaps in its
+frame ids) get a row each, filled by the cleaning, its other arrays (betas, the camera its
+camera-frame copy follows) the nearest row's (:func:`gap_rows_added`); the other layouts
+keep their rows per detection (a PHALP frame's list of people), and get none.
 
     doc = loaded.document                        # formats.registry.read of a video file
     notes = write_video(doc, {label: cleaned}, Path("clean.pkl"))
@@ -43,11 +43,13 @@ from mdvae_cli.formats.video_rows import (
     Rows,
     camera_follows,
     file_rows,
+    like,
     put_axis_angle,
     put_body,
     put_matrices,
     put_root,
     shifted,
+    stacked,
 )
 from mdvae_cli.formats.video_tracks import RawTrack
 from mdvae_cli.motion.motion import Motion
@@ -214,20 +216,26 @@ def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
         notes.append(f"{', '.join(kept)} (the old pose's joints) kept as they came")
 
 
+def _romp_track(data: dict, raw: RawTrack) -> dict:
+    """A ROMP file's ``sequence_results`` copied into ``data`` (it comes in a 0-d object
+    array, which :func:`containers_copied` does not open) and the track's dict in it."""
+    holder = data["sequence_results"]
+    boxed = isinstance(holder, np.ndarray)
+    seq = containers_copied(holder.item() if boxed else holder)
+    if boxed:
+        holder = np.empty((), dtype=object)
+        holder[()] = seq
+    data["sequence_results"] = holder if boxed else seq
+    return next(v for k, v in seq.items() if str(k) == raw.label)
+
+
 def put_romp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     """ROMP / BEV: the track's per-frame entries in ``sequence_results`` (lists of arrays or
     arrays, kept as they were); ``cam_trans`` is the translation (``video_people.read_romp``)."""
-    holder = data["sequence_results"]
-    seq = containers_copied(holder.item() if isinstance(holder, np.ndarray) else holder)
-    d = next(v for k, v in seq.items() if str(k) == raw.label)
-    d["global_orient"] = _like(d["global_orient"], put_root(_stacked(d["global_orient"]), rows))
-    d["body_pose"] = _like(d["body_pose"], put_body(_stacked(d["body_pose"]), rows))
-    d["cam_trans"] = _like(d["cam_trans"], shifted(_stacked(d["cam_trans"]), rows.shift))
-    if isinstance(holder, np.ndarray):
-        seq_holder = np.empty((), dtype=object)
-        seq_holder[()] = seq
-        seq = seq_holder
-    data["sequence_results"] = seq
+    d = _romp_track(data, raw)
+    d["global_orient"] = like(d["global_orient"], put_root(stacked(d["global_orient"]), rows))
+    d["body_pose"] = like(d["body_pose"], put_body(stacked(d["body_pose"]), rows))
+    d["cam_trans"] = like(d["cam_trans"], shifted(stacked(d["cam_trans"]), rows.shift))
     if "results" in data:
         notes.append("'results' (the per-image estimates) kept as they came")
 
@@ -247,20 +255,6 @@ def put_slahmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     put("root_orient", lambda a: put_root(a, rows))
     put("pose_body", lambda a: put_body(a, rows))
     put("trans", lambda a: shifted(a, rows.shift))
-
-
-def _stacked(per_frame: Any) -> np.ndarray:
-    """A per-frame list of arrays (or an array) as one array (R, ...)."""
-    return np.stack(per_frame) if isinstance(per_frame, list | tuple) else np.asarray(per_frame)
-
-
-def _like(old: Any, new: np.ndarray) -> Any:
-    """``new`` (R, ...) in ``old``'s form: a list of per-frame arrays of its entries' dtype
-    and shape, or an array of its dtype and shape."""
-    if isinstance(old, list | tuple):
-        return type(old)(np.asarray(n).astype(np.asarray(o).dtype).reshape(np.shape(o))
-                         for o, n in zip(old, new, strict=True))  # fmt: skip
-    return np.asarray(new).astype(np.asarray(old).dtype).reshape(np.shape(old))
 
 
 PUTTERS: dict[str, Putter] = {
@@ -296,8 +290,9 @@ def write_video(
             continue
         which = "" if label is None else f"track {label}: "
         if doc.format in ROWS_ADDED:
-            d = _track_dict(data, raw)
-            raw, before, added = gap_rows_added(d, raw, before, after, ROWS_ADDED[doc.format])
+            getter, ids_key, leave = ROWS_ADDED[doc.format]
+            d = getter(data, raw)
+            raw, before, added = gap_rows_added(d, raw, before, after, ids_key, leave)
             if added:
                 notes.append(f"{which}{added} frame(s) missing from the file's frame ids added "
                              "as rows, filled (each other array of such a row, its camera "
@@ -323,20 +318,30 @@ def write_video(
 
 
 #: formats whose tracks get rows for the frames missing from their frame ids (each track a
-#: dict of per-row arrays); the arrays each leaves out (not worth growing)
-ROWS_ADDED = {"wham": ("verts",)}
+#: dict of per-row arrays or lists): how to find a track's dict in the file, the key of its
+#: frame ids, and the arrays left as they are (the putter leaves them out: not worth growing)
+ROWS_ADDED: dict[str, tuple[Callable[[Any, RawTrack], dict], str, tuple[str, ...]]] = {
+    "wham": (_track_dict, "frame_ids", ("verts",)),
+    "romp": (_romp_track, "frame_id", ()),
+}
 
 
 def gap_rows_added(
-    d: dict, raw: RawTrack, before: Motion, after: Motion, leave: tuple[str, ...] = ()
+    d: dict,
+    raw: RawTrack,
+    before: Motion,
+    after: Motion,
+    ids_key: str = "frame_ids",
+    leave: tuple[str, ...] = (),
 ) -> tuple[RawTrack, Motion, int]:
     """A track's dict (``d``, changed in place: its per-row arrays replaced) with a row for
     each frame missing from its frame ids that ``after`` fills (finite there), in frame
     order. A new row starts as a copy of the nearest row the file has (its betas, its
     camera), and the track and ``before`` are made to match, so that :func:`file_rows` then
     puts the cleaned pose into it as into a row the cleaning moved (none for a motion whose
-    holes are to stay as they came, ``npz_holes.keep_holes``); arrays named in ``leave``
-    stay as they are (the putter leaves them out). -> (the track, ``before`` as the file's
+    holes are to stay as they came, ``npz_holes.keep_holes``). ``ids_key``: the dict's frame
+    ids (an array or a list, kept so); arrays named in ``leave`` stay as they are (the putter
+    leaves them out); a per-frame list stays a list. -> (the track, ``before`` as the file's
     rows now read, rows added)"""
     ids = _ids(raw).astype(np.int64)
     first, T = int(ids.min()), before.num_frames
@@ -354,11 +359,16 @@ def gap_rows_added(
     row_of[ids - first] = np.arange(len(ids))
     src = row_of[nearest]  # the file's row each row of the track now copies
     for key, value in list(d.items()):
-        if key not in (*leave, "frame_ids") and np.ndim(value) >= 1 and len(value) == len(ids):
-            d[key] = np.asarray(value)[src]
-    d["frame_ids"] = (frames + first).astype(np.asarray(d["frame_ids"]).dtype)
+        if key in (*leave, ids_key) or np.ndim(value) < 1 or len(value) != len(ids):
+            continue
+        d[key] = type(value)(value[i] for i in src) if isinstance(value, list) else (
+            np.asarray(value)[src])  # fmt: skip
+    new_ids = frames + first
+    old_ids = d[ids_key]
+    d[ids_key] = ([type(old_ids[0])(i) for i in new_ids] if isinstance(old_ids, list)
+                  else new_ids.astype(np.asarray(old_ids).dtype))  # fmt: skip
     raw = replace(raw, root=raw.root[src], body=raw.body[src],
-                  transl=np.asarray(raw.transl)[src], frame_ids=d["frame_ids"])  # fmt: skip
+                  transl=np.asarray(raw.transl)[src], frame_ids=new_ids)  # fmt: skip
     ro, pb, tr = (np.array(a, copy=True) for a in (before.root_orient, before.pose_body,
                                                    before.trans))  # fmt: skip
     ro[frames], pb[frames], tr[frames] = ro[nearest], pb[nearest], tr[nearest]

@@ -160,3 +160,17 @@ def camera_follows(
     flat[moved] = near(rotmat_to_rotvec(Rc[moved] @ rows.root[moved]), flat[moved])
     shift = np.einsum("tij,tj->ti", Rc, rows.shift)
     return flat.reshape(cam.shape), shifted(cam_transl, shift)
+
+
+def stacked(per_frame: Any) -> np.ndarray:
+    """A per-frame list of arrays (or an array) as one array (R, ...)."""
+    return np.stack(per_frame) if isinstance(per_frame, list | tuple) else np.asarray(per_frame)
+
+
+def like(old: Any, new: np.ndarray) -> Any:
+    """``new`` (R, ...) in ``old``'s form: a list of per-frame arrays of its entries' dtype
+    and shape, or an array of its dtype and shape."""
+    if isinstance(old, list | tuple):
+        return type(old)(np.asarray(n).astype(np.asarray(o).dtype).reshape(np.shape(o))
+                         for o, n in zip(old, new, strict=True))  # fmt: skip
+    return np.asarray(new).astype(np.asarray(old).dtype).reshape(np.shape(old))
