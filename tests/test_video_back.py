@@ -320,6 +320,7 @@ def test_romp_goes_back_as_its_own_npz_of_per_frame_lists(tmp_path):
     out = tmp_path / "clean.npz"
     notes = write(loaded, out)
     assert any("track 1: 19 frame(s) missing" in n and "added" in n for n in notes)
+    assert "'results' (the per-image estimates) kept as they came" in notes
     assert read(out).format == "romp"
     old, new = (np.load(p, allow_pickle=True) for p in (src, out))
     assert set(new.files) == set(old.files) and new["results"].item() == old["results"].item()
@@ -341,6 +342,21 @@ def test_romp_goes_back_as_its_own_npz_of_per_frame_lists(tmp_path):
     assert np.abs(back["0"].trans - after.trans).max() < 1e-5
     assert same_rotations(back["1"].pose_body, gappy.pose_body) < 2e-6
     assert np.abs(back["1"].trans - gappy.trans).max() < 1e-5
+
+
+def test_romp_joints_made_from_the_old_pose_are_kept_with_a_note(tmp_path):
+    src = vf.write_romp(
+        tmp_path / "video_results.npz", {"0": (vf.clip(12, seed=3), list(range(12)))}
+    )
+    z = dict(np.load(src, allow_pickle=True))
+    seq = z.pop("sequence_results").item()
+    seq["0"]["j3d_all54"] = list(np.zeros((12, 54, 3), np.float32))
+    np.savez(src, **z, sequence_results=seq)
+    loaded = read(src)
+    notes = write(loaded, tmp_path / "clean.npz")
+    assert "j3d_all54 (made from the old pose) kept as they came" in notes
+    kept = np.load(tmp_path / "clean.npz", allow_pickle=True)["sequence_results"].item()["0"]
+    assert np.array_equal(np.stack(kept["j3d_all54"]), np.zeros((12, 54, 3)))
 
 
 def test_slahmr_goes_back_as_a_plain_npz_with_its_other_tracks_and_arrays(tmp_path):

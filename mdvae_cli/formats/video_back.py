@@ -236,6 +236,9 @@ def put_romp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     d["global_orient"] = like(d["global_orient"], put_root(stacked(d["global_orient"]), rows))
     d["body_pose"] = like(d["body_pose"], put_body(stacked(d["body_pose"]), rows))
     d["cam_trans"] = like(d["cam_trans"], shifted(stacked(d["cam_trans"]), rows.shift))
+    made = sorted(k for k in d if k == "verts" or k.startswith(("j3d", "pj2d", "joints")))
+    if made:
+        notes.append(f"{', '.join(made)} (made from the old pose) kept as they came")
     if "results" in data:
         notes.append("'results' (the per-image estimates) kept as they came")
 
