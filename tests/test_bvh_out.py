@@ -412,3 +412,22 @@ def test_driven_joints_read_their_offset_smoothed_where_the_cleaning_turned_them
     rough = lambda r: np.abs(np.diff(r, 2, axis=0)).mean()  # noqa: E731
     assert rough(offset) < 0.3 * rough(given), (rough(offset), rough(given))
     assert np.abs(offset - [0.2, -0.1, 0.3]).mean() < np.abs(given - [0.2, -0.1, 0.3]).mean()
+
+
+def test_a_windows_bvh_comes_back_with_its_crlf_line_ends(tmp_path):
+    """A BVH whose lines end in CR LF is written back with CR LF on every line (not its
+    header's CR LF and LF under MOTION), the values as from the same file with LF."""
+    from mdvae_cli.formats.registry import read, write
+
+    lf = write_rig(tmp_path / "take.bvh", T=40)
+    crlf = tmp_path / "take_crlf.bvh"
+    crlf.write_bytes(lf.read_bytes().replace(b"\n", b"\r\n"))
+    for src in (lf, crlf):
+        loaded = read(src)
+        m = loaded.single()
+        write(m.with_body(m.root_orient, m.pose_body * 0.9, m.trans), src.with_name(src.stem + "_out.bvh"),
+              take=loaded.take)  # fmt: skip
+    out_lf, out_crlf = ((p.with_name(p.stem + "_out.bvh")).read_bytes() for p in (lf, crlf))
+    assert out_crlf.count(b"\n") == out_crlf.count(b"\r\n") > 40
+    assert b"\r" not in out_lf
+    assert out_crlf.replace(b"\r\n", b"\n") == out_lf

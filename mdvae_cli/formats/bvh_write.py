@@ -104,10 +104,13 @@ def _fixed_point_text(x: np.ndarray, columns: int) -> np.ndarray:
 
 def motion_pieces(header: str, data: np.ndarray, frame_time: str) -> Iterator[str]:
     """A BVH file in pieces: ``header`` (through the MOTION line), the frame count, the frame
-    time as given, then the rows of ``data`` (F, C), ``ROWS_PER_PIECE`` at a time."""
-    yield f"{header.rstrip()}\nFrames: {data.shape[0]}\nFrame Time: {frame_time}\n"
+    time as given, then the rows of ``data`` (F, C), ``ROWS_PER_PIECE`` at a time; every line
+    ends as the header's lines do (CR LF for a file made on Windows, else LF)."""
+    nl = "\r\n" if "\r\n" in header else "\n"
+    yield f"{header.rstrip()}{nl}Frames: {data.shape[0]}{nl}Frame Time: {frame_time}{nl}"
     for start in range(0, data.shape[0], ROWS_PER_PIECE):
-        yield format_rows(data[start : start + ROWS_PER_PIECE])
+        rows = format_rows(data[start : start + ROWS_PER_PIECE])
+        yield rows if nl == "\n" else rows.replace("\n", nl)
 
 
 def motion_text(header: str, data: np.ndarray, frame_time: str) -> str:
