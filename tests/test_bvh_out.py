@@ -425,9 +425,9 @@ def test_a_windows_bvh_comes_back_with_its_crlf_line_ends(tmp_path):
     for src in (lf, crlf):
         loaded = read(src)
         m = loaded.single()
-        write(m.with_body(m.root_orient, m.pose_body * 0.9, m.trans), src.with_name(src.stem + "_out.bvh"),
-              take=loaded.take)  # fmt: skip
-    out_lf, out_crlf = ((p.with_name(p.stem + "_out.bvh")).read_bytes() for p in (lf, crlf))
+        turned = m.with_body(m.root_orient, m.pose_body * 0.9, m.trans)
+        write(turned, src.with_name(src.stem + "_out.bvh"), take=loaded.take)
+    out_lf, out_crlf = (p.with_name(p.stem + "_out.bvh").read_bytes() for p in (lf, crlf))
     assert out_crlf.count(b"\n") == out_crlf.count(b"\r\n") > 40
     assert b"\r" not in out_lf
     assert out_crlf.replace(b"\r\n", b"\n") == out_lf
