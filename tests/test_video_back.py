@@ -344,6 +344,16 @@ def test_romp_goes_back_as_its_own_npz_of_per_frame_lists(tmp_path):
     assert np.abs(back["1"].trans - gappy.trans).max() < 1e-5
 
 
+def test_add_noise_gives_a_gappy_track_back_with_its_own_rows(tmp_path):
+    """add-noise makes the file's rows noisy and makes up none for the frames it lacks."""
+    ids = list(range(0, 40, 2))
+    src = vf.write_romp(tmp_path / "video_results.npz", {"0": (vf.clip(20, seed=5), ids)})
+    code, _, err = run("add-noise", src, "-o", tmp_path / "noisy.npz", "--sigma", "0.1")
+    assert code == 0, err
+    noisy = np.load(tmp_path / "noisy.npz", allow_pickle=True)["sequence_results"].item()["0"]
+    assert noisy["frame_id"] == ids and len(noisy["body_pose"]) == 20
+
+
 def test_romp_joints_made_from_the_old_pose_are_kept_with_a_note(tmp_path):
     src = vf.write_romp(
         tmp_path / "video_results.npz", {"0": (vf.clip(12, seed=3), list(range(12)))}

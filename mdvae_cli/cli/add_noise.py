@@ -28,6 +28,7 @@ from mdvae_cli.cli.motion_input import motion_input_options, read_input
 from mdvae_cli.cli.noise_holes import HOLES, drop_holes
 from mdvae_cli.cli.takes import plan_take_jobs, take_options, take_reading
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.npz_holes import keep_holes
 from mdvae_cli.formats.registry import (
     TAKE_SUFFIXES,
     VIDEO_SUFFIXES,
@@ -182,8 +183,8 @@ def add_noise(
             noisy = make_noisy(motion, file_rng(seed, name), video, settings)
             holes_rng = file_rng(seed, f"{name}#holes")  # the noise's own stream unchanged
             noisy, made = drop_holes(noisy, drop_frames, drop_joints, holes_rng, job.relpath)
-            if own:
-                noisy_tracks.append((label, noisy))
+            if own:  # the file's rows, noisy: its gaps stay gaps (no rows made up for them)
+                noisy_tracks.append((label, keep_holes(noisy)))
             else:
                 write(noisy, output, take=loaded.take, forbid=sources)
                 outputs.append(str(output))
