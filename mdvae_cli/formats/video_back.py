@@ -14,7 +14,7 @@ the old pose that would now contradict it (vertices, joints from the pose, netwo
 are left out with a note; the pipeline's other per-frame estimates (2D and 3D keypoints it
 detected, boxes, cameras) stay as they came. Frames a WHAM or ROMP track lacks (gaps in its
 frame ids) get a row each, filled by the cleaning, its other arrays (betas, the camera its
-camera-frame copy follows) the nearest row's (:func:`gap_rows_added`); the other layouts
+camera-frame copy follows) the nearest row's (``video_rows.gap_rows_added``); the other layouts
 keep their rows per detection (a PHALP frame's list of people), and get none.
 
     doc = loaded.document                        # formats.registry.read of a video file
@@ -29,7 +29,7 @@ from __future__ import annotations
 import copy
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,12 +37,12 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_write import write_data
-from mdvae_cli.formats.npz_holes import HOLES
 from mdvae_cli.formats.video_layout import track_items
 from mdvae_cli.formats.video_rows import (
     Rows,
     camera_follows,
     file_rows,
+    gap_rows_added,
     like,
     put_axis_angle,
     put_body,
@@ -50,6 +50,7 @@ from mdvae_cli.formats.video_rows import (
     put_root,
     shifted,
     stacked,
+    track_ids,
 )
 from mdvae_cli.formats.video_tracks import RawTrack
 from mdvae_cli.motion.motion import Motion
@@ -217,15 +218,9 @@ def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 
 
 def _romp_track(data: dict, raw: RawTrack) -> dict:
-    """A ROMP file's ``sequence_results`` copied into ``data`` (it comes in a 0-d object
-    array, which :func:`containers_copied` does not open) and the track's dict in it."""
+    """The track's dict in a ROMP file's ``sequence_results`` (a dict in a 0-d object array)."""
     holder = data["sequence_results"]
-    boxed = isinstance(holder, np.ndarray)
-    seq = containers_copied(holder.item() if boxed else holder)
-    if boxed:
-        holder = np.empty((), dtype=object)
-        holder[()] = seq
-    data["sequence_results"] = holder if boxed else seq
+    seq = holder.item() if isinstance(holder, np.ndarray) else holder
     return next(v for k, v in seq.items() if str(k) == raw.label)
 
 
@@ -302,7 +297,7 @@ def write_video(
                              "too, as the nearest frame the file has)")  # fmt: skip
         rows = file_rows(raw, before, after)
         PUTTERS[doc.format](data, raw, rows, notes)
-        gaps = before.num_frames - len(np.unique(_ids(raw)))
+        gaps = before.num_frames - len(np.unique(track_ids(raw)))
         if gaps > 0:
             holder = ("an .npz output holds them filled" if OWN_CONTAINER[doc.format] != "npz"
                       else "the AMASS-style .npz of `mdvae import` holds them for denoise to "
@@ -329,59 +324,10 @@ ROWS_ADDED: dict[str, tuple[Callable[[Any, RawTrack], dict], str, tuple[str, ...
 }
 
 
-def gap_rows_added(
-    d: dict,
-    raw: RawTrack,
-    before: Motion,
-    after: Motion,
-    ids_key: str = "frame_ids",
-    leave: tuple[str, ...] = (),
-) -> tuple[RawTrack, Motion, int]:
-    """A track's dict (``d``, changed in place: its per-row arrays replaced) with a row for
-    each frame missing from its frame ids that ``after`` fills (finite there), in frame
-    order. A new row starts as a copy of the nearest row the file has (its betas, its
-    camera), and the track and ``before`` are made to match, so that :func:`file_rows` then
-    puts the cleaned pose into it as into a row the cleaning moved (none for a motion whose
-    holes are to stay as they came, ``npz_holes.keep_holes``). ``ids_key``: the dict's frame
-    ids (an array or a list, kept so); arrays named in ``leave`` stay as they are (the putter
-    leaves them out); a per-frame list stays a list. -> (the track, ``before`` as the file's
-    rows now read, rows added)"""
-    ids = _ids(raw).astype(np.int64)
-    first, T = int(ids.min()), before.num_frames
-    present = np.zeros(T, bool)
-    present[ids - first] = True
-    add = ~present & np.isfinite(after.root_orient).all(1) & np.isfinite(after.trans).all(1)
-    if not add.any() or after.layout.get(HOLES) == "as read":  # --fill off: as they came
-        return raw, before, 0
-    have = np.flatnonzero(present)
-    frames = np.flatnonzero(present | add)
-    lo = have[np.clip(np.searchsorted(have, frames) - 1, 0, len(have) - 1)]
-    hi = have[np.clip(np.searchsorted(have, frames), 0, len(have) - 1)]
-    nearest = np.where(frames - lo <= hi - frames, lo, hi)
-    row_of = np.zeros(T, np.int64)
-    row_of[ids - first] = np.arange(len(ids))
-    src = row_of[nearest]  # the file's row each row of the track now copies
-    for key, value in list(d.items()):
-        if key in (*leave, ids_key) or np.ndim(value) < 1 or len(value) != len(ids):
-            continue
-        d[key] = type(value)(value[i] for i in src) if isinstance(value, list) else (
-            np.asarray(value)[src])  # fmt: skip
-    new_ids = frames + first
-    old_ids = d[ids_key]
-    d[ids_key] = ([type(old_ids[0])(i) for i in new_ids] if isinstance(old_ids, list)
-                  else new_ids.astype(np.asarray(old_ids).dtype))  # fmt: skip
-    raw = replace(raw, root=raw.root[src], body=raw.body[src],
-                  transl=np.asarray(raw.transl)[src], frame_ids=new_ids)  # fmt: skip
-    ro, pb, tr = (np.array(a, copy=True) for a in (before.root_orient, before.pose_body,
-                                                   before.trans))  # fmt: skip
-    ro[frames], pb[frames], tr[frames] = ro[nearest], pb[nearest], tr[nearest]
-    return raw, before.with_body(root_orient=ro, pose_body=pb, trans=tr), int(add.sum())
-
-
 def containers_copied(obj: Any) -> Any:
-    """``obj`` with its dicts and lists copied at every depth and its arrays shared: what the
-    putters change they replace, never write into, so a file's large arrays (WHAM's vertices)
-    are not held twice."""
+    """``obj`` with its dicts, lists and boxed objects (0-d object arrays) copied at every
+    depth and its other arrays shared: what the putters change they replace, never write
+    into, so a file's large arrays (WHAM's vertices) are not held twice."""
     if isinstance(obj, dict):
         out = copy.copy(obj)  # keeps the dict's type (OrderedDict, defaultdict)
         for k, v in obj.items():
@@ -389,10 +335,8 @@ def containers_copied(obj: Any) -> Any:
         return out
     if isinstance(obj, list):
         return [containers_copied(v) for v in obj]
+    if isinstance(obj, np.ndarray) and obj.dtype.hasobject and obj.ndim == 0:
+        box = np.empty((), dtype=object)  # np.savez's boxed dict (ROMP): opened too
+        box[()] = containers_copied(obj.item())
+        return box
     return obj
-
-
-def _ids(raw: RawTrack) -> np.ndarray:
-    if raw.frame_ids is None:
-        return np.arange(raw.num_frames)
-    return np.asarray(raw.frame_ids).reshape(-1)

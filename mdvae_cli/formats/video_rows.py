@@ -11,12 +11,13 @@ for bit. Camera-frame copies of a world-frame pose follow by the file's own per-
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.npz_holes import HOLES
 from mdvae_cli.formats.video_tracks import RawTrack, up_to_z
 from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
@@ -48,11 +49,8 @@ def file_rows(raw: RawTrack, before: Motion, after: Motion) -> Rows:
             f"{before.num_frames}: it cannot go back in the file's own form (write .npz)"
         )
     R = raw.num_frames
-    if raw.frame_ids is None:
-        idx = np.arange(R)
-    else:
-        ids = np.asarray(raw.frame_ids).reshape(-1).astype(np.int64)
-        idx = ids - ids.min()
+    ids = track_ids(raw).astype(np.int64)
+    idx = ids - ids.min()
     ok = np.isfinite(after.root_orient[idx]).all(1) & np.isfinite(after.trans[idx]).all(1)
     root_moved = ok & np.any(after.root_orient[idx] != before.root_orient[idx], axis=1)
     moved_t = ok & np.any(after.trans[idx] != before.trans[idx], axis=1)
@@ -174,3 +172,59 @@ def like(old: Any, new: np.ndarray) -> Any:
         return type(old)(np.asarray(n).astype(np.asarray(o).dtype).reshape(np.shape(o))
                          for o, n in zip(old, new, strict=True))  # fmt: skip
     return np.asarray(new).astype(np.asarray(old).dtype).reshape(np.shape(old))
+
+
+def gap_rows_added(
+    d: dict,
+    raw: RawTrack,
+    before: Motion,
+    after: Motion,
+    ids_key: str = "frame_ids",
+    leave: tuple[str, ...] = (),
+) -> tuple[RawTrack, Motion, int]:
+    """A track's dict (``d``, changed in place: its per-row arrays replaced) with a row for
+    each frame missing from its frame ids that ``after`` fills (finite there), in frame
+    order. A new row starts as a copy of the nearest row the file has (its betas, its
+    camera), and the track and ``before`` are made to match, so that :func:`file_rows` then
+    puts the cleaned pose into it as into a row the cleaning moved (none for a motion whose
+    holes are to stay as they came, ``npz_holes.keep_holes``). ``ids_key``: the dict's frame
+    ids (an array or a list, kept so); arrays named in ``leave`` stay as they are (the putter
+    leaves them out); a per-frame list stays a list. -> (the track, ``before`` as the file's
+    rows now read, rows added)"""
+    ids = track_ids(raw).astype(np.int64)
+    first, T = int(ids.min()), before.num_frames
+    present = np.zeros(T, bool)
+    present[ids - first] = True
+    add = ~present & np.isfinite(after.root_orient).all(1) & np.isfinite(after.trans).all(1)
+    if not add.any() or after.layout.get(HOLES) == "as read":  # --fill off: as they came
+        return raw, before, 0
+    have = np.flatnonzero(present)
+    frames = np.flatnonzero(present | add)
+    lo = have[np.clip(np.searchsorted(have, frames) - 1, 0, len(have) - 1)]
+    hi = have[np.clip(np.searchsorted(have, frames), 0, len(have) - 1)]
+    nearest = np.where(frames - lo <= hi - frames, lo, hi)
+    row_of = np.zeros(T, np.int64)
+    row_of[ids - first] = np.arange(len(ids))
+    src = row_of[nearest]  # the file's row each row of the track now copies
+    for key, value in list(d.items()):
+        if key in (*leave, ids_key) or np.ndim(value) < 1 or len(value) != len(ids):
+            continue
+        d[key] = type(value)(value[i] for i in src) if isinstance(value, list) else (
+            np.asarray(value)[src])  # fmt: skip
+    new_ids = frames + first
+    old_ids = d[ids_key]
+    d[ids_key] = ([type(old_ids[0])(i) for i in new_ids] if isinstance(old_ids, list)
+                  else new_ids.astype(np.asarray(old_ids).dtype))  # fmt: skip
+    raw = replace(raw, root=raw.root[src], body=raw.body[src],
+                  transl=np.asarray(raw.transl)[src], frame_ids=new_ids)  # fmt: skip
+    ro, pb, tr = (np.array(a, copy=True) for a in (before.root_orient, before.pose_body,
+                                                   before.trans))  # fmt: skip
+    ro[frames], pb[frames], tr[frames] = ro[nearest], pb[nearest], tr[nearest]
+    return raw, before.with_body(root_orient=ro, pose_body=pb, trans=tr), int(add.sum())
+
+
+def track_ids(raw: RawTrack) -> np.ndarray:
+    """A track's frame ids, one per row (consecutive from 0 when the file has none)."""
+    if raw.frame_ids is None:
+        return np.arange(raw.num_frames)
+    return np.asarray(raw.frame_ids).reshape(-1)
