@@ -12,7 +12,7 @@ from conftest import motion_arrays
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.geometry.rotations import rotvec_to_quat
+from mdvae_cli.geometry.rotations import rotvec_to_quat, rotvec_unwrap
 from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
 from mdvae_cli.infer.fill import (
     CURVE_NOISE_RAD,
@@ -186,6 +186,10 @@ def test_a_clean_takes_fast_joint_is_filled_from_its_own_frames():
     )
     share, _ = result_shares(with_holes(noisy, mask))
     assert share[1:].min() > 0.9 and share[0] < 1e-3  # the root came clean
+    # the blend's own unwrap of the take, handed over, gives the same shares
+    unwrapped = rotvec_unwrap(torch.as_tensor(noisy.joint_rotations), 0).numpy()
+    again, _ = result_shares(with_holes(noisy, mask), unwrapped)
+    np.testing.assert_array_equal(again, share)
 
 
 @pytest.fixture(scope="module")

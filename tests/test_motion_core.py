@@ -9,6 +9,7 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.npz_io import load_motion, save_motion
+from mdvae_cli.geometry.rotations import rotvec_slerp
 from mdvae_cli.model.state import (
     POSE_VEL,
     STATE_DIM,
@@ -19,7 +20,7 @@ from mdvae_cli.model.state import (
 )
 from mdvae_cli.model.windows import canonicalize, heading, uncanonicalize, window_starts
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.motion.resample import resample_motion
+from mdvae_cli.motion.resample import interp_rotvec, resample_motion
 
 
 def write_npz(path, **arrays):
@@ -147,6 +148,23 @@ def test_resample_constant_speed_rotation_and_translation():
     np.testing.assert_allclose(r.trans[:, 0], 2.0 * t30, atol=1e-9)
     back = resample_motion(r, 120.0)
     np.testing.assert_allclose(back.pose_body[:, 3, 2], 1.5 * t, atol=1e-9)
+
+
+def test_interp_rotvec_on_frames_is_the_slerp_without_working_it_out():
+    """Times on a frame (a 120 Hz take read at 30 Hz) take the frame as the slerp gives it
+    back, wrapped to at most half a turn; times between frames are slerped."""
+    rng = np.random.default_rng(0)
+    r = rng.normal(size=(40, 5, 3)) * 2.0  # about half of them past half a turn
+    assert (np.linalg.norm(r, axis=-1) > np.pi).mean() > 0.3
+    at = np.concatenate([np.arange(0, 40, 4.0), [0.5, 2.25, 38.9, 39.0]])
+    i0 = np.floor(at).astype(int)
+    i1 = np.minimum(i0 + 1, 39)
+    R = torch.as_tensor(r)
+    w = torch.as_tensor(at - i0)[:, None].expand(len(at), 5)
+    want = rotvec_slerp(R[i0], R[i1], w).numpy()
+    got = interp_rotvec(r, at)
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert np.linalg.norm(got, axis=-1).max() <= np.pi + 1e-12
 
 
 def test_state_round_trip_and_velocities():

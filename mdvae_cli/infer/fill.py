@@ -121,7 +121,7 @@ def mix_by_noise(from_input: Motion, from_result: Motion, source: Motion) -> Mot
     )
 
 
-def result_shares(source: Motion) -> tuple[np.ndarray, float]:
+def result_shares(source: Motion, unwrapped: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """The result curve's share in each joint's holes and in the translation's.
 
     A joint's share is s^4 / (s^4 + c^4) for its own noise s (``noise_variance`` of its
@@ -134,10 +134,13 @@ def result_shares(source: Motion) -> tuple[np.ndarray, float]:
     its own frames, joint by joint, as a studio's spline fill would.
     The translation's share is t^4 / (t^4 + :data:`CURVE_NOISE_M`^4) for its own noise t.
 
+    unwrapped: the source's rotation vectors unwrapped in time (T, 22, 3), when at hand.
     -> ((22,) shares, the translation's)"""
-    src = source.joint_rotations
     seen = observed(source)
-    s2 = noise_variance(rotvec_unwrap(torch.as_tensor(src, dtype=torch.float64), 0).numpy(), seen)
+    if unwrapped is None:
+        src = torch.as_tensor(source.joint_rotations, dtype=torch.float64)
+        unwrapped = rotvec_unwrap(src, 0).numpy()
+    s2 = noise_variance(unwrapped, seen)
     take2 = float(np.median(s2))
     share = s2**2 / (s2**2 + CURVE_NOISE_RAD**4) * take2**4 / (take2**4 + TAKE_NOISE_RAD**8)
     t2 = float(noise_variance(np.asarray(source.trans, float)[:, None, :], seen[:, :1])[0])
@@ -145,7 +148,11 @@ def result_shares(source: Motion) -> tuple[np.ndarray, float]:
 
 
 def fill_spikes(
-    source: Motion, blended: Motion, spikes: np.ndarray, trans_spikes: np.ndarray
+    source: Motion,
+    blended: Motion,
+    spikes: np.ndarray,
+    trans_spikes: np.ndarray,
+    unwrapped: np.ndarray | None = None,
 ) -> Motion:
     """``blended`` (the blend of ``source``'s denoised motion) with the source's spikes (T, 22)
     and its translation's (T,) filled as short holes: a spike is an observation the input
@@ -157,11 +164,12 @@ def fill_spikes(
     motion can be tens of degrees off), a noisy take's keeps the denoiser's frame. Vectorised
     over spikes (a clean take of fast motion has one every ~300 joint-frames). The result
     keeps ``blended``'s mask; a spike without two observed frames on each side within
-    :data:`SPIKE_SPAN` frames keeps the blended frame."""
+    :data:`SPIKE_SPAN` frames keeps the blended frame. unwrapped: the source's rotation
+    vectors unwrapped in time (T, 22, 3), when at hand (the blend's)."""
     seen = observed(source)
     marked = source.with_body()
     marked.joint_mask = seen & ~spikes & ~trans_spikes[:, None]
-    share, share_t = result_shares(marked)
+    share, share_t = result_shares(marked, unwrapped)
     rot_src = source.joint_rotations
     rot = blended.joint_rotations.copy()
     for j in np.flatnonzero(spikes.any(axis=0)):

@@ -225,6 +225,12 @@ def blend_rotations(
     value (taken from the denoiser, as at a spike), or None -> (blended (T, J, 3), the share
     of the slow difference put back (T, J): 0 = the denoiser's, 1 = the input's; spikes (T, J))
     """
+    return _blend_rotations(source, denoised, fps, fast, missing)[:3]
+
+
+def _blend_rotations(source, denoised, fps, fast, missing):
+    """:func:`blend_rotations`, and the source's unwrapped rotation vectors it read the noise
+    from (T, J, 3), which the spikes' fill reads again."""
     src = torch.as_tensor(source, dtype=torch.float64)
     den = torch.as_tensor(denoised, dtype=torch.float64)
     conjugate = torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
@@ -255,7 +261,7 @@ def blend_rotations(
         frames = slice(a, a + CACHE_FRAMES)
         q_kept = rotvec_to_quat(torch.as_tensor(kept[frames]))
         out[frames] = quat_to_rotvec(quat_multiply(rotvec_to_quat(den[frames]), q_kept)).numpy()
-    return out, share, spikes
+    return out, share, spikes, unwrapped
 
 
 def blend_translation(
@@ -292,7 +298,7 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
     rot_src = source.joint_rotations
     rot_den = denoised.joint_rotations
     missing = None if source.joint_mask is None else ~np.asarray(source.joint_mask, bool)
-    rot, share, spikes = blend_rotations(rot_src, rot_den, source.fps, fast, missing)
+    rot, share, spikes, unwrapped = _blend_rotations(rot_src, rot_den, source.fps, fast, missing)
     trans, _, trans_spikes = blend_translation(
         np.asarray(source.trans, np.float64),
         np.asarray(denoised.trans, np.float64),
@@ -307,5 +313,5 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
         trans=trans.astype(denoised.trans.dtype),
     )
     if spikes.any() or trans_spikes.any():
-        out = fill_spikes(source, out, spikes, trans_spikes)
+        out = fill_spikes(source, out, spikes, trans_spikes, unwrapped)
     return out, BlendReport(float(share.mean()), float(spikes.any(axis=1).mean()))

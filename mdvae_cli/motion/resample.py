@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from mdvae_cli.geometry.rotations import rotvec_slerp
+from mdvae_cli.geometry.rotations import rotvec_slerp, rotvec_wrap
 from mdvae_cli.motion.motion import Motion
 
 
@@ -56,9 +56,16 @@ def interp_rotvec(rotvecs: np.ndarray, src: np.ndarray) -> np.ndarray:
     """Slerp axis-angles along axis 0 at fractional indices.  (T, ..., 3), (T',) -> (T', ..., 3)"""
     i0 = np.clip(np.floor(src).astype(int), 0, len(rotvecs) - 1)
     i1 = np.clip(i0 + 1, 0, len(rotvecs) - 1)
-    w = torch.as_tensor(src - i0).reshape(-1, *([1] * (rotvecs.ndim - 2)))
     r = torch.as_tensor(rotvecs, dtype=torch.float64)
-    return rotvec_slerp(r[i0], r[i1], w.expand(r[i0].shape[:-1])).numpy()
+    # a time on a frame (w = 0) is that frame, wrapped as the slerp wraps it (a 120 Hz take
+    # read at 30 Hz has no other)
+    out = rotvec_wrap(r[i0]).numpy()
+    between = np.flatnonzero(src - i0 > 0.0)
+    if len(between):
+        w = torch.as_tensor(src[between] - i0[between]).reshape(-1, *([1] * (rotvecs.ndim - 2)))
+        a, b = r[i0[between]], r[i1[between]]
+        out[between] = rotvec_slerp(a, b, w.expand(a.shape[:-1])).numpy()
+    return out
 
 
 def resample_motion(motion: Motion, fps_out: float) -> Motion:
