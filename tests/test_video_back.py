@@ -196,6 +196,39 @@ def test_wham_gaps_get_rows_filled_and_other_tracks_stay_as_they_came(tmp_path):
     assert np.array_equal(load_data(tmp_path / "kept.pkl")[np.int64(3)]["frame_ids"], ids)
 
 
+@pytest.mark.parametrize("matrices", [False, True], ids=["vibe", "pare"])
+def test_vibe_and_pare_gaps_get_rows_filled(tmp_path, matrices):
+    """A VIBE (axis-angle) or PARE (matrices) track with 4 frames missing from its frame ids:
+    written back with a row for each, the cleaned fill in its pose, its other arrays (the
+    weak-perspective camera, betas) the nearest row's; the rows the file had keep theirs."""
+    m = vf.clip(24, seed=8)
+    ids = np.r_[0:8, 12:28]
+    name = "pare_output.pkl" if matrices else "vibe_output.pkl"
+    src = vf.write_vibe(tmp_path / name, m, matrices=matrices, ids=ids)
+    data = load_data(src)
+    data[1]["orig_cam"][:, 2] = np.linspace(0.1, 0.2, 24)  # a camera that zooms: rows differ
+    write_data(data, src, "joblib")
+    loaded = read(src)
+    ((label, track),) = loaded.tracks
+    assert track.num_frames == 28
+    new, _ = edited(track, every=2)
+    notes = write(type(loaded)(src, "vibe", "video", [(label, new)], document=loaded.document),
+                  tmp_path / "clean.pkl")  # fmt: skip
+    assert any("4 frame(s) missing from the file's frame ids added as rows" in n for n in notes)
+    old, out = load_data(src)[1], load_data(tmp_path / "clean.pkl")[1]
+    assert np.array_equal(out["frame_ids"], np.arange(28))
+    assert out["frame_ids"].dtype == old["frame_ids"].dtype
+    assert out["pose"].shape[0] == 28 and out["pose"].dtype == old["pose"].dtype
+    assert "joints3d" not in out  # made from the old pose: left out, not grown
+    # frames 8-11 copy the nearest rows the file has (7, 7, 12, 12 -> rows 7, 7, 8, 8)
+    assert np.array_equal(out["orig_cam"][8:12], old["orig_cam"][[7, 7, 8, 8]])
+    assert np.array_equal(out["orig_cam"][12:], old["orig_cam"][8:])
+    back = dict(read(tmp_path / "clean.pkl").tracks)[label]
+    assert back.num_frames == 28
+    assert same_rotations(back.root_orient, new.root_orient) < 2e-6
+    assert same_rotations(back.pose_body, new.pose_body) < 2e-6
+
+
 def test_nearest_axis_angle_keeps_a_half_turn_from_jumping():
     old = np.array([[0.0, 0.0, np.pi - 0.01]])
     new = np.array([[0.0, 0.0, -(np.pi - 0.02)]])  # nearly the same rotation, the other way

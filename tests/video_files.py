@@ -219,9 +219,9 @@ def write_phalp(path: Path, tracks: dict) -> Path:
     return path
 
 
-def write_vibe(path: Path, m: Motion, matrices: bool = False) -> Path:
+def write_vibe(path: Path, m: Motion, matrices: bool = False, ids=None) -> Path:
     """vibe_output.pkl / pare_output.pkl (joblib): pose axis-angles (VIBE) or matrices (PARE),
-    orig_cam, no translation."""
+    orig_cam, no translation; ``ids``: the frame ids of m's frames (default 0, 1, ...)."""
     T = m.num_frames
     root, _ = to_source(m, CAMERA_UP)
     pose = smpl_mats(root, m) if matrices else smpl72(root, m)
@@ -231,7 +231,7 @@ def write_vibe(path: Path, m: Motion, matrices: bool = False) -> Path:
             "betas": np.tile(m.betas, (T, 1)).astype(np.float32),
             "orig_cam": np.tile([0.5, 0.5, 0.1, -0.2], (T, 1)).astype(np.float32),
             "pred_cam": np.zeros((T, 3), np.float32),
-            "frame_ids": np.arange(T),
+            "frame_ids": np.arange(T) if ids is None else np.asarray(ids),
             "joints3d": np.zeros((T, 49, 3), np.float32),
         }
     }

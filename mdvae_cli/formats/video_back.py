@@ -12,10 +12,11 @@ per-frame camera: ``R_c = R_cam R_world^T`` from the file's two roots, the new c
 ``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``. Arrays derived from
 the old pose that would now contradict it (vertices, joints from the pose, network internals)
 are left out with a note; the pipeline's other per-frame estimates (2D and 3D keypoints it
-detected, boxes, cameras) stay as they came. Frames a WHAM or ROMP track lacks (gaps in its
-frame ids) get a row each, filled by the cleaning, its other arrays (betas, the camera its
-camera-frame copy follows) the nearest row's (``video_rows.gap_rows_added``); the other layouts
-keep their rows per detection (a PHALP frame's list of people), and get none.
+detected, boxes, cameras) stay as they came. Frames a WHAM, VIBE / PARE or ROMP track lacks
+(gaps in its frame ids) get a row each, filled by the cleaning, its other arrays (betas, the
+camera its camera-frame copy follows, VIBE's weak-perspective camera and boxes) the nearest
+row's (``video_rows.gap_rows_added``); the other layouts keep their rows per detection (a PHALP
+frame's list of people), and get none.
 
     doc = loaded.document                        # formats.registry.read of a video file
     notes = write_video(doc, {label: cleaned}, Path("clean.pkl"))
@@ -320,6 +321,7 @@ def write_video(
 #: frame ids, and the arrays left as they are (the putter leaves them out: not worth growing)
 ROWS_ADDED: dict[str, tuple[Callable[[Any, RawTrack], dict], str, tuple[str, ...]]] = {
     "wham": (_track_dict, "frame_ids", ("verts",)),
+    "vibe": (_track_dict, "frame_ids", ("verts", "joints3d")),
     "romp": (_romp_track, "frame_id", ()),
 }
 
