@@ -229,6 +229,43 @@ def test_vibe_and_pare_gaps_get_rows_filled(tmp_path, matrices):
     assert same_rotations(back.pose_body, new.pose_body) < 2e-6
 
 
+def test_phalp_gaps_get_entries_in_their_frames(tmp_path):
+    """A PHALP track missing from 4 frames that hold another person: written back with an
+    entry of its own in each of them (its lists as long as the frame's ``tid``), the cleaned
+    fill in its ``smpl``, its camera and box the nearest frame's; the other person's entries
+    stay as they came; left unfilled (--fill off) no entry is added."""
+    a, b = vf.clip(21, seed=3), vf.clip(25, seed=4)
+    ids_a = [*range(0, 10), *range(14, 25)]
+    src = vf.write_phalp(tmp_path / "demo.pkl", {"1": (a, ids_a), "2": (b, list(range(25)))})
+    loaded = read(src)
+    tracks = dict(loaded.tracks)
+    assert tracks["1"].num_frames == 25
+    new, _ = edited(tracks["1"], every=2)
+    notes = write(type(loaded)(src, "phalp", "video", [("1", new)], document=loaded.document),
+                  tmp_path / "clean.pkl")  # fmt: skip
+    assert any("4 frame(s) missing from the file's frame ids added as rows" in n for n in notes)
+    old, out = load_data(src), load_data(tmp_path / "clean.pkl")
+    for t in range(25):
+        f, g = old[f"img/{t:06d}.jpg"], out[f"img/{t:06d}.jpg"]
+        assert all(len(g[k]) == len(g["tid"]) for k in ("smpl", "camera", "bbox"))
+        assert sorted(g["tid"]) == ["1", "2"]
+        i, j = f["tid"].index("2"), g["tid"].index("2")
+        assert np.array_equal(g["camera"][j], f["camera"][i])  # the other person as it came
+        assert np.array_equal(g["smpl"][j]["body_pose"], f["smpl"][i]["body_pose"])
+    nine = old["img/000009.jpg"]
+    eleven = out["img/000011.jpg"]  # nearest to frame 9 of the file's
+    assert np.array_equal(eleven["bbox"][-1], nine["bbox"][nine["tid"].index("1")])
+    back = dict(read(tmp_path / "clean.pkl").tracks)
+    assert back["1"].num_frames == 25
+    assert same_rotations(back["1"].root_orient, new.root_orient) < 2e-6
+    assert same_rotations(back["1"].pose_body, new.pose_body) < 2e-6
+    assert np.abs(back["1"].trans - new.trans).max() < 1e-5
+    kept = keep_holes(new)  # --fill off
+    write(type(loaded)(src, "phalp", "video", [("1", kept)], document=loaded.document),
+          tmp_path / "kept.pkl")  # fmt: skip
+    assert load_data(tmp_path / "kept.pkl")["img/000011.jpg"]["tid"] == ["2"]
+
+
 def test_nearest_axis_angle_keeps_a_half_turn_from_jumping():
     old = np.array([[0.0, 0.0, np.pi - 0.01]])
     new = np.array([[0.0, 0.0, -(np.pi - 0.02)]])  # nearly the same rotation, the other way

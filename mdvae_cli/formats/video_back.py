@@ -12,11 +12,11 @@ per-frame camera: ``R_c = R_cam R_world^T`` from the file's two roots, the new c
 ``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``. Arrays derived from
 the old pose that would now contradict it (vertices, joints from the pose, network internals)
 are left out with a note; the pipeline's other per-frame estimates (2D and 3D keypoints it
-detected, boxes, cameras) stay as they came. Frames a WHAM, VIBE / PARE or ROMP track lacks
-(gaps in its frame ids) get a row each, filled by the cleaning, its other arrays (betas, the
-camera its camera-frame copy follows, VIBE's weak-perspective camera and boxes) the nearest
-row's (``video_rows.gap_rows_added``); the other layouts keep their rows per detection (a PHALP
-frame's list of people), and get none.
+detected, boxes, cameras) stay as they came. Frames a WHAM, VIBE / PARE, ROMP or PHALP track
+lacks (gaps in its frame ids) get a row each, filled by the cleaning, its other arrays (betas,
+the camera its camera-frame copy follows, VIBE's weak-perspective camera and boxes, PHALP's
+per-person entries in that frame) the nearest row's (``video_rows.gap_rows_added``,
+``phalp_rows_added``).
 
     doc = loaded.document                        # formats.registry.read of a video file
     notes = write_video(doc, {label: cleaned}, Path("clean.pkl"))
@@ -45,6 +45,7 @@ from mdvae_cli.formats.video_rows import (
     file_rows,
     gap_rows_added,
     like,
+    phalp_rows_added,
     put_axis_angle,
     put_body,
     put_matrices,
@@ -289,9 +290,7 @@ def write_video(
             continue
         which = "" if label is None else f"track {label}: "
         if doc.format in ROWS_ADDED:
-            getter, ids_key, leave = ROWS_ADDED[doc.format]
-            d = getter(data, raw)
-            raw, before, added = gap_rows_added(d, raw, before, after, ids_key, leave)
+            raw, before, added = ROWS_ADDED[doc.format](data, raw, before, after)
             if added:
                 notes.append(f"{which}{added} frame(s) missing from the file's frame ids added "
                              "as rows, filled (each other array of such a row, its camera "
@@ -316,13 +315,25 @@ def write_video(
     return list(dict.fromkeys(notes))
 
 
-#: formats whose tracks get rows for the frames missing from their frame ids (each track a
-#: dict of per-row arrays or lists): how to find a track's dict in the file, the key of its
-#: frame ids, and the arrays left as they are (the putter leaves them out: not worth growing)
-ROWS_ADDED: dict[str, tuple[Callable[[Any, RawTrack], dict], str, tuple[str, ...]]] = {
-    "wham": (_track_dict, "frame_ids", ("verts",)),
-    "vibe": (_track_dict, "frame_ids", ("verts", "joints3d")),
-    "romp": (_romp_track, "frame_id", ()),
+#: ``(data, track, before, after) -> (track, before, rows added)``: rows for the frames missing
+#: from a track's frame ids, filled (``video_rows.gap_rows_added``)
+RowsAdded = Callable[[Any, RawTrack, Motion, Motion], tuple[RawTrack, Motion, int]]
+
+
+def _rows_in_dict(getter: Callable[[Any, RawTrack], dict], ids_key: str, leave=()) -> RowsAdded:
+    """Rows added to a track that is a dict of per-row arrays or lists (``getter`` finds it
+    in the file): ``ids_key`` its frame ids; ``leave`` the arrays left as they are (the
+    putter leaves them out: not worth growing)."""
+    return lambda data, raw, before, after: gap_rows_added(getter(data, raw), raw, before,
+                                                           after, ids_key, leave)  # fmt: skip
+
+
+#: formats whose tracks get rows for the frames missing from their frame ids
+ROWS_ADDED: dict[str, RowsAdded] = {
+    "wham": _rows_in_dict(_track_dict, "frame_ids", ("verts",)),
+    "vibe": _rows_in_dict(_track_dict, "frame_ids", ("verts", "joints3d")),
+    "romp": _rows_in_dict(_romp_track, "frame_id"),
+    "phalp": phalp_rows_added,
 }
 
 

@@ -73,6 +73,13 @@ def _entries(data: dict):
                 yield index, f, i, tid
 
 
+def phalp_frames(data: dict) -> dict[int, dict]:
+    """A PHALP result's frames by the frame ids :func:`read_phalp` gives its tracks."""
+    frames = sorted(data.items(), key=lambda kv: (_time(kv[1]), str(kv[0])))
+    return {(_time(f) if _time(f) >= 0 else index): f
+            for index, (_, f) in enumerate(frames) if isinstance(f, dict)}  # fmt: skip
+
+
 def phalp_entries(data: dict, label: str | None) -> list[tuple[dict, int]]:
     """The entries of one track of a PHALP result, in the order :func:`read_phalp` reads
     them (its rows): (frame dict, index in the frame's lists)."""
