@@ -156,8 +156,8 @@ def test_interp_rotvec_on_frames_is_the_slerp_without_working_it_out():
     rng = np.random.default_rng(0)
     r = rng.normal(size=(40, 5, 3)) * 2.0  # about half of them past half a turn
     assert (np.linalg.norm(r, axis=-1) > np.pi).mean() > 0.3
-    at = np.concatenate([np.arange(0, 40, 4.0), [0.5, 2.25, 38.9, 39.0]])
-    i0 = np.floor(at).astype(int)
+    at = np.concatenate([np.arange(0, 40, 4.0), [0.5, 2.25, 38.9, 39.0, -0.5]])
+    i0 = np.clip(np.floor(at).astype(int), 0, 39)  # before the first frame: extrapolated
     i1 = np.minimum(i0 + 1, 39)
     R = torch.as_tensor(r)
     w = torch.as_tensor(at - i0)[:, None].expand(len(at), 5)

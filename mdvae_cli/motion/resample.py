@@ -60,7 +60,7 @@ def interp_rotvec(rotvecs: np.ndarray, src: np.ndarray) -> np.ndarray:
     # a time on a frame (w = 0) is that frame, wrapped as the slerp wraps it (a 120 Hz take
     # read at 30 Hz has no other)
     out = rotvec_wrap(r[i0]).numpy()
-    between = np.flatnonzero(src - i0 > 0.0)
+    between = np.flatnonzero(src - i0 != 0.0)
     if len(between):
         w = torch.as_tensor(src[between] - i0[between]).reshape(-1, *([1] * (rotvecs.ndim - 2)))
         a, b = r[i0[between]], r[i1[between]]
