@@ -22,6 +22,8 @@ from mdvae_cli.formats.data_write import pickle_bytes
 from mdvae_cli.formats.npz_io import motion_from_arrays
 from mdvae_cli.formats.video_tracks import CAMERA_UP, Y_UP, rest_pelvis, up_to_z
 from mdvae_cli.geometry.rotations import rotmat_to_rotvec, rotvec_to_rotmat
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec as np_rotmat_to_rotvec
+from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat as np_rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
 
 BODY = builtin_body_model()
@@ -287,3 +289,23 @@ def write_aistpp(path: Path, m: Motion, scale: float = 90.0) -> Path:
     }
     path.write_bytes(pickle.dumps(d, protocol=4))
     return path
+
+
+def edited(m: Motion, every: int = 3) -> tuple[Motion, np.ndarray]:
+    """``m`` with every ``every``-th frame turned 0.2 rad about z, moved 5 cm and one knee
+    bent 0.1 rad more; -> (the copy, the frames changed)."""
+    sel = np.arange(m.num_frames) % every == 0
+    root, body, trans = m.root_orient.copy(), m.pose_body.copy(), m.trans.copy()
+    root[sel] = np_rotmat_to_rotvec(np_rotvec_to_rotmat(np.array([0, 0, 0.2]))
+                                 @ np_rotvec_to_rotmat(root[sel]))  # fmt: skip
+    trans[sel] += [0.05, -0.03, 0.02]
+    body[sel, 3, 0] += 0.1
+    return m.with_body(root_orient=root, pose_body=body, trans=trans), sel
+
+
+def same_rotations(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest angle (rad) between the rotations of two axis-angle arrays (..., 3)."""
+    d = np_rotvec_to_rotmat(a.reshape(-1, 3)).transpose(0, 2, 1) @ np_rotvec_to_rotmat(
+        b.reshape(-1, 3)
+    )
+    return float(np.abs(np_rotmat_to_rotvec(d)).max())

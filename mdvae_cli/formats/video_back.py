@@ -39,6 +39,7 @@ import numpy as np
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_write import write_data
 from mdvae_cli.formats.video_layout import track_items
+from mdvae_cli.formats.video_people import phalp_entries
 from mdvae_cli.formats.video_rows import (
     Rows,
     camera_follows,
@@ -197,8 +198,6 @@ def put_tram(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     """4D-Humans / PHALP: the track's rows are its entries in the frames taken in the
     reader's order (``video_people.read_phalp``); each entry's ``smpl`` and ``camera``."""
-    from mdvae_cli.formats.video_people import phalp_entries
-
     for row, (frame, i) in enumerate(phalp_entries(data, raw.label)):
         if isinstance(frame["camera"], np.ndarray):  # shared with the file as read: a copy
             frame["camera"] = frame["camera"].copy()

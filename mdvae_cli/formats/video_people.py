@@ -26,14 +26,14 @@ def read_phalp(data: dict, label: str) -> list[RawTrack]:
     (1, 3, 3), body_pose (23, 3, 3), betas}], camera [(3,)], ...}}, camera frame; frames are
     grouped into tracks by ``tid``."""
     per: dict[str, dict[str, list]] = {}
-    for index, f, i, tid in _entries(data):
+    for frame_id, f, i, tid in _entries(data):
         smpl = f["smpl"][i]
         t = per.setdefault(str(tid), {"root": [], "body": [], "betas": [], "cam": [], "frame": []})
         t["root"].append(np.asarray(smpl["global_orient"]).reshape(3, 3))
         t["body"].append(np.asarray(smpl["body_pose"]).reshape(23, 3, 3))
         t["betas"].append(np.asarray(smpl["betas"]).reshape(-1))
         t["cam"].append(np.asarray(f["camera"][i]).reshape(3))
-        t["frame"].append(_time(f) if _time(f) >= 0 else index)
+        t["frame"].append(frame_id)
     if not per:
         raise InputError(f"{label}: no tracked person with SMPL parameters in the file")
     tracks = []
@@ -62,22 +62,20 @@ def read_phalp(data: dict, label: str) -> list[RawTrack]:
 
 def _entries(data: dict):
     """Every person entry of a PHALP result with SMPL parameters and a camera, frames in
-    time order: (frame's place, frame dict, index in its lists, track id)."""
-    frames = sorted(data.items(), key=lambda kv: (_time(kv[1]), str(kv[0])))
-    for index, (_, f) in enumerate(frames):
-        if not isinstance(f, dict):
-            continue
+    time order: (frame id, frame dict, index in its lists, track id)."""
+    for frame_id, f in phalp_frames(data):
         for i, tid in enumerate(f.get("tid", [])):
             smpl = f.get("smpl", [None] * (i + 1))[i]
             if isinstance(smpl, dict) and i < len(f.get("camera", [])):
-                yield index, f, i, tid
+                yield frame_id, f, i, tid
 
 
-def phalp_frames(data: dict) -> dict[int, dict]:
-    """A PHALP result's frames by the frame ids :func:`read_phalp` gives its tracks."""
+def phalp_frames(data: dict) -> list[tuple[int, dict]]:
+    """A PHALP result's frames in time order, each with the frame id its tracks' rows get:
+    its ``time``, or its place in that order where it has none."""
     frames = sorted(data.items(), key=lambda kv: (_time(kv[1]), str(kv[0])))
-    return {(_time(f) if _time(f) >= 0 else index): f
-            for index, (_, f) in enumerate(frames) if isinstance(f, dict)}  # fmt: skip
+    return [(_time(f) if _time(f) >= 0 else index, f)
+            for index, (_, f) in enumerate(frames) if isinstance(f, dict)]  # fmt: skip
 
 
 def phalp_entries(data: dict, label: str | None) -> list[tuple[dict, int]]:

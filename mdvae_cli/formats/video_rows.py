@@ -19,6 +19,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.npz_holes import HOLES
+from mdvae_cli.formats.video_people import phalp_entries, phalp_frames
 from mdvae_cli.formats.video_tracks import RawTrack, up_to_z
 from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import Motion
@@ -265,9 +266,7 @@ def phalp_rows_added(
     each frame it is missing from that the file has and the cleaning fills: in that frame's
     per-person lists (those as long as its ``tid``; all of them in a frame with nobody), a
     copy of the track's entry in the nearest frame it has. -> as :func:`gap_rows_added`"""
-    from mdvae_cli.formats.video_people import phalp_entries, phalp_frames
-
-    frames = phalp_frames(data)
+    frames = dict(phalp_frames(data))
     first = int(track_ids(raw).min())
     allowed = np.isin(np.arange(before.num_frames) + first, list(frames))
     plan = gap_rows(raw, before, after, allowed)
@@ -277,9 +276,9 @@ def phalp_rows_added(
     new = plan.frames != plan.nearest
     for frame_id, src in zip(plan.ids[new], plan.src[new], strict=True):
         into, (have, i) = frames[int(frame_id)], entries[src]
-        people = len(into.get("tid", []))
+        people, theirs = len(into.get("tid", [])), len(have["tid"])
         for key, value in have.items():
-            if not isinstance(value, list | np.ndarray) or len(value) != len(have["tid"]):
+            if not isinstance(value, list | np.ndarray) or len(value) != theirs:
                 continue
             if key not in into and people == 0:
                 into[key] = []

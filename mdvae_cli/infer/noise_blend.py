@@ -228,7 +228,13 @@ def blend_rotations(
     return _blend_rotations(source, denoised, fps, fast, missing)[:3]
 
 
-def _blend_rotations(source, denoised, fps, fast, missing):
+def _blend_rotations(
+    source: np.ndarray,
+    denoised: np.ndarray,
+    fps: float,
+    fast: bool,
+    missing: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`blend_rotations`, and the source's unwrapped rotation vectors it read the noise
     from (T, J, 3), which the spikes' fill reads again."""
     src = torch.as_tensor(source, dtype=torch.float64)
