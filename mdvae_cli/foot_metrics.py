@@ -79,15 +79,26 @@ class FootScores:
 
 
 def foot_scores(
-    joints: np.ndarray, soles: np.ndarray, contacts: np.ndarray, floor: float, fps: float
+    joints: np.ndarray,
+    soles: np.ndarray,
+    contacts: np.ndarray,
+    floor: float,
+    fps: float,
+    scored: np.ndarray | None = None,
 ) -> FootScores:
     """Foot skate, penetration and float of one motion, given where the feet are down.
 
     joints: (T, 22, 3) and soles: (T, 2) lowest sole points, of the motion scored; contacts:
-    (T, 4) bool (``FOOT_JOINTS`` order) and floor (z, m), usually the ground truth's.
+    (T, 4) bool (``FOOT_JOINTS`` order) and floor (z, m), usually the ground truth's;
+    scored: (T,) bool, the frames that count (all when None): contacts elsewhere are
+    ignored, and penetration averages over these frames only.
     """
+    soles = np.asarray(soles, dtype=np.float64)
+    keep = np.ones(len(soles), bool) if scored is None else np.asarray(scored, bool)
+    contacts = np.asarray(contacts, bool) & keep[:, None]
     speeds = contact_slide_speeds(joints, contacts, fps)
-    heights = float_heights(soles, floor, foot_of_joints(contacts))
+    soles = soles[keep]
+    heights = float_heights(soles, floor, foot_of_joints(contacts)[keep])
     return FootScores(
         skate_sum=float(speeds.sum()),
         slides=int((speeds > SLIDE_SPEED).sum()),
@@ -95,7 +106,7 @@ def foot_scores(
         penetration_sum=float(penetration_depths(soles, floor).sum()),
         float_sum=float(heights.sum()),
         contact_frames=int(heights.size),
-        num_frames=int(np.asarray(soles).shape[0]),
+        num_frames=int(soles.shape[0]),
     )
 
 
@@ -123,15 +134,18 @@ def compare_feet(
     pred_joints: np.ndarray,
     pred_soles: np.ndarray,
     fps: float,
+    scored: np.ndarray | None = None,
 ) -> dict:
     """The foot fields of an ``EvalResult``: contacts and floor from the ground truth.
 
-    joints (T, 22, 3), soles (T, 2) lowest sole points, z-up metres.
+    joints (T, 22, 3), soles (T, 2) lowest sole points, z-up metres; scored (T,) bool: the
+    frames that count (all when None; see :func:`foot_scores`).
     """
-    contacts = foot_contacts(gt_joints, fps)
-    floor = estimate_floor(gt_soles, foot_of_joints(contacts))
+    keep = np.ones(len(gt_soles), bool) if scored is None else np.asarray(scored, bool)
+    contacts = foot_contacts(gt_joints, fps) & keep[:, None]
+    floor = estimate_floor(np.asarray(gt_soles)[keep], foot_of_joints(contacts)[keep])
     return foot_fields(
-        foot_scores(gt_joints, gt_soles, contacts, floor, fps),
-        foot_scores(pred_joints, pred_soles, contacts, floor, fps),
+        foot_scores(gt_joints, gt_soles, contacts, floor, fps, scored),
+        foot_scores(pred_joints, pred_soles, contacts, floor, fps, scored),
         floor,
     )

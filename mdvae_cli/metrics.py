@@ -22,6 +22,7 @@ from mdvae_cli.errors import InputError
 from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, as_body_model, pose_motion_chunks
 from mdvae_cli.foot_metrics import compare_feet
 from mdvae_cli.motion.contacts import foot_vertex_ids, lowest_sole_points
+from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion, slice_frames
 
 Array = torch.Tensor | np.ndarray
@@ -114,6 +115,9 @@ class EvalResult:
     is down, cm (skate, slide, float: None without contacts); floor_m: the floor's height
     (None in a mean over several clips); contact_pairs, contact_frames: the counts the means
     of skate and float weigh by.
+    Frames missing (a hole: some body joint unobserved) in the ground truth or the prediction
+    are left out of every score: ``num_frames`` counts those scored, ``unscored_frames`` those
+    left out, ``accel_count`` the inner frames whose three frames are all scored.
     """
 
     num_frames: int
@@ -136,11 +140,16 @@ class EvalResult:
     mpjpe_root_cm: float | None = None
     contact_pairs: int = 0
     contact_frames: int = 0
+    unscored_frames: int = 0
+    accel_count: int | None = None
 
     @property
     def accel_frames(self) -> int:
-        """Number of inner frames the accelerations average over (0 when undefined)."""
-        return 0 if self.accel_gt is None else max(self.num_frames - 2, 0)
+        """Number of inner frames the accelerations average over (0 when undefined):
+        ``accel_count`` when set, else every inner frame of ``num_frames``."""
+        if self.accel_gt is None:
+            return 0
+        return max(self.num_frames - 2, 0) if self.accel_count is None else self.accel_count
 
     def to_dict(self) -> dict[str, float | int | None]:
         return asdict(self)
@@ -183,6 +192,12 @@ def common_rate(gt: Motion, pred: Motion) -> tuple[Motion, Motion, str | None]:
     return gt, pred, f"evaluated at {rate:g} fps: the {which} resampled from {fast:g} fps"
 
 
+def scored_frames(gt: Motion, pred: Motion) -> np.ndarray:
+    """(T,) bool: the frames a comparison scores, where every body joint is observed in both
+    motions (a hole in either, filled or not, is not a measurement of it)."""
+    return observed(gt).all(axis=1) & observed(pred).all(axis=1)
+
+
 def evaluate_pair(
     gt: Motion,
     pred: Motion,
@@ -191,11 +206,16 @@ def evaluate_pair(
 ) -> EvalResult:
     """Compare ``pred`` with ``gt`` through ``body`` (both posed with the ground-truth betas).
 
-    Meshes are built ``chunk_frames`` at a time, so memory does not grow with clip length; the
-    (T, 22, 3) joint tracks are kept whole for the accelerations. Raises InputError when the
-    frame rates or lengths differ.
+    Only the frames observed in both are scored (:func:`scored_frames`); accelerations on the
+    inner frames whose neighbours are scored too. Meshes are built ``chunk_frames`` at a
+    time, so memory does not grow with clip length; the (T, 22, 3) joint tracks are kept
+    whole for the accelerations. Raises InputError when the frame rates or lengths differ,
+    or when no frame is observed in both.
     """
     check_compatible(gt, pred)
+    scored = scored_frames(gt, pred)
+    if not scored.any():
+        raise InputError("no frame is observed in both the ground truth and the prediction")
     model = as_body_model(body)
     T = gt.num_frames
     sums = {"v2v": 0.0, "v2v_abs": 0.0, "mpjpe": 0.0, "mpjpe_root": 0.0}
@@ -211,31 +231,36 @@ def evaluate_pair(
     for (ids, out_gt), (_, out_pred) in chunks:
         jg, jp = out_gt.joints.double(), out_pred.joints.double()
         vg, vp = out_gt.vertices.double(), out_pred.vertices.double()
-        sums["v2v"] += float(v2v(vp, vg, jp[:, 0], jg[:, 0]).sum())
-        sums["v2v_abs"] += float(v2v(vp, vg).sum())
-        sums["mpjpe"] += float(mpjpe(jp, jg).sum())
-        sums["mpjpe_root"] += float(mpjpe(jp - jp[:, :1], jg - jg[:, :1]).sum())
+        keep = torch.as_tensor(scored[ids], dtype=torch.float64)
+        sums["v2v"] += float((v2v(vp, vg, jp[:, 0], jg[:, 0]) * keep).sum())
+        sums["v2v_abs"] += float((v2v(vp, vg) * keep).sum())
+        sums["mpjpe"] += float((mpjpe(jp, jg) * keep).sum())
+        sums["mpjpe_root"] += float((mpjpe(jp - jp[:, :1], jg - jg[:, :1]) * keep).sum())
         joints_gt[ids] = jg.numpy()
         joints_pred[ids] = jp.numpy()
         soles_gt[ids] = lowest_sole_points(vg.numpy(), *feet)
         soles_pred[ids] = lowest_sole_points(vp.numpy(), *feet)
 
+    n = int(scored.sum())
+    inner = scored[:-2] & scored[1:-1] & scored[2:] if T >= 3 else np.zeros(0, bool)
     accel_gt = accel_pred = accel_err = None
-    if T >= 3:
-        accel_gt = float(joint_acceleration(joints_gt, gt.fps).mean())
-        accel_pred = float(joint_acceleration(joints_pred, gt.fps).mean())
-        accel_err = float(acceleration_error(joints_pred, joints_gt, gt.fps).mean())
+    if inner.any():
+        accel_gt = float(joint_acceleration(joints_gt, gt.fps)[inner].mean())
+        accel_pred = float(joint_acceleration(joints_pred, gt.fps)[inner].mean())
+        accel_err = float(acceleration_error(joints_pred, joints_gt, gt.fps)[inner].mean())
     return EvalResult(
-        num_frames=T,
+        num_frames=n,
         fps=float(gt.fps),
-        v2v_cm=100.0 * sums["v2v"] / T,
-        v2v_abs_cm=100.0 * sums["v2v_abs"] / T,
-        mpjpe_cm=100.0 * sums["mpjpe"] / T,
-        mpjpe_root_cm=100.0 * sums["mpjpe_root"] / T,
+        v2v_cm=100.0 * sums["v2v"] / n,
+        v2v_abs_cm=100.0 * sums["v2v_abs"] / n,
+        mpjpe_cm=100.0 * sums["mpjpe"] / n,
+        mpjpe_root_cm=100.0 * sums["mpjpe_root"] / n,
         accel_gt=accel_gt,
         accel_pred=accel_pred,
         accel_error=accel_err,
-        **compare_feet(joints_gt, soles_gt, joints_pred, soles_pred, gt.fps),
+        unscored_frames=T - n,
+        accel_count=int(inner.sum()),
+        **compare_feet(joints_gt, soles_gt, joints_pred, soles_pred, gt.fps, scored),
     )
 
 
@@ -286,4 +311,6 @@ def mean_result(results: Sequence[EvalResult]) -> EvalResult:
         floor_m=floors.pop() if len(floors) == 1 else None,
         contact_pairs=sum(r.contact_pairs for r in results),
         contact_frames=sum(r.contact_frames for r in results),
+        unscored_frames=sum(r.unscored_frames for r in results),
+        accel_count=n_acc,
     )

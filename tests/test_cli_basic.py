@@ -108,7 +108,7 @@ def test_add_noise_then_eval_json(make_motion_file, tmp_path, hash_tree):
             "accel_gt", "accel_pred",
             "accel_error", "foot_skate_gt", "foot_skate_pred", "foot_slide_gt", "foot_slide_pred",
             "penetration_gt", "penetration_pred", "float_gt", "float_pred", "floor_m",
-            "contact_pairs", "contact_frames"}  # fmt: skip
+            "contact_pairs", "contact_frames", "unscored_frames", "accel_count"}  # fmt: skip
     assert set(metrics) == keys and set(data["mean"]) == keys
     for name in ("foot_skate", "foot_slide", "penetration", "float"):
         assert data["units"][f"{name}_gt"] == data["units"][f"{name}_pred"]
@@ -375,9 +375,12 @@ def test_bad_input_gives_one_error_line(
     good = make_motion_file("good.npz", T=10)
     before = hash_tree(tmp_path)
     code, out, err = run(*command_for(command, bad, good, tmp_path))
-    if command == "eval-pred" and kind != "missing file":
-        # --json: a per-file failure is also in the JSON document on stdout
-        assert code == 1 and json.loads(out)["failed"] == 1
+    if command == "eval-pred":
+        # --json: a per-file failure is also in the JSON document on stdout, and so is an
+        # error before any file is read
+        doc = json.loads(out)
+        refused = {"ok": False, "error": doc.get("error"), "exit_code": 1}
+        assert code == 1 and (doc == refused if kind == "missing file" else doc["failed"] == 1)
         out = ""
     line = assert_one_error_line(code, out, err)
     assert bad.name in line

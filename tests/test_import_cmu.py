@@ -183,7 +183,8 @@ def test_bvh_frame_time_that_is_a_frame_rate_is_refused_unless_overridden(tmp_pa
         load_source(path)
     assert str(err.value) == (
         f"{path}: frame rate 0.00833333 Hz is implausible (1 to 10000 Hz); is its Frame Time a "
-        "frame rate? Pass --source-fps (1/0.00833333 = 120 Hz)"
+        "frame rate? (1/0.00833333 = 120 Hz); give the rate with --fps (mdvae import: "
+        "--source-fps)"
     )
     assert load_source(path, fps=120.0).fps == 120.0
     code, out, err = run(path, "-o", tmp_path / "o.npz")

@@ -21,6 +21,7 @@ from mdvae_cli.metrics import (
     mpjpe,
     v2v,
 )
+from mdvae_cli.motion.motion import slice_frames
 
 RNG = np.random.default_rng(0)
 
@@ -174,6 +175,39 @@ def test_evaluate_two_frames_has_no_acceleration(tiny_body):
     m = clip(T=2)
     r = evaluate_pair(m, m, tiny_body)
     assert r.accel_gt is None and r.accel_error is None and r.accel_frames == 0
+
+
+def test_frames_missing_in_either_file_are_not_scored(tiny_body):
+    """A hole in the ground truth or the prediction is no measurement: the scores equal those
+    of the observed frames alone, and accelerations skip inner frames beside a hole."""
+    gt, pred = clip(T=30, seed=1), clip(T=30, seed=2)
+    hole_gt = gt.with_body()
+    hole_gt.joint_mask = np.ones((30, 22), bool)
+    hole_gt.joint_mask[10:14] = False  # whole frames 10-13
+    hole_gt.joint_mask[20, 7] = False  # one joint of frame 20
+    hole_gt.pose_body = hole_gt.pose_body.copy()
+    hole_gt.pose_body[10:14] = 2.0  # a placeholder far from anything
+    r = evaluate_pair(hole_gt, pred, tiny_body)
+    assert (r.num_frames, r.unscored_frames) == (25, 5)
+    keep = np.ones(30, bool)
+    keep[[10, 11, 12, 13, 20]] = False
+    whole = evaluate_pair(gt, pred, tiny_body)
+    assert whole.unscored_frames == 0 and whole.accel_count == 28
+    per_frame = []
+    for t in range(30):
+        one = evaluate_pair(slice_frames(gt, t, t + 1), slice_frames(pred, t, t + 1), tiny_body)
+        per_frame.append(one.v2v_cm)
+    assert r.v2v_cm == pytest.approx(np.mean(np.array(per_frame)[keep]), rel=1e-9)
+    # inner frames t with t-1, t, t+1 all scored: 1-8, 15-18, 22-28
+    assert r.accel_count == 8 + 4 + 7 and r.accel_frames == 19
+    swapped = evaluate_pair(pred, hole_gt, tiny_body)
+    assert (swapped.num_frames, swapped.unscored_frames) == (25, 5)
+    mean = mean_result([r, whole])
+    assert (mean.num_frames, mean.unscored_frames, mean.accel_count) == (55, 5, 47)
+    nothing = gt.with_body()
+    nothing.joint_mask = np.zeros((30, 22), bool)
+    with pytest.raises(InputError, match="no frame is observed in both"):
+        evaluate_pair(nothing, pred, tiny_body)
 
 
 def test_evaluate_refuses_mismatched_rate_or_length(tiny_body):

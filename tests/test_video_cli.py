@@ -79,6 +79,20 @@ def test_a_folder_of_pipeline_outputs_is_mirrored(tmp_path):
     assert not list((tmp_path / "noisy").rglob("*.npz"))
 
 
+def test_import_of_a_folder_finds_the_npz_outputs_of_pipelines(tmp_path):
+    """SLAHMR and ROMP write .npz: a folder holding them is imported like one of pickles."""
+    folder = tmp_path / "in"
+    (folder / "seq").mkdir(parents=True)
+    vf.write_slahmr(folder / "seq" / "seq_000300_world_results.npz", [vf.clip(20, seed=8)])
+    vf.write_hybrik(folder / "res.pk", vf.clip(20, seed=5))
+    code, out, err = run("import", folder, "-o", tmp_path / "out", "--json", "--fps", "30")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["by_format"]["slahmr"]["files"] == 1 and doc["by_format"]["hybrik"]["files"] == 1
+    assert load_motion(tmp_path / "out" / "seq" / "seq_000300_world_results.npz").num_frames == 20
+    assert load_motion(tmp_path / "out" / "res.npz").num_frames == 20
+
+
 def test_malicious_pickle_is_refused_by_every_command(tmp_path):
     marker = tmp_path / "ran"
 

@@ -178,6 +178,23 @@ def test_slahmr_world_results(tmp_path):
         assert got.poses.shape == (15, 156)  # SMPL-H: root, body, hands
 
 
+@pytest.mark.parametrize("plane", [[[0.0, -1.0, 0.0, 1.2]], [[0.0, -1.2, 0.0]] * 2, [0, 1.2, 0]])
+def test_slahmr_floor_plane_as_abcd_or_per_track_gives_the_same_bodies(tmp_path, plane):
+    """A plane's (a, b, c, d), one normal per track, or the normal flipped: the same up."""
+    a = vf.clip(15, seed=13)
+    path = vf.write_slahmr(tmp_path / "clip_000060_world_results.npz", [a])
+    data = dict(np.load(path))
+    np.savez(path, **{**data, "floor_plane": np.asarray(plane, np.float32)})
+    same_body(load_any(path).single(), a)
+
+
+def test_slahmr_floor_plane_of_another_shape_is_one_error(tmp_path):
+    path = vf.write_slahmr(tmp_path / "clip_000060_world_results.npz", [vf.clip(15, seed=13)])
+    np.savez(path, **{**dict(np.load(path)), "floor_plane": np.ones((1, 5), np.float32)})
+    with pytest.raises(InputError, match=r"'floor_plane' has shape \(1, 5\): expected"):
+        load_any(path)
+
+
 def test_aistpp_pickle(tmp_path):
     m = vf.clip(30, seed=15)
     loaded = load_any(vf.write_aistpp(tmp_path / "gBR_sBM_cAll_d04_mBR0_ch01.pkl", m))

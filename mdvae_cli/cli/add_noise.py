@@ -20,6 +20,7 @@ from mdvae_cli.cli.common import (
     FRACTION,
     NON_NEGATIVE,
     SEED,
+    OutputPath,
     allow_pickle_option,
     console,
     handle_errors,
@@ -63,7 +64,7 @@ def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
 @click.command("add-noise")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--out", type=click.Path(), required=True,
+    "-o", "--out", type=OutputPath(), required=True,
     help="Output file (one input file: .npz, or .bvh / .amc for a take of that form) or "
     "folder (inputs mirrored below it, each in its own form).",
 )  # fmt: skip

@@ -110,21 +110,30 @@ def plan_jobs(
     suffixes: tuple[str, ...] = MOTION_SUFFIXES,
     out_suffix: str | None = ".npz",
     rename: Callable[[Path], Path] | None = None,
+    several: bool = False,
 ) -> list[FileJob]:
     """Expand ``inputs`` (files/folders) into jobs and choose each output path.
+    several: the inputs are what is left of several given (so never one file's output name).
 
     With ``out_suffix`` (file outputs): one input file and an ``out`` ending in ``out_suffix``
     (any case) writes exactly ``out``; otherwise ``out`` is a folder and each output is
     ``out/relpath`` (``rename(relpath)`` when given). An ``out`` given as a string ending in a
     slash is always a folder. With ``out_suffix=None`` (folder outputs, e.g. meshes): one
     input file writes into ``out`` itself, several into ``out/<relpath without suffix>``.
-    Files below ``out`` are not taken from an input folder that holds it. Raises InputError
-    for no inputs, no matching files, an output that is an input (file or folder), two inputs
-    with one output, a ``.gz`` output name for one input file, or a file where a folder is
-    needed: before anything is read.
+    Files below ``out`` are not taken from an input folder that holds it. Among several
+    inputs, one that does not exist becomes a job of its own, which fails with one line while
+    the others go on (:func:`run_batch`). Raises InputError for no inputs, no matching files,
+    inputs that all do not exist, an output that is an input (file or folder), two inputs with
+    one output, a ``.gz`` output name for one input file, or a file where a folder is needed:
+    before anything is read.
     """
     if not inputs:
         raise InputError("no input files given")
+    given, missing = list(inputs), [Path(p) for p in inputs if not Path(p).exists()]
+    if missing and len(missing) < len(given):
+        inputs = [p for p in given if Path(p).exists()]
+        return [*plan_jobs(inputs, out, suffixes, out_suffix, rename, several=True),
+                *(_missing_job(m, out, out_suffix, rename) for m in missing)]  # fmt: skip
     as_folder = out is not None and str(out).endswith(("/", os.sep))
     out = None if out is None else Path(out)
     for item in inputs:
@@ -136,7 +145,7 @@ def plan_jobs(
         raise InputError(f"no {'/'.join(suffixes)} files found in {names}")
     if out is None:
         return [FileJob(rel, src) for src, rel in items]
-    single = len(items) == 1 and all(Path(p).is_file() for p in inputs)
+    single = len(items) == 1 and all(Path(p).is_file() for p in inputs) and not several
     if single and not as_folder and not out.is_dir():
         refuse_unsupported(out)
 
@@ -161,6 +170,15 @@ def plan_jobs(
         raise InputError(f"with a folder or several inputs, the output {out} must be a folder")
     rename = rename or strip_gz
     return no_clashes([FileJob(rel, src, out / rename(rel)) for src, rel in items])
+
+
+def _missing_job(path: Path, out, out_suffix: str | None, rename) -> FileJob:
+    """The job of an input that does not exist (it fails in :func:`run_batch`)."""
+    rel = Path(path.name)
+    if out is None:
+        return FileJob(rel, path)
+    target = strip_gz(rel).with_suffix("") if out_suffix is None else (rename or strip_gz)(rel)
+    return FileJob(rel, path, Path(out) / target)
 
 
 def refuse_unsupported(out: Path) -> None:
@@ -264,6 +282,8 @@ def run_batch(
         for job in jobs:
             progress.update(task, info=escape(job.relpath.as_posix()))
             try:
+                if not job.source.exists():  # one of several inputs given, or gone since
+                    raise InputError(f"no such file or folder: {job.source}")
                 if inner is None:
                     outcome = FileOutcome(job, result=fn(job))
                 else:

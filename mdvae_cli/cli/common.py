@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import json
 import math
 import os
 import sys
@@ -21,15 +22,30 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from mdvae_cli.errors import MdvaeError, NotAvailableError
+from mdvae_cli.errors import MdvaeError, NotAvailableError, stop_words
 
 #: the one console for human-readable output; machine output (--json) goes to stdout directly
 console = Console(stderr=True, highlight=False)
 
 
-def fail(message: str, code: int = 1) -> None:
-    """Print ``error: message`` (one line) and exit with ``code``."""
-    console.print(f"[bold red]error:[/] {escape(' '.join(str(message).split()))}", soft_wrap=True)
+class OutputPath(click.Path):
+    """``-o``'s type: a path, refused when empty (``-o "$OUT"`` with the variable unset would
+    otherwise write into the working folder)."""
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and not value.strip():
+            self.fail("is empty: name an output file or folder", param, ctx)
+        return super().convert(value, param, ctx)
+
+
+def fail(message: str, code: int = 1, as_json: bool = False) -> None:
+    """Print ``error: message`` (one line) and exit with ``code``; ``as_json`` (a ``--json``
+    run, whose reader expects a JSON document on stdout): also ``{"ok": false, "error": ...,
+    "exit_code": ...}`` on stdout."""
+    line = " ".join(str(message).split())
+    console.print(f"[bold red]error:[/] {escape(line)}", soft_wrap=True)
+    if as_json:
+        click.echo(json.dumps({"ok": False, "error": line, "exit_code": code}, indent=2))
     sys.exit(code)
 
 
@@ -37,29 +53,32 @@ def handle_errors(fn: Callable) -> Callable:
     """Turn library exceptions into one-line errors with a non-zero exit code.
 
     MdvaeError -> exit 1 (NotAvailableError -> exit 2); any other exception -> exit 1 with its
-    type and message, unless MDVAE_DEBUG=1, which re-raises for a traceback.
+    type and message, unless MDVAE_DEBUG=1, which re-raises for a traceback. With ``--json``
+    the error is also a JSON document on stdout (:func:`fail`).
     """
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        as_json = bool(kwargs.get("as_json"))
         try:
             return fn(*args, **kwargs)
         except NotAvailableError as exc:
-            fail(str(exc), code=2)
+            fail(str(exc), code=2, as_json=as_json)
         except MdvaeError as exc:
-            fail(str(exc))
-        except KeyboardInterrupt:
-            fail("interrupted", code=130)
+            fail(str(exc), as_json=as_json)
+        except KeyboardInterrupt as exc:
+            fail(*stop_words(exc), as_json=as_json)
         except (click.exceptions.Exit, click.ClickException, SystemExit):
             raise
         except OSError as exc:  # the file system's refusal (name too long, no permission...)
             if os.environ.get("MDVAE_DEBUG"):
                 raise
-            fail(os_error_words(exc))
+            fail(os_error_words(exc), as_json=as_json)
         except Exception as exc:
             if os.environ.get("MDVAE_DEBUG"):
                 raise
-            fail(f"{type(exc).__name__}: {exc} (set MDVAE_DEBUG=1 for a traceback)")
+            fail(f"{type(exc).__name__}: {exc} (set MDVAE_DEBUG=1 for a traceback)",
+                 as_json=as_json)  # fmt: skip
 
     return wrapper
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED
+from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, SEED, OutputPath
 from mdvae_cli.cli.motion_input import missing_option
 from mdvae_cli.help_figures import help_figures, span
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL
@@ -21,7 +21,7 @@ OPTIONS = [
         "-o",
         "--out",
         required=True,
-        type=click.Path(),
+        type=OutputPath(),
         help="Output file (one input: .npz; a BVH take also as .bvh/.bvh.gz, an AMC take as "
         ".amc/.amc.gz, on its own skeleton) or folder (inputs mirrored below it, each in its own "
         "form).",

@@ -27,6 +27,7 @@ from mdvae_cli.cli.common import (
     console,
     handle_errors,
 )
+from mdvae_cli.cli.motion_input import input_fps_option
 from mdvae_cli.cli.takes import take_options, take_reading
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular, expand_inputs
@@ -182,7 +183,9 @@ of its lowest sole points there); prediction (GT):
   penetr.   mean depth of each foot's lowest point under the floor, cm
   float     its mean height above the floor while the foot is down, cm
 The mean row weights every frame equally (skate: every contact pair; float:
-every foot-frame down). Files at different frame rates are scored at the
+every foot-frame down). Frames missing in either file (holes: NaN rows, a
+video track's skipped frames, filled or not) are not scored; a note says
+how many, and `frames` counts those scored. Files at different frame rates are scored at the
 slower rate (the faster one resampled, with a note); lengths must match there.
 
 \b
@@ -207,18 +210,19 @@ Example:
     help="Frames posed at once (bounds memory on long files).",
 )  # fmt: skip
 @take_options
+@input_fps_option
 @allow_pickle_option
 @json_option
 @handle_errors
 def eval_command(
-    gt, pred, body_model, chunk_frames, asf, joint_map_file, allow_pickle, as_json
+    gt, pred, body_model, chunk_frames, asf, joint_map_file, input_fps, allow_pickle, as_json
 ) -> None:
     from mdvae_cli.export import as_body_model
     from mdvae_cli.metrics import common_rate, evaluate_pair, mean_result
 
     jobs, unmatched = pair_files(gt, pred)
     body = as_body_model(load_body_model(body_model))
-    options = ReadOptions(allow_pickle=allow_pickle, body=body.data,
+    options = ReadOptions(allow_pickle=allow_pickle, body=body.data, fps=input_fps,
                           **take_reading(asf, joint_map_file))  # fmt: skip
     for path in unmatched:
         console.print(f"[dim]note: {escape(str(path))} has no ground truth; skipped[/]")
@@ -230,8 +234,14 @@ def eval_command(
         guess = read(job.data, options).single()
         try:
             truth, guess, note = common_rate(truth, guess)
+            result = evaluate_pair(truth, guess, body, chunk_frames=chunk_frames)
+            if result.unscored_frames:
+                note = (f"{note}; " if note else "") + (
+                    f"{result.unscored_frames} of {result.unscored_frames + result.num_frames} "
+                    "frames missing (holes) in the ground truth or the prediction: not scored"
+                )
             print_notes(job.relpath, [note] if note else [])
-            return evaluate_pair(truth, guess, body, chunk_frames=chunk_frames)
+            return result
         except InputError as exc:
             raise InputError(f"{job.source} vs {job.data}: {exc}") from None
 

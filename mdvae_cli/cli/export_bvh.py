@@ -7,13 +7,19 @@ from pathlib import Path
 import click
 
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
-from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
+from mdvae_cli.cli.common import (
+    OutputPath,
+    allow_pickle_option,
+    body_model_option,
+    console,
+    handle_errors,
+)
 
 
 @click.command("export-bvh")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--out", type=click.Path(), required=True,
+    "-o", "--out", type=OutputPath(), required=True,
     help="Output .bvh (or .bvh.gz) for one input file, or a folder (inputs mirrored below it).",
 )  # fmt: skip
 @click.option(

@@ -8,7 +8,13 @@ import click
 
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
-from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
+from mdvae_cli.cli.common import (
+    OutputPath,
+    allow_pickle_option,
+    body_model_option,
+    console,
+    handle_errors,
+)
 from mdvae_cli.cli.motion_input import INPUT_SUFFIXES
 from mdvae_cli.formats.registry import ReadOptions, read
 
@@ -16,7 +22,7 @@ from mdvae_cli.formats.registry import ReadOptions, read
 @click.command("export-mesh")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    "-o", "--out", type=OutputPath(path_type=Path), required=True,
     help="Output folder: frame_000000.<format>, ... (one sub-folder per file for several inputs).",
 )  # fmt: skip
 @click.option(

@@ -11,6 +11,7 @@ from mdvae_cli.cli.batch import emit_json
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
+    OutputPath,
     body_model_option,
     console,
     handle_errors,
@@ -27,7 +28,7 @@ from mdvae_cli.errors import InputError
     "--out",
     "out_dir",
     required=True,
-    type=click.Path(path_type=Path),
+    type=OutputPath(path_type=Path),
     help="Denoiser folder: config.json, denoiser.npz/.json, log.jsonl.",
 )
 @click.option(

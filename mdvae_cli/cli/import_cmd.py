@@ -22,17 +22,26 @@ from mdvae_cli.cli.batch import (
     run_batch,
     strip_gz,
 )
-from mdvae_cli.cli.common import NON_NEGATIVE, POSITIVE, body_model_option, console, handle_errors
+from mdvae_cli.cli.common import (
+    NON_NEGATIVE,
+    POSITIVE,
+    OutputPath,
+    body_model_option,
+    console,
+    handle_errors,
+)
 from mdvae_cli.cli.motion_input import FORMATS_HELP, format_choice, missing_option
 from mdvae_cli.cli.takes import load_joint_map
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_named_file, write_atomic
+from mdvae_cli.formats.registry import READ_SUFFIXES
 from mdvae_cli.motion import cmu, corpus_plan, hdm05
 from mdvae_cli.motion.motion import check_fps
 
-#: what folders are searched for: mocap to retarget, and video pipelines' outputs (files given
-#: by name may be of any format ``formats.registry`` reads, AMASS .npz included)
-SUFFIXES = (".bvh", ".amc", ".pkl", ".pk", ".pt", ".pth", ".npy")
+#: what folders are searched for: every format ``formats.registry`` reads (mocap to retarget,
+#: video pipelines' outputs, .npz ones such as SLAHMR's and ROMP's among them, and AMASS .npz,
+#: written again in the import's layout), as for files given by name
+SUFFIXES = READ_SUFFIXES
 
 
 def plan_corpora(folders: list[Path], spec: corpus_plan.SplitSpec) -> list:
@@ -111,7 +120,7 @@ def _print_summary(summary: dict) -> None:
 @click.command("import")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--out", type=click.Path(), required=True,
+    "-o", "--out", type=OutputPath(), required=True,
     help="Output folder (inputs mirrored below it), or an .npz for a single input file.",
 )  # fmt: skip
 @click.option(
@@ -190,7 +199,8 @@ def import_command(inputs, out, fps, asf, source_fps, scale, floor, corpus, spli
     per person track (docs/formats.md), with the frames and heights the pipeline wrote (the
     same motion mdvae denoise reads from the file itself; --fps resamples them, --floor plane
     puts them on the floor); --source-fps gives their frame rate (they store none: 30 is
-    assumed).
+    assumed). A folder is searched for every file of these kinds (SLAHMR's and ROMP's .npz
+    among them; an AMASS .npz is written again in this layout).
 
     \b
     Examples:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 
 import click
 
@@ -20,6 +22,19 @@ from mdvae_cli.cli import (
     view_cmd,
 )
 from mdvae_cli.cli.common import fail
+from mdvae_cli.errors import Terminated, stop_words
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated
+
+
+def raise_on_sigterm() -> None:
+    """Turn SIGTERM into :class:`Terminated` in the main thread (unless it is ignored), so that
+    a stopped run cleans up as Ctrl-C does."""
+    if threading.current_thread() is threading.main_thread():
+        if signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN:
+            signal.signal(signal.SIGTERM, _terminate)
 
 
 class OneLineErrors(click.Group):
@@ -30,6 +45,8 @@ class OneLineErrors(click.Group):
     def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
         if not standalone_mode:
             return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        raise_on_sigterm()
+        as_json = "--json" in (sys.argv[1:] if args is None else args)
         try:
             code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
         except click.UsageError as exc:
@@ -37,11 +54,13 @@ class OneLineErrors(click.Group):
                 click.echo(exc.format_message())
                 sys.exit(0)
             where = exc.ctx.command_path if exc.ctx is not None else "mdvae"
-            fail(f"{exc.format_message()} (see {where} -h)")
-        except click.exceptions.Abort:
-            fail("interrupted", code=130)
+            fail(f"{exc.format_message()} (see {where} -h)", as_json=as_json)
+        except click.exceptions.Abort as exc:  # Click's wrapping of a KeyboardInterrupt
+            stop = exc.__context__
+            stop = stop if isinstance(stop, KeyboardInterrupt) else KeyboardInterrupt()
+            fail(*stop_words(stop), as_json=as_json)
         except click.ClickException as exc:
-            fail(exc.format_message())
+            fail(exc.format_message(), as_json=as_json)
         sys.exit(code if isinstance(code, int) else 0)
 
 

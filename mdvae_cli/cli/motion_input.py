@@ -39,6 +39,18 @@ def format_choice() -> click.Choice:
     return click.Choice(sorted({*FORMATS, *ALIASES}), case_sensitive=False)
 
 
+#: ``--fps``: the inputs' frame rate, for every command that reads motion files
+input_fps_option = click.option(
+    "--fps",
+    "input_fps",
+    type=POSITIVE,
+    default=None,
+    help="Frame rate of the inputs. Video-pipeline outputs store none: 30 is assumed "
+    "unless given; for other files it replaces the file's rate (a BVH whose Frame Time "
+    "holds a rate, say).",
+)
+
+
 def motion_input_options(fn: Callable) -> Callable:
     """``--format``, ``--fps`` and ``--track``: how to read the input files."""
     fn = click.option(
@@ -48,14 +60,7 @@ def motion_input_options(fn: Callable) -> Callable:
         help="Files of several people: keep only this track (its id in the file). Default: "
         "every track, each written to <output>.track<ID>.npz.",
     )(fn)
-    fn = click.option(
-        "--fps",
-        "input_fps",
-        type=POSITIVE,
-        default=None,
-        help="Frame rate of the inputs. Video-pipeline outputs store none: 30 is assumed "
-        "unless given; for other files it replaces the file's rate.",
-    )(fn)
+    fn = input_fps_option(fn)
     return click.option(
         "--format",
         "input_format",

@@ -12,6 +12,7 @@ from mdvae_cli.cli.batch import emit_json, json_option, print_notes, refuse_gz
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     SEED,
+    OutputPath,
     allow_pickle_option,
     body_model_option,
     console,
@@ -36,7 +37,7 @@ from mdvae_cli.errors import InputError
     show_default=True,
     help="Frames to generate at 30 Hz (at most 1,080,000: 10 hours).",
 )
-@click.option("-o", "--out", required=True, type=click.Path(), help="Output .npz file.")
+@click.option("-o", "--out", required=True, type=OutputPath(), help="Output .npz file.")
 @click.option(
     "--prior",
     "prior_path",

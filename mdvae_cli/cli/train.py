@@ -17,6 +17,7 @@ from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
     SEED,
+    OutputPath,
     body_model_option,
     console,
     handle_errors,
@@ -135,7 +136,7 @@ def run_options(fn: Callable) -> Callable:
     "--out",
     "run_dir",
     required=True,
-    type=click.Path(path_type=Path),
+    type=OutputPath(path_type=Path),
     help="Run folder: config.json, best.npz/.json, last.npz/.json, log.jsonl.",
 )
 @click.option(

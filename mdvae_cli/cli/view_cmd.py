@@ -8,7 +8,14 @@ from pathlib import Path
 import click
 
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, print_notes, run_batch
-from mdvae_cli.cli.common import allow_pickle_option, body_model_option, console, handle_errors
+from mdvae_cli.cli.common import (
+    OutputPath,
+    allow_pickle_option,
+    body_model_option,
+    console,
+    handle_errors,
+)
+from mdvae_cli.cli.motion_input import input_fps_option
 from mdvae_cli.cli.takes import take_options, take_reading
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
@@ -25,14 +32,15 @@ def motion_labels(paths: list[Path]) -> list[str]:
     return [f"{i + 1}: {p.name}" for i, p in enumerate(paths)]
 
 
-def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path):
+def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path, fps=None):
     """The report of reading every input file (folders: every motion file below them, in
     order) with a progress bar, and (label, Motion) for each file read: its first track, said
-    in a note when it holds several. A file that cannot be read is one ``error:`` line."""
+    in a note when it holds several. A file that cannot be read is one ``error:`` line.
+    fps: ``--fps``, the inputs' frame rate (None: each file's own)."""
     from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
     from mdvae_cli.retarget.take import TakeReader
 
-    options = ReadOptions(allow_pickle=allow_pickle, body=body_data,
+    options = ReadOptions(allow_pickle=allow_pickle, body=body_data, fps=fps,
                           **take_reading(asf, joint_map_file))  # fmt: skip
     takes = TakeReader(body_data, options.skeleton, options.joint_map)
     files = [src for src, _ in expand_inputs(inputs, READ_SUFFIXES, skip=(out,))]
@@ -69,7 +77,7 @@ def inputs_argument(fn):
 @click.command("view")
 @inputs_argument
 @click.option(
-    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    "-o", "--out", type=OutputPath(path_type=Path), required=True,
     help="The .html page to write.",
 )  # fmt: skip
 @click.option(
@@ -78,11 +86,14 @@ def inputs_argument(fn):
 )  # fmt: skip
 @click.option("--title", default=None, help="The page's title (default: the file names).")
 @take_options
+@input_fps_option
 @body_model_option
 @allow_pickle_option
 @json_option
 @handle_errors
-def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle, as_json):
+def view(
+    inputs, out, mesh, title, asf, joint_map_file, input_fps, body_model, allow_pickle, as_json
+):  # fmt: skip
     """Write one self-contained HTML page that plays motions side by side or overlaid.
 
     INPUTS are motion files in any format mdvae reads (.npz, .bvh, .amc, video pipelines'
@@ -105,7 +116,8 @@ def view(inputs, out, mesh, title, asf, joint_map_file, body_model, allow_pickle
     out = Path(out)
     check_output(out, (".html", ".htm"), inputs)
     body_data = load_body_model(body_model)
-    report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out)
+    report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out,
+                                 input_fps)  # fmt: skip
     if not items:
         report.exit()
     page = build_view_page(items, BodyModel(body_data), mesh=mesh, title=title)
@@ -132,7 +144,7 @@ def _read_counts(report) -> dict:
 @click.command("plot")
 @inputs_argument
 @click.option(
-    "-o", "--out", type=click.Path(path_type=Path), required=True,
+    "-o", "--out", type=OutputPath(path_type=Path), required=True,
     help="The figure to write: .png, or .svg for a vector figure.",
 )  # fmt: skip
 @click.option(
@@ -155,13 +167,14 @@ def _read_counts(report) -> dict:
 )  # fmt: skip
 @click.option("--title", default=None, help="The figure's title (default: the file names).")
 @take_options
+@input_fps_option
 @body_model_option
 @allow_pickle_option
 @json_option
 @handle_errors
 def plot(
-    inputs, out, joints, series, frames, width, title, asf, joint_map_file, body_model,
-    allow_pickle, as_json,
+    inputs, out, joints, series, frames, width, title, asf, joint_map_file, input_fps,
+    body_model, allow_pickle, as_json,
 ):  # fmt: skip
     """Draw a static before/after figure: joint curves over time, foot contacts and a
     filmstrip of a few frames for every motion (for reports).
@@ -195,7 +208,8 @@ def plot(
         width=width, title=title,
     ).validate()  # fmt: skip
     body_data = load_body_model(body_model)
-    report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out)
+    report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out,
+                                 input_fps)  # fmt: skip
     if not items:
         report.exit()
     figure = draw_figure(items, BodyModel(body_data), spec)

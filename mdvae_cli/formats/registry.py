@@ -271,18 +271,19 @@ def check_writable(motion: Motion, path: Path, holes: bool = False) -> None:
     holes: NaN allowed (frames a video pipeline's file keeps as they came)."""
     from mdvae_cli.formats.npz_values import ANGLE, DISTANCE
 
-    for key, arr, limit in (("root_orient", motion.root_orient, ANGLE),
-                            ("pose_body", motion.pose_body, ANGLE),
-                            ("trans", motion.trans, DISTANCE)):  # fmt: skip
+    # named in the user's words: the file written may call them 'poses', channels, 'smpl'...
+    for what, arr, limit in (("the root rotation", motion.root_orient, ANGLE),
+                             ("a body-joint rotation", motion.pose_body, ANGLE),
+                             ("the root translation", motion.trans, DISTANCE)):  # fmt: skip
         arr = np.asarray(arr, dtype=np.float64)
         if holes:
             arr = arr[np.isfinite(arr)]
         if not np.isfinite(arr).all():
-            raise InputError(f"cannot write {path}: its '{key}' holds NaN or infinite values; "
+            raise InputError(f"cannot write {path}: {what} holds NaN or infinite values; "
                              "nothing written")  # fmt: skip
         if arr.size and np.abs(arr).max() > limit.largest:
             worst = limit.value.format(float(np.abs(arr).max()))
-            raise InputError(f"cannot write {path}: its '{key}' {worst} ({limit.kind} are "
+            raise InputError(f"cannot write {path}: {what} {worst} ({limit.kind} are "
                              "refused on reading; nothing written)")  # fmt: skip
 
 

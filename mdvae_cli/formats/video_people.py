@@ -169,8 +169,14 @@ def read_slahmr(data: dict, label: str) -> list[RawTrack]:
 
 
 def _floor_up(data: dict, root_orient: np.ndarray) -> tuple[float, float, float]:
-    """SLAHMR's up: the floor plane's normal, signed to agree with the bodies' mean up."""
+    """SLAHMR's up: the floor plane's normal, signed to agree with the bodies' mean up. The
+    plane is SLAHMR's 3-vector (its normal times its distance) or a plane's (a, b, c, d), one
+    or one per track (the first is taken)."""
     body_up = rotvec_to_rotmat(root_orient.reshape(-1, 3).astype(np.float64))[:, :, 1].mean(0)
-    n = np.asarray(data.get("floor_plane", CAMERA_UP), np.float64).reshape(-1, 3)[0]
+    plane = np.asarray(data.get("floor_plane", CAMERA_UP), np.float64)
+    if plane.ndim == 0 or plane.size == 0 or plane.shape[-1] not in (3, 4):
+        raise InputError(f"'floor_plane' has shape {plane.shape}: expected (3,) (a normal) or "
+                         "(4,) (a, b, c, d), one per track or one for all")  # fmt: skip
+    n = plane.reshape(-1, plane.shape[-1])[0, :3]
     n = n / max(np.linalg.norm(n), 1e-9) if np.linalg.norm(n) > 1e-9 else np.array(CAMERA_UP)
     return tuple(n if n @ body_up >= 0 else -n)

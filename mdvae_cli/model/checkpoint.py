@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mdvae_cli.errors import InputError
+from mdvae_cli.errors import InputError, Terminated
 from mdvae_cli.fileio import check_regular, write_atomic
 from mdvae_cli.npz_archive import read_npz
 
@@ -35,23 +35,26 @@ def save_checkpoint(path: Path, tensors: dict[str, torch.Tensor], meta: dict) ->
 
 @contextlib.contextmanager
 def interrupts_deferred():
-    """Hold a Ctrl-C (SIGINT) back until the block is done, then raise KeyboardInterrupt (in
-    the main thread; elsewhere Python delivers no signals anyway). An ignored SIGINT (a
-    background job) stays ignored."""
-    if (
-        threading.current_thread() is not threading.main_thread()
-        or signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-    ):
+    """Hold a Ctrl-C (SIGINT) or a SIGTERM back until the block is done, then raise
+    KeyboardInterrupt (``errors.Terminated`` for SIGTERM) in the main thread (elsewhere Python
+    delivers no signals anyway). An ignored signal (a background job's SIGINT) stays ignored."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    caught = []
-    previous = signal.signal(signal.SIGINT, lambda *_: caught.append(True))
+    caught: list[int] = []
+    held = [s for s in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(s) is not signal.SIG_IGN]
+    previous = {s: signal.signal(s, lambda signum, _: caught.append(signum)) for s in held}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
-    if caught:
+        for s, handler in previous.items():
+            if handler is None:  # set outside Python: its default
+                handler = signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL
+            signal.signal(s, handler)
+    if signal.SIGINT in caught:
         raise KeyboardInterrupt
+    if caught:
+        raise Terminated
 
 
 #: bytes a checkpoint's weights may take together (the shipped denoiser: a few MB)

@@ -21,16 +21,16 @@ MAX_BETA = 1e3
 FPS_RANGE = (1.0, 10_000.0)
 
 
-def check_fps(fps: float, where: str, swapped: str = "") -> float:
+def check_fps(fps: float, where: str, swapped: str = "", remedy: str = "") -> float:
     """``fps`` when it lies in FPS_RANGE, else InputError naming ``where`` (a file, an option).
     ``swapped``: a question the message asks when 1/fps would lie in it (e.g. "is
-    mocap_framerate a frame time?")."""
+    mocap_framerate a frame time?"), followed by ``remedy`` (what to do then)."""
     low, high = FPS_RANGE
     if low <= fps <= high:
         return fps
     hint = ""
     if swapped and fps > 0 and low <= 1 / fps <= high:
-        hint = f"; {swapped} (1/{fps:.6g} = {1 / fps:.3g} Hz)"
+        hint = f"; {swapped} (1/{fps:.6g} = {1 / fps:.3g} Hz){'; ' + remedy if remedy else ''}"
     raise InputError(
         f"{where}: frame rate {fps:.6g} Hz is implausible ({low:g} to {high:g} Hz){hint}"
     )

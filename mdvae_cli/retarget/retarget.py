@@ -366,7 +366,12 @@ def load_source(
     if fps is not None and abs(fps - src.fps) > 1e-9:
         src = src.with_fps(fps)
         src.notes.append(f"frame rate {src.info.get('fps_in_file'):g} in the file, {fps:g} used")
-    check_fps(src.fps, str(path), swapped="is its Frame Time a frame rate? Pass --source-fps")
+    check_fps(
+        src.fps,
+        str(path),
+        swapped="is its Frame Time a frame rate?",
+        remedy="give the rate with --fps (mdvae import: --source-fps)",
+    )
     if src.info.get("format") == "bvh":
         try:
             jmap = build_joint_map(src)
