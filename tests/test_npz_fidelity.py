@@ -114,6 +114,21 @@ def test_float64_poses_do_not_widen_float32_trans_and_betas(tmp_path):
     assert out["mocap_framerate"] == 30 and out["gender"][0] == b"male"
 
 
+@pytest.mark.parametrize(
+    "stored, text", [(np.array("Female "), "Female"), (np.array([b" male\n"]), "male")]
+)
+def test_a_gender_with_spaces_is_read_stripped_and_written_as_it_came(tmp_path, stored, text):
+    ref = {**stage_ii_arrays(), "gender": stored}
+    m = load_motion(write(tmp_path / "in.npz", ref))
+    assert m.gender == text
+    save_motion(m.with_body(trans=m.trans + 1.0), tmp_path / "out.npz")
+    out = read(tmp_path / "out.npz")
+    assert out["gender"].dtype == stored.dtype and np.array_equal(out["gender"], stored)
+    m.gender = "neutral"  # a gender changed is written as it is
+    save_motion(m, tmp_path / "changed.npz")
+    assert read(tmp_path / "changed.npz")["gender"].reshape(-1)[0] in ("neutral", b"neutral")
+
+
 def test_per_frame_betas_keep_their_layout(tmp_path):
     ref = stage_ii_arrays()
     ref["betas"] = ref["betas"] + np.linspace(0, 0.1, T, dtype=np.float32)[:, None]

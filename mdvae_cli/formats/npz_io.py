@@ -167,9 +167,9 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         raise InputError(f"{path}: frame rate must be > 0, got {fps:g}")
     check_fps(fps, str(path), swapped=f"is {fps_key} a frame time?")
 
-    gender, gender_bytes = ("neutral", False)
+    gender, gender_bytes, gender_as_stored = ("neutral", False, "neutral")
     if "gender" in data:
-        gender, gender_bytes = gender_text(data["gender"], path)
+        gender, gender_bytes, gender_as_stored = gender_text(data["gender"], path)
 
     mask = None
     if "joint_mask" in data:
@@ -188,6 +188,7 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
     layout = {
         "fps_key": fps_key,
         "gender_bytes": gender_bytes,
+        "gender_as_stored": gender_as_stored,
         "has_gender": "gender" in data,
         "has_poses": has_poses,
         "poses_dtype": str(data["poses"].dtype) if has_poses else str(poses.dtype),
@@ -315,7 +316,9 @@ def motion_to_arrays(motion: Motion, holes: bool = True) -> dict[str, np.ndarray
     fps_key = str(layout.get("fps_key", "mocap_framerate"))
     out[fps_key] = _fps_array(motion.fps, specs.get(fps_key))
     if layout.get("has_gender", True):
-        g = motion.gender.encode() if layout.get("gender_bytes") else motion.gender
+        stored = str(layout.get("gender_as_stored", motion.gender))
+        g = stored if stored.strip() == motion.gender else motion.gender  # as it came
+        g = g.encode() if layout.get("gender_bytes") else g
         out["gender"] = _like(np.array(g), specs.get("gender"))
     if motion.joint_mask is not None:
         mask = motion.joint_mask.astype(bool)

@@ -69,8 +69,9 @@ def frame_rate(key: str, value: np.ndarray, path: Path) -> float:
     return float(real_array(key, value, path).reshape(-1)[0])
 
 
-def gender_text(value: np.ndarray, path: Path) -> tuple[str, bool]:
-    """The one text a ``gender`` array holds, and whether it was stored as bytes."""
+def gender_text(value: np.ndarray, path: Path) -> tuple[str, bool, str]:
+    """The one text a ``gender`` array holds (stripped), whether it was stored as bytes, and
+    the text as stored (written back as it came while the gender is unchanged)."""
     value = np.asarray(value)
     if value.size != 1:
         what = "is empty" if value.size == 0 else f"holds {value.size} values; expected one"
@@ -79,10 +80,11 @@ def gender_text(value: np.ndarray, path: Path) -> tuple[str, bool]:
     if isinstance(item, np.generic):
         item = item.item()
     if isinstance(item, bytes):
-        return item.decode("utf-8", "replace").strip(), True
+        text = item.decode("utf-8", "replace")
+        return text.strip(), True, text
     if not isinstance(item, str):
         raise InputError(f"{path}: 'gender' is not text (dtype {value.dtype})")
-    return item.strip(), False
+    return item.strip(), False, item
 
 
 def joint_mask(value: np.ndarray, path: Path) -> np.ndarray:
