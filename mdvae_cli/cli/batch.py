@@ -176,9 +176,9 @@ def _missing_job(path: Path, out, out_suffix: str | None, rename) -> FileJob:
     """The job of an input that does not exist (it fails in :func:`run_batch`)."""
     rel = Path(path.name)
     if out is None:
-        return FileJob(rel, path)
+        return FileJob(rel, path, missing=True)
     target = strip_gz(rel).with_suffix("") if out_suffix is None else (rename or strip_gz)(rel)
-    return FileJob(rel, path, Path(out) / target)
+    return FileJob(rel, path, Path(out) / target, missing=True)
 
 
 def refuse_unsupported(out: Path) -> None:
@@ -282,7 +282,7 @@ def run_batch(
         for job in jobs:
             progress.update(task, info=escape(job.relpath.as_posix()))
             try:
-                if not job.source.exists():  # one of several inputs given, or gone since
+                if job.missing:  # one of several inputs named
                     raise InputError(f"no such file or folder: {job.source}")
                 if inner is None:
                     outcome = FileOutcome(job, result=fn(job))

@@ -3,7 +3,9 @@
 A take read by :func:`mdvae_cli.formats.asfamc.load_amc` keeps its
 :class:`~mdvae_cli.formats.asfamc.AmcLayout`; :func:`write_amc` writes new values with it: the
 header verbatim, every frame under its own number, each frame's bones in the order it listed
-them (a bone a frame left out stays out), with the file's line ending. A value that changed by
+them (a bone a frame left out stays out), with the file's line ending; a frame the file lacked
+(a missing frame number: a hole) in its place, listing the bones of the frame before it, unless
+the holes are to stay as they came (``gaps=False``). A value that changed by
 less than half the last written decimal is written exactly as the file had it; a new one with
 :data:`DECIMALS` decimals (:data:`RADIAN_DECIMALS` for angles in radians), trailing zeros
 dropped.
@@ -35,9 +37,10 @@ def _decimals(layout: AmcLayout, bone: str) -> list[int]:
     return [angle if d.startswith("r") else DECIMALS for d in layout.dofs(bone)]
 
 
-def amc_text(layout: AmcLayout, values: dict[str, np.ndarray]) -> str:
+def amc_text(layout: AmcLayout, values: dict[str, np.ndarray], gaps: bool = True) -> str:
     """The AMC file of ``layout`` with ``values`` (bone -> (F, n), every frame of the file; a
-    bone left out keeps the file's values)."""
+    bone left out keeps the file's values). gaps: write the frames the file lacked (its
+    missing frame numbers, ``AmcLayout.added``: filled), else the frames it came with alone."""
     lines: dict[str, list[str]] = {}  # bone -> its line in each frame
     for bone, old in layout.values.items():
         tokens = layout.tokens[bone].copy()
@@ -45,22 +48,30 @@ def amc_text(layout: AmcLayout, values: dict[str, np.ndarray]) -> str:
         if new.shape != old.shape:
             raise ValueError(f"bone {bone}: {new.shape} values for {old.shape}")
         for i, dec in enumerate(_decimals(layout, bone)):
-            rows = np.flatnonzero((np.abs(new[:, i] - old[:, i]) >= 0.5 * 10.0**-dec)
-                                  & (tokens[:, i] != None))  # noqa: E711 (elementwise)  # fmt: skip
+            written = tokens[:, i] != None  # noqa: E711 (elementwise)
+            changed = np.abs(new[:, i] - old[:, i]) >= 0.5 * 10.0**-dec
+            rows = np.flatnonzero(written & (changed | (tokens[:, i] == "")))  # "": added
             tokens[rows, i] = [format_value(v, dec) for v in new[rows, i]]
         # a row of None: a frame that did not list the bone (its line is not written)
         lines[bone] = [bone + "".join(" " + t for t in row) if not row or row[0] is not None
                        else "" for row in tokens.tolist()]  # fmt: skip
     nl = layout.newline
     out = [layout.header]
+    skip = np.zeros(len(layout.frames), bool) if gaps or layout.added is None else layout.added
     for f, number in enumerate(layout.frames):
+        if skip[f]:
+            continue
         out.append(number + nl)
         out.extend(lines[bone][f] + nl for bone in layout.bones[f])
     return "".join(out)
 
 
 def write_amc(
-    layout: AmcLayout, values: dict[str, np.ndarray], path: Path | str, forbid: tuple = ()
+    layout: AmcLayout,
+    values: dict[str, np.ndarray],
+    path: Path | str,
+    forbid: tuple = (),
+    gaps: bool = True,
 ) -> None:
     """Write :func:`amc_text` atomically; a name ending in ``.gz`` is gzip-compressed."""
-    write_text(path, amc_text(layout, values), forbid=forbid)
+    write_text(path, amc_text(layout, values, gaps), forbid=forbid)

@@ -247,8 +247,10 @@ def _bone(block: list[str], path: str) -> AsfBone:
 
 
 def load_asf(path: Path | str) -> AsfSkeleton:
-    """Read an ``.asf`` (or ``.asf.gz``) skeleton file."""
-    return parse_asf(read_text(path), str(path))
+    """Read an ``.asf`` (or ``.asf.gz``) skeleton file. Bytes that are not UTF-8 (a cp1252
+    bone name) are kept as the AMC reader keeps them ("surrogateescape"), so that the names
+    of the two files agree."""
+    return parse_asf(read_text(path, errors="surrogateescape"), str(path))
 
 
 def axis_frame(angles: np.ndarray, order: str, degrees: bool) -> np.ndarray:

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.amc_frames import apply_plan, arrange_frames
 from mdvae_cli.formats.asf import (
     AsfSkeleton,
     axis_frame,
@@ -46,7 +47,12 @@ class AmcLayout:
     (object array of str; None where the frame left the bone out). rows: (T,) the frames the
     SourceMotion holds (a cut-off last frame, or frames past ``max_frames``, are written back
     unchanged). degrees: the angle unit of the values. skeleton: the ASF. metres_per_unit:
-    the scale the SourceMotion is in.
+    the scale the SourceMotion is in. added: (F,) bool, True for a frame the file lacks (a
+    missing frame number, ``formats.amc_frames``; its values are placeholders, its tokens ""
+    and its number ``str``); None: none.
+
+    The frames are in the order of their numbers, a row for each number missing inside the
+    take; a cut-off last frame comes last.
     """
 
     header: str
@@ -59,6 +65,13 @@ class AmcLayout:
     skeleton: AsfSkeleton
     metres_per_unit: float
     newline: str = "\n"
+    added: np.ndarray | None = None
+
+    def gaps(self) -> np.ndarray:
+        """(T,) bool, True for the frames of the SourceMotion the file lacks (holes)."""
+        F = len(self.frames)
+        added = np.zeros(F, bool) if self.added is None else np.asarray(self.added, bool)
+        return added[self.rows]
 
     def dofs(self, name: str) -> tuple[str, ...]:
         """The AMC channels of ``name`` ("root" or a bone), e.g. ("rx", "rz")."""
@@ -135,11 +148,32 @@ def _read_amc_values(text: str, layout: dict[str, int], path: str):
         values, notes, kept = _slow_amc(lines[start:], layout, path)
     else:
         values, kept = fast
-    return values, degrees, notes, (header, newline, *kept)
+    numbers, listed, written, T = kept
+    plan = arrange_frames(numbers, T, path, _number_lines(lines, start))
+    if plan.changed:
+        values, written, listed = apply_plan(plan, values, written, listed)
+        numbers, T = plan.numbers, plan.T
+    notes += plan.notes
+    return values, degrees, notes, (header, newline, numbers, listed, written, plan.added, T)
+
+
+def _number_lines(lines: list[str], start: int):
+    """file frame -> "line N" of its number (the lines that hold a number alone, counted once
+    asked: only messages need them), or "frame K" when frames do not sit on lines of their
+    own."""
+    found: list[int] = []
+
+    def line_of(k: int) -> str:
+        if not found:
+            found.extend(i + 1 for i in range(start, len(lines)) if lines[i].strip().isdigit())
+        return f"line {found[k]}" if k < len(found) else f"frame {k + 1}"
+
+    return line_of
 
 
 def _is_int(tok: str) -> bool:
-    return tok.isdigit()
+    """Whether ``tok`` is a frame number (ASCII digits: ``"²".isdigit()`` is True too)."""
+    return tok.isascii() and tok.isdigit()
 
 
 def _fast_amc(tokens: list[str], order: list[str], layout: dict[str, int], block: int):
@@ -162,7 +196,7 @@ def _fast_amc(tokens: list[str], order: list[str], layout: dict[str, int], block
             return None
         col += 1 + n
     frames = tokens[0::block]
-    if not all(t.isdigit() for t in frames):
+    if not all(_is_int(t) for t in frames):
         return None
     return values, (frames, [tuple(order)] * T, written, T)
 
@@ -304,13 +338,16 @@ def load_amc(
     notes = list(skeleton.notes) + amc_notes
     if any(d in ("tx", "ty", "tz", "l") for b in skeleton.bones.values() for d in b.dofs):
         notes.append("translation/length dofs on bones are ignored")
+    gaps = int(kept[5][:T_file].sum())  # frames the file lacks
     info = {"format": "amc", "skeleton": Path(skeleton.path).name, "unit": unit,
             "metres_per_unit": float(metres), "fps_in_file": float(fps),
-            "frames_in_file": int(T_file), "degrees": bool(degrees)}  # fmt: skip
-    header, newline, frames, listed, tokens, _ = kept
+            "frames_in_file": int(T_file) - gaps, "degrees": bool(degrees)}  # fmt: skip
+    if gaps:
+        info["missing_frames"] = gaps
+    header, newline, frames, listed, tokens, added, _ = kept
     amc = AmcLayout(header=header, frames=list(frames), bones=listed, values=file_values,
                     tokens=tokens, rows=np.arange(T), degrees=bool(degrees), skeleton=skeleton,
-                    metres_per_unit=float(metres), newline=newline)  # fmt: skip
+                    metres_per_unit=float(metres), newline=newline, added=added)  # fmt: skip
     return SourceMotion(
         names=tuple(names),
         parents=np.array(parents, dtype=np.int64),

@@ -20,133 +20,32 @@ from pathlib import Path
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.bvh_hierarchy import Tokens, parse_hierarchy
 from mdvae_cli.formats.bvh_rotations import channel_rotations
+from mdvae_cli.formats.bvh_write import line_ending
 from mdvae_cli.formats.source import (
     BVH_UNIT_GUESSES,
     CMU_UNIT,
     SourceMotion,
     check_angles,
     guess_length_unit,
-    read_text,
+    read_text_encoded,
     skeleton_height,
 )
 
 # --- BVH ---------------------------------------------------------------------------------------
 
-_CHANNELS = {
-    "xposition": ("t", "x"), "yposition": ("t", "y"), "zposition": ("t", "z"),
-    "xrotation": ("r", "x"), "yrotation": ("r", "y"), "zrotation": ("r", "z"),
-}  # fmt: skip
-
 #: joint names that only the CMU "cmuconvert" BVH release has together
 _CMUCONVERT_SIGNATURE = {"LHipJoint", "RHipJoint", "LowerBack", "LeftFingerBase"}
-
-
-#: joints deeper than this below the root: not a motion-capture skeleton (a finger tip of a
-#: full-body rig is ~10 deep)
-MAX_DEPTH = 1000
-
-
-class _Tokens:
-    def __init__(self, text: str, path: Path):
-        self.items = re.sub(r"([{}])", r" \1 ", text).split()
-        self.pos = 0
-        self.path = path
-
-    def next(self, what: str) -> str:
-        if self.pos >= len(self.items):
-            raise InputError(f"{self.path}: unexpected end of the hierarchy (expected {what})")
-        tok = self.items[self.pos]
-        self.pos += 1
-        return tok
-
-    def expect(self, word: str) -> None:
-        tok = self.next(repr(word))
-        if tok.upper() != word.upper():
-            raise InputError(f"{self.path}: malformed BVH: expected {word!r}, got {tok!r}")
-
-    def number(self, what: str) -> float:
-        tok = self.next(what)
-        try:
-            value = float(tok)
-        except ValueError:
-            raise InputError(f"{self.path}: expected a number for {what}, got {tok!r}") from None
-        if not math.isfinite(value):
-            raise InputError(f"{self.path}: {what} is not finite ({tok})")
-        return value
-
-
-def _parse_hierarchy(tok: _Tokens):
-    """-> names, parents, offsets (file units), channels [(joint, kind, axis)], end_site flags.
-
-    Read without recursion (a hierarchy's depth is the file's to choose); one deeper than
-    MAX_DEPTH is refused."""
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[tuple[float, float, float]] = []
-    end_site: list[bool] = []
-    channels: list[tuple[int, str, str]] = []
-    open_joints: list[int] = []  # the joints whose '}' is still to come, root first
-
-    def begin(parent: int, name: str, is_end: bool) -> None:
-        if len(open_joints) >= MAX_DEPTH:
-            raise InputError(f"{tok.path}: the joint hierarchy is more than {MAX_DEPTH} joints "
-                             "deep; not a motion-capture skeleton")  # fmt: skip
-        index = len(names)
-        names.append(name)
-        parents.append(parent)
-        end_site.append(is_end)
-        tok.expect("{")
-        tok.expect("OFFSET")
-        offsets.append(tuple(tok.number(f"the OFFSET of {name}") for _ in range(3)))
-        if not is_end:
-            tok.expect("CHANNELS")
-            word = tok.next(f"the channel count of {name}")
-            try:
-                count = float(word)
-            except ValueError:
-                count = -1.0
-            if not (0 <= count <= 6 and count == int(count)):
-                raise InputError(f"{tok.path}: joint {name} has a bad channel count {word}")
-            for _ in range(int(count)):
-                ch = tok.next(f"a channel of {name}")
-                if ch.lower() not in _CHANNELS:
-                    raise InputError(f"{tok.path}: joint {name} has an unknown channel {ch!r}")
-                channels.append((index, *_CHANNELS[ch.lower()]))
-        open_joints.append(index)
-
-    tok.expect("HIERARCHY")
-    tok.expect("ROOT")
-    begin(-1, tok.next("the root joint name"), False)
-    while open_joints:
-        index = open_joints[-1]
-        name = names[index]
-        word = tok.next(f"'}}' closing {name}")
-        if word == "}":
-            open_joints.pop()
-        elif end_site[index]:
-            raise InputError(f"{tok.path}: End Site of {names[parents[index]]} has extra content")
-        elif word.upper() == "JOINT":
-            begin(index, tok.next("a joint name"), False)
-        elif word.upper() == "END":
-            tok.expect("Site")
-            begin(index, f"{name}_end", True)
-        else:
-            raise InputError(f"{tok.path}: unexpected {word!r} inside joint {name}")
-    seen: set[str] = set()
-    for n in names:
-        if n in seen:
-            raise InputError(f"{tok.path}: joint name {n!r} appears twice")
-        seen.add(n)
-    return names, parents, np.array(offsets, dtype=np.float64), channels, end_site
 
 
 @dataclass
 class BvhLayout:
     """What it takes to write a BVH file again on its own skeleton.
 
-    header: the file's text up to and including the ``MOTION`` line, verbatim (hierarchy,
-    names, offsets, channel layout). channels: (joint, kind "t"/"r", axis) per column.
+    header: the file's text up to and including the ``MOTION`` line and its line ending,
+    verbatim (hierarchy, names, offsets, channel layout). channels: (joint, kind "t"/"r",
+    axis) per column.
     data: (F, C) every frame of the file as read. rows: (T,) the file rows the SourceMotion's
     frames came from (a dropped first frame or blank frames are written back unchanged).
     frame_time: the ``Frame Time`` as written. offsets: (J, 3) the OFFSETs, file units.
@@ -155,7 +54,9 @@ class BvhLayout:
     moving: joints other than the root whose position channels move the joint.
     rotations: (T, J, 3, 3) the local rotations the reader made from the channels of the rows
     ``rows`` (the SourceMotion's own array while it keeps it), so that the way back need not
-    make them again; None when not kept.
+    make them again; None when not kept. encoding: the one the file's bytes were read with
+    (``source.decode_text``: ``"utf-8"``, ``"utf-8-sig"`` or ``"latin-1"``), to write its
+    header back byte for byte.
     """
 
     header: str
@@ -168,6 +69,7 @@ class BvhLayout:
     world_channels: tuple[int, ...] = ()
     moving: tuple[int, ...] = ()
     rotations: np.ndarray | None = None
+    encoding: str = "utf-8"
 
     def joint_columns(self, j: int, kind: str) -> list[tuple[int, str]]:
         """(column, axis) of joint j's channels of one kind ("t" or "r"), in file order."""
@@ -230,6 +132,8 @@ def _split_positions(names, parents, offsets, layout, data, rotations, root_pos,
 
 
 _SPACE = re.compile(r"\s")
+#: the MOTION line, whatever the line endings (LF, CR LF, CR alone)
+_MOTION_LINE = re.compile(r"(?:\A|(?<=[\r\n]))[ \t]*MOTION[ \t]*(?=[\r\n]|\Z)", re.IGNORECASE)
 #: characters of motion data parsed at a time
 _CHUNK = 4 << 20
 
@@ -272,19 +176,21 @@ def load_bvh(
     drop_first: drop frame 0; None drops it for cmuconvert files (where it is an added T-pose).
     max_frames: read at most this many frames (after the drop), for quick looks and tests.
 
-    Any channel order is accepted. Position channels on non-root joints replace the joint's
-    offset (their mean over the clip; a note says when they move). Raises InputError with a
-    one-line message for malformed files.
+    The file may be gzipped (by name, any case, or by its first bytes), UTF-8 or not (read as
+    latin-1: ``layout.encoding`` says which) and end its lines in LF, CR LF or CR; joint names
+    may hold spaces (``formats.bvh_hierarchy``). Any channel order is accepted. Position
+    channels on non-root joints replace the joint's offset (their mean over the clip; a note
+    says when they move). Raises InputError with a one-line message for malformed files.
     """
     path = Path(path)
-    text = read_text(path)
-    split = re.search(r"^\s*MOTION\s*$", text, flags=re.MULTILINE | re.IGNORECASE)
+    text, encoding = read_text_encoded(path)
+    split = _MOTION_LINE.search(text)
     if not text.lstrip().upper().startswith("HIERARCHY"):
         raise InputError(f"{path}: not a BVH file (it does not start with HIERARCHY)")
     if split is None:
         raise InputError(f"{path}: no MOTION section")
-    tok = _Tokens(text[: split.start()], path)
-    names, parents, offsets, channels, end_site = _parse_hierarchy(tok)
+    tok = Tokens(text[: split.start()], path)
+    names, parents, offsets, channels, end_site = parse_hierarchy(tok)
     if tok.pos != len(tok.items):
         raise InputError(f"{path}: unexpected {tok.items[tok.pos]!r} after the root joint")
 
@@ -307,7 +213,8 @@ def load_bvh(
         values, count = _numbers(text, head.end(), n_frames * C)
     except ValueError:
         raise InputError(f"{path}: non-numeric value in the motion data") from None
-    header, frame_text = text[: split.end()].rstrip() + "\n", head.group(2)
+    header = text[: split.end()].rstrip() + line_ending(text[: split.end()])
+    frame_text = head.group(2)
     del text, head, split  # the matches hold the text too
     if count % C:
         raise InputError(f"{path}: motion data has {count} values, not a multiple of "
@@ -320,7 +227,7 @@ def load_bvh(
     data = values.reshape(found, C)
     layout = BvhLayout(header=header, channels=channels, data=data,
                        rows=np.arange(found), frame_time=frame_text, offsets=offsets,
-                       metres_per_unit=1.0)  # fmt: skip
+                       metres_per_unit=1.0, encoding=encoding)  # fmt: skip
 
     notes: list[str] = []
     cmuconvert = _CMUCONVERT_SIGNATURE <= set(names)

@@ -102,11 +102,19 @@ def _fixed_point_text(x: np.ndarray, columns: int) -> np.ndarray:
     return text[text > 0]
 
 
+def line_ending(text: str) -> str:
+    """The line ending a text's lines use: CR LF (a file made on Windows), CR alone (an old
+    Mac file) or LF."""
+    if "\r\n" in text:
+        return "\r\n"
+    return "\r" if "\r" in text else "\n"
+
+
 def motion_pieces(header: str, data: np.ndarray, frame_time: str) -> Iterator[str]:
     """A BVH file in pieces: ``header`` (through the MOTION line), the frame count, the frame
     time as given, then the rows of ``data`` (F, C), ``ROWS_PER_PIECE`` at a time; every line
-    ends as the header's lines do (CR LF for a file made on Windows, else LF)."""
-    nl = "\r\n" if "\r\n" in header else "\n"
+    ends as the header's lines do (:func:`line_ending`)."""
+    nl = line_ending(header)
     yield f"{header.rstrip()}{nl}Frames: {data.shape[0]}{nl}Frame Time: {frame_time}{nl}"
     for start in range(0, data.shape[0], ROWS_PER_PIECE):
         rows = format_rows(data[start : start + ROWS_PER_PIECE])
@@ -118,12 +126,19 @@ def motion_text(header: str, data: np.ndarray, frame_time: str) -> str:
     return "".join(motion_pieces(header, data, frame_time))
 
 
-def write_text(path: Path | str, text: str | Iterable[str], forbid: tuple[Path, ...] = ()) -> None:
-    """Write ``text`` (a string, or its pieces in order) atomically as UTF-8 (bytes a reader
-    kept with "surrogateescape" as they were), newlines as given; a name ending in ``.gz`` is
-    gzip-compressed."""
+def write_text(
+    path: Path | str,
+    text: str | Iterable[str],
+    forbid: tuple[Path, ...] = (),
+    encoding: str = "utf-8",
+) -> None:
+    """Write ``text`` (a string, or its pieces in order) atomically, newlines as given; a name
+    ending in ``.gz`` (any case) is gzip-compressed. encoding: the one the text was read with
+    (``source.decode_text``): ``"utf-8"`` (bytes a reader kept with "surrogateescape" as they
+    were), ``"utf-8-sig"`` (a byte-order mark first) or ``"latin-1"``."""
     path = Path(path)
     pieces = (text,) if isinstance(text, str) else text
+    codec = "utf-8" if encoding == "utf-8-sig" else encoding
 
     def write(tmp: Path) -> None:
         if path.suffix.lower() == ".gz":
@@ -133,16 +148,20 @@ def write_text(path: Path | str, text: str | Iterable[str], forbid: tuple[Path, 
         else:
             fh = open(tmp, "wb")  # noqa: SIM115 (closed below)
         with fh:
+            if encoding == "utf-8-sig":
+                fh.write(b"\xef\xbb\xbf")
             for piece in pieces:
-                fh.write(piece.encode("utf-8", errors="surrogateescape"))
+                fh.write(piece.encode(codec, errors="surrogateescape"))
 
     write_atomic(path, write, forbid=forbid)
 
 
 def write_bvh(layout, data: np.ndarray, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:
     """Write every frame ``data`` (F, C) under the file's own header (``layout``: a
-    :class:`~mdvae_cli.formats.bvh.BvhLayout`), atomically."""
-    write_text(path, motion_pieces(layout.header, data, layout.frame_time), forbid=forbid)
+    :class:`~mdvae_cli.formats.bvh.BvhLayout`), atomically, in the file's own encoding and
+    line endings."""
+    pieces = motion_pieces(layout.header, data, layout.frame_time)
+    write_text(path, pieces, forbid=forbid, encoding=layout.encoding)
 
 
 def bvh_text(
@@ -183,7 +202,7 @@ def bvh_text(
 
     block(0, 0)
     lines.append("MOTION")
-    order_j = [names.index(line.split()[-1]) for line in lines
+    order_j = [names.index(line.split(None, 1)[1]) for line in lines
                if line.strip().startswith(("ROOT ", "JOINT "))]  # fmt: skip
     cols = [0, 1, 2] + [3 + 3 * j + k for j in order_j for k in range(3)]
     return motion_text("\n".join(lines), data[:, cols], f"{frame_time:.8g}")

@@ -21,7 +21,8 @@ channel. Two patterns mean a hole, and each is a rule:
   BVH reader already drops at the start and end of a take): the whole frame is missing.
 
 :func:`missing_channels` applies the rules to a :class:`SourceMotion` read with its file layout
-and gives a (T, J) mask over the take's own joints; ``retarget.take`` carries it onto the body.
+and gives a (T, J) mask over the take's own joints; ``retarget.take`` carries it onto the body,
+with the frames an AMC file lacks (:func:`file_gaps`, missing whatever the rules).
 """
 
 from __future__ import annotations
@@ -71,6 +72,16 @@ def channel_data(src: SourceMotion) -> tuple[np.ndarray, np.ndarray]:
                 owners += [index[bone]] * values.shape[1]
         return np.concatenate(blocks, axis=1), np.array(owners, dtype=int)
     raise InputError("--missing applies to BVH and AMC takes read from their files")
+
+
+def file_gaps(src: SourceMotion) -> np.ndarray | None:
+    """(T,) bool, True for the frames of ``src`` its file lacks (an AMC take's missing frame
+    numbers, ``formats.amc_frames``: holes whatever the rules); None when it lacks none."""
+    gaps = getattr(src.layout, "gaps", None)
+    if gaps is None:
+        return None
+    found = np.asarray(gaps(), bool)
+    return found if found.any() else None
 
 
 def missing_channels(src: SourceMotion, rules: tuple[str, ...]) -> tuple[np.ndarray, dict]:

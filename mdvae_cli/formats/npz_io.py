@@ -24,6 +24,7 @@ from mdvae_cli.formats.npz_values import (
     BETA,
     DISTANCE,
     frame_rate,
+    gender_as_written,
     gender_text,
     joint_mask,
     real_array,
@@ -316,9 +317,7 @@ def motion_to_arrays(motion: Motion, holes: bool = True) -> dict[str, np.ndarray
     fps_key = str(layout.get("fps_key", "mocap_framerate"))
     out[fps_key] = _fps_array(motion.fps, specs.get(fps_key))
     if layout.get("has_gender", True):
-        stored = str(layout.get("gender_as_stored", motion.gender))
-        g = stored if stored.strip() == motion.gender else motion.gender  # as it came
-        g = g.encode() if layout.get("gender_bytes") else g
+        g = gender_as_written(motion.gender, layout)
         out["gender"] = _like(np.array(g), specs.get("gender"))
     if motion.joint_mask is not None:
         mask = motion.joint_mask.astype(bool)

@@ -87,6 +87,14 @@ def gender_text(value: np.ndarray, path: Path) -> tuple[str, bool, str]:
     return item.strip(), False, item
 
 
+def gender_as_written(gender: str, layout: dict) -> str | bytes:
+    """What ``gender`` is written as: the text as stored (:func:`gender_text`, spaces and all)
+    while it is unchanged, as bytes when it was bytes."""
+    stored = str(layout.get("gender_as_stored", gender))
+    text = stored if stored.strip() == gender else gender
+    return text.encode() if layout.get("gender_bytes") else text
+
+
 def joint_mask(value: np.ndarray, path: Path) -> np.ndarray:
     """A ``joint_mask`` as bool: true/false values, or numbers (non-zero = observed)."""
     mask = np.asarray(value)

@@ -118,23 +118,30 @@ class SourceMotion:
 MAX_TEXT = 256 << 20
 #: the UTF-8 byte-order mark some Windows exporters put first
 _BOM = b"\xef\xbb\xbf"
+#: the first two bytes of every gzip stream
+GZIP_MAGIC = b"\x1f\x8b"
 
 
-def read_text(path: Path | str, errors: str = "replace") -> str:
-    """A text file's contents, gunzipped when it ends in ``.gz``; InputError when unreadable.
-    errors: how bytes that are not UTF-8 are decoded ("surrogateescape" keeps them, so that
-    text written back with the same setting has the file's bytes)."""
+def is_gzip_name(path: Path | str) -> bool:
+    """Whether a file name ends in ``.gz``, in any case (``a.bvh.GZ``, ``c.Bvh.Gz``)."""
+    return Path(path).suffix.lower() == ".gz"
+
+
+def read_bytes(path: Path | str) -> bytes:
+    """A text file's bytes, gunzipped when its name ends in ``.gz`` (any case) or its bytes
+    start as gzip's do (a gzipped take named plain ``.bvh``); InputError when unreadable,
+    over ``MAX_TEXT`` (unzipped) or binary."""
     path = Path(path)
     check_regular(path)
+    gz = is_gzip_name(path)
     try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rb") as fh:
-                raw = fh.read(MAX_TEXT + 1)  # the limit holds while unzipping
-        else:
-            with open(path, "rb") as fh:
-                raw = fh.read(MAX_TEXT + 1)
+        with open(path, "rb") as fh:
+            gz = gz or fh.read(2) == GZIP_MAGIC
+        opener = gzip.open if gz else open
+        with opener(path, "rb") as fh:
+            raw = fh.read(MAX_TEXT + 1)  # the limit holds while unzipping
     except (OSError, EOFError, zlib.error) as exc:
-        gz = path.suffix == ".gz" and not isinstance(exc, PermissionError)
+        gz = gz and not isinstance(exc, PermissionError)
         what = "not a readable .gz file" if gz else "cannot read"
         why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
         raise InputError(f"{path}: {what} ({why})") from None
@@ -143,7 +150,36 @@ def read_text(path: Path | str, errors: str = "replace") -> str:
                          "is far smaller: split it, or check the file")  # fmt: skip
     if b"\0" in raw[:4096]:
         raise InputError(f"{path}: binary data, not a text mocap file")
-    return raw.removeprefix(_BOM).decode("utf-8", errors=errors)
+    return raw
+
+
+def read_text(path: Path | str, errors: str = "replace") -> str:
+    """A text file's contents (:func:`read_bytes`) as UTF-8, a byte-order mark dropped.
+    errors: how bytes that are not UTF-8 are decoded ("surrogateescape" keeps them, so that
+    text written back with the same setting has the file's bytes)."""
+    return read_bytes(path).removeprefix(_BOM).decode("utf-8", errors=errors)
+
+
+def decode_text(raw: bytes) -> tuple[str, str]:
+    """Bytes as text and the encoding that gives the same bytes back: ``"utf-8-sig"`` (UTF-8
+    after a byte-order mark, which is not in the text), ``"utf-8"``, else ``"latin-1"`` (every
+    byte one character: a cp1252 or latin-1 file's names read as their own letters, most of
+    them, and come back byte for byte)."""
+    if raw.startswith(_BOM):
+        try:
+            return raw[len(_BOM) :].decode("utf-8"), "utf-8-sig"
+        except UnicodeDecodeError:
+            pass
+    try:
+        return raw.decode("utf-8"), "utf-8"
+    except UnicodeDecodeError:
+        return raw.decode("latin-1"), "latin-1"
+
+
+def read_text_encoded(path: Path | str) -> tuple[str, str]:
+    """A text file's contents (:func:`read_bytes`) and their encoding (:func:`decode_text`),
+    for files written back with their own header."""
+    return decode_text(read_bytes(path))
 
 
 def guess_length_unit(

@@ -114,7 +114,8 @@ def fit_betas(
 
 
 def skeleton_key(src: SourceMotion) -> str:
-    """Identifies a skeleton (names and rest offsets to 0.1 mm), to fit betas once per skeleton."""
-    digest = hashlib.sha256("|".join(src.names).encode())
+    """Identifies a skeleton (names and rest offsets to 0.1 mm), to fit betas once per skeleton.
+    Names keep a file's bytes that are not UTF-8 as the readers kept them ("surrogateescape")."""
+    digest = hashlib.sha256("|".join(src.names).encode("utf-8", errors="surrogateescape"))
     digest.update(np.round(src.offsets * 1e4).astype(np.int64).tobytes())
     return digest.hexdigest()[:16]

@@ -38,7 +38,7 @@ _ALIASES: dict[str, tuple[str, ...]] = {
                   "leftloleg", "leftlowleg", "leftcalf"),
     "left_ankle": ("leftankle", "lankle", "lfoot", "leftfoot"),
     "left_foot": ("ltoes", "lefttoebase", "lefttoe", "lefttoes", "ltoe", "leftforefoot",
-                  "leftball", "leftfoot"),
+                  "leftball", "lefttoe0", "leftfoot"),
     "left_shoulder": ("lhumerus", "leftarm", "leftupperarm", "leftuparm", "lshldr", "lshoulder",
                       "leftshoulder"),
     "left_collar": ("lclavicle", "leftshoulder", "leftcollar", "lcollar", "leftclavicle",

@@ -96,30 +96,56 @@ def read_take(
 
 
 def with_missing(take: Take, rules: tuple[str, ...]) -> Motion:
-    """The take's motion with the holes ``rules`` name (``formats.missing``) marked in
-    ``joint_mask`` and slerp / lerp placeholders in them (``motion.holes.with_holes``), and a
-    note; the take's own motion (kept for the way back) when nothing matched. A body joint is
-    missing where the source joint it follows, or takes its rotation from, is."""
-    if not rules:
+    """The take's motion with its holes marked in ``joint_mask`` and slerp / lerp placeholders
+    in them (``motion.holes.with_holes``), and a note: the frames an AMC file lacks (missing
+    frame numbers, ``formats.missing.file_gaps``) and what ``rules`` name
+    (``formats.missing``); the take's own motion (kept for the way back) when there are none.
+    A body joint is missing where the source joint it follows, or takes its rotation from, is.
+    The file's missing frames read as the NaN rows of an npz would (``npz_holes.AS_READ``):
+    ``--fill off`` and ``add-noise`` keep them as holes."""
+    from mdvae_cli.formats.missing import file_gaps
+
+    gaps = file_gaps(take.source)
+    if not rules and gaps is None:
         return take.motion
     from mdvae_cli.formats.missing import describe, missing_channels
     from mdvae_cli.motion.holes import hole_count, with_holes
 
-    source, found = missing_channels(take.source, rules)
+    found = None
+    if rules:
+        source, found = missing_channels(take.source, rules)
+    else:
+        source = np.zeros((take.source.num_frames, take.source.num_joints), bool)
     jmap = take.retarget.jmap
-    body = source[:, jmap.attach] | source[:, jmap.rot_source]  # (T_file, 22)
+    named = source[:, jmap.attach] | source[:, jmap.rot_source]  # (T_file, 22)
+    if gaps is not None:
+        source[gaps] = True
     motion = take.motion
-    if len(body) != motion.num_frames:  # resampled: the nearest file frame
+    at = slice(None)
+    if len(named) != motion.num_frames:  # resampled: the nearest file frame
         at = np.rint(np.arange(motion.num_frames) * take.source.fps / motion.fps).astype(int)
-        body = body[np.clip(at, 0, len(body) - 1)]
+        at = np.clip(at, 0, len(named) - 1)
     else:
         take.missing = source
-    if not body.any():
+    named = named[at]
+    lost = np.zeros(len(named), bool) if gaps is None else gaps[at]
+    note = None  # what the rules found
+    if found is not None and named.any():
+        note = describe(found, hole_count(~named)[0])
+    elif found is not None:
+        note = f"--missing {','.join(rules)}: no frame matched"
+    if not named.any() and not lost.any():
         motion = motion.with_body()
-        motion.notes.append(f"--missing {','.join(rules)}: no frame matched")
+        motion.notes.append(note)
         return motion
-    out = with_holes(motion, ~body, "slerp")
-    out.notes.append(describe(found, hole_count(~body)[0]))
+    out = with_holes(motion, ~(named | lost[:, None]), "slerp")
+    if note is not None:
+        out.notes.append(note)
+    if lost.any() and take.missing is source:  # the file's own frames: its gaps as NaN rows
+        from mdvae_cli.formats.npz_holes import AS_READ, with_nan_holes
+
+        lacking = np.repeat(~lost[:, None], out.joint_mask.shape[1], axis=1)
+        out.layout[AS_READ] = with_nan_holes(out, lacking).layout[AS_READ]
     return out
 
 
@@ -169,7 +195,7 @@ def write_take(
         raise InputError(f"{take.path}: {exc}; nothing written") from None
     if as_read:
         _restore_missing(take, values)
-    write_amc(take.source.layout, values, out, forbid=forbid)
+    write_amc(take.source.layout, values, out, forbid=forbid, gaps=not as_read)
     if take.skeleton_file is not None:
         copy = out.parent / take.skeleton_file.name
         if not copy.exists():

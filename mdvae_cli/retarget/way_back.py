@@ -7,7 +7,8 @@ G_orig_j^T``, starting from the file's own rotations, so a joint the cleaning le
 its channels exactly, whatever its rest pose. Joints the SMPL proxy does not cover (fingers,
 toes, twist and extra spine joints, props) keep their local channels and follow their parent.
 The pelvis point moves as the SMPL pelvis did; the translation goes to the channels that
-carried it (the root's, or a moving pelvis's own), in the file's units and axes.
+carried it (the root's, or a moving pelvis's own), in the file's units and axes; a skeleton
+with no position channels (a root with rotation channels alone) drops it and stays in place.
 
 Where the cleaning turned a joint, its source joint's offset from it is read smoothed over
 time (:func:`driven_rotations`): the retarget fits each frame on its own, and on a noisy take
@@ -230,13 +231,14 @@ def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=
 
 def _carrier(src: SourceMotion, layout: BvhLayout, a: int) -> int:
     """The joint whose position channels move joint a: a itself when they move it, else the
-    nearest ancestor with position channels (the root)."""
+    nearest ancestor with position channels (the root); -1 when none has any (a root with
+    rotation channels alone: the take stays where its OFFSETs put it)."""
     j = a
     while j >= 0:
         if layout.joint_columns(j, "t") and (j == 0 or j in layout.moving):
             return j
         j = int(src.parents[j])
-    raise InputError("the skeleton has no position channels to carry the root's motion")
+    return -1
 
 
 def write_back_data(
@@ -309,8 +311,9 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     new_a = pelvis_point(rt, D, shift, P_a, scale, frames)
     c = _carrier(src, layout, a)
     t2 = t.copy()
-    Gp = np.broadcast_to(np.eye(3), (T, 3, 3)) if c == 0 else G2[:, src.parents[c]]
-    t2[:, c] = t[:, c] + (np.swapaxes(Gp, -1, -2) @ (new_a - P_a)[..., None])[..., 0]
+    if c >= 0:  # else no channel can carry a translation: it is dropped, the root stays put
+        Gp = np.broadcast_to(np.eye(3), (T, 3, 3)) if c == 0 else G2[:, src.parents[c]]
+        t2[:, c] = t[:, c] + (np.swapaxes(Gp, -1, -2) @ (new_a - P_a)[..., None])[..., 0]
 
     new = data.copy()
     for j in range(src.num_joints):
@@ -321,7 +324,7 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
                 continue  # a joint that cannot turn freely keeps its channels
             near = np.deg2rad(data[:, [col for col, _ in rot]])
             new[:, [col for col, _ in rot]] = np.rad2deg(rotmat_to_euler(L2[:, j], axes, near))
-    for col, axis in layout.joint_columns(c, "t"):
+    for col, axis in layout.joint_columns(c, "t") if c >= 0 else ():
         k = "xyz".index(axis)
         new[:, col] = t2[:, c, k] - (layout.offsets[0, k] if c == 0 else 0.0)
     if layout.world_channels:

@@ -15,9 +15,11 @@ class FileJob:
         directly); used for display, mirroring and per-file seeds.
     source: the input file. output: where the result goes (None when nothing is written).
     data: anything else the command needs (e.g. the matching prediction file).
+    missing: the input was named but does not exist (one of several: it fails alone).
     """
 
     relpath: Path
     source: Path
     output: Path | None = None
     data: Any = None
+    missing: bool = False
