@@ -70,12 +70,14 @@ from mdvae_cli.infer.leg_ik import (
     swing_ik,
     to_rotvecs,
 )
+from mdvae_cli.infer.noise_blend import source_spikes
 from mdvae_cli.motion.contacts import (
     FOOT_SIDE,
     contacts_of_feet,
     estimate_floor,
     foot_of_joints,
 )
+from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion
 
 #: per leg (left, right): its (ankle, ball) columns of FOOT_JOINTS
@@ -369,6 +371,22 @@ def lock_motions(
     cleaned: list[Motion], inputs: list[Motion], body: BodyModel, feet: FootLockConfig
 ) -> list[Motion]:
     """The foot lock (``infer.feet.lock_feet``) on denoised motions, each with its input as
-    the source; in a hole the lock reads the filled motion as the input's."""
-    sources = [holes_from(s, m) for m, s in zip(cleaned, inputs, strict=True)]
+    the source; in a hole, and at the input's spikes in the legs (``noise_blend.source_spikes``:
+    a knee flicked for one frame would otherwise be a foot position the lock pulls the clean
+    leg to), the lock reads the cleaned motion as the input's."""
+    sources = [holes_from(without_spikes(s), m) for m, s in zip(cleaned, inputs, strict=True)]
     return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]
+
+
+#: the joints that place the feet: pelvis, hips, knees, ankles, feet
+FOOT_CHAIN = [0, 1, 2, 4, 5, 7, 8, 10, 11]
+
+
+def without_spikes(source: Motion) -> Motion:
+    """``source`` with its spikes in :data:`FOOT_CHAIN` marked as holes (``joint_mask``)."""
+    spikes = source_spikes(source, FOOT_CHAIN)
+    if not spikes.any():
+        return source
+    marked = source.with_body()
+    marked.joint_mask = observed(source) & ~spikes
+    return marked

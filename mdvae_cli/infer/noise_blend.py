@@ -42,6 +42,7 @@ from mdvae_cli.geometry.rotations import (
 )
 from mdvae_cli.infer.fill import fill_spikes
 from mdvae_cli.infer.input_noise import noise_variance
+from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion
 
 #: the stretch over which the denoiser's change is measured (seconds)
@@ -289,6 +290,27 @@ def blend_translation(
         None if missing is None else missing[:, None],
     )  # fmt: skip
     return denoised + kept[:, 0], share[:, 0], spikes[:, 0]
+
+
+def source_spikes(source: Motion, joints: list[int] | None = None) -> np.ndarray:
+    """(T, 22) bool: the spikes of ``source`` by the blend's rule (:func:`spike_frames`), in
+    the rotations of ``joints`` (all when None; the others False) and, in the pelvis's
+    column, its translation's: observations the input does not have, which a later stage
+    (the foot lock's reference) must not read as the take's own."""
+    J = source.joint_rotations.shape[1]
+    cols = list(range(J)) if joints is None else list(joints)
+    out = np.zeros((source.num_frames, J), bool)
+    if source.num_frames < 4:
+        return out
+    seen = observed(source)
+    rot = torch.as_tensor(source.joint_rotations[:, cols], dtype=torch.float64)
+    unwrapped = rotvec_unwrap(rot, dim=0).numpy()
+    noise = noise_variance(unwrapped, seen[:, cols])
+    out[:, cols] = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD) & seen[:, cols]
+    trans = np.asarray(source.trans, np.float64)[:, None, :]
+    noise_t = noise_variance(trans, seen[:, :1])
+    out[:, 0] |= spike_frames(trans, noise_t, SPIKE_FLOOR_M)[:, 0] & seen[:, 0]
+    return out
 
 
 def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[Motion, BlendReport]:
