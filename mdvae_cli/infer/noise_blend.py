@@ -86,7 +86,10 @@ def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
 def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.ndarray:
     """Frames of each channel that jump away from both neighbours and back, by far more than
     the noise and by at least ``floor`` (a fast move also bends the track, but it does not
-    come back; on a clean take the noise is tiny, and only a real glitch is that far).
+    come back; on a clean take the noise is tiny, and only a real glitch is that far). On a
+    clean channel (its noise far under ``floor``) a frame is also one that neither side's
+    line leads to (:func:`missed_by_both_sides`): a toe snapping back at toe-off at 24-30 Hz
+    leaves its neighbours' midpoint too, but the frames before it lead there.
 
     values: (T, C, 3), noise_var: (C,) -> (T, C) bool"""
     T = values.shape[0]
@@ -98,7 +101,20 @@ def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.
     # a frame's distance from its neighbours' midpoint: variance 1.5 s^2 per component
     level = np.sqrt(1.5 * 3.0 * noise_var) + 1e-9
     out[1:-1] = (away > np.maximum(SPIKE_LEVELS * level, floor)) & (away > across)
+    clean = SPIKE_LEVELS * level <= floor  # (C,) the floor decides: a clean channel
+    if T >= 5 and clean.any():
+        out[2:-2] &= missed_by_both_sides(values, floor) | ~clean
     return out
+
+
+def missed_by_both_sides(values: np.ndarray, floor: float) -> np.ndarray:
+    """(T - 4, C) bool: whether frame t (2 .. T-3) lies further than ``floor`` from both the
+    line through frames t-2, t-1 and the line through t+2, t+1 (extended to t).
+
+    values: (T, C, 3)"""
+    left = np.linalg.norm(values[2:-2] - (2 * values[1:-3] - values[:-4]), axis=-1)
+    right = np.linalg.norm(values[2:-2] - (2 * values[3:-1] - values[4:]), axis=-1)
+    return np.minimum(left, right) > floor
 
 
 def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
