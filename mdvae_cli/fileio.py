@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
 import stat
@@ -80,16 +81,26 @@ def check_regular(path: Path) -> None:
 
 
 def expand_inputs(
-    inputs: Iterable[Path], suffixes: tuple[str, ...] = MOTION_SUFFIXES, skip: Iterable[Path] = ()
+    inputs: Iterable[Path],
+    suffixes: tuple[str, ...] = MOTION_SUFFIXES,
+    skip: Iterable[Path] = (),
+    *,
+    by_target: bool = False,
+    notes: list[str] | None = None,
 ) -> list[tuple[Path, Path]]:
     """Expand files and folders into ``(file, relative_path)`` pairs, sorted.
 
     A folder contributes every file below it whose name ends in one of ``suffixes`` (any
     case, ``.gz`` variants included; hidden files and folders skipped), with its path relative
-    to the folder; a file given directly contributes its own name. A file named twice (or
-    also inside a folder named) counts once. A folder in ``skip`` that lies inside a folder
-    named is left out of it (e.g. the output folder kept inside the input folder: a second
-    run must not read the first one's outputs). A missing path raises InputError.
+    to the folder; a file given directly contributes its own name. Each path found is its own
+    item, a symlink too (``a/link.npz -> ../b/take.npz`` and ``b/take.npz`` are two items, two
+    outputs); the same path named twice (or named and also inside a folder named) counts
+    once. ``by_target``: paths to one file count once too (a training corpus: a take linked
+    from two places is still one take). A broken symlink in a folder is skipped, with
+    ``"<relative path>: a broken link (to <target>); skipped"`` appended to ``notes``. A folder
+    in ``skip`` that lies inside a folder named is left out of it (e.g. the output folder kept
+    inside the input folder: a second run must not read the first one's outputs). A missing
+    path raises InputError.
     """
     skip = [Path(s).resolve() for s in skip]
     out: list[tuple[Path, Path]] = []
@@ -100,10 +111,16 @@ def expand_inputs(
             inner = [s for s in skip if s != root and s.is_relative_to(root)]
             for f in sorted(item.rglob("*")):
                 name = f.name.lower().removesuffix(".gz")
-                hidden = any(part.startswith(".") for part in f.relative_to(item).parts)
-                left_out = any(f.resolve().is_relative_to(s) for s in inner)
-                if f.is_file() and name.endswith(suffixes) and not hidden and not left_out:
-                    out.append((f, f.relative_to(item)))
+                rel = f.relative_to(item)
+                if not name.endswith(suffixes) or any(p.startswith(".") for p in rel.parts):
+                    continue
+                if any(f.resolve().is_relative_to(s) for s in inner):
+                    continue
+                if f.is_file():
+                    out.append((f, rel))
+                elif f.is_symlink() and not f.exists():
+                    if notes is not None:
+                        notes.append(f"{rel.as_posix()}: {_broken_link(f)}; skipped")
         elif item.exists():
             check_regular(item)
             out.append((item, Path(item.name)))
@@ -111,8 +128,31 @@ def expand_inputs(
             raise InputError(f"no such file or folder: {item}")
     unique, seen = [], set()
     for f, rel in out:
-        key = f.resolve()
+        key = f.resolve() if by_target else entry_of(f)
         if key not in seen:
             seen.add(key)
             unique.append((f, rel))
     return unique
+
+
+def entry_of(path: Path) -> Path:
+    """The folder entry ``path`` names: its folder resolved, its own name kept (a symlink is
+    an entry of its own, not the file it points to)."""
+    path = Path(path).absolute()
+    return path.parent.resolve() / path.name
+
+
+def _broken_link(path: Path) -> str:
+    """``a broken link (to TARGET)``, or ``a link that loops`` (``path`` is a symlink)."""
+    try:
+        target = os.readlink(path)
+    except OSError:
+        return "a broken link"
+    try:
+        path.resolve(strict=True)
+    except RuntimeError:  # Python 3.11 raises this for a loop
+        return "a link that loops"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a link that loops"
+    return f"a broken link (to {target})"

@@ -187,7 +187,7 @@ def add_noise(
             if own:  # the file's rows, noisy: its gaps stay gaps (no rows made up for them)
                 noisy_tracks.append((label, keep_holes(noisy)))
             else:
-                write(noisy, output, take=loaded.take, forbid=sources)
+                print_notes(job.relpath, write(noisy, output, take=loaded.take, forbid=sources))
                 outputs.append(str(output))
             frames += noisy.num_frames
             dropped = {k: dropped.get(k, 0) + v for k, v in made.items()}

@@ -12,6 +12,7 @@ Every file command (add-noise, eval, export-mesh, denoise, import) follows the s
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import sys
@@ -120,7 +121,8 @@ def plan_jobs(
     ``out/relpath`` (``rename(relpath)`` when given). An ``out`` given as a string ending in a
     slash is always a folder. With ``out_suffix=None`` (folder outputs, e.g. meshes): one
     input file writes into ``out`` itself, several into ``out/<relpath without suffix>``.
-    Files below ``out`` are not taken from an input folder that holds it. Among several
+    Files below ``out`` are not taken from an input folder that holds it; a broken link in an
+    input folder is skipped with a ``note:`` line (:func:`expand_inputs`). Among several
     inputs, one that does not exist becomes a job of its own, which fails with one line while
     the others go on (:func:`run_batch`). Raises InputError for no inputs, no matching files,
     inputs that all do not exist, an output that is an input (file or folder), two inputs with
@@ -139,7 +141,9 @@ def plan_jobs(
     for item in inputs:
         if out is not None and Path(item).is_dir() and out.resolve() == Path(item).resolve():
             raise InputError(f"the output folder {out} is an input folder; choose another")
-    items = expand_inputs(inputs, suffixes, skip=() if out is None else (out,))
+    notes: list[str] = []
+    items = expand_inputs(inputs, suffixes, skip=() if out is None else (out,), notes=notes)
+    print_found_notes(notes)
     if not items:
         names = ", ".join(str(p) for p in inputs)
         raise InputError(f"no {'/'.join(suffixes)} files found in {names}")
@@ -305,6 +309,22 @@ def run_batch(
     if len(jobs) > 1 and not quiet:
         report.print_summary(description)
     return report
+
+
+def print_found_notes(notes: Iterable[str]) -> None:
+    """Show what finding the inputs skipped (a broken link in a folder) as ``note:`` lines."""
+    for note in notes:
+        console.print(f"[dim]note: {escape(note)}[/]", soft_wrap=True)
+
+
+def note_broken_links(paths: Iterable[Path | str]) -> None:
+    """``note:`` lines for the broken links in the folders among ``paths`` (a training run's
+    data: the trainer skips them); a missing path is left for the trainer to report."""
+    notes: list[str] = []
+    for path in paths:
+        with contextlib.suppress(InputError):
+            expand_inputs([Path(path)], notes=notes)
+    print_found_notes(notes)
 
 
 def print_notes(relpath: Path, notes: Iterable[str]) -> None:

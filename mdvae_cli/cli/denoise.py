@@ -30,7 +30,8 @@ HELP = """Remove noise from motion files with the learned Motion-DVAE prior.
 INPUTS are AMASS-style .npz files, BVH takes (.bvh, .bvh.gz), ASF/AMC takes (.amc,
 .amc.gz, with their .asf), the output files of video pose pipelines (WHAM, GVHMR, TRAM,
 4D-Humans/PHALP, VIBE, PARE, HybrIK, ROMP/BEV, SLAHMR: upright, z up) or folders of them
-(any length, any frame rate); .npz outputs keep the
+(any frame rate; any length from 0.17 s, 6 frames at 30 Hz: a shorter take is refused);
+.npz outputs keep the
 input's keys, frame rate, frame count, hands and extra arrays, with cleaned body pose,
 root orientation and translation. A video pipeline's file gets the settings chosen for
 video estimates (Student-t noise, see --lam); options override them. Works out of the box

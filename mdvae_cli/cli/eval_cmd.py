@@ -17,6 +17,7 @@ from mdvae_cli.cli.batch import (
     FileOutcome,
     emit_json,
     json_option,
+    print_found_notes,
     print_notes,
     run_batch,
     strip_gz,
@@ -75,11 +76,16 @@ def pair_files(gt: Path, pred: Path) -> tuple[list[FileJob], list[Path]]:
         check_regular(gt)
         check_regular(pred)
         return [FileJob(Path(gt.name), gt, data=pred)], []
-    gt_items = expand_inputs([gt], READ_SUFFIXES)
+    notes: list[str] = []
+    gt_items = expand_inputs([gt], READ_SUFFIXES, notes=notes)
+    print_found_notes(f"{gt.name}/{n}" for n in notes)
     if not gt_items:
         raise InputError(f"no motion files ({', '.join(READ_SUFFIXES)}) found in {gt}")
     # a prediction made from take.npz.gz is take.npz: pair them without .gz
-    pred_by_rel = {strip_gz(rel): src for src, rel in expand_inputs([pred], READ_SUFFIXES)}
+    notes = []
+    pred_items = expand_inputs([pred], READ_SUFFIXES, notes=notes)
+    print_found_notes(f"{pred.name}/{n}" for n in notes)
+    pred_by_rel = {strip_gz(rel): src for src, rel in pred_items}
     jobs = [
         FileJob(rel, src, data=pred_by_rel.get(strip_gz(rel), pred / strip_gz(rel)))
         for src, rel in gt_items

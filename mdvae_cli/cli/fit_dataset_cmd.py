@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from mdvae_cli.cli.batch import emit_json
+from mdvae_cli.cli.batch import emit_json, note_broken_links
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
@@ -183,6 +183,7 @@ def fit_dataset(
             cfg.init_from = str(init_from)
         if body_model is not None:
             cfg.body_model = str(body_model)
+    note_broken_links(cfg.data)  # the trainer skips them
     if overrides.get("short_windows") is not None:
         overrides["short_windows"] = parse_lengths(overrides["short_windows"])
     apply_overrides(

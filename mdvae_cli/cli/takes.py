@@ -19,7 +19,7 @@ from mdvae_cli.cli.batch import (
     strip_gz,
 )
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import check_named_file, check_regular
+from mdvae_cli.fileio import check_named_file, check_regular, entry_of
 from mdvae_cli.formats.registry import READ_SUFFIXES, VIDEO_SUFFIXES
 
 #: what ``mdvae denoise`` reads: AMASS-style .npz, mocap takes, video pipelines' outputs
@@ -73,7 +73,7 @@ def plan_take_jobs(inputs, out) -> list[FileJob]:
     take."""
     as_folder = str(out).endswith(("/", os.sep))
     out = Path(out)
-    one = len({Path(p).resolve() for p in inputs}) == 1
+    one = len({entry_of(p) for p in inputs}) == 1  # a path named twice is one input
     if one and Path(inputs[0]).is_file() and not as_folder and not out.is_dir():
         src = Path(inputs[0])
         name = out.name.lower()

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import click
 
-from mdvae_cli.cli.batch import FileJob, emit_json, json_option, print_notes, run_batch
+from mdvae_cli.cli.batch import (
+    FileJob,
+    emit_json,
+    json_option,
+    print_found_notes,
+    print_notes,
+    run_batch,
+)
 from mdvae_cli.cli.common import (
     OutputPath,
     allow_pickle_option,
@@ -43,7 +50,9 @@ def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path
     options = ReadOptions(allow_pickle=allow_pickle, body=body_data, fps=fps,
                           **take_reading(asf, joint_map_file))  # fmt: skip
     takes = TakeReader(body_data, options.skeleton, options.joint_map)
-    files = [src for src, _ in expand_inputs(inputs, READ_SUFFIXES, skip=(out,))]
+    notes: list[str] = []
+    files = [src for src, _ in expand_inputs(inputs, READ_SUFFIXES, skip=(out,), notes=notes)]
+    print_found_notes(notes)
     if not files:
         raise InputError(f"no motion files found in {', '.join(str(p) for p in inputs)}")
     jobs = [FileJob(Path(label), src) for src, label in zip(files, motion_labels(files),

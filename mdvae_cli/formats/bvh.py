@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
 import numpy as np
@@ -163,6 +164,26 @@ def _parse_floats(text: str) -> np.ndarray:
     return np.fromstring(text, sep=" ")
 
 
+def rate_of_frame_time(text: str) -> float:
+    """The frame rate a ``Frame Time`` as written means: ``1 / Frame Time``, or the whole rate
+    n when the text is 1/n printed to its own digits (rounded or cut off: ``0.0333333`` and
+    ``0.008333`` are 30 and 120, ``0.01668335`` is 59.94, not 60) within 0.5 % of n; other
+    rates of 1 Hz or more to as many significant digits as the Frame Time has (at least 4)."""
+    seconds = float(text)
+    fps = 1.0 / seconds
+    n = round(fps)
+    try:
+        digits = Decimal(text.strip()).as_tuple()
+        last = 10.0**digits.exponent  # one unit in the last digit written
+    except (InvalidOperation, TypeError):
+        return fps
+    if n >= 1 and abs(fps - n) < 5e-3 * fps and abs(seconds - 1.0 / n) <= last * (1 + 1e-9):
+        return float(n)
+    if fps < 1.0:  # no frame rate (refused by the reader's callers): as written
+        return fps
+    return float(f"{fps:.{max(len(digits.digits), 4)}g}")  # as many digits as the file gave
+
+
 def load_bvh(
     path: Path | str,
     scale: float | None = None,
@@ -276,10 +297,7 @@ def load_bvh(
     else:
         info["unit"] = f"{scale:g} m"
     info["metres_per_unit"] = layout.metres_per_unit = float(scale)
-    fps = 1.0 / frame_time
-    if abs(fps - round(fps)) < 5e-3 * fps:
-        fps = float(round(fps))
-    info["fps_in_file"] = fps
+    fps = info["fps_in_file"] = rate_of_frame_time(frame_text)
     rest[0] = 0.0
     return SourceMotion(
         names=tuple(names),

@@ -9,7 +9,9 @@ file's own. :func:`bvh_text` builds a file from scratch (``mdvae export-bvh``).
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Iterable, Iterator
+from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
 import numpy as np
@@ -156,11 +158,34 @@ def write_text(
     write_atomic(path, write, forbid=forbid)
 
 
-def write_bvh(layout, data: np.ndarray, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:
+def frame_time_text(fps: float, like: str) -> str:
+    """``1 / fps`` written as ``like`` (a file's own ``Frame Time``) is: as many decimals, or
+    significant digits in exponent form, but at least 5 significant digits
+    (``frame_time_text(60, "0.033333")`` is ``"0.016667"``)."""
+    seconds = 1.0 / fps
+    like = like.strip()
+    try:
+        exponent = Decimal(like).as_tuple().exponent
+    except InvalidOperation:
+        exponent = -6
+    exponent = exponent if isinstance(exponent, int) else -6
+    if "e" in like.lower():
+        digits = len(like.lower().split("e")[0].replace("-", "").replace(".", "")) - 1
+        return f"{seconds:.{max(digits, 4)}e}"
+    least = 4 - math.floor(math.log10(seconds))  # decimals for 5 significant digits
+    return f"{seconds:.{max(-exponent, least, 0)}f}"
+
+
+def write_bvh(
+    layout, data: np.ndarray, path: Path | str, forbid: tuple[Path, ...] = (),
+    fps: float | None = None,
+) -> None:  # fmt: skip
     """Write every frame ``data`` (F, C) under the file's own header (``layout``: a
     :class:`~mdvae_cli.formats.bvh.BvhLayout`), atomically, in the file's own encoding and
-    line endings."""
-    pieces = motion_pieces(layout.header, data, layout.frame_time)
+    line endings. fps: the rate to write when it is not the file's own (``--fps``): its
+    Frame Time as the file writes one (:func:`frame_time_text`); None keeps the file's."""
+    frame_time = layout.frame_time if fps is None else frame_time_text(fps, layout.frame_time)
+    pieces = motion_pieces(layout.header, data, frame_time)
     write_text(path, pieces, forbid=forbid, encoding=layout.encoding)
 
 

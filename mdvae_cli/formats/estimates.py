@@ -112,7 +112,10 @@ def _load_amass(path: Path, fps: float | None, track: str | None, allow_pickle: 
     if _imported_from_video(motion):  # mdvae import's output of a video file: video settings
         kind = "video"
     if _GVHMR_NPZ_KEY in motion.extras:
+        from mdvae_cli.formats.gvhmr_npz import remember_world
+
         fmt, kind = "gvhmr-npz", "video"
+        remember_world(motion)  # its camera-frame copies follow the cleaning on writing
         notes.append(
             "a GVHMR result converted to an AMASS-style file: SMPL-X body pose (the last "
             "6 'poses' columns are not SMPL hands)"

@@ -153,6 +153,10 @@ def read(
                                options.body)  # fmt: skip
     else:
         loaded = read_data_file(path, name, options.fps, options.track, options.body)
+    if options.missing and loaded.take is None:
+        npz = loaded.format in ("amass", "gvhmr-npz")
+        nan = " (an npz marks its holes as NaN rows)" if npz else ""
+        loaded.notes.append(f"--missing applies to BVH and AMC takes{nan}; ignored")
     if options.resample is not None and loaded.take is None:
         from mdvae_cli.motion.resample import resample_motion
 
@@ -214,10 +218,12 @@ def write(
         return _write_video(document, {labels[0]: item}, path, forbid)
     check_writable(item, path)
     if kind == ".npz":
+        from mdvae_cli.formats.gvhmr_npz import camera_follows_world
         from mdvae_cli.formats.npz_io import save_motion
 
+        item, notes = camera_follows_world(item)  # a GVHMR npz's camera-frame copies
         save_motion(item, path, forbid=forbid)
-        return []
+        return notes
     if kind in TAKE_SUFFIXES and take is not None:
         from mdvae_cli.retarget.take import write_take
 

@@ -8,7 +8,8 @@ Pipeline, in torch (the per-frame solve a chunk of frames at a time):
    head, collars) are *attached* points: a fixed offset in the frame of a source joint, taken
    from the body's rest pose.
 2. **Canonical axes**: the source world is turned (a signed axis permutation read off the rest
-   pose) so that up is +y, the body's left +x and forward +z, SMPL's own frame.
+   pose, ``upright.canonical_axes``) so that up is +y, the body's left +x and forward +z,
+   SMPL's own frame; a take done lying stays lying.
 3. **Betas** (:func:`~mdvae_cli.retarget.fit_shape.fit_betas`): the body's shape is fitted once
    per skeleton so that its rest bone lengths (legs, arms, hip and shoulder widths, torso and
    neck) match the source's.
@@ -59,7 +60,7 @@ from mdvae_cli.retarget.pose_solve import (
     solve_pose,
 )
 from mdvae_cli.retarget.soles import _FEET, foot_vertex, lowest_along
-from mdvae_cli.retarget.upright import canonical_axes, stature_unit, upright_rest
+from mdvae_cli.retarget.upright import stature_unit, to_smpl_axes, upright_rest
 from mdvae_cli.workers import map_in_order
 
 __all__ = [
@@ -85,7 +86,6 @@ __all__ = [
 ]
 
 
-#: y-up (SMPL) -> z-up (AMASS): x stays, y becomes z, z becomes -y
 #: y-up (SMPL) -> z-up (AMASS): x stays, y becomes z, z becomes -y
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
@@ -218,8 +218,7 @@ def retarget(
     if src.num_frames < 2:
         raise InputError(f"a motion needs at least 2 frames, this one has {src.num_frames}")
     jmap = build_joint_map(src)
-    S_rest, S_world = canonical_axes(src, jmap)
-    src = canonicalise(src, S_rest, S_world)
+    src, S_world = to_smpl_axes(src, jmap)
     if betas is None:
         betas = fit_betas(src, body, jmap)
     b = torch.as_tensor(np.asarray(betas, dtype=np.float64))

@@ -169,8 +169,9 @@ def write_take(
     forbid: tuple = (), progress: Callable[[int, int], None] | None = None,
 ) -> None:  # fmt: skip
     """Write ``cleaned`` (the take's SMPL motion after cleaning) on the take's own skeleton,
-    in the take's own form: a BVH take as BVH (``.bvh`` or ``.bvh.gz``), an AMC take as AMC
-    (``.amc`` or ``.amc.gz``; its ASF is unchanged). body: default the one it was read with.
+    in the take's own form: a BVH take as BVH (``.bvh`` or ``.bvh.gz``; its Frame Time the
+    rate the take was read at, when ``--fps`` gave another), an AMC take as AMC (``.amc`` or
+    ``.amc.gz``; its ASF is unchanged; AMC holds no rate). body: default the one it was read with.
     An AMC take whose skeleton was found next to it gets a copy of that ``.asf`` next to its
     output when none of that name is there, so the output reads on its own."""
     out = Path(out)
@@ -187,7 +188,9 @@ def write_take(
             _restore_missing(take, data)
         if not np.isfinite(data).all():
             raise InputError(f"{take.path}: the way back gave non-finite values; nothing written")
-        write_bvh(take.source.layout, data, out, forbid=forbid)
+        own = take.source.info.get("fps_in_file", take.source.fps)  # --fps: the rate used
+        rate = None if abs(take.source.fps - own) <= 1e-9 * own else take.source.fps
+        write_bvh(take.source.layout, data, out, forbid=forbid, fps=rate)
         return
     try:
         values = write_back_amc(take.source, take.retarget, take.motion, cleaned, body)

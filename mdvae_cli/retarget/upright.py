@@ -6,8 +6,9 @@ bone's local axis, so the rest skeleton is a line), some are y-up while the moti
 functions here make a :class:`SourceMotion` that the retarget can read:
 
 * :func:`motion_up` - the world's up axis from the posed frames (pelvis -> head);
-* :func:`canonical_axes` - the rest pose's axes (as before: read off the rest pose) and the
-  motion's (up from the motion), both as signed axis permutations to SMPL's frame;
+* :func:`canonical_axes` - the rest pose's axes (read off the rest pose) and the world's: the
+  rest pose's, or the motion's up where the file's own floor confirms it, both as signed axis
+  permutations to SMPL's frame (:func:`to_smpl_axes` turns a take with them);
 * :func:`rerest` / :func:`upright_rest` - a rest pose that is no T-pose nor upright is replaced
   by the most upright frame of the take (world positions unchanged);
 * :func:`stature_unit` - for BVH files whose unit was guessed, the unit that gives the body a
@@ -22,7 +23,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.source import BVH_UNIT_GUESSES, SourceMotion, guess_length_unit
-from mdvae_cli.retarget.joint_map import JointMap, canonical_rotation
+from mdvae_cli.retarget.joint_map import JointMap, canonical_rotation, canonicalise
 
 #: hip -> knee -> ankle plus pelvis -> head along the spine on SMPL's mean body, whose
 #: stature is 1.70 m (built-in body, measured once)
@@ -49,7 +50,8 @@ def _positions(src: SourceMotion, frames: np.ndarray) -> np.ndarray:
 
 
 def motion_up(src: SourceMotion, jmap: JointMap) -> np.ndarray:
-    """Mean unit pelvis -> head direction over the take (world axes).  -> (3,)"""
+    """Mean unit pelvis -> head direction over the take (world axes): where the body points
+    on average, not by itself the world's up (a take may be done lying).  -> (3,)"""
     frames = _sample(src.num_frames)
     P = _positions(src, frames)
     up = P[:, jmap.anchor["head"]] - P[:, jmap.anchor["pelvis"]]
@@ -86,15 +88,33 @@ def rest_is_upright(src: SourceMotion, jmap: JointMap) -> bool:
     return cos(up, -legs) > 0.8 and abs(cos(up, across)) < 0.5
 
 
-def canonical_axes(src: SourceMotion, jmap: JointMap) -> tuple[np.ndarray, np.ndarray]:
-    """(S_rest, S_motion): the signed axis permutations taking the rest pose's axes and the
-    world's to SMPL's (up +y, the body's left +x). They differ when the rest pose stands on
-    another axis than the motion (a y-up rest in a z-up take)."""
+def ground_level(src: SourceMotion, jmap: JointMap, up: np.ndarray) -> float:
+    """Where the body stands along the unit axis ``up``, from the world's origin: the median
+    over frames of the lowest joint's height, in leg + trunk lengths (:func:`chain_length`)."""
+    P = _positions(src, _sample(src.num_frames))
+    return float(np.median((P @ up).min(axis=1))) / max(chain_length(src, jmap), 1e-12)
+
+
+#: a body stands on the world's floor along an axis when its lowest joint is this close to
+#: the origin's level (leg + trunk lengths, about 14 cm)
+_ON_FLOOR = 0.1
+
+
+def canonical_axes(src: SourceMotion, jmap: JointMap) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """(S_rest, S_motion, note): the signed axis permutations taking the rest pose's axes and
+    the world's to SMPL's (up +y, the body's left +x), and a note when they disagree.
+
+    Up is the rest pose's (the file's convention). The world stands on another axis only when
+    the file's own world says so: the body, upright along that axis on average, stands there
+    on the floor through the origin (its lowest joint within :data:`_ON_FLOOR` of the origin's
+    level) - a y-up rest pose in a z-up scene (standing is likelier than lying when both fit).
+    Otherwise a body that is not upright in the rest pose's axes (a take done lying, upside
+    down) is kept as it lies, with a note."""
     S_rest = canonical_rotation(src, jmap)
     up = motion_up(src, jmap)
     iu = int(np.argmax(np.abs(up)))
     if S_rest[1, iu] == np.sign(up[iu]):
-        return S_rest, S_rest
+        return S_rest, S_rest, None
     rest = src.rest_positions()
     left = rest[jmap.anchor["left_hip"]] - rest[jmap.anchor["right_hip"]]
     S_move = _axes(up, S_rest.T @ np.array([1.0, 0.0, 0.0]))
@@ -102,7 +122,26 @@ def canonical_axes(src: SourceMotion, jmap: JointMap) -> tuple[np.ndarray, np.nd
         S_move = _axes(up, left)
     if S_move is None:
         raise InputError("cannot tell which way is up in the motion")
-    return S_rest, S_move
+    if abs(ground_level(src, jmap, S_move[1])) <= _ON_FLOOR:
+        return S_rest, S_move, None
+
+    def name(u: np.ndarray) -> str:
+        k = int(np.argmax(np.abs(u)))
+        return ("+" if u[k] > 0 else "-") + "xyz"[k]
+
+    note = (f"the body is upright along {name(S_move[1])}, not along its rest pose's up "
+            f"{name(S_rest[1])}: kept as it lies, not turned upright")  # fmt: skip
+    return S_rest, S_rest, note
+
+
+def to_smpl_axes(src: SourceMotion, jmap: JointMap) -> tuple[SourceMotion, np.ndarray]:
+    """``src`` turned into SMPL's axes (:func:`canonical_axes`, with its note) and the world's
+    turn S_motion (3, 3)."""
+    S_rest, S_world, note = canonical_axes(src, jmap)
+    out = canonicalise(src, S_rest, S_world)
+    if note is not None:
+        out = replace(out, info=dict(out.info), notes=[*out.notes, note])
+    return out, S_world
 
 
 def rerest(src: SourceMotion, frame: int) -> SourceMotion:

@@ -6,7 +6,10 @@ world-space change as that SMPL joint did: ``G'_s = D_j G_s`` with ``D_j = G_cle
 G_orig_j^T``, starting from the file's own rotations, so a joint the cleaning left alone keeps
 its channels exactly, whatever its rest pose. Joints the SMPL proxy does not cover (fingers,
 toes, twist and extra spine joints, props) keep their local channels and follow their parent.
-The pelvis point moves as the SMPL pelvis did; the translation goes to the channels that
+A rotation channel that holds one value through the whole take (a hinge's other axes, feet
+a video estimate never turns) is written as it came, the joint's other channels solved for
+the cleaned rotation (``held_channels``). The pelvis point moves as the SMPL pelvis did; the
+translation goes to the channels that
 carried it (the root's, or a moving pelvis's own), in the file's units and axes; a skeleton
 with no position channels (a root with rotation channels alone) drops it and stays in place.
 
@@ -41,6 +44,7 @@ from mdvae_cli.geometry.rotations_np import (
 )
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.held_channels import constant_channels, hold_channels
 from mdvae_cli.retarget.joint_map import JointMap
 from mdvae_cli.workers import map_in_order
 
@@ -264,13 +268,14 @@ def write_back_data(
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     out = layout.data.copy()
     halo = steady_halo(src.fps)
+    held = constant_channels(layout.data[layout.rows])  # as they came (``held_channels``)
 
     def rows_of(i: int) -> np.ndarray:
         stop = min(i + chunk, T)
         # each chunk with the context its smoothed offsets read (driven_rotations), cut off
         frames = slice(max(0, i - halo), min(T, stop + halo))
         part = (slice_frames(m, frames.start, frames.stop) for m in (original, cleaned))
-        rows = _write_back_rows(src, rt, *part, body, frames)
+        rows = _write_back_rows(src, rt, *part, body, frames, held)
         return rows[i - frames.start : stop - frames.start]
 
     starts = range(0, T, chunk)  # memory flat in the take's length; the chunks side by side
@@ -282,9 +287,30 @@ def write_back_data(
     return out
 
 
-def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: slice):
+def _new_angles(layout: BvhLayout, j: int, L2: np.ndarray, data: np.ndarray, new: np.ndarray,
+                held: np.ndarray) -> None:  # fmt: skip
+    """Joint j's rotation channels for its new local rotations ``L2[:, j]`` into ``new``
+    (n, C), nearest the file's ``data`` (n, C). A joint that cannot turn freely (fewer than
+    three rotation channels) keeps its channels; channels ``held`` (C,) constant through the
+    take stay as they came, the others solved for L2 (``held_channels``), and ``L2[:, j]``
+    becomes what is written."""
+    rot = layout.joint_columns(j, "r")
+    axes = "".join(a for _, a in rot)
+    if len(rot) != 3 or len(set(axes)) != 3:
+        return
+    cols = [col for col, _ in rot]
+    near = np.deg2rad(data[:, cols])
+    angles = rotmat_to_euler(L2[:, j], axes, near)
+    keep = held[cols]
+    if keep.any():
+        angles, L2[:, j] = hold_channels(L2[:, j], axes, angles, keep, near[0])
+    new[:, cols] = np.where(keep, data[:, cols], np.rad2deg(angles))
+
+
+def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: slice, held):
     """:func:`write_back_data` on the take's ``frames`` (``original`` and ``cleaned`` hold
-    those frames alone). -> the file's channel values of those rows (n, C)"""
+    those frames alone); held: (C,) the channels constant through the whole take
+    (``held_channels.constant_channels``). -> the file's channel values of those rows (n, C)"""
     layout: BvhLayout = src.layout
     data = layout.data[layout.rows[frames]]
     T = data.shape[0]
@@ -297,12 +323,18 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     G = world_rotations(L, src.parents)  # the positions: of the joints asked for alone
     drive = drivers(rt.jmap, src.num_joints)
     G2 = driven_rotations(change, G, drive, src.fps)
+    # down the chain: each joint's new local rotation (a driven joint's Euler angles, its held
+    # channels as they came) and the world rotation that gives it (G2, written over)
+    new = data.copy()
+    L2 = np.empty_like(G2)
     for j in range(src.num_joints):
         p = int(src.parents[j])
         if drive[j] < 0 and p >= 0:
-            G2[:, j] = G2[:, p] @ L[:, j]
-    L2 = G2.copy()
-    L2[:, 1:] = np.swapaxes(G2[:, src.parents[1:]], -1, -2) @ G2[:, 1:]
+            L2[:, j] = L[:, j]  # not driven: its channels as they were, following its parent
+        else:
+            L2[:, j] = G2[:, j] if p < 0 else np.swapaxes(G2[:, p], -1, -2) @ G2[:, j]
+            _new_angles(layout, j, L2, data, new, held)
+        G2[:, j] = L2[:, j] if p < 0 else G2[:, p] @ L2[:, j]
 
     # the pelvis point (the SMPL pelvis's target) moves by the SMPL pelvis's change and turns
     # with the pelvis; the channels that carry the source pelvis take up the difference
@@ -315,15 +347,6 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
         Gp = np.broadcast_to(np.eye(3), (T, 3, 3)) if c == 0 else G2[:, src.parents[c]]
         t2[:, c] = t[:, c] + (np.swapaxes(Gp, -1, -2) @ (new_a - P_a)[..., None])[..., 0]
 
-    new = data.copy()
-    for j in range(src.num_joints):
-        rot = layout.joint_columns(j, "r")
-        if rot and drive[j] >= 0:
-            axes = "".join(a_ for _, a_ in rot)
-            if len(rot) != 3 or len(set(axes)) != 3:
-                continue  # a joint that cannot turn freely keeps its channels
-            near = np.deg2rad(data[:, [col for col, _ in rot]])
-            new[:, [col for col, _ in rot]] = np.rad2deg(rotmat_to_euler(L2[:, j], axes, near))
     for col, axis in layout.joint_columns(c, "t") if c >= 0 else ():
         k = "xyz".index(axis)
         new[:, col] = t2[:, c, k] - (layout.offsets[0, k] if c == 0 else 0.0)

@@ -297,7 +297,8 @@ def write_file(
         if run.document is not None:
             together.append((track.label, motion))
         else:
-            write(motion, track.output, take=take, forbid=forbid, progress=progress)
+            run.written += write(motion, track.output, take=take, forbid=forbid,
+                                 progress=progress)  # fmt: skip
         if page is not None:
             from mdvae_cli.view.page import write_before_after
 

@@ -100,7 +100,7 @@ class FileImporter:
         from mdvae_cli.run.tracks import on_floor, outputs_of
 
         options = ReadOptions(format=self.format, fps=self.source_fps, track=self.track,
-                              body=self.body.data)  # fmt: skip
+                              body=self.body.data, missing=self.missing)  # fmt: skip
         loaded = read(job.source, options)
         if self.on_notes is not None:
             self.on_notes(job.relpath, loaded.notes)
@@ -118,7 +118,9 @@ class FileImporter:
                 motion = resample_motion(motion, self.estimate_fps)
             if self.estimate_floor in ("plane", "flat"):
                 motion = on_floor(motion, self.body.data, self.settings.max_tilt)
-            write(motion, output, forbid=(job.source,))
+            written = write(motion, output, forbid=(job.source,))
+            if self.on_notes is not None:
+                self.on_notes(job.relpath, written)  # what was left out (a GVHMR npz's internals)
             frames, fps = frames + motion.num_frames, motion.fps
             outputs.append(output.as_posix())
         return {

@@ -89,7 +89,7 @@ def select_files(
     With a split file, its list for ``split`` intersected with what ``data`` contains; without
     one, a deterministic hold-out of every ``1/val_fraction``-th file for ``val``.
     """
-    files = [f for f, _ in expand_inputs(data)]
+    files = [f for f, _ in expand_inputs(data, by_target=True)]
     if split_file is not None:
         wanted = {p.resolve() for p in read_split(split_file).get(split, [])}
         return [f for f in files if f.resolve() in wanted]

@@ -180,7 +180,8 @@ def fit_dataset(
     if cfg.holes > 0:
         denoiser.add_hole_reader()
     body = BodyModel(load_body_model(cfg.body_model))
-    files = outside([f for f, _ in expand_inputs([Path(p) for p in cfg.data])], out_dir)
+    data = [Path(p) for p in cfg.data]
+    files = outside([f for f, _ in expand_inputs(data, by_target=True)], out_dir)
     if not files:
         raise InputError("no noisy .npz files found in the given paths")
     groups = load_noisy_windows(

@@ -126,7 +126,7 @@ def _save(run_dir: Path, name: str, model, opt, meta: dict, device=None) -> None
 def no_training_files(data: list[Path], split: Path | None, val_files: list[Path]) -> str:
     """Why a run found nothing to train on, and what to do about it."""
     if split is not None:
-        found = len(expand_inputs(data))
+        found = len(expand_inputs(data, by_target=True))
         return (
             f'none of the {found} motion files found is in the "train" list of {split} '
             "(its paths are relative to its folder)"
