@@ -268,7 +268,10 @@ def lock_feet(
 ) -> Motion:
     """``motion`` with its feet held still on the floor where they are down (module doc).
 
-    source: the input ``motion`` was made from (same frames), or None. Returns a copy; hips,
+    source: the input ``motion`` was made from (same frames), or None; where its feet are a
+    goal (a clean take), its spikes in the legs (``noise_blend.source_spikes``: a knee flicked
+    for one frame would put the foot somewhere the leg never went) read as ``motion``'s frames
+    (:func:`without_spikes`). Returns a copy; hips,
     knees and ankles change only near contacts and where a foot is under the floor, and only on
     legs that have a target there. Vectorised over frames, the legs solved ``CHUNK_FRAMES`` at a
     time (memory flat on long takes).
@@ -280,9 +283,11 @@ def lock_feet(
     trust, reference, lift_share = 0.0, None, 1.0
     if source is not None:
         same = np.array_equal(source.betas, motion.betas)
-        trust, reference, jitter = input_trust(
-            source, model if same else LegModel.build(body, source.betas), cfg
-        )
+        legs = model if same else LegModel.build(body, source.betas)
+        trust, reference, jitter = input_trust(source, legs, cfg)
+        unspiked = without_spikes(source) if trust > 0 else source
+        if unspiked is not source:  # its feet are a goal: not where its spikes put them
+            trust, reference, jitter = input_trust(holes_from(unspiked, motion), legs, cfg)
         cfg = for_noise(cfg, jitter)
         # a clean take's feet are lifted only by the share of the goal that is not its own
         lift_share = 1.0 - trust * (1.0 - clean_scale(cfg, jitter))
@@ -371,10 +376,9 @@ def lock_motions(
     cleaned: list[Motion], inputs: list[Motion], body: BodyModel, feet: FootLockConfig
 ) -> list[Motion]:
     """The foot lock (``infer.feet.lock_feet``) on denoised motions, each with its input as
-    the source; in a hole, and at the input's spikes in the legs (``noise_blend.source_spikes``:
-    a knee flicked for one frame would otherwise be a foot position the lock pulls the clean
-    leg to), the lock reads the cleaned motion as the input's."""
-    sources = [holes_from(without_spikes(s), m) for m, s in zip(cleaned, inputs, strict=True)]
+    the source; in a hole the lock reads the cleaned motion as the input's (and at the input's
+    spikes in the legs where its feet are a goal: :func:`lock_feet`)."""
+    sources = [holes_from(s, m) for m, s in zip(cleaned, inputs, strict=True)]
     return [lock_feet(m, body, feet, src) for m, src in zip(cleaned, sources, strict=True)]
 
 
