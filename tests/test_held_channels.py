@@ -138,3 +138,32 @@ def test_a_take_left_alone_comes_back_unchanged_with_held_channels(tmp_path, joi
     take = read_take(path, joints)
     data = write_back_data(take.source, take.retarget, take.motion, take.motion, joints)
     np.testing.assert_allclose(data, take.source.layout.data, atol=1e-6)
+
+
+def test_an_amc_bone_whose_dofs_hold_still_comes_back_as_it_came(tmp_path):
+    """A CMU clavicle's two dofs at 0 through a take: asked to turn, the way back leaves them
+    and the bone below (the humerus) takes the turn; a moving clavicle still turns."""
+    from mdvae_cli.formats.asf import load_asf
+    from mdvae_cli.formats.asfamc import load_amc
+    from mdvae_cli.retarget.retarget import load_source
+    from mdvae_cli.retarget.way_back_amc import write_back_amc
+    from tests.test_amc_out import _turned, amc_file, asf_text, motion_values
+
+    joints = BodyJoints(load_body_model(None))
+    values = motion_values(120, seed=3)
+    still = {**values, "lclavicle": np.zeros_like(values["lclavicle"])}
+    (tmp_path / "gen.asf").write_text(asf_text())
+    changes = {}
+    for name, vals in (("moving", values), ("still", still)):
+        path = tmp_path / f"{name}.amc"
+        path.write_text(amc_file(vals))
+        src = load_source(path, load_asf(tmp_path / "gen.asf"))
+        take = read_take(path, joints, source=src)
+        turned = _turned(take.motion, 13, 2, 10.0)  # the left collar, 10 degrees about z
+        out = write_back_amc(take.source, take.retarget, take.motion, turned, joints)
+        layout = load_amc(path, load_asf(tmp_path / "gen.asf")).layout
+        changes[name] = {b: float(np.abs(out[b] - layout.values[b]).max())
+                         for b in ("lclavicle", "lhumerus")}  # fmt: skip
+    assert changes["moving"]["lclavicle"] > 3.0, changes
+    assert changes["still"]["lclavicle"] == 0.0, changes
+    assert changes["still"]["lhumerus"] > 3.0, changes

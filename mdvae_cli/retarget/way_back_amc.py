@@ -39,6 +39,7 @@ from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.held_channels import constant_channels
 from mdvae_cli.retarget.way_back import (
     driven_rotations,
     drivers,
@@ -131,6 +132,18 @@ def _solve(src, layout, chain, R, values) -> dict[str, np.ndarray]:
     return out
 
 
+def held_bones(layout: AmcLayout, values: dict[str, np.ndarray]) -> set[str]:
+    """The bones whose rotation dofs hold one value through the take (``held_channels``: a
+    CMU clavicle's two dofs at 0), or that have none: the way back leaves them as they came,
+    and the bones below take up the turn the cleaning asked of them.  values: bone -> (T, n)."""
+    out = set()
+    for name, v in values.items():
+        rot = _listed(layout, name)
+        if not rot or constant_channels(v[:, [c for c, _ in rot]]).all():
+            out.add(name)
+    return out
+
+
 def _carried(rt, src, layout, drive, motions, body, P, G, moved) -> dict:
     """Bones no SMPL joint drives that carry an SMPL joint's point (CMU's lowerback carries
     spine1): bone -> (the point's offset in the bone's frame (T, 3), where it should go (T, 3),
@@ -182,6 +195,7 @@ def write_back_amc(
     new = {b: v.copy() for b, v in vals.items()}
     L2, G2, P2 = L.copy(), G.copy(), P.copy()
     unit = _unit(layout)
+    held = held_bones(layout, vals)
     for j in range(src.num_joints):
         p = int(src.parents[j])
         chain, R = [j], None
@@ -197,6 +211,9 @@ def write_back_amc(
             local, want = carried[j]
             S = rotmat_between((G2[:, j] @ local[..., None])[..., 0], want - P2[:, j])
             R = np.swapaxes(G2[:, p], -1, -2) @ S @ G2[:, j]
+        if R is not None and all(src.names[k] in held or not _listed(layout, src.names[k])
+                                 for k in chain):  # fmt: skip
+            R = None  # angles held through the whole take come back as they came
         if R is not None:
             for name, v in _solve(src, layout, chain, R, vals).items():
                 rot = _listed(layout, name)
