@@ -249,3 +249,17 @@ def test_gzip_magic_in_a_file_named_bvh_reads_as_its_text(tmp_path):
     path = tmp_path / "a.bvh"
     path.write_bytes(F.gz("HIERARCHY\n"))
     assert read_text(path) == "HIERARCHY\n"
+
+
+def test_the_frames_and_frame_time_lines_come_back_as_the_file_spells_them(tmp_path):
+    text = take_text().replace("Frames: ", "frames:\t").replace("Frame Time: ", "FRAME TIME:  ")
+    path = tmp_path / "spelled.bvh"
+    path.write_text(text)
+    code, _, err = run_cli("denoise", path, "-o", tmp_path / "out.bvh")
+    assert code == 0, err
+    lines = (tmp_path / "out.bvh").read_text().splitlines()
+    at = lines.index("MOTION")
+    assert lines[at + 1 : at + 3] == [f"frames:\t{FRAMES}", "FRAME TIME:  0.0333333"]
+    code, _, err = run_cli("denoise", path, "-o", tmp_path / "out60.bvh", "--fps", 60)
+    assert code == 0, err
+    assert "FRAME TIME:  0.0166667" in (tmp_path / "out60.bvh").read_text()

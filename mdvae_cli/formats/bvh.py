@@ -57,7 +57,8 @@ class BvhLayout:
     ``rows`` (the SourceMotion's own array while it keeps it), so that the way back need not
     make them again; None when not kept. encoding: the one the file's bytes were read with
     (``source.decode_text``: ``"utf-8"``, ``"utf-8-sig"`` or ``"latin-1"``), to write its
-    header back byte for byte.
+    header back byte for byte. labels: the ``Frames:`` and ``Frame Time:`` words as the file
+    spells them, with the spaces or tab after them (``"frame time:\t"``).
     """
 
     header: str
@@ -71,6 +72,7 @@ class BvhLayout:
     moving: tuple[int, ...] = ()
     rotations: np.ndarray | None = None
     encoding: str = "utf-8"
+    labels: tuple[str, str] = ("Frames: ", "Frame Time: ")
 
     def joint_columns(self, j: int, kind: str) -> list[tuple[int, str]]:
         """(column, axis) of joint j's channels of one kind ("t" or "r"), in file order."""
@@ -216,17 +218,17 @@ def load_bvh(
         raise InputError(f"{path}: unexpected {tok.items[tok.pos]!r} after the root joint")
 
     # matched and parsed in place: a copy of a long take's motion text is as large as the file
-    head = re.compile(r"\s*Frames:\s*(\S+)\s+Frame\s+Time:\s*(\S+)", re.IGNORECASE).match(
+    head = re.compile(r"\s*(Frames:[ \t]*)(\S+)\s+(Frame\s+Time:[ \t]*)(\S+)", re.IGNORECASE).match(
         text, split.end()
     )
     if head is None:
         raise InputError(f"{path}: MOTION section lacks 'Frames:' and 'Frame Time:' lines")
     try:
-        n_frames, frame_time = int(head.group(1)), float(head.group(2))
+        n_frames, frame_time = int(head.group(2)), float(head.group(4))
     except ValueError:
         raise InputError(f"{path}: bad 'Frames:' or 'Frame Time:' value") from None
     if not (frame_time > 0 and math.isfinite(frame_time)):
-        raise InputError(f"{path}: Frame Time must be > 0, got {head.group(2)}")
+        raise InputError(f"{path}: Frame Time must be > 0, got {head.group(4)}")
     C = len(channels)
     if C == 0:
         raise InputError(f"{path}: the skeleton has no channels")
@@ -235,7 +237,7 @@ def load_bvh(
     except ValueError:
         raise InputError(f"{path}: non-numeric value in the motion data") from None
     header = text[: split.end()].rstrip() + line_ending(text[: split.end()])
-    frame_text = head.group(2)
+    frame_text, labels = head.group(4), (head.group(1), head.group(3))
     del text, head, split  # the matches hold the text too
     if count % C:
         raise InputError(f"{path}: motion data has {count} values, not a multiple of "
@@ -248,7 +250,7 @@ def load_bvh(
     data = values.reshape(found, C)
     layout = BvhLayout(header=header, channels=channels, data=data,
                        rows=np.arange(found), frame_time=frame_text, offsets=offsets,
-                       metres_per_unit=1.0, encoding=encoding)  # fmt: skip
+                       metres_per_unit=1.0, encoding=encoding, labels=labels)  # fmt: skip
 
     notes: list[str] = []
     cmuconvert = _CMUCONVERT_SIGNATURE <= set(names)

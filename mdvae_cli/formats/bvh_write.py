@@ -112,12 +112,16 @@ def line_ending(text: str) -> str:
     return "\r" if "\r" in text else "\n"
 
 
-def motion_pieces(header: str, data: np.ndarray, frame_time: str) -> Iterator[str]:
+def motion_pieces(
+    header: str, data: np.ndarray, frame_time: str, labels=("Frames: ", "Frame Time: ")
+) -> Iterator[str]:
     """A BVH file in pieces: ``header`` (through the MOTION line), the frame count, the frame
-    time as given, then the rows of ``data`` (F, C), ``ROWS_PER_PIECE`` at a time; every line
-    ends as the header's lines do (:func:`line_ending`)."""
+    time as given (each after its word in ``labels``, as the file spelled it), then the rows of
+    ``data`` (F, C), ``ROWS_PER_PIECE`` at a time; every line ends as the header's lines do
+    (:func:`line_ending`)."""
     nl = line_ending(header)
-    yield f"{header.rstrip()}{nl}Frames: {data.shape[0]}{nl}Frame Time: {frame_time}{nl}"
+    frames, time = labels  # as the file spells them
+    yield f"{header.rstrip()}{nl}{frames}{data.shape[0]}{nl}{time}{frame_time}{nl}"
     for start in range(0, data.shape[0], ROWS_PER_PIECE):
         rows = format_rows(data[start : start + ROWS_PER_PIECE])
         yield rows if nl == "\n" else rows.replace("\n", nl)
@@ -185,7 +189,7 @@ def write_bvh(
     line endings. fps: the rate to write when it is not the file's own (``--fps``): its
     Frame Time as the file writes one (:func:`frame_time_text`); None keeps the file's."""
     frame_time = layout.frame_time if fps is None else frame_time_text(fps, layout.frame_time)
-    pieces = motion_pieces(layout.header, data, frame_time)
+    pieces = motion_pieces(layout.header, data, frame_time, layout.labels)
     write_text(path, pieces, forbid=forbid, encoding=layout.encoding)
 
 
