@@ -84,6 +84,33 @@ def sniff(data: bytes) -> str:
     return ""
 
 
+def read_bytes(path: Path) -> bytes:
+    """The bytes of the data file at ``path``; InputError (one line) for one that cannot be
+    read or is larger than a pose pipeline's output for one video can be."""
+    check_regular(path)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_DECOMPRESSED + 1)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(data) > MAX_DECOMPRESSED:
+        raise InputError(f"{path}: over {MAX_DECOMPRESSED >> 20} MiB; a pose pipeline's "
+                         "output for one video is far smaller (check the file)")  # fmt: skip
+    return data
+
+
+def pickled_container(data: bytes) -> str | None:
+    """The pickle container ``data`` (a file's bytes) is, in ``data_write.CONTAINERS`` terms:
+    "joblib-zlib" / "joblib-gzip" (a compressed stream, as only joblib writes them), "joblib"
+    (a pickle with joblib's in-stream arrays), "pickle"; None for any other container."""
+    kind = sniff(data)
+    if kind in ("zlib", "gzip"):
+        return f"joblib-{kind}"
+    if kind == "pickle":
+        return "joblib" if b"NumpyArrayWrapper" in data else "pickle"
+    return None
+
+
 def load_data(path: Path | str, data: bytes | None = None) -> Any:
     """The contents of a pickled data file as numpy arrays and plain containers.
 
@@ -95,15 +122,7 @@ def load_data(path: Path | str, data: bytes | None = None) -> Any:
     path = Path(path)
     label = str(path)
     if data is None:
-        check_regular(path)
-        try:
-            with open(path, "rb") as fh:
-                data = fh.read(MAX_DECOMPRESSED + 1)
-        except OSError as exc:
-            raise InputError(f"{label}: cannot read ({exc.strerror or exc})") from None
-        if len(data) > MAX_DECOMPRESSED:
-            raise InputError(f"{label}: over {MAX_DECOMPRESSED >> 20} MiB; a pose pipeline's "
-                             "output for one video is far smaller (check the file)")  # fmt: skip
+        data = read_bytes(path)
     try:
         loaded = _load(data, label, depth=0)
         _check_expanded(loaded, label)

@@ -14,6 +14,7 @@ reads it as it reads the pipeline's file; joblib is not needed to write it.
 
 from __future__ import annotations
 
+import gzip
 import io
 import pickle
 import zipfile
@@ -26,8 +27,9 @@ import numpy as np
 
 from mdvae_cli.fileio import write_atomic
 
-#: containers :func:`write_data` writes ("joblib-zlib": joblib's ``compress=3``)
-CONTAINERS = ("pickle", "joblib", "joblib-zlib", "torch", "npy", "npz")
+#: containers :func:`write_data` writes ("joblib-zlib": joblib's ``compress=3``,
+#: "joblib-gzip": its ``compress=("gzip", 3)``)
+CONTAINERS = ("pickle", "joblib", "joblib-zlib", "joblib-gzip", "torch", "npy", "npz")
 #: numpy's array and scalar builders under the names every numpy version loads
 _NUMPY_NAMES = {
     np.zeros(1).__reduce__()[0]: b"numpy.core.multiarray\n_reconstruct\n",
@@ -118,6 +120,9 @@ def write_data(obj: Any, path: Path, container: str, forbid: tuple[Path, ...] = 
         "pickle": lambda tmp: tmp.write_bytes(pickle_bytes(obj)),
         "joblib": lambda tmp: tmp.write_bytes(pickle_bytes(obj, joblib=True)),
         "joblib-zlib": lambda tmp: tmp.write_bytes(zlib.compress(pickle_bytes(obj, True), 3)),
+        "joblib-gzip": lambda tmp: tmp.write_bytes(
+            gzip.compress(pickle_bytes(obj, True), compresslevel=3, mtime=0)
+        ),
         "torch": lambda tmp: _torch_save(as_tensors(obj), tmp),
         "npy": lambda tmp: _npy_save(as_tensors(obj), tmp),
         "npz": lambda tmp: _npz_save(obj, tmp),

@@ -66,10 +66,13 @@ def read_npz_file(path: Path, name, fps, track, allow_pickle: bool, body) -> Loa
 def read_data_file(path: Path, name, fps, track, body) -> LoadedFile:
     """A video pipeline's output (or AIST++) of any container, its format ``name`` or (None)
     told from its contents."""
-    from mdvae_cli.formats.data_files import load_data
+    from mdvae_cli.formats.data_files import load_data, pickled_container, read_bytes
     from mdvae_cli.formats.video_formats import detect
 
-    data = load_data(path)
+    raw_bytes = read_bytes(Path(path))
+    data = load_data(path, raw_bytes)
+    container = pickled_container(raw_bytes)
+    del raw_bytes
     name = name or detect(data)
     inner = data.item() if isinstance(data, np.ndarray) and data.dtype.hasobject else data
     if name is None and isinstance(inner, dict) and "world_cam_R" in inner:
@@ -81,7 +84,7 @@ def read_data_file(path: Path, name, fps, track, body) -> LoadedFile:
         raise InputError(
             f"{path}: not a motion layout this tool knows (give --format: {', '.join(FORMATS)})"
         )
-    return _load_video(path, name, data, fps, track, body)
+    return _load_video(path, name, data, fps, track, body, container)
 
 
 def _npz_keys(path: Path) -> set[str]:
@@ -136,7 +139,7 @@ def _imported_from_video(motion) -> bool:
     return name in FORMATS and name not in _MOCAP_FORMATS
 
 
-def _load_video(path, name, data, fps, track, body) -> LoadedFile:
+def _load_video(path, name, data, fps, track, body, container=None) -> LoadedFile:
     from mdvae_cli.formats.video_formats import READERS, VIDEO_FPS, read_tram
     from mdvae_cli.formats.video_tracks import track_to_motion
 
@@ -157,7 +160,7 @@ def _load_video(path, name, data, fps, track, body) -> LoadedFile:
         body = builtin_body_model()
     from mdvae_cli.formats.video_back import VideoDocument
 
-    out, document = [], VideoDocument(name, data)
+    out, document = [], VideoDocument(name, data, container=container)
     for raw in raws:
         rate = fps if fps is not None else (raw.fps or VIDEO_FPS)
         motion = track_to_motion(raw, rate, body, str(path))

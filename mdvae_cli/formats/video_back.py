@@ -70,6 +70,8 @@ OWN_CONTAINER = {
     "romp": "npz",
     "slahmr": "npz",
 }
+#: the pickle containers, any of which a pickled format may come in and go back in
+_PICKLES = ("pickle", "joblib", "joblib-zlib", "joblib-gzip")
 #: the file names each container is written under (``.gz`` not: the pipelines do not read it)
 CONTAINER_SUFFIXES = {
     "joblib": (".pkl", ".pk", ".pickle", ".joblib"),
@@ -90,6 +92,8 @@ class VideoDocument:
     format: str
     data: Any
     tracks: list[tuple[str | None, RawTrack, Motion]] = field(default_factory=list)
+    #: the pickle container the file came in (``data_files.pickled_container``), if one
+    container: str | None = None
 
     @property
     def writable(self) -> bool:
@@ -102,6 +106,15 @@ class VideoDocument:
             return f"mdvae writes {self.format} results as .npz only"
         names = " / ".join(CONTAINER_SUFFIXES[OWN_CONTAINER[self.format]])
         return f"a {self.format} result is written back as {names}"
+
+    def written_container(self) -> str:
+        """The container this file is written back in: the one it came in where the format
+        is a pickle of some kind (a WHAM file saved compressed, or re-saved as a plain
+        pickle, comes back so), else the format's own (OWN_CONTAINER)."""
+        own = OWN_CONTAINER[self.format]
+        if own in _PICKLES and self.container in _PICKLES:
+            return self.container
+        return own
 
 
 def writes_back(doc: VideoDocument | None, path: Path | str) -> bool:
@@ -310,7 +323,7 @@ def write_video(
         notes.append(f"track(s) {', '.join(skipped)} written as they came")
     if doc.format == "wham" and not isinstance(data, defaultdict):
         data = defaultdict(dict, data)  # as WHAM writes it
-    write_data(data, Path(path), OWN_CONTAINER[doc.format], forbid=forbid)
+    write_data(data, Path(path), doc.written_container(), forbid=forbid)
     return list(dict.fromkeys(notes))
 
 
