@@ -167,3 +167,37 @@ def test_an_amc_bone_whose_dofs_hold_still_comes_back_as_it_came(tmp_path):
     assert changes["moving"]["lclavicle"] > 3.0, changes
     assert changes["still"]["lclavicle"] == 0.0, changes
     assert changes["still"]["lhumerus"] > 3.0, changes
+
+
+@pytest.mark.parametrize(
+    ("bone", "column", "joint", "axis"), [("lhumerus", 1, 16, 0), ("lfemur", 2, 1, 2)]
+)
+def test_an_amc_dof_that_holds_still_keeps_its_value_the_others_turn(
+    tmp_path, bone, column, joint, axis
+):
+    """One dof of a three-dof bone constant through the take (a solver's locked axis): asked
+    to turn the joint, the way back keeps that dof as it came and turns the other two; with the
+    dof moving, all three turn."""
+    from mdvae_cli.formats.asf import load_asf
+    from mdvae_cli.formats.asfamc import load_amc
+    from mdvae_cli.retarget.retarget import load_source
+    from mdvae_cli.retarget.way_back_amc import write_back_amc
+    from tests.test_amc_out import _turned, amc_file, asf_text, motion_values
+
+    joints = BodyJoints(load_body_model(None))
+    values = motion_values(120, seed=5)
+    locked = {b: v.copy() for b, v in values.items()}
+    locked[bone][:, column] = 5.0
+    (tmp_path / "gen.asf").write_text(asf_text())
+    changes = {}
+    for name, vals in (("moving", values), ("locked", locked)):
+        path = tmp_path / f"{name}.amc"
+        path.write_text(amc_file(vals))
+        take = read_take(path, joints, source=load_source(path, load_asf(tmp_path / "gen.asf")))
+        turned = _turned(take.motion, joint, axis, 12.0)
+        out = write_back_amc(take.source, take.retarget, take.motion, turned, joints)
+        layout = load_amc(path, load_asf(tmp_path / "gen.asf")).layout
+        changes[name] = np.abs(out[bone] - layout.values[bone]).max(axis=0)
+    assert changes["moving"][column] > 1.0, changes
+    assert changes["locked"][column] == 0.0, changes
+    assert np.delete(changes["locked"], column).max() > 1.0, changes

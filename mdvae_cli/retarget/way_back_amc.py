@@ -37,7 +37,7 @@ from mdvae_cli.geometry.euler import rotmat_to_euler
 from mdvae_cli.geometry.kinematics import forward_kinematics
 from mdvae_cli.geometry.rotations_np import rotmat_between
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.retarget.dof_solve import closest_angles
+from mdvae_cli.retarget.dof_solve import axis_rotations, closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.held_channels import constant_channels
 from mdvae_cli.retarget.way_back import (
@@ -105,28 +105,42 @@ def _chain(src: SourceMotion, layout: AmcLayout, drive: np.ndarray, j: int) -> l
 
 def _solve(src, layout, chain, R, values) -> dict[str, np.ndarray]:
     """New file values of the chain's bones (name -> (T, k) in listed dof order, file units)
-    whose rotations, composed top first, come closest to R (T, 3, 3), nearest ``values``."""
+    whose rotations, composed top first, come closest to R (T, 3, 3), nearest ``values``.
+    A dof that holds one value through the take (``held_channels``) keeps it: it is a fixed
+    turn in the chain, and the other dofs come as close to R as they can around it."""
     unit = _unit(layout)
     parts = [(src.names[j], _listed(layout, src.names[j])) for j in chain]
     parts = [(name, rot) for name, rot in parts if rot]
     if not parts:
         return {}
-    if len(parts) == 1 and len({a for _, a in parts[0][1]}) == 3 == len(parts[0][1]):
+    held = {name: constant_channels(values[name][:, [c for c, _ in rot]]) for name, rot in parts}
+    if (len(parts) == 1 and len({a for _, a in parts[0][1]}) == 3 == len(parts[0][1])
+            and not held[parts[0][0]].any()):  # fmt: skip
         name, rot = parts[0]  # three axes: Euler angles, exactly
         C = layout.frame(name)
         near = values[name][:, [c for c, _ in rot]][:, ::-1] * unit
         axes = "".join(a for _, a in rot)[::-1]
         angles = rotmat_to_euler(C.T @ R @ C, axes, near)[:, ::-1]
         return {name: angles / unit}
-    axes, start, where = [], [], []
+    # A = T_1 ... T_n, outermost first; a held turn F moved to the right of the free turns
+    # after it turns their axes: F Rot(u, a) = Rot(F u, a) F, so A = (free turns) @ fixed
+    axes, start, where, fixed = [], [], [], np.eye(3)
+    out = {name: values[name][:, [c for c, _ in rot]].copy() for name, rot in parts}
     for name, rot in parts:  # outermost first: the last listed dof of the top bone
         C = layout.frame(name)
         for k in range(len(rot) - 1, -1, -1):
-            axes.append(C[:, "xyz".index(rot[k][1])])
+            u = C[:, "xyz".index(rot[k][1])]
+            if held[name][k]:
+                fixed = (
+                    fixed @ axis_rotations(u[None], values[name][:1, rot[k][0], None] * unit)[0, 0]
+                )
+                continue
+            axes.append(fixed @ u)
             start.append(values[name][:, rot[k][0]] * unit)
             where.append((name, k))
-    angles = closest_angles(R, np.array(axes), np.stack(start, axis=1))
-    out = {name: np.empty((R.shape[0], len(rot))) for name, rot in parts}
+    if not axes:
+        return out
+    angles = closest_angles(R @ fixed.T, np.array(axes), np.stack(start, axis=1))
     for i, (name, k) in enumerate(where):
         out[name][:, k] = angles[:, i] / unit
     return out
