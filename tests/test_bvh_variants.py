@@ -138,6 +138,24 @@ def test_a_root_without_position_channels_stays_where_its_offset_puts_it(tmp_pat
     assert np.abs(data - src.layout.data).max() > 0.5  # degrees: the joints did turn
 
 
+def test_a_root_move_the_file_cannot_hold_is_noted(tmp_path, joints):
+    from mdvae_cli.formats.registry import write
+
+    path = tmp_path / "rot_only.bvh"
+    path.write_text(take_text(root_position=False))
+    take = read_take(path, joints, source=load_bvh(path))
+    motion = take.motion
+    moved = motion.with_body(trans=np.asarray(motion.trans) + [0.03, 0.0, 0.04])
+    notes = write(moved, tmp_path / "moved.bvh", take=take)
+    assert len(notes) == 1 and "no position channels" in notes[0] and "5.0 cm" in notes[0]
+    assert write(motion, tmp_path / "same.bvh", take=take) == []  # nothing moved: no note
+    full = tmp_path / "full.bvh"
+    full.write_text(take_text())
+    take = read_take(full, joints, source=load_bvh(full))
+    moved = take.motion.with_body(trans=np.asarray(take.motion.trans) + [0.03, 0.0, 0.04])
+    assert write(moved, tmp_path / "full_out.bvh", take=take) == []  # its root carries it
+
+
 @pytest.mark.parametrize("command", [["denoise"], ["add-noise", "--seed", "3"]])
 def test_a_root_without_position_channels_is_written_back_as_bvh(tmp_path, command):
     path = tmp_path / "rot_only.bvh"

@@ -201,3 +201,23 @@ def test_an_amc_dof_that_holds_still_keeps_its_value_the_others_turn(
     assert changes["moving"][column] > 1.0, changes
     assert changes["locked"][column] == 0.0, changes
     assert np.delete(changes["locked"], column).max() > 1.0, changes
+
+
+def test_an_amc_root_without_position_dofs_notes_the_move_it_cannot_hold(tmp_path):
+    from mdvae_cli.formats.asf import load_asf
+    from mdvae_cli.formats.registry import write
+    from mdvae_cli.retarget.retarget import load_source
+    from tests.test_amc_out import amc_file, asf_text, motion_values
+
+    joints = BodyJoints(load_body_model(None))
+    values = motion_values(60, seed=2)
+    values["root"] = values["root"][:, 3:]  # angles only
+    asf = tmp_path / "gen.asf"
+    asf.write_text(asf_text().replace("order TX TY TZ RX RY RZ", "order RX RY RZ"))
+    path = tmp_path / "rot_only.amc"
+    path.write_text(amc_file(values))
+    take = read_take(path, joints, source=load_source(path, load_asf(asf)))
+    moved = take.motion.with_body(trans=np.asarray(take.motion.trans) + [0.0, 0.0, 0.1])
+    notes = write(moved, tmp_path / "out.amc", take=take)
+    assert len(notes) == 1 and "10.0 cm" in notes[0], notes
+    assert write(take.motion, tmp_path / "same.amc", take=take) == []

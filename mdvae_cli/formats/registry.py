@@ -227,8 +227,7 @@ def write(
     if kind in TAKE_SUFFIXES and take is not None:
         from mdvae_cli.retarget.take import write_take
 
-        write_take(take, item, path, forbid=forbid, progress=progress)
-        return []
+        return write_take(take, item, path, forbid=forbid, progress=progress)
     if kind == ".bvh":
         from mdvae_cli.formats.bvh_write import write_text
         from mdvae_cli.retarget.fit_shape import BodyJoints

@@ -27,7 +27,7 @@ from mdvae_cli.motion import cmu
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.fit_shape import BodyJoints, fit_betas, skeleton_key
 from mdvae_cli.retarget.retarget import RetargetResult, import_motion, load_source
-from mdvae_cli.retarget.way_back import write_back_data
+from mdvae_cli.retarget.way_back import translation_dropped, write_back_data
 from mdvae_cli.retarget.way_back_amc import write_back_amc
 
 #: take suffixes (``.gz`` variants too); each is written back in its own form
@@ -167,13 +167,14 @@ def _restore_missing(take: Take, data: np.ndarray | dict) -> None:
 def write_take(
     take: Take, cleaned: Motion, out: Path | str, body: BodyJoints | None = None,
     forbid: tuple = (), progress: Callable[[int, int], None] | None = None,
-) -> None:  # fmt: skip
+) -> list[str]:  # fmt: skip
     """Write ``cleaned`` (the take's SMPL motion after cleaning) on the take's own skeleton,
     in the take's own form: a BVH take as BVH (``.bvh`` or ``.bvh.gz``; its Frame Time the
     rate the take was read at, when ``--fps`` gave another), an AMC take as AMC (``.amc`` or
     ``.amc.gz``; its ASF is unchanged; AMC holds no rate). body: default the one it was read with.
     An AMC take whose skeleton was found next to it gets a copy of that ``.asf`` next to its
-    output when none of that name is there, so the output reads on its own."""
+    output when none of that name is there, so the output reads on its own. -> notes for the
+    user (a move of the root the file has no channel for)."""
     out = Path(out)
     body = body if body is not None else take.body
     name = out.name.lower().removesuffix(".gz")
@@ -191,7 +192,9 @@ def write_take(
         own = take.source.info.get("fps_in_file", take.source.fps)  # --fps: the rate used
         rate = None if abs(take.source.fps - own) <= 1e-9 * own else take.source.fps
         write_bvh(take.source.layout, data, out, forbid=forbid, fps=rate)
-        return
+        return (
+            _dropped_move(take, cleaned) if translation_dropped(take.source, take.retarget) else []
+        )
     try:
         values = write_back_amc(take.source, take.retarget, take.motion, cleaned, body)
     except InputError as exc:
@@ -204,6 +207,25 @@ def write_take(
         if not copy.exists():
             asf = take.skeleton_file
             write_atomic(copy, lambda tmp: shutil.copyfile(asf, tmp), forbid=forbid)
+    if any(ch.startswith("t") for ch in take.source.layout.skeleton.root_order):
+        return []
+    return _dropped_move(take, cleaned)
+
+
+#: a move of the root (m) under which no note is given when the file cannot carry it
+_MOVE_NOTED = 1e-3
+
+
+def _dropped_move(take: Take, cleaned: Motion) -> list[str]:
+    """The note for a take whose root has no position channels, when the cleaning moved the
+    pelvis (more than :data:`_MOVE_NOTED`): the move is not written."""
+    moved = np.linalg.norm(np.asarray(cleaned.trans) - np.asarray(take.motion.trans), axis=-1)
+    most = float(np.nanmax(moved, initial=0.0))
+    if not most > _MOVE_NOTED:
+        return []
+    return [f"the file's root has no position channels: the cleaned motion's move of the hips "
+            f"(up to {most * 100:.1f} cm) is not written, the take stays where the file "
+            "puts it"]  # fmt: skip
 
 
 def find_asf(path: Path) -> Path | None:

@@ -245,6 +245,12 @@ def _carrier(src: SourceMotion, layout: BvhLayout, a: int) -> int:
     return -1
 
 
+def translation_dropped(src: SourceMotion, rt) -> bool:
+    """Whether no channel of the BVH take ``src`` can carry the pelvis's move (a root with
+    rotation channels alone): the way back leaves the take where its OFFSETs put it."""
+    return _carrier(src, src.layout, int(rt.jmap.anchor["pelvis"])) < 0
+
+
 def write_back_data(
     src: SourceMotion,
     rt,
