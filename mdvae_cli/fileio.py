@@ -116,7 +116,11 @@ def expand_inputs(
                     continue
                 if any(f.resolve().is_relative_to(s) for s in inner):
                     continue
-                if f.is_file():
+                side = pipeline_side_file(f)
+                if side is not None and f.is_file():
+                    if notes is not None:
+                        notes.append(f"{rel.as_posix()}: {side}, not a motion; skipped")
+                elif f.is_file():
                     out.append((f, rel))
                 elif f.is_symlink() and not f.exists():
                     if notes is not None:
@@ -133,6 +137,25 @@ def expand_inputs(
             seen.add(key)
             unique.append((f, rel))
     return unique
+
+
+#: the side files video pipelines write beside their results, by name: (what sits beside
+#: them, the pipeline); a folder of results holds them, and they are not motions
+SIDE_FILES = {
+    ("camera.npy", "boxes.npy", "masks.npy", "tracks.npy"): ("hps", "TRAM"),
+    ("tracking_results.pth", "slam_results.pth"): ("wham_output.pkl", "WHAM"),
+}
+
+
+def pipeline_side_file(path: Path) -> str | None:
+    """What ``path`` is when it is a side file of a video pipeline's results (TRAM's
+    ``camera.npy`` beside its ``hps/`` folder, WHAM's ``slam_results.pth`` beside its
+    ``wham_output.pkl``), in words; None for any other file."""
+    name = path.name.lower()
+    for names, (beside, pipeline) in SIDE_FILES.items():
+        if name in names and (path.parent / beside).exists():
+            return f"{pipeline}'s {path.name} beside {beside}"
+    return None
 
 
 def entry_of(path: Path) -> Path:

@@ -28,7 +28,7 @@ from mdvae_cli.cli.common import (
     console,
     handle_errors,
 )
-from mdvae_cli.cli.motion_input import input_fps_option
+from mdvae_cli.cli.motion_input import input_fps_option, one_track, track_option
 from mdvae_cli.cli.takes import take_options, take_reading
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular, expand_inputs
@@ -217,12 +217,14 @@ Example:
 )  # fmt: skip
 @take_options
 @input_fps_option
+@track_option("score this track (its id in the file) of both")
 @allow_pickle_option
 @json_option
 @handle_errors
 def eval_command(
-    gt, pred, body_model, chunk_frames, asf, joint_map_file, input_fps, allow_pickle, as_json
-) -> None:
+    gt, pred, body_model, chunk_frames, asf, joint_map_file, input_fps, track, allow_pickle,
+    as_json,
+) -> None:  # fmt: skip
     from mdvae_cli.export import as_body_model
     from mdvae_cli.metrics import common_rate, evaluate_pair, mean_result
 
@@ -236,8 +238,8 @@ def eval_command(
     def process(job: FileJob) -> EvalResult:
         if not Path(job.data).exists():
             raise InputError(f"{job.source}: no prediction {job.data}")
-        truth = read(job.source, options).single()
-        guess = read(job.data, options).single()
+        truth = one_track(read(job.source, options), track)
+        guess = one_track(read(job.data, options), track)
         try:
             truth, guess, note = common_rate(truth, guess)
             result = evaluate_pair(truth, guess, body, chunk_frames=chunk_frames)

@@ -105,3 +105,28 @@ def read_input(path: Path, relpath: Path, options: ReadOptions, takes=None) -> L
         where = relpath if label is None else Path(f"{relpath.as_posix()} track {label}")
         print_notes(where, motion.notes)
     return loaded
+
+
+def track_option(what: str) -> Callable:
+    """``--track ID`` for the commands that take one motion of a file (eval, view, plot):
+    ``what`` they do with it."""
+    return click.option(
+        "--track", default=None, metavar="ID",
+        help=f"Files of several people (WHAM, PHALP, ...): {what}. Default: a file of "
+        "several people is refused (eval) or shows its first track (view, plot).",
+    )  # fmt: skip
+
+
+def one_track(loaded, track: str | None):
+    """The motion of a file read (``LoadedFile``) to score: its only one, or in a file of
+    several people the track ``track`` names (a file of one person is scored whatever it
+    names: a cleaned track's own .npz against its pipeline's file)."""
+    if track is None or len(loaded.tracks) == 1:
+        return loaded.single()
+    for label, motion in loaded.tracks:
+        if label == str(track):
+            return motion
+    from mdvae_cli.errors import InputError
+
+    labels = ", ".join(str(lab) for lab, _ in loaded.tracks)
+    raise InputError(f"{loaded.path}: no track {track!r} (tracks: {labels})")

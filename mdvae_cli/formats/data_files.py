@@ -212,7 +212,7 @@ def _load(data: bytes, label: str, depth: int) -> Any:
     if kind == "pickle":
         f = io.BytesIO(data)
         first = unpickle(f, label)
-        if first == TORCH_MAGIC and isinstance(first, int):
+        if isinstance(first, int) and first == TORCH_MAGIC:  # an array's == is no bool
             return load_torch_legacy(data, label)
         return first
     raise UnknownFileType()

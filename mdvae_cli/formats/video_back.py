@@ -51,10 +51,13 @@ from mdvae_cli.formats.video_rows import (
     put_body,
     put_matrices,
     put_root,
+    row_scales,
     shifted,
+    six_d_follows,
     stacked,
     track_ids,
 )
+from mdvae_cli.formats.video_side import side_files_copied
 from mdvae_cli.formats.video_tracks import RawTrack
 from mdvae_cli.motion.motion import Motion
 
@@ -174,6 +177,12 @@ def put_vibe(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 def put_hybrik(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     data["pred_thetas"] = put_matrices(data["pred_thetas"], rows)
     key = "transl" if "transl" in data else "pred_cam_root"
+    for twin in ("transl_camsys", "pred_cam_root"):  # copies of transl, scaled per frame
+        scale = None if twin == key or twin not in data else row_scales(data[twin], data[key])
+        if scale is not None:
+            data[twin] = shifted(data[twin], rows.shift * scale[:, None])
+        elif twin != key and twin in data and np.any(rows.shift != 0):
+            notes.append(f"'{twin}' is no per-frame multiple of '{key}': kept as it came")
     data[key] = shifted(data[key], rows.shift)
     kept = [k for k in ("pred_xyz_29", "pred_xyz_17", "pred_xyz_24_struct", "pred_uvd")
             if k in data]  # fmt: skip
@@ -204,8 +213,17 @@ def put_gvhmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 
 
 def put_tram(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
-    data["pred_rotmat"] = put_matrices(data["pred_rotmat"], rows)
+    """TRAM: ``pred_rotmat``, ``pred_trans``; ``pred_pose`` (the same rotations in 6D)
+    follows ``pred_rotmat`` where it is a copy of it."""
+    old = data["pred_rotmat"]
+    data["pred_rotmat"] = put_matrices(old, rows)
     data["pred_trans"] = shifted(data["pred_trans"], rows.shift)
+    if "pred_pose" in data:
+        six = six_d_follows(data["pred_pose"], old, data["pred_rotmat"])
+        if six is not None:
+            data["pred_pose"] = six
+        else:
+            notes.append("'pred_pose' (6D rotations, not of 'pred_rotmat') kept as it came")
 
 
 def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
@@ -324,6 +342,7 @@ def write_video(
     if doc.format == "wham" and not isinstance(data, defaultdict):
         data = defaultdict(dict, data)  # as WHAM writes it
     write_data(data, Path(path), doc.written_container(), forbid=forbid)
+    notes += side_files_copied(doc.tracks, Path(path), forbid)
     return list(dict.fromkeys(notes))
 
 

@@ -25,7 +25,9 @@ from mdvae_cli.formats.video_layout import (
     frames_of,
     smpl_axis_angle,
     smpl_matrices,
+    stored_fps,
     track_items,
+    tracks_with_frames,
 )
 from mdvae_cli.formats.video_people import read_phalp, read_romp, read_slahmr
 from mdvae_cli.formats.video_tracks import (
@@ -51,11 +53,12 @@ def read_wham(data: dict, label: str) -> list[RawTrack]:
     """WHAM ``wham_output.pkl``: {track id: {pose, trans, pose_world, trans_world, betas,
     verts, frame_ids}}; the world frame (y up) when the track has it, else the camera's."""
     tracks = []
-    for tid, d in track_items(data):
+    items, empty = tracks_with_frames(track_items(data), "pose", label)
+    for tid, d in items:
         where = f"{label} track {tid}"
         world = "pose_world" in d and "trans_world" in d
-        pose = array(d, "pose_world" if world else "pose", where)
-        root, body, hands = smpl_axis_angle(pose, "pose", where)
+        key = "pose_world" if world else "pose"
+        root, body, hands = smpl_axis_angle(array(d, key, where), key, where)
         T = len(root)
         transl = frames_of(array(d, "trans_world" if world else "trans", where), T, "trans", where)
         extras = {}
@@ -77,9 +80,12 @@ def read_wham(data: dict, label: str) -> list[RawTrack]:
                 pose_extra=hands,
                 frame_ids=d.get("frame_ids"),
                 extras=extras,
-                notes=notes,
+                notes=notes + stored_fps(d)[1],
+                fps=stored_fps(d)[0],
             )
         )
+    if empty:
+        tracks[0].notes.append(empty)
     return tracks
 
 
@@ -96,7 +102,8 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
     (T, 24, 3, 3) matrices (PARE), betas, orig_cam, frame_ids, ...}}, camera frame, no
     translation (placed from the weak-perspective camera)."""
     tracks = []
-    for tid, d in track_items(data):
+    items, empty = tracks_with_frames(track_items(data), "pose", label)
+    for tid, d in items:
         where = f"{label} track {tid}"
         pose = framed(array(d, "pose", where), "pose", where)
         if pose[0].size == 72:
@@ -129,9 +136,12 @@ def read_vibe(data: dict, label: str) -> list[RawTrack]:
                 pose_extra=hands,
                 frame_ids=d.get("frame_ids"),
                 extras=extras,
-                notes=notes,
+                notes=notes + stored_fps(d)[1],
+                fps=stored_fps(d)[0],
             )
         )
+    if empty:
+        tracks[0].notes.append(empty)
     return tracks
 
 
@@ -168,7 +178,8 @@ def read_hybrik(data: dict, label: str) -> list[RawTrack]:
             transl_is_pelvis=True,
             pose_extra=rest,
             extras=extras,
-            notes=["no world frame in the file: camera frame, level camera"],
+            notes=["no world frame in the file: camera frame, level camera"] + stored_fps(data)[1],
+            fps=stored_fps(data)[0],
         )
     ]
 
@@ -212,7 +223,8 @@ def read_gvhmr(data: dict, label: str) -> list[RawTrack]:
             up=Y_UP if world else CAMERA_UP,
             model="body",
             extras=extras,
-            notes=notes,
+            notes=notes + stored_fps(data)[1],
+            fps=stored_fps(data)[0],
         )
     ]
 
@@ -252,7 +264,9 @@ def read_tram(data: dict, label: str, path: Path | None = None) -> list[RawTrack
             frame_ids=frames,
             extras=cam_extras(root, transl),
             world=world,
-            notes=notes,
+            notes=notes + stored_fps(data)[1],
+            fps=stored_fps(data)[0],
+            side_files=() if world is None else (camera,),
         )
     ]
 
@@ -324,7 +338,7 @@ def detect(data: Any) -> str | None:
     values = [v for v in data.values() if isinstance(v, dict)]
     if len(values) != len(data):
         return None
-    first = set(map(str, values[0]))
+    first = set(map(str, next((v for v in values if v), values[0])))  # an empty track: the next
     if "pose" in first and ({"trans", "pose_world", "trans_world"} & first):
         return "wham"
     if "pose" in first and ("orig_cam" in first or "pred_cam" in first):

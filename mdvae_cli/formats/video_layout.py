@@ -3,6 +3,8 @@ layouts they come in (``formats.video_formats``, ``formats.video_people``)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from mdvae_cli.errors import InputError
@@ -63,3 +65,37 @@ def track_items(data: dict) -> list[tuple[str, dict]]:
         return (0, int(k), "") if np.issubdtype(type(k), np.integer) else (1, 0, str(k))
 
     return [(str(k), v) for k, v in sorted(data.items(), key=lambda kv: order(kv[0]))]
+
+
+def tracks_with_frames(items: list[tuple[str, dict]], key: str, label: str):
+    """Of ``items`` (``track_items``), the tracks whose ``key`` has frames, and a note naming
+    those it has none in, or that hold nothing (a tracker's empty track: skipped, written back
+    as it came), or None. InputError when no track has frames."""
+    empty = [t for t, d in items if isinstance(d, dict)
+             and (not d or (key in d and np.size(d[key]) == 0))]  # fmt: skip
+    if empty and len(empty) == len(items):
+        raise InputError(f"{label}: every track is empty (no frames in '{key}')")
+    kept = [(t, d) for t, d in items if t not in empty]
+    note = (f"track(s) {', '.join(empty)} hold no frames: skipped (written back as they came)"
+            if empty else None)  # fmt: skip
+    return kept, note
+
+
+#: the keys a frame rate may be stored under by the scripts that save or convert these files
+#: (no pipeline writes one: docs/formats.md, "Frame rate")
+FPS_KEYS = ("fps", "frame_rate", "framerate", "mocap_framerate", "mocap_frame_rate")
+
+
+def stored_fps(d: Any) -> tuple[float | None, list[str]]:
+    """The frame rate a result's dict stores under one of FPS_KEYS (a single positive
+    number), and a note saying so; (None, []) when it stores none."""
+    if not isinstance(d, dict):
+        return None, []
+    for key in FPS_KEYS:
+        value = np.asarray(d.get(key, np.nan)) if key in d else None
+        if value is None or value.size != 1 or value.dtype.kind not in "iuf":
+            continue
+        fps = float(value.reshape(-1)[0])
+        if np.isfinite(fps) and fps > 0:
+            return fps, [f"the file's '{key}' gives {fps:g} fps (--fps overrides it)"]
+    return None, []

@@ -16,6 +16,7 @@ from mdvae_cli.formats.video_layout import (
     smpl_axis_angle,
     smpl_matrices,
     track_items,
+    tracks_with_frames,
 )
 from mdvae_cli.formats.video_tracks import CAMERA_UP, RawTrack, rotvecs
 from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
@@ -103,7 +104,8 @@ def read_romp(data: dict, label: str) -> list[RawTrack]:
             "holds one frame: use the video_results.npz of a video run)"
         )
     tracks = []
-    for tid, d in track_items(seq):
+    items, empty = tracks_with_frames(track_items(seq), "global_orient", label)
+    for tid, d in items:
         where = f"{label} track {tid}"
         pose = np.concatenate(
             [np.stack(d["global_orient"]).reshape(-1, 3), np.stack(d["body_pose"]).reshape(-1, 69)],
@@ -130,6 +132,8 @@ def read_romp(data: dict, label: str) -> list[RawTrack]:
                 notes=["no world frame in the file: camera frame, level camera"],
             )
         )
+    if empty:
+        tracks[0].notes.append(empty)
     return tracks
 
 

@@ -144,6 +144,59 @@ def shifted(a: Any, shift: np.ndarray, scale: float = 1.0) -> np.ndarray:
     return flat.reshape(out.shape)
 
 
+def row_scales(copy: Any, of: Any, rtol: float = 1e-4) -> np.ndarray | None:
+    """The per-row factor that makes ``copy`` of ``of`` (R rows of 3 numbers each): ``copy
+    = s * of`` row by row (HybrIK's ``transl_camsys``: its ``transl`` times 256 over the box
+    width; ``pred_cam_root``: the same numbers), or None where some row is not such a
+    multiple (then it is no copy).  -> (R,)"""
+    c = np.asarray(copy, np.float64)
+    o = np.asarray(of, np.float64)
+    if c.size != o.size or c.size % 3 or c.shape[:1] != o.shape[:1]:
+        return None
+    c, o = c.reshape(-1, 3), o.reshape(-1, 3)
+    norm2 = np.einsum("ti,ti->t", o, o)
+    s = np.einsum("ti,ti->t", c, o) / np.maximum(norm2, 1e-30)
+    err = np.linalg.norm(c - s[:, None] * o, axis=1)
+    if not np.all(np.isfinite(s)) or np.any(err > rtol * np.linalg.norm(c, axis=1) + 1e-9):
+        return None
+    return s
+
+
+def six_d(mats: np.ndarray) -> np.ndarray:
+    """Rotation matrices as HMR 2.0's 6D numbers (TRAM's ``pred_pose``): the first column,
+    then the second.  (..., 3, 3) -> (..., 6)"""
+    return np.concatenate([mats[..., :, 0], mats[..., :, 1]], axis=-1)
+
+
+def from_six_d(x: np.ndarray) -> np.ndarray:
+    """HMR 2.0's 6D numbers as rotation matrices (Gram-Schmidt on the two columns, the third
+    their cross product).  (..., 6) -> (..., 3, 3)"""
+    a1, a2 = x[..., :3], x[..., 3:]
+    b1 = a1 / np.maximum(np.linalg.norm(a1, axis=-1, keepdims=True), 1e-12)
+    b2 = a2 - np.sum(b1 * a2, axis=-1, keepdims=True) * b1
+    b2 = b2 / np.maximum(np.linalg.norm(b2, axis=-1, keepdims=True), 1e-12)
+    return np.stack([b1, b2, np.cross(b1, b2)], axis=-1)
+
+
+def six_d_follows(six: Any, old: Any, new: Any, tol: float = 1e-3) -> np.ndarray | None:
+    """A 6D copy (``six`` (R, J * 6): TRAM's ``pred_pose``) of rotation matrices (``old``
+    (R, J * 9 or J, 3, 3)) with the joints whose matrix ``new`` changed written from it; the
+    others keep their numbers, bit for bit. None when ``six`` does not give ``old`` (within
+    ``tol``): then it is no copy of them."""
+    out = np.array(six, copy=True)
+    R = out.shape[0] if out.ndim else 0
+    o = np.asarray(old, np.float64).reshape(R, -1, 3, 3)
+    n = np.asarray(new, np.float64).reshape(R, -1, 3, 3)
+    if out.size != o.shape[1] * 6 * R or not np.all(np.isfinite(out)):
+        return None
+    flat = out.reshape(R, -1, 6)
+    if np.abs(from_six_d(flat.astype(np.float64)) - o).max(initial=0.0) > tol:
+        return None
+    moved = np.any(n != o, axis=(2, 3))
+    flat[moved] = six_d(n[moved]).astype(flat.dtype)
+    return out
+
+
 def camera_follows(
     cam_root: Any, cam_transl: Any, world_root: np.ndarray, rows: Rows
 ) -> tuple[np.ndarray, np.ndarray]:

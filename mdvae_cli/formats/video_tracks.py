@@ -24,6 +24,7 @@ in the file's own frame; :func:`track_to_motion` turns it into a :class:`Motion`
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -73,6 +74,8 @@ class RawTrack:
     world: tuple[np.ndarray, np.ndarray] | None = None
     notes: list[str] = field(default_factory=list)
     fps: float | None = None
+    #: files beside the result that it was read with (TRAM: its ``camera.npy``)
+    side_files: tuple[Path, ...] = ()
 
     @property
     def num_frames(self) -> int:
@@ -110,8 +113,20 @@ def pose_values(x, what: str, label: str) -> np.ndarray:
     if a.ndim >= 1 and a.shape[0] == 0:
         raise InputError(f"{label}: '{what}' has no frames")
     if not np.isfinite(a).all():
-        raise InputError(f"{label}: '{what}' holds NaN or infinite values")
+        raise InputError(f"{label}: '{what}' holds NaN or infinite values{where_not_finite(a)}")
     return a
+
+
+def where_not_finite(*arrays: np.ndarray) -> str:
+    """Which rows (frames: the first axis) of equally long ``arrays`` hold a NaN or infinite
+    value, in words for a message: " in 2 of 42 frames (rows 5, 6)"; "" for a 0-d array."""
+    arrays = tuple(np.asarray(a) for a in arrays if np.ndim(a) >= 1)
+    if not arrays or len({len(a) for a in arrays}) != 1:
+        return ""
+    bad = ~np.all([np.isfinite(a.reshape(len(a), -1)).all(1) for a in arrays], axis=0)
+    rows = np.flatnonzero(bad)
+    listed = ", ".join(map(str, rows[:5])) + (", ..." if len(rows) > 5 else "")
+    return f" in {len(rows)} of {len(bad)} frame(s) (row{'s' * (len(rows) > 1)} {listed})"
 
 
 def rotvecs(aa: np.ndarray, joints: int, what: str, label: str) -> np.ndarray:
@@ -165,7 +180,10 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
     if raw.pose_extra is not None:
         arrays.append(raw.pose_extra)
     if not all(np.isfinite(a).all() for a in arrays):
-        raise InputError(f"{source}: track {raw.label} holds NaN or infinite values")
+        framed = [a for a in arrays if np.ndim(a) >= 1 and len(a) == T]
+        who = "the track" if raw.label is None else f"track {raw.label}"
+        raise InputError(f"{source}: {who} holds NaN or infinite values"
+                         f"{where_not_finite(*framed)}")  # fmt: skip
     rows = np.asarray(raw.betas, dtype=np.float64)
     rows = rows.reshape(T, -1) if rows.ndim >= 2 and rows.shape[0] == T else rows.reshape(1, -1)
     betas = rows.mean(axis=0)
@@ -274,6 +292,10 @@ def _fill_gaps(ids, root, pose_body, trans, extra, extras, source, label):
     if 2 * len(keep) < T:
         raise InputError(f"{source}: track {label}: {T} frames but only {len(keep)} distinct "
                          "frame ids; the ids are not frame numbers")  # fmt: skip
+    if len(keep) < T:  # the rows would be read as one and written back mixed
+        a, b = order[np.flatnonzero(np.diff(ids[order]) == 0)[0] :][:2]
+        raise InputError(f"{source}: track {label}: frame id {ids[a]} is listed twice (rows "
+                         f"{a} and {b}); a track lists each frame once")  # fmt: skip
     ids = ids[keep]
     span = int(ids[-1]) - int(ids[0]) + 1  # checked before the frames are allocated
     if span > 20 * len(ids) + 1000:
