@@ -37,6 +37,28 @@ def as_body_model(body: BodyModel | BodyModelData) -> BodyModel:
     return BodyModel(body)
 
 
+#: columns of the hand joints (15 left, 15 right) in SMPL-H and SMPL-X poses past the body
+HAND_COLUMNS = 90
+
+
+def extra_pose(pose_extra: np.ndarray, n_extra: int) -> np.ndarray | None:
+    """A motion's pose past the body as a model with ``n_extra`` such joints reads it, or None
+    (its rest pose) when the layouts share nothing.  (T, K) -> (T, 3 n_extra)
+
+    The same layout is taken as it is; the hands go across SMPL-H (30 hand joints) and SMPL-X
+    (jaw and eyes, then the same 30 hand joints), the face at rest on an SMPL-X model.
+    """
+    width = pose_extra.shape[1]
+    if n_extra == 0 or width == 3 * n_extra:
+        return pose_extra if n_extra else None
+    if width == HAND_COLUMNS and 3 * n_extra > HAND_COLUMNS:  # SMPL-H hands on SMPL-X
+        face = np.zeros((len(pose_extra), 3 * n_extra - HAND_COLUMNS))
+        return np.concatenate([face, pose_extra], axis=1)
+    if 3 * n_extra == HAND_COLUMNS and width > HAND_COLUMNS:  # SMPL-X hands on SMPL-H
+        return pose_extra[:, width - HAND_COLUMNS :]
+    return None
+
+
 def pose_motion_chunks(
     motion: Motion,
     body: BodyModel | BodyModelData,
@@ -51,7 +73,7 @@ def pose_motion_chunks(
     frames: the frame indices to pose (default all T), in order.
     Yields ``(indices (C,), BodyOutput)`` with joints (C, 22, 3), markers (C, M, 3) and, when
     ``vertices``, vertices (C, V, 3), in metres. Hand/face joints take ``motion.pose_extra``
-    when its width matches the model's extra joints, else the rest pose.
+    as the model's layout reads it (:func:`extra_pose`), else the rest pose.
     """
     if chunk_frames < 1:
         raise InputError(f"chunk_frames must be >= 1, got {chunk_frames}")
@@ -61,7 +83,7 @@ def pose_motion_chunks(
     index = np.arange(motion.num_frames) if frames is None else np.asarray(list(frames), int)
     shape = torch.as_tensor(motion.betas if betas is None else betas, dtype=dtype, device=device)
     n_extra = model.num_joints - NUM_BODY_JOINTS
-    use_extra = n_extra > 0 and motion.pose_extra.shape[1] == 3 * n_extra
+    pose_extra = extra_pose(motion.pose_extra, n_extra)
 
     def tensor(a: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(np.ascontiguousarray(a), dtype=dtype, device=device)
@@ -69,8 +91,8 @@ def pose_motion_chunks(
     for start in range(0, len(index), chunk_frames):
         ids = index[start : start + chunk_frames]
         extra = None
-        if use_extra:
-            extra = tensor(motion.pose_extra[ids]).reshape(len(ids), n_extra, 3)
+        if pose_extra is not None:
+            extra = tensor(pose_extra[ids]).reshape(len(ids), n_extra, 3)
         with torch.no_grad():  # not around the yield: grad mode must not leak to the caller
             out = model(
                 tensor(motion.root_orient[ids]),
@@ -92,12 +114,15 @@ def export_mesh_sequence(
     chunk_frames: int = DEFAULT_CHUNK_FRAMES,
     forbid: Iterable[Path] = (),
     progress: Callable[[int], None] | None = None,
+    span: tuple[int, int | None] = (0, None),
 ) -> list[Path]:
     """Write the posed mesh of every ``every``-th frame to ``out_dir/frame_NNNNNN.<fmt>``.
 
     NNNNNN is the source frame index (0-based, six digits), so ``every=2`` writes frame_000000,
-    frame_000002, ... Each file is written to a temporary name and renamed; ``forbid`` lists
-    files never to overwrite. Once every frame is written, ``frame_NNNNNN.<fmt>`` files that an
+    frame_000002, ... ``span``: only frames start <= t < stop (:func:`frame_span`; stop None or
+    past the end: to the end), every ``every``-th from start; InputError when it holds none.
+    Each file is written to a temporary name and renamed; ``forbid`` lists files never to
+    overwrite. Once every frame is written, ``frame_NNNNNN.<fmt>`` files that an
     earlier export left in the folder (a longer take, another ``every``) are removed, so that
     the folder holds this sequence and no stale tail. ``progress(n)`` is called after each chunk
     with the number of files just written. Returns the written paths, in frame order.
@@ -115,7 +140,12 @@ def export_mesh_sequence(
     model = as_body_model(body)
     faces = np.asarray(model.data.faces, dtype=np.int64)
     forbid = tuple(Path(p) for p in forbid)
-    frames = range(0, motion.num_frames, every)
+    start, stop = span
+    frames = range(start, motion.num_frames if stop is None else min(stop, motion.num_frames),
+                   every)  # fmt: skip
+    if not frames:
+        raise InputError(f"--frames {start}:{'' if stop is None else stop} holds no frame of "
+                         f"this take (frames 0 to {motion.num_frames - 1})")  # fmt: skip
     written: list[Path] = []
     # every frame goes to a hidden staging folder first and is moved in at the end: a failure
     # or Ctrl-C part way leaves no frames behind (and no folder that was made for them)
@@ -145,6 +175,22 @@ def export_mesh_sequence(
         staging.rmdir()
     remove_stale_frames(out_dir, fmt, written)
     return written
+
+
+def frame_span(text: str) -> tuple[int, int | None]:
+    """``--frames``: ``"START:STOP"`` (0-based frame numbers, STOP not included; either may be
+    left out: ``"120:"``, ``":90"``) -> (start, stop or None). InputError in the user's words."""
+    first, colon, last = text.strip().partition(":")
+    try:
+        if not colon:
+            raise ValueError
+        start = int(first) if first.strip() else 0
+        stop = int(last) if last.strip() else None
+    except ValueError:
+        raise InputError(f"--frames {text!r}: give START:STOP, e.g. 120:240 or 120:") from None
+    if start < 0 or (stop is not None and stop <= start):
+        raise InputError(f"--frames {text!r}: START must be 0 or more and STOP after it")
+    return start, stop
 
 
 def _refuse_input(path: Path, forbid: tuple[Path, ...]) -> None:

@@ -19,9 +19,9 @@ import math
 import re
 import zipfile
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -120,11 +120,19 @@ class NpzArchive:
             )
         self.compressed = any(i.compress_type != zipfile.ZIP_STORED for i in self._infos.values())
 
-    def read(self, key: str, allow_pickle: bool = False, plain_data: bool = False) -> np.ndarray:
+    def read(
+        self,
+        key: str,
+        allow_pickle: bool = False,
+        plain_data: bool = False,
+        unpickle: Callable[[BinaryIO, str], Any] | None = None,
+    ) -> np.ndarray:
         """The array ``key``, its header's claims checked before it is allocated.
         ``plain_data``: an object array is read through the data unpickler
         (``formats.safe_data``: numbers, strings, arrays and plain containers, nothing run)
-        and refused only when it holds anything else (unless ``allow_pickle``)."""
+        and refused only when it holds anything else (unless ``allow_pickle``). ``unpickle``:
+        an object array is read by ``unpickle(stream, label)`` instead (a restricted unpickler,
+        e.g. a body model's, which rebuilds scipy.sparse matrices)."""
         info = self._infos[key]
         if not info.filename.endswith(".npy"):
             raise InputError(
@@ -141,7 +149,7 @@ class NpzArchive:
             size, most = _bytes(info.file_size), _bytes(self.max_member)
             raise InputError(f"{where} is {size}, over the {most} one array of it may take")
         return _read_member(self._zip, info, key, self.label, allow_pickle, self.pickle_option,
-                            plain_data)  # fmt: skip
+                            plain_data, unpickle)  # fmt: skip
 
     def __getitem__(self, key: str) -> np.ndarray:
         return self.read(key)
@@ -181,12 +189,15 @@ def _read_member(
     allow_pickle: bool,
     pickle_option: str | None,
     plain_data: bool = False,
+    unpickle: Callable[[BinaryIO, str], Any] | None = None,
 ) -> np.ndarray:
     where = f"{label}: {key!r}"
     try:
         with archive.open(info) as fh:
             shape, dtype, header_bytes = _header(fh, where)
             if dtype.hasobject:
+                if unpickle is not None:
+                    return unpickle(fh, where)
                 if not allow_pickle:
                     hint = (f"re-run with {pickle_option} only if you trust the file (it runs "
                             "their code)" if pickle_option else

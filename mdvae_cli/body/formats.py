@@ -23,7 +23,7 @@ from mdvae_cli.body.data import (
     SMPL_MARKER_VERTEX_IDS,
     BodyModelData,
 )
-from mdvae_cli.body.safe_pickle import plain_value, read_pickle
+from mdvae_cli.body.safe_pickle import plain_value, read_pickle, unpickle_stream
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular
 from mdvae_cli.npz_archive import NpzArchive
@@ -100,9 +100,22 @@ MAX_NPZ_BYTES = 512 << 20
 
 
 def _load_npz(path: Path) -> BodyModelData:
-    """Only the arrays the model needs are read, each checked before it is allocated."""
-    with NpzArchive(path, f"body model {path.name}", max_total=MAX_NPZ_BYTES) as archive:
-        return _assemble(path.name, set(archive.keys), archive.read)
+    """Only the arrays the model needs are read, each checked before it is allocated. An
+    array saved as pickled objects (``np.savez`` of an SMPL pickle's scipy.sparse
+    ``J_regressor``) is read as the pickles are, nothing run."""
+    name = path.name
+
+    def fetch(key: str) -> Any:
+        def unpickle(stream: Any, _where: str) -> Any:
+            return unpickle_stream(stream, f"{name}: {key!r}")
+
+        value = archive.read(key, unpickle=unpickle)
+        if isinstance(value, np.ndarray) and value.dtype.hasobject:  # numbers as objects too
+            value = value.item() if value.shape == () else np.array(value.tolist())
+        return plain_value(value, name, key)
+
+    with NpzArchive(path, f"body model {name}", max_total=MAX_NPZ_BYTES) as archive:
+        return _assemble(name, set(archive.keys), fetch)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -111,6 +124,8 @@ def _load_npz(path: Path) -> BodyModelData:
 
 def _assemble(name: str, keys: set[str], fetch: Callable[[str], Any]) -> BodyModelData:
     missing = [k for k in REQUIRED_KEYS if k not in keys]
+    if len(missing) == len(REQUIRED_KEYS):
+        raise InputError(f"body model {name}: {_not_a_model(keys)}")
     if missing:
         raise InputError(f"body model {name}: missing " + ", ".join(repr(k) for k in missing))
 
@@ -148,6 +163,7 @@ def _assemble(name: str, keys: set[str], fetch: Callable[[str], Any]) -> BodyMod
     weights = numeric("weights", np.float64)
     if weights.shape != (V, J):
         raise fail(f"'weights' must be ({V}, {J}), got {weights.shape}")
+    _check_values(v_template, J_regressor, weights, fail)
     shapedirs = _shape_dirs(numeric("shapedirs", np.float64), V, kind, "expr_dirs" in keys, fail)
     posedirs = _pose_dirs(numeric("posedirs", np.float64), V, J, fail)
     faces = numeric("f", np.int64)
@@ -179,6 +195,55 @@ def _assemble(name: str, keys: set[str], fetch: Callable[[str], Any]) -> BodyMod
         marker_vertex_ids=marker_ids,
         name=name,
     ).validate()
+
+
+#: keys of motion files (AMASS, SMPL parameter dumps, AIST++, GVHMR) given as a body model
+_MOTION_KEYS = ("poses", "root_orient", "pose_body", "trans", "transl", "global_orient",
+                "body_pose", "smpl_poses", "mocap_framerate", "mocap_frame_rate")  # fmt: skip
+
+
+def _not_a_model(keys: set[str]) -> str:
+    """Why a file holding none of a model's arrays is refused: a motion file given by mistake,
+    or some other file."""
+    motion = [k for k in _MOTION_KEYS if k in keys] or sorted(
+        k for k in keys if k.startswith("smpl_params")
+    )
+    give = "give the SMPL, SMPL-H or SMPL-X model file (e.g. SMPL_NEUTRAL.pkl, model.npz)"
+    if motion:
+        return (
+            f"a motion file (it holds {', '.join(map(repr, motion[:2]))}), not a body model; {give}"
+        )
+    model = ", ".join(map(repr, REQUIRED_KEYS[:3]))
+    return f"not a body model (none of {model}, ... in it); {give}"
+
+
+#: how far a row of a model's skinning weights or joint regressor may sum from 1: loosely
+#: (SMPL's regressor was fit by non-negative least squares that favours, not forces, a sum of
+#: 1), so that only a zeroed, doubled or damaged array is refused
+_SUM_TOLERANCE = 0.5
+#: metres a body model's rest mesh may span, loosely (centimetres give 170, millimetres 1,700)
+_SPAN_M = (0.1, 10.0)
+
+
+def _check_values(
+    v_template: np.ndarray,
+    J_regressor: np.ndarray,
+    weights: np.ndarray,
+    fail: Callable[[str], InputError],
+) -> None:
+    """Refuse arrays of the right shapes but no body's values: weights or regressor rows that
+    do not sum to 1 (a damaged or zeroed array: the mesh would collapse, the joints sit at
+    the origin) and a mesh in other units than metres.  (V, 3), (J, V), (V, J)"""
+    for key, rows, what in (("weights", weights, "vertex"), ("J_regressor", J_regressor, "joint")):
+        off = np.abs(rows.sum(axis=1) - 1.0)
+        if off.max() > _SUM_TOLERANCE:
+            i = int(off.argmax())
+            raise fail(f"{key!r} rows must each sum to about 1; {what} {i}'s sums to "
+                       f"{rows[i].sum():.3g} (the file is damaged)")  # fmt: skip
+    span = float(np.ptp(v_template, axis=0).max())
+    if not _SPAN_M[0] <= span <= _SPAN_M[1]:
+        raise fail(f"the rest mesh spans {span:.4g} m; a body model in metres spans "
+                   f"{_SPAN_M[0]:g}-{_SPAN_M[1]:g} m (is it in another unit?)")  # fmt: skip
 
 
 def _parents(kintree: np.ndarray, fail: Callable[[str], InputError]) -> np.ndarray:

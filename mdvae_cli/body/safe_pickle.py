@@ -169,9 +169,20 @@ def expanded_bytes(obj: Any) -> int:
 
 def read_pickle(path: Path) -> dict[str, Any]:
     name = path.name
+    with path.open("rb") as f:
+        data = unpickle_stream(f, name)
+    if not isinstance(data, dict):
+        raise InputError(
+            f"body model {name}: pickle holds a {type(data).__name__}, expected a dict"
+        )
+    return {str(k): v for k, v in data.items()}
+
+
+def unpickle_stream(f: Any, name: str) -> Any:
+    """What a body-model pickle stream holds (numpy arrays, chumpy and scipy.sparse stand-ins,
+    plain containers); InputError naming ``name`` for anything else, or too large."""
     try:
-        with path.open("rb") as f:
-            data = _RestrictedUnpickler(f, name).load()
+        data = _RestrictedUnpickler(f, name).load()
         total = expanded_bytes(data)
     except InputError:
         raise
@@ -188,11 +199,7 @@ def read_pickle(path: Path) -> dict[str, Any]:
             f"body model {name}: its arrays add up to {total / 2**30:.3g} GiB once the parts it "
             f"repeats are expanded (over {MAX_EXPANDED >> 20} MiB); the file is damaged"
         )
-    if not isinstance(data, dict):
-        raise InputError(
-            f"body model {name}: pickle holds a {type(data).__name__}, expected a dict"
-        )
-    return {str(k): v for k, v in data.items()}
+    return data
 
 
 def plain_value(value: Any, label: str, key: str) -> Any:

@@ -81,10 +81,25 @@ def read_data_file(path: Path, name, fps, track, body) -> LoadedFile:
             "(they read it from two folders up)"
         )
     if name is None:
-        raise InputError(
-            f"{path}: not a motion layout this tool knows (give --format: {', '.join(FORMATS)})"
-        )
+        raise InputError(f"{path}: {_unknown_layout(inner)}")
     return _load_video(path, name, data, fps, track, body, container)
+
+
+def _unknown_layout(data: object) -> str:
+    """Why a data file is refused: SMPL arrays in a pickle (AMASS keys, or an SMPL parameter
+    dump, whose up axis no key tells) said as such, with the way to an .npz; else the formats
+    ``--format`` may name (AMASS-style files are .npz archives, never pickles)."""
+    keys = set(map(str, data)) if isinstance(data, dict) else set()
+    amass = "an AMASS-style .npz (poses, trans, betas, mocap_framerate; z up)"
+    if "poses" in keys or {"root_orient", "pose_body"} <= keys:
+        return f"AMASS-style arrays in a pickle: mdvae reads them as {amass}; save them so"
+    if {"global_orient", "body_pose"} <= keys:
+        return (
+            "SMPL parameters ('global_orient', 'body_pose') in a layout mdvae does not know "
+            f"(nor their up axis): save them as {amass}, poses = global_orient + body_pose"
+        )
+    video = ", ".join(f for f in FORMATS if f != "amass")
+    return f"not a motion layout this tool knows (give --format: {video})"
 
 
 def _npz_keys(path: Path) -> set[str]:
@@ -108,7 +123,7 @@ def _npz_keys(path: Path) -> set[str]:
 
 
 def _load_amass(path: Path, fps: float | None, track: str | None, allow_pickle: bool):
-    motion = load_motion(path, allow_pickle=allow_pickle)
+    motion = load_motion(path, allow_pickle=allow_pickle, fps=fps)
     if track is not None:
         raise InputError(f"{path}: --track applies to files of several people; this one holds one")
     fmt, kind, notes = "amass", "mocap", []

@@ -63,9 +63,10 @@ def read_holes(
 
     poses: (T, W) float64, may hold NaN / inf; trans: (T, 3) likewise. Returns (poses, trans)
     with non-finite entries set to 0 (the caller fills them, :func:`fill_placeholders`), the
-    (T, 22) mask of observed joints (None when every value is finite), the file's non-finite
-    entries (for :func:`restore_holes`) and a note saying how many frames and joints miss.
-    InputError: see :func:`check_holes`.
+    (T, 22) mask of observed joints (None when every body value is finite), the file's
+    non-finite entries (for :func:`restore_holes`) and a note saying how many frames and joints
+    miss. A hand / face column with no value in any frame (a tracker without hands) is at rest,
+    0. InputError: see :func:`check_holes`.
     """
     bad_p, bad_t = ~np.isfinite(poses), ~np.isfinite(trans)
     if not bad_p.any() and not bad_t.any():
@@ -73,13 +74,11 @@ def read_holes(
     from mdvae_cli.motion.holes import finite_mask, hole_count  # torch: only for holes
 
     mask = finite_mask(poses, trans)
-    check_holes(mask, path, split, "poses" if bad_p[:, : 3 * NUM_JOINTS].any() else "trans")
+    body = not mask.all()  # holes in the body: else only in hand / face columns
+    if body:
+        check_holes(mask, path, split, "poses" if bad_p[:, : 3 * NUM_JOINTS].any() else "trans")
     extra = int(bad_p[:, 3 * NUM_JOINTS :].any(axis=0).sum())
-    if extra and bad_p[:, 3 * NUM_JOINTS :].all(axis=0).any():
-        raise InputError(
-            f"{path}: 'poses' contains NaN or infinite values in every frame of a hand/face "
-            "column; nothing observed to fill it from"
-        )
+    never = int(bad_p[:, 3 * NUM_JOINTS :].all(axis=0).sum())  # a tracker without hands
     holes_p = bad_p.copy()  # the file's values in every hole, finite or not
     holes_p[:, : 3 * NUM_JOINTS] |= np.repeat(~mask, 3, axis=1)
     holes_t = bad_t | ~mask[:, :1]
@@ -91,13 +90,23 @@ def read_holes(
     frames, entries = hole_count(mask)
     T = len(mask)
     whole = int((~mask).all(axis=1).sum())
-    note = (
+    notes = [
         f"NaN or infinite values in {frames} of {T} frame(s) ({whole} whole, {entries} joint "
         "entries): marked missing in joint_mask, placeholders interpolated"
+    ] if body else []  # fmt: skip
+    if extra > never:
+        what = "" if body else "NaN or infinite values in "
+        notes.append(f"{what}{extra - never} hand/face column(s) interpolated")
+    if never:
+        notes.append(f"{never} hand/face column(s) NaN or infinite in every frame: at rest (0)")
+    note = "; ".join(notes)
+    return (
+        np.where(bad_p, 0.0, poses),
+        np.where(bad_t, 0.0, trans),
+        mask if body else None,
+        as_read,
+        note,
     )
-    if extra:
-        note += f"; {extra} hand/face column(s) interpolated"
-    return np.where(bad_p, 0.0, poses), np.where(bad_t, 0.0, trans), mask, as_read, note
 
 
 def fill_placeholders(motion: Motion, trans_bad: np.ndarray) -> Motion:
@@ -130,7 +139,7 @@ def _interp_columns(values: np.ndarray, bad: np.ndarray) -> np.ndarray:
     frames = np.arange(len(out))
     for c in np.flatnonzero(bad.any(axis=0)):
         ok = ~bad[:, c]
-        out[~ok, c] = np.interp(frames[~ok], frames[ok], out[ok, c])
+        out[~ok, c] = np.interp(frames[~ok], frames[ok], out[ok, c]) if ok.any() else 0.0
     return out
 
 

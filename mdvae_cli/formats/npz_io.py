@@ -23,10 +23,14 @@ from mdvae_cli.formats.npz_values import (
     ANGLE,
     BETA,
     DISTANCE,
+    branch_reference,
+    fps_array,
     frame_rate,
     gender_as_written,
     gender_text,
     joint_mask,
+    like_stored,
+    on_file_branches,
     real_array,
     safe_keys,
 )
@@ -51,8 +55,8 @@ _BODY_SPLIT_KEYS = ("root_orient", "pose_body")
 _SPLIT_TOL = 1e-5
 
 
-def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
-    """Read an AMASS-layout motion file.
+def load_motion(path: Path | str, allow_pickle: bool = False, fps: float | None = None) -> Motion:
+    """Read an AMASS-layout motion file (``fps``: the rate of a file that stores none).
 
     A ``.gz`` file (``take.npz.gz``, as folders are searched) is gunzipped first. Never
     executes pickled objects unless ``allow_pickle``: object arrays of plain data (numbers,
@@ -82,7 +86,7 @@ def load_motion(path: Path | str, allow_pickle: bool = False) -> Motion:
         # in the archive's order; object arrays of plain data read without running anything
         data = {key: npz.read(key, allow_pickle, plain_data=True) for key in npz.keys}
         compressed = npz.compressed
-    motion = motion_from_arrays(data, path)
+    motion = motion_from_arrays(data, path, fps)
     motion.layout["compressed"] = compressed
     return motion
 
@@ -108,8 +112,11 @@ def _gunzip(path: Path) -> io.BytesIO:
     return io.BytesIO(raw)
 
 
-def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>") -> Motion:
-    """Build a Motion from the arrays of an AMASS-layout file (see :func:`load_motion`).
+def motion_from_arrays(
+    data: dict[str, np.ndarray], path: Path | str = "<arrays>", fps: float | None = None
+) -> Motion:
+    """Build a Motion from the arrays of an AMASS-layout file (see :func:`load_motion`); a
+    file with no frame rate is read at ``fps`` (and written with it), else refused.
 
     ``poses`` is the source of truth for the pose; a file without it is read from its split
     arrays (``root_orient``, ``pose_body``, and ``pose_jaw``/``pose_eye``/``pose_hand`` when
@@ -125,7 +132,10 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         poses = _poses_from_split(data, path)
     if poses.ndim != 2 or poses.shape[1] not in POSE_WIDTHS:
         widths = "/".join(str(w) for w in POSE_WIDTHS)
-        raise InputError(f"{path}: 'poses' has shape {poses.shape}, expected (T, {widths})")
+        why = ""
+        if poses.ndim == 3 and poses.shape[2] in POSE_WIDTHS:  # (B, T, W): B motions
+            why = f": a batch of {poses.shape[0]}; save each motion (poses[i], trans[i]) as an .npz"
+        raise InputError(f"{path}: 'poses' has shape {poses.shape}, expected (T, {widths}){why}")
     T = poses.shape[0]
     if T < 1:  # one frame is a pose: it can be evaluated, exported or sampled from
         raise InputError(f"{path}: the motion has no frames")
@@ -161,9 +171,10 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         notes.append("no 'betas' array: using the mean shape")
 
     fps_key = next((k for k in FPS_KEYS if k in data), None)
-    if fps_key is None:
-        raise InputError(f"{path}: no frame rate ('mocap_framerate' or 'mocap_frame_rate')")
-    fps = frame_rate(fps_key, data[fps_key], path)
+    if fps_key is None and fps is None:
+        raise InputError(f"{path}: no frame rate ('mocap_framerate' or 'mocap_frame_rate'); "
+                         "give it with --fps (import: --source-fps)")  # fmt: skip
+    fps = float(fps) if fps_key is None else frame_rate(fps_key, data[fps_key], path)
     if not fps > 0:
         raise InputError(f"{path}: frame rate must be > 0, got {fps:g}")
     check_fps(fps, str(path), swapped=f"is {fps_key} a frame time?")
@@ -178,9 +189,11 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         if mask.shape != (T, 22):
             raise InputError(f"{path}: 'joint_mask' has shape {mask.shape}, expected ({T}, 22)")
     trans_bad = ~np.isfinite(trans)
+    branches = branch_reference(poses)  # NaN where the file has holes
     poses, trans, finite, as_read, note = read_holes(poses, trans, path, split=not has_poses)
     if finite is not None:
         mask = finite if mask is None else mask & finite
+    if note:
         notes.append(note)
 
     data = safe_keys(data, notes)
@@ -197,6 +210,8 @@ def motion_from_arrays(data: dict[str, np.ndarray], path: Path | str = "<arrays>
         "arrays": {k: (str(np.asarray(data[k]).dtype), np.shape(data[k])) for k in own},
         "split": split,
         "betas_rows": betas_rows,
+        "absent": [k for k in ("trans", "betas") if k not in data],  # written once not zero
+        "branches": branches,
     }
     if as_read is not None:
         layout[AS_READ] = as_read
@@ -302,7 +317,7 @@ def motion_to_arrays(motion: Motion, holes: bool = True) -> dict[str, np.ndarray
         return _float_dtype(specs[key][0] if key in specs else None, poses_dtype)
 
     out: dict[str, np.ndarray] = dict(motion.extras)
-    poses, trans = motion.poses, motion.trans.copy()
+    poses, trans = on_file_branches(motion.poses, layout.get("branches")), motion.trans.copy()
     if holes:
         restore_holes(poses, trans, layout)
     if layout.get("has_poses", True):
@@ -314,11 +329,14 @@ def motion_to_arrays(motion: Motion, holes: bool = True) -> dict[str, np.ndarray
         out[key] = poses[:, start : start + columns].reshape(shape).astype(spec["dtype"])
     out["trans"] = trans.astype(float_dtype("trans"))
     out["betas"] = _betas_array(motion, specs.get("betas"), float_dtype("betas"))
-    fps_key = str(layout.get("fps_key", "mocap_framerate"))
-    out[fps_key] = _fps_array(motion.fps, specs.get(fps_key))
+    for key in layout.get("absent") or ():  # a file without them stays so while they are 0
+        if not np.any(out[key]):
+            del out[key]
+    fps_key = str(layout.get("fps_key") or "mocap_framerate")  # a file without one: added
+    out[fps_key] = fps_array(motion.fps, specs.get(fps_key))
     if layout.get("has_gender", True):
         g = gender_as_written(motion.gender, layout)
-        out["gender"] = _like(np.array(g), specs.get("gender"))
+        out["gender"] = like_stored(np.array(g), specs.get("gender"))
     if motion.joint_mask is not None:
         mask = motion.joint_mask.astype(bool)
         spec = specs.get("joint_mask")
@@ -349,29 +367,6 @@ def _betas_array(motion: Motion, spec: tuple | None, dtype: np.dtype) -> np.ndar
     if spec is not None and int(np.prod(spec[1])) == betas.size:
         betas = betas.reshape(spec[1])
     return betas.astype(dtype)
-
-
-def _fps_array(fps: float, spec: tuple | None) -> np.ndarray:
-    """The frame rate in the file's dtype (an integer one only for a whole rate) and shape."""
-    out = np.array(fps)
-    if spec is None:
-        return out
-    dtype = np.dtype(spec[0])
-    if np.issubdtype(dtype, np.floating) or (
-        np.issubdtype(dtype, np.integer) and float(fps).is_integer()
-    ):
-        out = out.astype(dtype)
-    return out.reshape(spec[1]) if int(np.prod(spec[1])) == 1 else out
-
-
-def _like(arr: np.ndarray, spec: tuple | None) -> np.ndarray:
-    """A string array in the file's dtype and shape, where the text fits."""
-    if spec is None:
-        return arr
-    dtype = np.dtype(spec[0])
-    fits = dtype.kind == "O" or (dtype.kind == arr.dtype.kind and dtype.itemsize >= arr.itemsize)
-    out = arr.astype(dtype) if fits else arr
-    return out.reshape(spec[1]) if int(np.prod(spec[1])) == out.size else out
 
 
 def save_motion(motion: Motion, path: Path | str, forbid: tuple[Path, ...] = ()) -> None:

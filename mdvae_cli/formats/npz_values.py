@@ -1,5 +1,6 @@
 """What the arrays of an AMASS-style ``.npz`` may hold: real, finite numbers within the limits of
-a motion; one frame rate; one gender as text; key names that are safe to write back.
+a motion; one frame rate; one gender as text; key names that are safe to write back. And how
+values are written back as the file stored them (frame rate, text, axis-angle branches).
 
 Each check raises InputError with one line naming the file, the key and the problem; used by
 :mod:`mdvae_cli.formats.npz_io`.
@@ -120,3 +121,56 @@ def safe_keys(data: dict[str, np.ndarray], notes: list[str]) -> dict[str, np.nda
             key = new
         out[key] = value
     return out
+
+
+#: radians: a file with a body axis-angle this long may write the other side of pi (a solver's
+#: free axis-angles, a root turning through 180 degrees); its own branches are kept on writing
+_NEAR_PI = 3.0
+
+
+def branch_reference(poses: np.ndarray) -> np.ndarray | None:
+    """The body axis-angles of a file as read, (T, 66), when any comes near or past pi (where
+    a rewritten rotation could land on another branch than the file's); None otherwise."""
+    body = np.asarray(poses[:, :66], dtype=np.float64).reshape(len(poses), -1, 3)
+    with np.errstate(invalid="ignore"):
+        near = np.linalg.norm(body, axis=-1) > _NEAR_PI
+    return np.array(poses[:, :66], dtype=np.float64) if near.any() else None
+
+
+def on_file_branches(poses: np.ndarray, reference: np.ndarray | None) -> np.ndarray:
+    """``poses`` (T, W) with each body axis-angle on the branch nearest the file's own
+    (``branch_reference``), the rotations unchanged; as it is without a reference of its
+    frames."""
+    if reference is None or reference.shape != (len(poses), 66):
+        return poses
+    from mdvae_cli.geometry.rotations_np import rotvec_nearest
+
+    out = np.array(poses, dtype=np.float64)
+    T = len(out)
+    out[:, :66] = rotvec_nearest(
+        out[:, :66].reshape(T, 22, 3), reference.reshape(T, 22, 3)
+    ).reshape(T, 66)
+    return out
+
+
+def fps_array(fps: float, spec: tuple | None) -> np.ndarray:
+    """The frame rate in the file's dtype (an integer one only for a whole rate) and shape."""
+    out = np.array(fps)
+    if spec is None:
+        return out
+    dtype = np.dtype(spec[0])
+    if np.issubdtype(dtype, np.floating) or (
+        np.issubdtype(dtype, np.integer) and float(fps).is_integer()
+    ):
+        out = out.astype(dtype)
+    return out.reshape(spec[1]) if int(np.prod(spec[1])) == 1 else out
+
+
+def like_stored(arr: np.ndarray, spec: tuple | None) -> np.ndarray:
+    """A string array in the file's dtype and shape, where the text fits."""
+    if spec is None:
+        return arr
+    dtype = np.dtype(spec[0])
+    fits = dtype.kind == "O" or (dtype.kind == arr.dtype.kind and dtype.itemsize >= arr.itemsize)
+    out = arr.astype(dtype) if fits else arr
+    return out.reshape(spec[1]) if int(np.prod(spec[1])) == out.size else out

@@ -146,6 +146,8 @@ def read(
     why = unsupported(path)
     if why is not None and name is None:
         raise InputError(f"{path}: {why}")
+    if name == "amass" and kind != ".npz":
+        raise InputError(f"{path}: --format amass reads AMASS-style .npz files only")
     if name is None and kind in TAKE_SUFFIXES:
         loaded = _read_take(path, options, takes)
     elif name is None and kind == ".npz" or name == "amass":

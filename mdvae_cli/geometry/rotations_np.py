@@ -150,3 +150,22 @@ def quat_continuous(quat: np.ndarray, first_positive: bool = False) -> np.ndarra
     )
     flips = np.cumprod(np.concatenate([first, steps], axis=0), axis=0)
     return q * flips[..., None]
+
+
+def rotvec_nearest(rotvec: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Each axis-angle rewritten as the one of its rotation nearest ``reference``.
+
+    The axis-angles of one rotation are ``n (a + 2 pi k)`` for integer k (``k = -1`` is the
+    flip to ``-n (2 pi - a)``); the k whose vector lies nearest the reference is taken, so
+    that a motion comes back on the branches its file used (a solver's root past pi). Entries
+    with no axis (angle ~0) or a NaN reference are kept.  (..., 3), (..., 3) -> (..., 3)
+    """
+    rotvec = np.asarray(rotvec, dtype=np.float64)
+    with np.errstate(invalid="ignore"):  # a hole's NaN rows stay NaN, quietly
+        angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+        has_axis = angle > 1e-8
+        axis = rotvec / np.where(has_axis, angle, 1.0)
+        along = np.sum(np.asarray(reference, dtype=np.float64) * axis, axis=-1, keepdims=True)
+        turns = np.round((along - angle) / (2.0 * np.pi))
+    keep = ~has_axis | ~np.isfinite(turns) | (turns == 0)
+    return np.where(keep, rotvec, axis * (angle + 2.0 * np.pi * np.where(keep, 0.0, turns)))

@@ -280,6 +280,7 @@ def retarget(
         "retarget_error_direct_m": round(float(err[:, direct].mean()), 6),
         "floor_shift_m": round(floor, 6),
         "floor_tilt_deg": round(tilt_deg, 3),
+        "body_model": body.data.name or body.data.kind,  # whose shape space the betas are in
         "joint_map": jmap.describe(src.names),
         "notes": list(src.notes),
         **(metadata or {}),

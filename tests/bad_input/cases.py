@@ -611,7 +611,7 @@ BODY = [
     Defect("body-npz", "faces-range", _body_npz(f=np.full((10, 3), 999)),
            r"'f' \(faces\) indexes vertices outside"),
     Defect("body-npz", "pickled-member", _body_pickled_member,
-           r"'weights' holds pickled Python objects", commands=ALL),
+           r"'weights': refusing to load 'posix.system'", commands=ALL),
     Defect("body-npz", "huge-shape", _body_npz(v_template=F.npy_claiming((10**12, 3))),
            r"'v_template' claims shape \(1000000000000, 3\)", commands=ALL),
     Defect("body-npz", "member-not-npy",
