@@ -454,3 +454,47 @@ def test_speeds_and_data_fraction_reach_the_training_windows(tmp_path, tiny_body
         tiny_config(data, speeds=[0.1])
     with pytest.raises(InputError, match="--data-fraction"):
         tiny_config(data, data_fraction=0.0)
+
+
+def test_a_stop_asked_for_saves_at_once_and_resume_ends_bit_identical(tmp_path):
+    """A Ctrl-C or SIGTERM the command caught (``stop_requested``): the run stops after the
+    step it is in, saves a checkpoint without validating (none is a best), and --resume ends
+    with exactly the weights of the run left alone."""
+    data = write_corpus(tmp_path / "data", n=3, T=60)
+    cfg = tiny_config(data, epochs=2, batch_size=2)  # 8 steps an epoch
+    whole = train_prior(cfg, tmp_path / "whole")
+    seen = []
+
+    def asked():
+        seen.append(1)
+        return len(seen) >= 3
+
+    run = tmp_path / "asked"
+    stopped = train_prior(cfg, run, stop_requested=asked)
+    assert stopped.interrupted and stopped.steps == 3
+    meta = json.loads((run / "last.json").read_text())
+    assert meta["epoch_steps"] == 3 and meta["val"] == {} and meta["best_val_loss"] is None
+    assert not (run / "best.npz").exists()  # nothing was measured
+    assert json.loads((run / "log.jsonl").read_text())["interrupted"] is True
+    resumed = train_prior(cfg, run, resume=True)
+    assert not resumed.interrupted
+    assert resumed.steps == whole.steps and resumed.rank_digests == whole.rank_digests
+
+
+def test_the_first_signal_asks_for_a_stop_the_second_stops_at_once():
+    import signal
+
+    from mdvae_cli.cli.train_shared import StopAfterStep
+    from mdvae_cli.errors import Terminated
+
+    before = signal.getsignal(signal.SIGTERM)
+    with StopAfterStep() as stop:
+        assert not stop()
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert stop() and stop.signal == signal.SIGTERM  # asked, nothing raised
+        with pytest.raises(Terminated):
+            os.kill(os.getpid(), signal.SIGTERM)
+    assert signal.getsignal(signal.SIGTERM) is before  # put back
+    with pytest.raises(Terminated):
+        stop.raise_stop(3)
+    StopAfterStep().raise_stop(3)  # no signal: nothing

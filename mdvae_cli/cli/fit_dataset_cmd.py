@@ -17,7 +17,7 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
-from mdvae_cli.cli.train import apply_overrides, run_options, start_config, summary_dict
+from mdvae_cli.cli.train_shared import apply_overrides, run_options, start_config, summary_dict
 from mdvae_cli.errors import InputError
 
 
@@ -174,7 +174,7 @@ def fit_dataset(
 
     if threads is not None:
         torch.set_num_threads(threads)
-    cfg = start_config(FitConfig, out_dir, resume, config_file)
+    cfg = start_config(FitConfig, out_dir, resume, config_file, noisy)
     if not resume:
         cfg.data = [str(p) for p in noisy]
         if prior_path is not None:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 import numpy as np
+from rich.markup import escape
 
 from mdvae_cli.cli.batch import emit_json, json_option, print_notes, refuse_gz
 from mdvae_cli.cli.common import (
@@ -146,7 +147,7 @@ def sample(
     if as_json:
         emit_json({"output": str(out), "frames": frames, "fps": result.fps, "seed": seed})
     else:
-        console.print(f"wrote {frames} sampled frames at 30 Hz to {out}")
+        console.print(f"wrote {frames} sampled frames at 30 Hz to {escape(str(out))}")
 
 
 COMMANDS = [sample]

@@ -1,13 +1,8 @@
-"""``mdvae train-prior``, and what the training commands share: progress reporting, the
-config a run starts from, command-line overrides."""
+"""``mdvae train-prior`` (what it shares with ``fit-dataset``: ``cli.train_shared``)."""
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import math
-from collections.abc import Callable
-from dataclasses import fields
 from pathlib import Path
 
 import click
@@ -16,117 +11,21 @@ from mdvae_cli.cli.batch import emit_json, note_broken_links
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
-    SEED,
     OutputPath,
     body_model_option,
     console,
     handle_errors,
     progress_bar,
 )
+from mdvae_cli.cli.train_shared import (
+    StepReporter,
+    StopAfterStep,
+    apply_overrides,
+    run_options,
+    start_config,
+    summary_dict,
+)
 from mdvae_cli.errors import InputError
-
-
-class StepReporter:
-    """Feeds training progress dicts into a rich progress bar."""
-
-    def __init__(self, progress, label: str):
-        self.progress = progress
-        self.label = label
-        self.task = None
-        self.terms = ""
-
-    def __call__(self, info: dict) -> None:
-        if info.get("epoch_end"):
-            val = info.get("val") or {}
-            text = "  ".join(f"{k} {v:.3f}" for k, v in val.items())
-            console.print(f"epoch {info['epoch'] + 1}: val {text}")
-            return
-        total = info["steps_per_epoch"] * info["epochs"]
-        if self.task is None:
-            self.task = self.progress.add_task(self.label, total=total, info="")
-        if "loss" in info:  # steps without the loss terms keep the last ones shown
-            self.terms = "  ".join(
-                f"{k} {info[k]:.3f}" for k in ("loss", "recon", "kl", "body_cm2") if k in info
-            )
-        terms = self.terms
-        self.progress.update(
-            self.task, completed=info["step"], info=f"ep {info['epoch'] + 1} {terms}"
-        )
-        if not console.is_terminal and info["step"] % 50 == 0:  # logs of batch jobs
-            console.print(f"step {info['step']}/{total} ep {info['epoch'] + 1} {terms}")
-
-
-def start_config(cls, run_dir: Path, resume: bool, config_file: Path | None):
-    """The config to run: the run's own (resume), a given file, or the defaults."""
-    if resume:
-        path = Path(run_dir) / "config.json"
-        if not path.exists():
-            raise InputError(f"nothing to resume: {path} not found")
-    else:
-        path = config_file
-    if path is None:
-        return cls()
-    try:
-        d = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(f"config {path} is unreadable ({exc})") from None
-    if resume and isinstance(d, dict) and not set(d) <= {f.name for f in fields(cls)}:
-        key = sorted(set(d) - {f.name for f in fields(cls)})[0]
-        raise InputError(
-            f"{run_dir} is not a run of this command ({path.name} has the key {key!r}): "
-            "resume it with the command that wrote it"
-        )
-    # a run's own config.json was written by mdvae (an option it lacks predates it, a nested
-    # key it has no more is an old option); a config a user wrote leaves out what should take
-    # its default, and every key it names must exist
-    return cls.from_dict(d, legacy=resume, source=f"config {path}")
-
-
-def apply_overrides(
-    cfg, overrides: dict, nested: dict[str, str | tuple[str, str]], resume: bool
-) -> None:
-    """Set the options given on the command line; ``nested`` maps an option to the sub-config
-    holding it (same field name) or to (sub-config, field).
-
-    On resume, options that would change the network's shape are refused.
-    """
-    for key, value in overrides.items():
-        if value is None:
-            continue
-        where = nested.get(key)
-        sub, name = (where, key) if where is None or isinstance(where, str) else where
-        target = cfg if sub is None else getattr(cfg, sub)
-        if resume and sub == "model" and getattr(target, name) != value:
-            raise InputError(f"--{key.replace('_', '-')} cannot change when resuming a run")
-        setattr(target, name, value)
-
-
-def run_options(fn: Callable) -> Callable:
-    """The options train-prior and fit-dataset share: --config, --seed, --device, --threads,
-    --json."""
-    for option in reversed(
-        [
-            click.option(
-                "--config",
-                "config_file",
-                type=click.Path(path_type=Path, exists=True),
-                help="A config.json to start from; options given here override it.",
-            ),
-            click.option("--seed", type=SEED, help="Random seed [default: 0]."),
-            click.option("--device", help="auto, cpu, cuda or cuda:N [default: auto]."),
-            click.option(
-                "--threads", type=click.IntRange(1, 256), help="CPU threads for torch (1 to 256)."
-            ),
-            click.option(
-                "--json",
-                "as_json",
-                is_flag=True,
-                help="Print the run's summary as JSON on stdout (for pipelines).",
-            ),  # fmt: skip
-        ]
-    ):
-        fn = option(fn)
-    return fn
 
 
 @click.command("train-prior")
@@ -286,9 +185,9 @@ def run_options(fn: Callable) -> Callable:
 @click.option(
     "--resume",
     is_flag=True,
-    help="Continue the run in the -o folder from its last.npz (the end of its last finished "
-    "epoch): with the same settings it ends with exactly the weights of an uninterrupted run "
-    "(one process).",
+    help="Continue the run in the -o folder from its last.npz (where it stopped: the end of "
+    "an epoch, or the step a first Ctrl-C / SIGTERM let it finish): with the same settings it "
+    "ends with exactly the weights of an uninterrupted run (one process).",
 )
 @click.option(
     "--max-steps",
@@ -326,11 +225,12 @@ def train_prior(
 
     if threads is not None:
         torch.set_num_threads(threads)
-    fixed = {"--split": split_file, "--body-model": body_model, "--config": config_file}
+    fixed = {"--split": split_file, "--body-model": body_model, "--config": config_file,
+             "--init-from": overrides["init_from"]}  # fmt: skip
     if resume and any(v is not None for v in fixed.values()):
         named = ", ".join(k for k, v in fixed.items() if v is not None)
         raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
-    cfg = start_config(TrainConfig, run_dir, resume, config_file)
+    cfg = start_config(TrainConfig, run_dir, resume, config_file, data)
     if not resume:
         cfg.data = [str(p) for p in data]
         if split_file is not None:
@@ -355,7 +255,7 @@ def train_prior(
         },
         resume=resume,
     )
-    with progress_bar() as progress:
+    with progress_bar() as progress, StopAfterStep() as stop:
         summary = run(
             cfg,
             run_dir,
@@ -363,22 +263,19 @@ def train_prior(
             progress=StepReporter(progress, "training"),
             max_steps=max_steps,
             max_minutes=max_minutes,
+            stop_requested=stop,
         )
+    stop.raise_stop(summary.steps)
     if as_json:
         emit_json(summary_dict(summary))
         return
     best = summary.best_val_loss
     best_text = f"{best:.4f}" if math.isfinite(best) else "none (not finite)"
+    which = "val" if summary.val_windows else "train"  # no validation windows: training loss
     console.print(
         f"trained {summary.steps} steps in {summary.seconds:.0f} s on {summary.train_windows} "
-        f"windows; best val loss {best_text}; run in {summary.run_dir}"
+        f"windows; best {which} loss {best_text}; run in {summary.run_dir}"
     )
-
-
-def summary_dict(summary) -> dict:
-    """A run's summary dataclass for ``--json`` (numbers that are not finite as null)."""
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-            for k, v in dataclasses.asdict(summary).items()}  # fmt: skip
 
 
 def parse_speeds(text: str) -> list[float]:

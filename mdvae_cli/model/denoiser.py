@@ -306,6 +306,12 @@ def save_denoiser(path: Path, denoiser: Denoiser, meta: dict) -> None:
     save_checkpoint(Path(path), tensors, meta)
 
 
+def fit_on(prior: Path) -> str:
+    """What makes a denoiser of a prior (a denoiser is fitted on one; commands that read a
+    denoiser have no --prior)."""
+    return f"fit a denoiser on it first with `mdvae fit-dataset NOISY --prior {prior} -o DENOISER`"
+
+
 def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
     """Load a denoiser checkpoint (file, or a fit-dataset folder's ``denoiser.npz``); None
     loads the weights shipped with the package."""
@@ -313,10 +319,12 @@ def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
     if path.is_dir():
         if not (path / "denoiser.npz").exists() and (path / "best.npz").exists():
             raise InputError(
-                f"{path} is a train-prior run (a prior), not a denoiser: pass it as --prior"
+                f"{path} is a train-prior run (a prior), not a denoiser: {fit_on(path)}"
             )
         path = path / "denoiser.npz"
     tensors, meta = load_checkpoint(path)
+    if meta.get("kind") != "mdvae-denoiser" and "train_config" in meta:  # a train-prior file
+        raise InputError(f"{path} is not a denoiser checkpoint but a prior: {fit_on(path)}")
     if meta.get("kind") != "mdvae-denoiser":
         raise InputError(f"{path} is not a denoiser checkpoint (train one with fit-dataset)")
     prior = PriorModel(ModelConfig.from_dict(meta["model_config"]))

@@ -25,6 +25,7 @@ from mdvae_cli.formats.bvh_write import write_bvh
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.motion import cmu
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.resample import resample_times
 from mdvae_cli.retarget.fit_shape import BodyJoints, fit_betas, skeleton_key
 from mdvae_cli.retarget.retarget import RetargetResult, import_motion, load_source
 from mdvae_cli.retarget.way_back import translation_dropped, write_back_data
@@ -78,6 +79,12 @@ def read_take(
     """
     path = Path(path)
     src = source or load_source(path, skeleton, fps=fps, scale=scale, joint_map=joint_map)
+    kept = len(resample_times(src.num_frames, src.fps, rate)) if rate is not None else 2
+    if src.num_frames >= 2 > kept:  # the take has frames enough: the rate leaves one
+        raise InputError(
+            f"{path}: {src.num_frames} frames at {src.fps:g} fps make 1 at {rate:g} fps; a "
+            "motion needs at least 2 (import it at its own rate with --fps 0)"
+        )
     if betas is None:
         try:
             betas = fit_betas(src, body)

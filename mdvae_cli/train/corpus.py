@@ -99,6 +99,57 @@ def select_files(
     return [f for i, f in enumerate(files) if i % every != 0]
 
 
+def no_training_files(data: list[Path], split: Path | None, val_files: list[Path]) -> str:
+    """Why a run found nothing to train on, and what to do about it."""
+    if split is not None:
+        found = len(expand_inputs(data, by_target=True))
+        return (
+            f'none of the {found} motion files found is in the "train" list of {split} '
+            "(its paths are relative to its folder)"
+        )
+    if not val_files:
+        takes = expand_inputs(data, (".bvh", ".amc"))
+        if takes:  # a studio's takes: the importer makes the npz files training reads
+            return (
+                f"no .npz motion files found in the given data paths, only {len(takes)} "
+                f"BVH/AMC take{'s' if len(takes) > 1 else ''}: convert them first with "
+                f"`mdvae import {' '.join(str(p) for p in data)} -o imported/` and train on "
+                "imported/"
+            )
+        return "no motion files found in the given data paths"
+    n = len(val_files)
+    return (
+        f"found {n} motion file{'s' if n > 1 else ''} and the automatic split put "
+        f"{'them all' if n > 1 else 'it'} into validation, leaving none to train on: give 2 or "
+        'more files, or a --split file ({"train": [...], "val": [...]}) that lists the '
+        "training files"
+    )
+
+
+def check_val_splits(names: list[str], split: Path) -> None:
+    """InputError for a --val-split the split file has no list of (a typo would leave the
+    run without validation); a file without the default, "val", trains without one."""
+    lists = read_split(split)
+    for name in names:
+        if name not in lists and name != "val":
+            raise InputError(
+                f'--val-split {name}: the split file {split} has no "{name}" list (it has '
+                f"{', '.join(lists) or 'none'})"
+            )
+
+
+def no_validation(val_files: int, window: int) -> str:
+    """The note of a run without validation windows: why, and what chooses its best
+    checkpoint instead."""
+    why = (
+        "no validation files found"
+        if not val_files
+        else f"the {val_files} validation file{'s are' if val_files > 1 else ' is'} shorter than "
+        f"a window ({window + 1} frames at 30 Hz)"
+    )
+    return f"{why}: the best checkpoint is chosen by the training loss"
+
+
 def outside(files: list[Path], folder: Path) -> list[Path]:
     """``files`` less those inside ``folder`` (e.g. a run folder kept among the data)."""
     root = Path(folder).resolve()
@@ -123,6 +174,25 @@ def fraction_of(motions: list[Motion], fraction: float, seed: int) -> list[int]:
     return sorted(keep)
 
 
+def load_training_motion(path: Path) -> Motion:
+    """``load_motion``, with a plain error for a checkpoint of an mdvae run (a run folder
+    kept inside a data folder) instead of the list of its weights' names."""
+    try:
+        return load_motion(path)
+    except InputError:
+        meta = Path(path).with_suffix(".json")
+        try:
+            kind = json.loads(meta.read_text()) if meta.is_file() else None
+        except (OSError, UnicodeDecodeError, ValueError):
+            kind = None
+        if isinstance(kind, dict) and ("model_config" in kind or "kind" in kind):
+            raise InputError(
+                f"{path}: a checkpoint of an mdvae run, not motion: keep run folders out of "
+                "the data folders"
+            ) from None
+        raise
+
+
 def load_windows(
     files: list[Path],
     body: BodyModel,
@@ -133,9 +203,11 @@ def load_windows(
     speeds: tuple[float, ...] = (1.0,),
     fraction: float = 1.0,
     fraction_seed: int = 0,
-) -> WindowSet:
+    required: bool = True,
+) -> WindowSet | None:
     """Load files, resample to the model rate and cut windows; files too short are skipped,
-    a file with holes (``joint_mask`` False, e.g. NaN in it) refused.
+    a file with holes (``joint_mask`` False, e.g. NaN in it) refused. No file long enough
+    for one window: InputError, or None where windows are not ``required`` (validation).
 
     Augmentation for a small corpus (the augmented windows follow all the original ones):
     ``speeds``: every motion is also played at each of these speeds (``motion.resample.
@@ -144,7 +216,7 @@ def load_windows(
     about that share of the frames (:func:`fraction_of`)."""
     motions = []
     for f in files:
-        motion = load_motion(f)
+        motion = load_training_motion(f)
         if motion.joint_mask is not None and not motion.joint_mask.all():
             holes = int((~motion.joint_mask).any(axis=1).sum())
             raise InputError(f"{f}: {holes} frame(s) with missing joints (NaN values or "
@@ -172,8 +244,10 @@ def load_windows(
         for name in ("x0", "x", "betas"):
             getattr(out, name)[n : n + len(ws)] = getattr(ws, name)
         n += len(ws)
-    if out is None:
+    if out is None and required:
         raise InputError(f"no motion of at least {length + 1} frames at {MODEL_FPS:g} Hz found")
+    if out is None:
+        return None
     return out.subset(torch.arange(n)) if n < len(out) else out
 
 

@@ -35,6 +35,7 @@ from mdvae_cli.train.distill import DistillConfig, Targets, distill, refine_targ
 from mdvae_cli.train.distributed import parameter_digest
 from mdvae_cli.train.guards import (
     check_device,
+    check_run_folder,
     checkpoint_to_resume,
     pick_device,
     weights_are_finite,
@@ -174,6 +175,7 @@ def fit_dataset(
         require_int("max_steps", max_steps, 0)
     start = time.time()
     out_dir = Path(out_dir)
+    check_run_folder(out_dir)
     device = pick_device(cfg.device)
     torch.manual_seed(cfg.seed)
     denoiser, done, distilled, history = _starting_point(cfg, out_dir, resume)

@@ -5,6 +5,7 @@ JSON that stays strict (no nan or inf), and a new run that would land on an old 
 from __future__ import annotations
 
 import math
+import os
 import re
 from pathlib import Path
 
@@ -79,3 +80,18 @@ def checkpoint_to_resume(run_dir, name: str) -> Path:
             "first save); start it again without --resume"
         )
     return path
+
+
+def check_run_folder(run_dir) -> None:
+    """InputError when ``run_dir`` cannot become a run folder (a file, or inside a folder
+    that cannot be written: a read-only disk), said before the data are read, which can take
+    minutes; the folder itself is made only once they are good."""
+    run_dir = Path(run_dir)
+    here = run_dir
+    while not here.exists() and here != here.parent:
+        here = here.parent
+    where = f"{run_dir}: {here}" if here != run_dir else f"{run_dir}"
+    if here.exists() and not here.is_dir():
+        raise InputError(f"{where} is a file, not a folder")
+    if here.exists() and not os.access(here, os.W_OK | os.X_OK):
+        raise InputError(f"{where} cannot be written in (read-only or not yours)")

@@ -11,7 +11,6 @@ import numpy as np
 
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows
 from mdvae_cli.model.chunks import MODEL_FPS
 from mdvae_cli.model.denoiser import Denoiser
@@ -19,6 +18,7 @@ from mdvae_cli.motion.holes import random_holes, with_holes
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.motion.resample import resample_motion
+from mdvae_cli.train.corpus import load_training_motion
 
 
 def concat_groups(groups: list[WindowGroup], length: int) -> WindowGroup | None:
@@ -46,7 +46,7 @@ def load_noisy_windows(
     their own after the first: the networks read the holes (``WindowGroup.seen``) while the
     likelihood scores the noisy frames hidden there, so that filling them is what the fit
     learns (still from noisy data alone)."""
-    motions = [resample_motion(load_motion(f), MODEL_FPS) for f in files]
+    motions = [resample_motion(load_training_motion(f), MODEL_FPS) for f in files]
     if mirror:
         motions += [mirror_motion(m, body) for m in motions]
     groups = make_windows(motions, denoiser, body, window, stride)

@@ -15,14 +15,21 @@ from torch.nn.parallel import DistributedDataParallel
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError, diverged
-from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.losses import kl_weight
 from mdvae_cli.model.optim import warmup_cosine_lr
 from mdvae_cli.model.prior_model import PriorModel, load_prior, model_tensors, widen_state
 from mdvae_cli.model.state import VELOCITY_DIMS
-from mdvae_cli.train.corpus import WindowSet, load_windows, outside, select_files
+from mdvae_cli.train.corpus import (
+    WindowSet,
+    check_val_splits,
+    load_windows,
+    no_training_files,
+    no_validation,
+    outside,
+    select_files,
+)
 from mdvae_cli.train.distributed import (
     gather_strings,
     init_distributed,
@@ -30,6 +37,7 @@ from mdvae_cli.train.distributed import (
     shutdown_distributed,
 )
 from mdvae_cli.train.guards import (
+    check_run_folder,
     checkpoint_to_resume,
     json_safe,
     pick_device,
@@ -109,6 +117,8 @@ class TrainSummary:
     #: whether the step ran as a CUDA graph, and why not where its capture failed
     graphed: bool = False
     graph_failure: str | None = None
+    #: whether a stop asked for (``stop_requested``) ended the run
+    interrupted: bool = False
 
 
 def _save(run_dir: Path, name: str, model, opt, meta: dict, device=None) -> None:
@@ -121,25 +131,6 @@ def _save(run_dir: Path, name: str, model, opt, meta: dict, device=None) -> None
         tensors.update(rng_tensors(device))
         meta = {**meta, "optimizer": groups}
     save_checkpoint(run_dir / f"{name}.npz", tensors, json_safe(meta))
-
-
-def no_training_files(data: list[Path], split: Path | None, val_files: list[Path]) -> str:
-    """Why a run found nothing to train on, and what to do about it."""
-    if split is not None:
-        found = len(expand_inputs(data, by_target=True))
-        return (
-            f'none of the {found} motion files found is in the "train" list of {split} '
-            "(its paths are relative to its folder)"
-        )
-    if not val_files:
-        return "no motion files found in the given data paths"
-    n = len(val_files)
-    return (
-        f"found {n} motion file{'s' if n > 1 else ''} and the automatic split put "
-        f"{'them all' if n > 1 else 'it'} into validation, leaving none to train on: give 2 or "
-        'more files, or a --split file ({"train": [...], "val": [...]}) that lists the '
-        "training files"
-    )
 
 
 def trainable_parameters(model: PriorModel, which: str) -> list[torch.nn.Parameter]:
@@ -159,20 +150,36 @@ def trainable_parameters(model: PriorModel, which: str) -> list[torch.nn.Paramet
 def init_from_prior(model: PriorModel, path: Path) -> None:
     """Start from a trained prior (fine-tuning): its weights *and* its normaliser."""
     source, _ = load_prior(path)
+    sizes = {"latent_dim": "--latent-dim", "hidden_dim": "--hidden-dim", "mlp_dim": None}
+    other = [n for n in sizes if getattr(source.cfg, n) != getattr(model.cfg, n)]
+    if other:  # widen_state fits extra inputs only: the widths must be the same
+        give = " ".join(f"{sizes[n]} {getattr(source.cfg, n)}" for n in other if sizes[n])
+        raise InputError(
+            f"--init-from {path}: its networks have "
+            + ", ".join(f"{n} {getattr(source.cfg, n)}" for n in other)
+            + f", this run's {', '.join(str(getattr(model.cfg, n)) for n in other)}: give "
+            + (f"{give}, or " if give and "mlp_dim" not in other else "")
+            + "--config with the config.json of the run it comes from"
+        )
     try:
         model.load_state_dict(widen_state(source.state_dict(), model.state_dict()))
     except ValueError as exc:
         raise InputError(f"--init-from {path}: {exc}") from None
 
 
-def stop_now(step: int, max_steps: int | None, deadline: float | None, dist, device) -> bool:
-    """Whether a run stops after ``step``: its step budget, or its wall-clock ``deadline``
-    (under DDP rank 0's clock decides for all, so that every rank stops at the same step)."""
+def stop_now(
+    step: int, max_steps: int | None, deadline: float | None, dist, device,
+    asked: bool | None = None,
+) -> bool:  # fmt: skip
+    """Whether a run stops after ``step``: its step budget, its wall-clock ``deadline``, or a
+    stop ``asked`` for (None: none can be; under DDP rank 0 decides for all, so that every
+    rank stops at the same step)."""
     if max_steps is not None and step >= max_steps:
         return True
-    if deadline is None:
+    if deadline is None and asked is None:
         return False
-    late = torch.tensor([time.time() >= deadline], dtype=torch.int32)
+    late = torch.tensor([asked or (deadline is not None and time.time() >= deadline)],
+                        dtype=torch.int32)  # fmt: skip
     if dist.enabled:
         late = late.to(device)
         torch.distributed.broadcast(late, 0)
@@ -187,6 +194,7 @@ def train_prior(
     progress: Callable[[dict], None] | None = None,
     max_steps: int | None = None,
     max_minutes: float | None = None,
+    stop_requested: Callable[[], bool] | None = None,
 ) -> TrainSummary:
     """Train (or resume) a prior into ``run_dir``; works alone or under torchrun (DDP).
 
@@ -194,7 +202,9 @@ def train_prior(
     and after every epoch (with ``val``). ``max_steps`` (>= 1) stops early (tests);
     ``max_minutes`` (> 0) stops after the first step that ends past that much wall time since
     the start (a GPU lent for minutes): either way the run ends with its validation and a
-    checkpoint that ``resume`` continues exactly where it stopped. ``cfg``
+    checkpoint that ``resume`` continues exactly where it stopped. ``stop_requested`` (asked
+    after every step; a Ctrl-C or SIGTERM the caller caught) stops the run the same way, but
+    at once: its checkpoint is saved without a validation (``TrainSummary.interrupted``). ``cfg``
     is validated here (fields may have changed since it was made). A loss or weights that
     stop being finite end the run with InputError before anything of them is saved.
     """
@@ -208,6 +218,7 @@ def train_prior(
     run_dir = Path(run_dir)
     if not resume:
         refuse_to_overwrite(run_dir, ("last.npz", "best.npz"))
+    check_run_folder(run_dir)
     device = pick_device(cfg.device)
     dist = init_distributed(device)
     if device.type == "cuda" and dist.enabled:
@@ -222,6 +233,8 @@ def train_prior(
         train_files = outside(select_files(data, split, "train"), run_dir)
         if split is None and list(cfg.val_splits) != ["val"]:
             raise InputError("--val-split other than val needs --split (a split file)")
+        if split is not None:
+            check_val_splits(cfg.val_splits, split)
         val_files = [f for name in cfg.val_splits for f in select_files(data, split, name)]
         val_files = outside(list(dict.fromkeys(val_files)), run_dir)
         if not train_files:
@@ -231,7 +244,11 @@ def train_prior(
             train_files, cpu_body, cfg.window, cfg.stride, mirror=cfg.mirror_augment,
             speeds=tuple(cfg.speeds), fraction=cfg.data_fraction, fraction_seed=cfg.seed,
         )  # fmt: skip
-        val = load_windows(val_files, cpu_body, cfg.window, cfg.window) if val_files else None
+        val = None
+        if val_files:  # files too short for one window leave the run without validation
+            val = load_windows(val_files, cpu_body, cfg.window, cfg.window, required=False)
+        if val is None and progress is not None and dist.is_main:
+            progress({"note": no_validation(len(val_files), cfg.window)})
         if val is not None and len(val) > cfg.max_val_windows:
             pick = torch.linspace(0, len(val) - 1, cfg.max_val_windows).long()
             val = val.subset(pick)
@@ -259,6 +276,11 @@ def train_prior(
             model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model/")})
             opt.load_state_dict(optimizer_from_tensors(tensors, meta["optimizer"]))
             first_epoch, step = meta["epoch"] + 1, meta["step"]
+            if cfg.epochs < first_epoch:  # the run would record a schedule it went past
+                raise InputError(
+                    f"--epochs {cfg.epochs}: the run in {run_dir} has already reached epoch "
+                    f"{first_epoch}; give at least {first_epoch} to resume it"
+                )
             if meta.get("epoch_steps", steps_per_epoch) < steps_per_epoch:  # --max-steps
                 # stopped the run inside that epoch: the resumed run takes the rest of it
                 first_epoch, skip = meta["epoch"], meta["epoch_steps"]
@@ -283,7 +305,7 @@ def train_prior(
             "body_model": body.data.name or body.data.kind,
         }
         model.train()
-        epoch, stopped = first_epoch - 1, False
+        epoch, stopped, interrupted = first_epoch - 1, False, False
         for epoch in range(first_epoch, cfg.epochs):
             # the epoch's order (mod 2^64: any seed fits; the same numbers as ever below ~1e16)
             gen = torch.Generator().manual_seed((cfg.seed * 1000 + epoch) % 2**64)
@@ -312,8 +334,9 @@ def train_prior(
                             **({k: v.item() for k, v in terms.items()} if report else {}),
                         }
                     )
-                if stop_now(step, max_steps, deadline, dist, device):
-                    taken, stopped = i + 1, True
+                asked = None if stop_requested is None else bool(stop_requested())
+                if stop_now(step, max_steps, deadline, dist, device, asked):
+                    taken, stopped, interrupted = i + 1, True, bool(asked)
                     break
             if not weights_are_finite(model):  # every rank holds the same weights
                 raise diverged("training", step, "weights not finite")
@@ -321,8 +344,11 @@ def train_prior(
             if (epoch + 1) % cfg.val_every_epochs and not (stopped or last_epoch):
                 continue  # validation and checkpoints every val_every_epochs epochs
             if dist.is_main:
-                val_terms = evaluate(model, val, body, vertex_ids, cfg, device) if val else {}
+                checked = val and not interrupted  # a stop asked for: no time for validation
+                val_terms = evaluate(model, val, body, vertex_ids, cfg, device) if checked else {}
                 val_loss = val_terms.get("loss", terms["loss"].item())
+                if interrupted:
+                    val_loss = math.inf  # nothing measured: not a best
                 meta = {
                     **meta_base,
                     "epoch": epoch,
@@ -343,10 +369,12 @@ def train_prior(
                         "val": val_terms,
                         "train_loss": terms["loss"].item(),
                         "seconds": time.time() - start,
+                        **({"interrupted": True} if interrupted else {}),
                     }
                     fh.write(json.dumps(json_safe(record)) + "\n")
-                if progress is not None:
-                    progress({"epoch": epoch, "step": step, "val": val_terms, "epoch_end": True})
+                if progress is not None and not interrupted:
+                    progress({"epoch": epoch, "step": step, "val": val_terms, "epoch_end": True,
+                              "train_loss": terms["loss"].item()})  # fmt: skip
             if stopped:  # by --max-steps or --max-minutes
                 break
         digests = gather_strings(dist, parameter_digest(model))
@@ -361,6 +389,7 @@ def train_prior(
             digests,
             take_step.graphed,
             take_step.failure,
+            interrupted,
         )
         if dist.is_main:
             text = json.dumps(json_safe(asdict(summary)), indent=2, allow_nan=False)
