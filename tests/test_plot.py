@@ -128,3 +128,52 @@ def test_without_matplotlib_plot_says_how_to_install_it(tmp_path, make_motion_fi
     lines = [ln for ln in result.output.splitlines() if ln.strip()]
     assert result.exit_code == 1 and lines == [f"error: {INSTALL}"]
     assert not out.exists()
+
+
+def test_frames_missing_in_the_file_are_shaded_and_counted(mpl, tiny_body):
+    """Frames 20-29 of a take lost a joint (NaN in the file; the reader's placeholders stand
+    in): each curve panel shades them in the take's colour and the legend counts them, as the
+    page does (before: the placeholders were drawn as if they were the file's data)."""
+    from matplotlib.colors import to_rgba
+
+    holes = motion_from_arrays(motion_arrays(T=60, seed=1))
+    holes.joint_mask = np.ones((60, 22), bool)
+    holes.joint_mask[20:30, 16] = False
+    plain = motion_from_arrays(motion_arrays(T=60, seed=2))
+    fig = draw_figure([("holes", holes), ("plain", plain)], BodyModel(tiny_body),
+                      FigureSpec(joints=(4, 5), frames=2, width=600))  # fmt: skip
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert texts == ["holes (60 frames, 30 Hz, 10 filled (shaded))", "plain (60 frames, 30 Hz)"]
+    for ax in fig.axes[:2]:  # the two curve panels
+        spans = [p for p in ax.patches if p.get_facecolor()[:3] == to_rgba(PALETTE[0])[:3]]
+        assert len(spans) == 2  # the shade and the bar along the top
+        for p in spans:
+            x0 = p.get_x() if hasattr(p, "get_x") else p.get_xy()[:, 0].min()
+            w = p.get_width() if hasattr(p, "get_width") else np.ptp(p.get_xy()[:, 0])
+            assert abs(x0 - 19.5 / 30) < 1e-9 and abs(w - 10 / 30) < 1e-9
+        assert not [p for p in ax.patches if p.get_facecolor()[:3] == to_rgba(PALETTE[1])[:3]]
+
+
+def test_filmstrip_draws_each_body_in_its_own_cell_wherever_it_is(mpl, tiny_body):
+    """Two takes 11.7 m apart: each row's bodies stand in their own cells, the pelvis at the
+    middle (before: both about the point between them, 5.8 m out of their cells)."""
+    near = motion_from_arrays(motion_arrays(T=40, seed=0))
+    far = near.with_body(trans=near.trans + np.array([10.0, 6.0, 0.0]))
+    fig = draw_figure([("near", near), ("far", far)], BodyModel(tiny_body),
+                      FigureSpec(joints=(4,), frames=3, width=600))  # fmt: skip
+    for ax in fig.axes[-2:]:  # the filmstrip's rows
+        width = ax.get_xlim()[1] / 3
+        xs = np.concatenate([line.get_xdata() for line in ax.lines])
+        assert xs.min() >= 0 and xs.max() <= 3 * width
+        starts = {round(float(line.get_xdata()[0]), 9) for line in ax.lines}
+        for k in range(3):  # the bones out of the pelvis start at the cell's middle
+            assert round((k + 0.5) * width, 9) in starts
+
+
+def test_a_take_of_one_frame_shows_its_point_on_a_seconds_axis(mpl, tiny_body):
+    one = motion_from_arrays(motion_arrays(T=1, seed=0))
+    fig = draw_figure([("one", one)], BodyModel(tiny_body),
+                      FigureSpec(joints=(4,), frames=2, width=600))  # fmt: skip
+    ax = fig.axes[0]
+    assert ax.get_xlim() == (0.0, 1 / 30)  # was (0, 1e-9)
+    assert ax.lines[0].get_marker() == "o"  # a single frame: a dot, not an empty line

@@ -153,3 +153,56 @@ def test_filled_frames_are_marked_on_the_plot(tmp_path, tiny_body):
         assert tab.evaluate("window.mdvaeView.errors") == [] and tab.errors() == []
     finally:
         browser.close()
+
+
+#: per panel of n equal columns of the scene canvas, the pixels of colour rgb below the labels
+PANEL_PIXELS = """(() => {
+  const c = document.getElementById('scene'), d = window.devicePixelRatio || 1;
+  const px = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+  const n = %d, rgb = %s, out = new Array(n).fill(0);
+  for (let y = Math.round(60 * d); y < c.height; y++) for (let x = 0; x < c.width; x++) {
+    const i = 4 * (y * c.width + x);
+    const hit = px[i] === rgb[0] && px[i + 1] === rgb[1] && px[i + 2] === rgb[2];
+    if (hit) out[Math.floor((x * n) / c.width)]++;
+  }
+  return out;
+})()"""
+
+
+def test_side_by_side_panels_each_show_their_own_motion_wherever_it_is(tmp_path, tiny_body):
+    """Two takes 11.7 m apart (a video estimate in camera space beside a studio take): side by
+    side, each panel looks at its own motion (before: both at the point between them, where
+    neither is); overlaid, one camera sees them both from the middle. Many motions: the plot
+    grows to keep its curves above the contact strips."""
+    near = motion_from_arrays(motion_arrays(T=40, fps=30.0, seed=0))
+    far = motion_from_arrays(motion_arrays(T=40, fps=30.0, seed=0))
+    far = far.with_body(trans=far.trans + np.array([10.0, 6.0, 0.0]))
+    page_ = build_view_page([("near", near), ("far", far)], BodyModel(tiny_body), mesh=False)
+    path = tmp_path / "apart.html"
+    write_view_page(page_, path)
+    many = [(f"m{i}", near) for i in range(12)]
+    write_view_page(build_view_page(many, BodyModel(tiny_body), mesh=False), tmp_path / "many.html")
+    browser = Chromium.launch()
+    try:
+        tab = browser.open_page(width=1000, height=800)
+        tab.navigate(file_url(path))
+        tab.wait_for(READY, timeout=60)
+        tab.evaluate("window.mdvaeView.seek(20)")
+        near_px = tab.evaluate(PANEL_PIXELS % (2, "[0xd9, 0x48, 0x0f]"))  # PALETTE[0]
+        far_px = tab.evaluate(PANEL_PIXELS % (2, "[0x1c, 0x7e, 0xd6]"))  # PALETTE[1]
+        assert near_px[0] > 300 and far_px[1] > 300, (near_px, far_px)
+        assert near_px[1] == 0 and far_px[0] == 0
+        # the camera stays on each motion when it stops following
+        tab.evaluate("document.getElementById('follow').click(); window.mdvaeView.seek(39)")
+        assert tab.evaluate(PANEL_PIXELS % (2, "[0x1c, 0x7e, 0xd6]"))[1] > 300
+        assert tab.evaluate("window.mdvaeView.errors") == [] and tab.errors() == []
+        tab.navigate(file_url(tmp_path / "many.html"))
+        tab.wait_for(READY, timeout=60)
+        height = tab.evaluate("document.getElementById('plot').clientHeight")
+        assert height == 190 + 14 * 12 - 2  # less its border; it was 228 whatever the count
+        # the test hook's plot choice shows in the page's own menus (they kept the old one)
+        tab.evaluate("window.mdvaeView.setPlot('height', 7, 0)")
+        menus = "['series', 'joint'].map((id) => document.getElementById(id).value)"
+        assert tab.evaluate(menus) == ["height", "7"]
+    finally:
+        browser.close()

@@ -384,3 +384,34 @@ def test_a_noisy_track_embeds_its_coarser_units_and_the_page_still_poses_it(body
     assert set(meta["motions"][1]["rotation_scales"]) == {ROT_SCALE}
     joints = pose_skeleton(noisy, body).joints
     np.testing.assert_allclose(page_fk(meta, 0, arrays[0]), joints, atol=0.01)
+
+
+def test_each_motion_carries_its_own_floor_for_its_contact_marks(body):
+    """A take 0.6 m higher than another (a video estimate's heights as the pipeline wrote
+    them): the grid is at the lower floor, and each take's planted feet are marked at its
+    own floor, under its feet (before: every mark at the grid, 0.6 m under the higher one)."""
+    low = make_motion(T=60)
+    high = low.with_body(trans=low.trans + np.array([0.0, 0.0, 0.6]))
+    meta, _ = page_arrays(build_view_page([("low", low), ("high", high)], body, mesh=False).html)
+    floors = [m["floor"] for m in meta["motions"]]
+    assert meta["floor"] == floors[0]
+    assert abs(floors[1] - floors[0] - 0.6) < 1e-3
+
+
+def test_one_missing_file_of_several_fails_alone(tmp_path, make_motion_file):
+    """As every command: a page of the files there, one error line for the one that is not,
+    exit 1 (before: no page at all); every file missing: refused, no page."""
+    a = make_motion_file("a.npz", T=20)
+    out = tmp_path / "p.html"
+    args = ["view", str(a), str(tmp_path / "gone.npz"), "-o", str(out), "--no-mesh", "--json"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 1
+    summary = json.loads(result.stdout)
+    assert [m["name"] for m in summary["motions"]] == ["a.npz"] and summary["failed"] == 1
+    assert "no such file or folder" in summary["errors"][0]["error"]
+    meta, _ = page_arrays(out.read_text())
+    assert [m["frames"] for m in meta["motions"]] == [20]
+    gone = [str(tmp_path / "gone.npz"), str(tmp_path / "gone2.npz")]
+    result = CliRunner().invoke(cli, ["view", *gone, "-o", str(tmp_path / "q.html")])
+    assert result.exit_code == 1 and "no such file or folder" in result.output
+    assert not (tmp_path / "q.html").exists()

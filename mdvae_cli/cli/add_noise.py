@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from rich.markup import escape
 
 from mdvae_cli.cli.batch import (
     FileJob,
@@ -202,7 +203,7 @@ def add_noise(
         emit_json(report.to_dict())
     elif report.succeeded:
         total = sum(o.result["frames"] for o in report.succeeded)
-        where = jobs[0].output if len(jobs) == 1 else out
+        where = escape(str(jobs[0].output if len(jobs) == 1 else out))
         console.print(f"wrote {len(report.succeeded)} noisy file(s), {total} frames, to {where}")
     report.exit()
 

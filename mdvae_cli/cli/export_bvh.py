@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from rich.markup import escape
 
 from mdvae_cli.cli.batch import FileJob, emit_json, json_option, plan_jobs, print_notes, run_batch
 from mdvae_cli.cli.common import (
@@ -14,6 +15,8 @@ from mdvae_cli.cli.common import (
     console,
     handle_errors,
 )
+from mdvae_cli.cli.motion_input import input_fps_option, one_track, track_option
+from mdvae_cli.cli.takes import take_options, take_reading
 
 
 @click.command("export-bvh")
@@ -31,11 +34,17 @@ from mdvae_cli.cli.common import (
     "--order", type=click.Choice(["ZXY", "XYZ", "ZYX", "YXZ", "YZX", "XZY"]), default="ZXY",
     show_default=True, help="Rotation channel order of every joint.",
 )  # fmt: skip
+@take_options
+@input_fps_option
+@track_option("export this track (its id in the file)")
 @body_model_option
 @allow_pickle_option
 @json_option
 @handle_errors
-def export_bvh(inputs, out, units, order, body_model, allow_pickle, as_json) -> None:
+def export_bvh(
+    inputs, out, units, order, asf, joint_map_file, input_fps, track, body_model, allow_pickle,
+    as_json,
+) -> None:  # fmt: skip
     """Write AMASS/SMPL .npz motions as BVH on the SMPL skeleton of their own body shape.
 
     The 22 body joints keep SMPL's names (pelvis, left_hip, ..., right_wrist) and their rest
@@ -62,11 +71,12 @@ def export_bvh(inputs, out, units, order, body_model, allow_pickle, as_json) -> 
                          rename=lambda rel: rel.with_suffix("").with_suffix(".bvh")
                          if rel.suffix.lower() == ".gz" else rel.with_suffix(".bvh"))  # fmt: skip
     body = load_body_model(body_model)
-    options = ReadOptions(allow_pickle=allow_pickle, body=body)
+    options = ReadOptions(allow_pickle=allow_pickle, body=body, fps=input_fps,
+                          **take_reading(asf, joint_map_file))  # fmt: skip
     sources = tuple(job.source for job in jobs)
 
     def process(job: FileJob) -> dict:
-        motion = read(job.source, options).single()
+        motion = one_track(read(job.source, options), track)
         print_notes(job.relpath, motion.notes)
         write(motion, job.output, body=body, forbid=sources, bvh_units=units, bvh_order=order)
         return {"frames": motion.num_frames, "fps": motion.fps}
@@ -76,7 +86,7 @@ def export_bvh(inputs, out, units, order, body_model, allow_pickle, as_json) -> 
         emit_json(report.to_dict())
     elif report.succeeded:
         where = jobs[0].output if len(jobs) == 1 else out
-        console.print(f"wrote {len(report.succeeded)} BVH file(s) to {where}")
+        console.print(f"wrote {len(report.succeeded)} BVH file(s) to {escape(str(where))}")
     report.exit()
 
 

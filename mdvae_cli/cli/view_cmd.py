@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
+from rich.markup import escape
 
 from mdvae_cli.cli.batch import (
     FileJob,
@@ -22,7 +23,7 @@ from mdvae_cli.cli.common import (
     console,
     handle_errors,
 )
-from mdvae_cli.cli.motion_input import input_fps_option
+from mdvae_cli.cli.motion_input import input_fps_option, one_track, track_option
 from mdvae_cli.cli.takes import take_options, take_reading
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
@@ -39,11 +40,14 @@ def motion_labels(paths: list[Path]) -> list[str]:
     return [f"{i + 1}: {p.name}" for i, p in enumerate(paths)]
 
 
-def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path, fps=None):
+def read_motions(
+    inputs, body_data, asf, joint_map_file, allow_pickle, out: Path, fps=None, track=None
+):  # fmt: skip
     """The report of reading every input file (folders: every motion file below them, in
-    order) with a progress bar, and (label, Motion) for each file read: its first track, said
-    in a note when it holds several. A file that cannot be read is one ``error:`` line.
-    fps: ``--fps``, the inputs' frame rate (None: each file's own)."""
+    order) with a progress bar, and (label, Motion) for each file read: the track ``track``
+    names (``--track``) of a file of several people, else its first, said in a note. A file
+    that cannot be read is one ``error:`` line. fps: ``--fps``, the inputs' frame rate
+    (None: each file's own)."""
     from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
     from mdvae_cli.retarget.take import TakeReader
 
@@ -51,19 +55,27 @@ def read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out: Path
                           **take_reading(asf, joint_map_file))  # fmt: skip
     takes = TakeReader(body_data, options.skeleton, options.joint_map)
     notes: list[str] = []
-    files = [src for src, _ in expand_inputs(inputs, READ_SUFFIXES, skip=(out,), notes=notes)]
+    given = [Path(p) for p in inputs]  # one missing path of several fails alone, as a bad file
+    missing = [p for p in given if not p.exists()] if len(given) > 1 else []
+    found = [p for p in given if p.exists()] or given
+    files = [src for src, _ in expand_inputs(found, READ_SUFFIXES, skip=(out,), notes=notes)]
     print_found_notes(notes)
     if not files:
         raise InputError(f"no motion files found in {', '.join(str(p) for p in inputs)}")
     jobs = [FileJob(Path(label), src) for src, label in zip(files, motion_labels(files),
                                                                 strict=True)]  # fmt: skip
+    jobs += [FileJob(Path(p.name), p, missing=True) for p in missing if found != given]
 
     def one(job: FileJob):
         loaded = read(job.source, options, takes=takes)
         label, motion = loaded.tracks[0]
+        if track is not None and len(loaded.tracks) > 1:
+            label, motion = str(track), one_track(loaded, track)
         notes = [*loaded.notes, *motion.notes]
         if len(loaded.tracks) > 1:
-            notes.append(f"{len(loaded.tracks)} people tracked: showing track {label}")
+            others = ", ".join(str(lab) for lab, _ in loaded.tracks if lab != label)
+            notes.append(f"{len(loaded.tracks)} people tracked: showing track {label} "
+                         f"(--track for {others})")  # fmt: skip
         print_notes(job.relpath, notes)
         return motion
 
@@ -96,12 +108,14 @@ def inputs_argument(fn):
 @click.option("--title", default=None, help="The page's title (default: the file names).")
 @take_options
 @input_fps_option
+@track_option("show this track (its id in the file)")
 @body_model_option
 @allow_pickle_option
 @json_option
 @handle_errors
 def view(
-    inputs, out, mesh, title, asf, joint_map_file, input_fps, body_model, allow_pickle, as_json
+    inputs, out, mesh, title, asf, joint_map_file, input_fps, track, body_model, allow_pickle,
+    as_json,
 ):  # fmt: skip
     """Write one self-contained HTML page that plays motions side by side or overlaid.
 
@@ -126,7 +140,7 @@ def view(
     check_output(out, (".html", ".htm"), inputs)
     body_data = load_body_model(body_model)
     report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out,
-                                 input_fps)  # fmt: skip
+                                 input_fps, track)  # fmt: skip
     if not items:
         report.exit()
     page = build_view_page(items, BodyModel(body_data), mesh=mesh, title=title)
@@ -138,7 +152,8 @@ def view(
     else:
         frames = sum(m["frames"] for m in page.motions)
         console.print(
-            f"wrote {out} ({page.num_bytes / 1e6:.2f} MB, {len(items)} motion(s), {frames} frames"
+            f"wrote {escape(str(out))} ({page.num_bytes / 1e6:.2f} MB, {len(items)} motion(s), "
+            f"{frames} frames"
             f"{', skeleton only' if not page.mesh else ''})"
         )
     report.exit()
@@ -177,12 +192,13 @@ def _read_counts(report) -> dict:
 @click.option("--title", default=None, help="The figure's title (default: the file names).")
 @take_options
 @input_fps_option
+@track_option("draw this track (its id in the file)")
 @body_model_option
 @allow_pickle_option
 @json_option
 @handle_errors
 def plot(
-    inputs, out, joints, series, frames, width, title, asf, joint_map_file, input_fps,
+    inputs, out, joints, series, frames, width, title, asf, joint_map_file, input_fps, track,
     body_model, allow_pickle, as_json,
 ):  # fmt: skip
     """Draw a static before/after figure: joint curves over time, foot contacts and a
@@ -218,7 +234,7 @@ def plot(
     ).validate()  # fmt: skip
     body_data = load_body_model(body_model)
     report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out,
-                                 input_fps)  # fmt: skip
+                                 input_fps, track)  # fmt: skip
     if not items:
         report.exit()
     figure = draw_figure(items, BodyModel(body_data), spec)
@@ -229,7 +245,7 @@ def plot(
         emit_json({"output": str(out), "bytes": len(data), "width": width, "height": height,
                    "motions": [label for label, _ in items], **_read_counts(report)})  # fmt: skip
     else:
-        console.print(f"wrote {out} ({width} x {height}, {len(data) / 1e3:.0f} kB)")
+        console.print(f"wrote {escape(str(out))} ({width} x {height}, {len(data) / 1e3:.0f} kB)")
     report.exit()
 
 

@@ -32,6 +32,27 @@ Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 _HEAD_TOP, _TOE = 0.18, 0.05
 
 
+def continuous_euler(R: np.ndarray, axes: str) -> np.ndarray:
+    """Euler angles (radians) of rotations R (T, N, 3, 3), each frame's the exact solution
+    nearest the frame before (of the two, ``(a, b, c)`` and ``(a + pi, pi - b, c + pi)``, moved
+    by whole turns): a channel moves as its joint does, with no jump of a turn at +-180 degrees
+    nor of half turns where a knee bends past 90 degrees, so that curves resampled or edited in
+    an animation tool stay the motion.  -> (T, N, 3)"""
+    one = rotmat_to_euler(R, axes)
+    two = one * np.array([1.0, -1.0, 1.0]) + np.array([np.pi, np.pi, np.pi])
+    out = np.empty_like(one)
+    for t in range(len(R)):
+        if t == 0:
+            out[0] = one[0]
+            continue
+        prev = out[t - 1]
+        a = one[t] + 2 * np.pi * np.round((prev - one[t]) / (2 * np.pi))
+        b = two[t] + 2 * np.pi * np.round((prev - two[t]) / (2 * np.pi))
+        pick = np.abs(b - prev).sum(-1) < np.abs(a - prev).sum(-1)
+        out[t] = np.where(pick[:, None], b, a)
+    return out
+
+
 def smpl_bvh(motion: Motion, body: BodyJoints, units: str = "cm", order: str = "ZXY") -> str:
     """The BVH text of ``motion`` (AMASS layout, z up) on the body's skeleton for its betas.
 
@@ -60,10 +81,7 @@ def smpl_bvh(motion: Motion, body: BodyJoints, units: str = "cm", order: str = "
     L = rotvec_to_rotmat(pose)
     L[:, 0] = Z_UP_TO_Y_UP @ L[:, 0]
     root = (np.asarray(motion.trans, dtype=np.float64) + X[0]) @ Z_UP_TO_Y_UP.T
-    axes = order.lower()
-    angles = np.concatenate(
-        [np.rad2deg(rotmat_to_euler(L[:, j], axes)) for j in range(_N)], axis=1
-    )  # (T, 3 * 22)
+    angles = np.rad2deg(continuous_euler(L, order.lower())).reshape(T, 3 * _N)
     data = np.concatenate([root / scale, angles], axis=1)
     ends = {j: v / scale for j, v in ends.items()}
     return bvh_text(list(SMPL_JOINT_NAMES[:_N]), parents, offsets / scale, ends, data,

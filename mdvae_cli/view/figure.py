@@ -16,6 +16,7 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion.contacts import FOOT_JOINTS, foot_contacts
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.view.page import filled_runs
 from mdvae_cli.view.pose import BODY_JOINT_NAMES, BODY_PARENTS, SERIES, joint_series, pose_skeleton
 
 PALETTE = ("#d9480f", "#1c7ed6", "#2b8a3e", "#9c36b5", "#e8a33d", "#0c8599", "#c2255c")
@@ -118,19 +119,23 @@ def draw_figure(items: Sequence[tuple[str, Motion]], body: BodyModel, spec: Figu
     posed = [pose_skeleton(m, body) for _, m in items]
     contacts = [foot_contacts(p.joints, m.fps) for p, (_, m) in zip(posed, items, strict=True)]
     colors = [PALETTE[i % len(PALETTE)] for i in range(len(items))]
-    duration = max(max(m.duration for _, m in items), 1e-9)
+    # a take of one frame still spans that frame's time (the axis in seconds, not 1e-9)
+    duration = max(max(m.duration for _, m in items), max(1 / m.fps for _, m in items))
     times = [(k + 0.5) * duration / spec.frames for k in range(spec.frames)]
     lay = _Layout(spec, len(items))
     fig = lay.figure
     fig.text(0.2 / lay.w, 1 - 0.15 / lay.h, spec.title or " vs ".join(lab for lab, _ in items),
              color=INK, fontsize=15, va="top")  # fmt: skip
     handles = [Line2D([], [], color=c, lw=3) for c in colors]
-    labels = [f"{lab} ({m.num_frames} frames, {m.fps:g} Hz)" for lab, m in items]
+    filled = [filled_runs(m) for _, m in items]
+    labels = [f"{lab} ({m.num_frames} frames, {m.fps:g} Hz{_filled_words(runs)})"
+              for (lab, m), runs in zip(items, filled, strict=True)]  # fmt: skip
     fig.legend(handles, labels, loc="upper left", bbox_to_anchor=(0.15 / lay.w, 1 - 0.45 / lay.h),
                ncol=min(len(items), 4), frameon=False, fontsize=10)  # fmt: skip
     for j in spec.joints:
         ax = lay.take(lay.PANEL - 0.6, gap=0.6)
         _curves(ax, j, spec.series, posed, items, colors, duration, times)
+        _filled_spans(ax, filled, items, colors)
     _contact_strips(lay.take(2 * len(items) * lay.STRIP, gap=0.35), contacts, items, colors,
                     duration)  # fmt: skip
     _filmstrip(lay, posed, contacts, items, colors, times)
@@ -144,7 +149,8 @@ def _curves(ax, j, kind, posed, items, colors, duration, times) -> None:
                  fontsize=10, color=INK)  # fmt: skip
     series = [joint_series(kind, p, m)[:, j] for p, (_, m) in zip(posed, items, strict=True)]
     for s, (_, m), color in zip(series, items, colors, strict=True):
-        ax.plot(np.arange(len(s)) / m.fps, s, color=color, lw=1.6)
+        ax.plot(np.arange(len(s)) / m.fps, s, color=color, lw=1.6,
+                marker="o" if len(s) == 1 else None)  # fmt: skip
     if not any(np.isfinite(s).any() for s in series):
         ax.text(0.02, 0.5, f"no {label} for this joint", transform=ax.transAxes, color=GREY)
     for k, t in enumerate(times):  # where the filmstrip's frames are
@@ -155,6 +161,23 @@ def _curves(ax, j, kind, posed, items, colors, duration, times) -> None:
     ax.grid(axis="y", color=LIGHT)
     ax.set_xlabel("s", color=GREY, fontsize=8, loc="right")
     ax.tick_params(colors=GREY, labelsize=8)
+
+
+def _filled_words(runs: list[list[int]]) -> str:
+    """``", N filled (shaded)"`` for a motion with frames missing in its file, else ``""``."""
+    n = sum(b - a for a, b in runs)
+    return f", {n} filled (shaded)" if n else ""
+
+
+def _filled_spans(ax, filled, items, colors) -> None:
+    """Shade each motion's frames missing in its file (``joint_mask``: what the reader or
+    ``denoise`` filled) in its colour, with a bar along the top, as the page does: the curve
+    there is a fill, not the file's data."""
+    for i, (runs, (_, m), color) in enumerate(zip(filled, items, colors, strict=True)):
+        for a, b in runs:
+            x0, x1 = (a - 0.5) / m.fps, (b - 0.5) / m.fps
+            ax.axvspan(x0, x1, color=color, alpha=0.12, lw=0, zorder=0)
+            ax.axvspan(x0, x1, ymin=0.97 - 0.03 * i, ymax=1 - 0.03 * i, color=color, lw=0)
 
 
 def _contact_strips(ax, contacts, items, colors, duration) -> None:
@@ -179,7 +202,8 @@ def _contact_strips(ax, contacts, items, colors, duration) -> None:
 
 
 def _filmstrip(lay: _Layout, posed, contacts, items, colors, times) -> None:
-    """One row per motion, frame k in column k, seen from the side (the far limbs pale)."""
+    """One row per motion, frame k in column k, seen from the side (the far limbs pale), its
+    pelvis at the middle of the cell; heights as they are, over the lowest motion's floor."""
     from matplotlib.colors import to_rgb
 
     axis = side_axis(posed[0].joints)
@@ -195,9 +219,8 @@ def _filmstrip(lay: _Layout, posed, contacts, items, colors, times) -> None:
             if i == 0:
                 ax.text((k + 0.5) * width, ROW_METRES - 0.25, f"{k + 1}: {t:.2f} s",
                         ha="center", va="bottom", color=GREY, fontsize=8)  # fmt: skip
-            roots = [q.joints[f, 0, :2] for q, f in zip(posed, frames[k], strict=True)]
-            centre = np.mean(roots, axis=0)
             J = p.joints[frames[k][i]]
+            centre = J[0, :2]  # each body in its own cell, wherever in the world it is
             px = (k + 0.5) * width + (J[:, :2] - centre) @ axis
             py = J[:, 2] - floor
             depth = (J[:, :2] - centre) @ across  # the viewer is on the -across side

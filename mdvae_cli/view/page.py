@@ -198,6 +198,7 @@ def build_view_page(
             "rest_joints": _round(track.posed.rest_joints),
             "contact_fraction": _round(track.contacts_bool.mean(axis=0), 3),
             "filled": filled_runs(motion),
+            "floor": round(floor_height([track.posed.joints], offsets), 4),
         }
         if skin is not None:
             entry["rest_vertices"] = _round(skin.rest_vertices(body.data, motion.betas))

@@ -38,6 +38,8 @@ function setupControls() {
     info.className = "info"; info.textContent = `${tr.T} frames, ${+tr.fps.toFixed(3)} Hz${filled}`;
     li.append(sw, name, info); legend.append(li);
   }
+  // the curves keep 150 px above a left and a right contact strip per motion
+  plotCanvas.style.height = `${Math.max(230, 190 + 14 * tracks.length)}px`;
   const timeline = $("timeline");
   timeline.max = String(state.frames - 1);
   timeline.addEventListener("input", () => setTime(Number(timeline.value) / state.fpsMax));
@@ -46,7 +48,7 @@ function setupControls() {
   bind("speed", (el) => (state.speed = Number(el.value)));
   bind("layout", (el) => (state.layout = el.value));
   bind("body", (el) => (state.body = el.value));
-  bind("follow", (el) => { state.follow = el.checked; cam.fixed = target().slice(0, 2); });
+  bind("follow", (el) => { state.follow = el.checked; cam.fixed = anchors(); });
   bind("loop", (el) => (state.loop = el.checked));
   if (!meta.mesh) { $("body").value = "skeleton"; $("body").disabled = true; state.body = "skeleton"; }
   const series = $("series"), joint = $("joint");
@@ -120,7 +122,7 @@ async function main() {
   state.fpsMax = Math.max(...tracks.map((tr) => tr.fps));
   state.frames = Math.round(state.duration * state.fpsMax) + 1;
   cam.yaw = cam.home = homeYaw();
-  cam.fixed = target().slice(0, 2);
+  cam.fixed = anchors();
   view.decodedMs = performance.now();
   setupControls();
   render();
@@ -140,6 +142,7 @@ Object.assign(view, {
   setPlot(kind, joint, seconds) {
     if (!SERIES[kind] || !(joint >= 0 && joint < NJ)) throw new Error(`no series ${kind} of joint ${joint}`);
     state.kind = kind; state.joint = joint; plotCache = null;
+    $("series").value = kind; $("joint").value = String(joint);
     if (seconds !== undefined) { state.window = seconds; $("window").value = String(seconds); }
     render();
   },

@@ -117,6 +117,7 @@ class Track {
   constructor(m, arrays, index) {
     this.index = index; this.name = m.name; this.color = m.color; this.rgb = hexRgb(m.color);
     this.fps = m.fps; this.T = m.frames;
+    this.floor = m.floor ?? meta.floor; // its own floor: where its planted feet are marked
     this.root = arrays.root; this.rot = arrays.rot; this.contacts = arrays.contacts;
     // each rotation channel's integer units (a noisy channel's are coarser; older pages: one)
     this.rotScales = Float64Array.from(m.rotation_scales || new Array(4 + (NJ - 1) * 3).fill(ROT));

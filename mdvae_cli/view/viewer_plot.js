@@ -50,7 +50,7 @@ function drawPlotBody(ctx, L, t0, t1) {
     ctx.save(); ctx.translate(12, L.top + L.ph / 2); ctx.rotate(-Math.PI / 2); ctx.textAlign = "center";
     ctx.fillText(label + SERIES[state.kind][1].replace("\u00b0", " (\u00b0)"), 0, 0); ctx.restore();
   }
-  const xs = niceStep(span, Math.max(2, Math.floor(L.pw / 110)));
+  const xs = niceStep(Math.max(span, 1e-3), Math.max(2, Math.floor(L.pw / 110))); // one frame: one tick
   ctx.textBaseline = "top";
   for (let t = Math.ceil(t0 / xs) * xs; t <= t1 + 1e-9; t += xs) {
     ctx.beginPath(); ctx.moveTo(X(t), L.top); ctx.lineTo(X(t), L.top + L.ph); ctx.stroke();

@@ -5,7 +5,7 @@ const state = {
   time: 0, playing: false, speed: 1, layout: "side", body: "both", follow: true, loop: true,
   last: null, dirty: true, duration: 0, fpsMax: 30, frames: 1, kind: "rotation", joint: 4, window: 0,
 };
-const cam = { yaw: 0, pitch: 0.28, dist: 4.6, fov: 0.62, home: 0, fixed: [0, 0] };
+const cam = { yaw: 0, pitch: 0.28, dist: 4.6, fov: 0.62, home: 0, fixed: [] };
 let plotCache = null;
 
 // ---------------------------------------------------------------- camera
@@ -35,14 +35,17 @@ function segment(c, a, b) {
   return [toScreen(c, va), toScreen(c, vb)];
 }
 
-function target() {
-  if (!state.follow) return [cam.fixed[0], cam.fixed[1], meta.floor + UP];
+/* each motion's place on the floor now (its smoothed root): where the camera stays put */
+function anchors() {
+  return tracks.map((tr) => { const f = tr.frameAt(state.time); return [tr.smooth[f], tr.smooth[tr.T + f]]; });
+}
+/* what a panel looks at: the middle of its motions (side by side: each panel its own motion,
+   wherever in the world it is), following them or where they were when "follow" was unset */
+function target(group) {
+  const now = state.follow ? anchors() : cam.fixed;
   let x = 0, y = 0;
-  for (const tr of tracks) {
-    const f = tr.frameAt(state.time);
-    x += tr.smooth[f]; y += tr.smooth[tr.T + f];
-  }
-  return [x / tracks.length, y / tracks.length, meta.floor + UP];
+  for (const tr of group) { x += now[tr.index][0]; y += now[tr.index][1]; }
+  return [x / group.length, y / group.length, meta.floor + UP];
 }
 
 // ---------------------------------------------------------------- drawing the scene
@@ -67,7 +70,7 @@ function drawContacts(ctx, c, tr, f, J) {
     const j = FOOT[i], pts = [];
     for (let k = 0; k < 14; k++) {
       const a = (k / 14) * 2 * Math.PI;
-      const v = toView(c, [J[j * 3] + 0.07 * Math.cos(a), J[j * 3 + 1] + 0.07 * Math.sin(a), meta.floor]);
+      const v = toView(c, [J[j * 3] + 0.07 * Math.cos(a), J[j * 3 + 1] + 0.07 * Math.sin(a), tr.floor]);
       if (v[2] < NEAR) { pts.length = 0; break; }
       pts.push(toScreen(c, v));
     }
@@ -137,7 +140,7 @@ function drawSkeleton(ctx, c, tr, f, J, withMesh) {
 function drawPanel(ctx, x, y, w, h, group, overlay) {
   ctx.save();
   ctx.beginPath(); ctx.rect(x, y, w, h); ctx.clip();
-  const t = target(), c = camera(t, x, y, w, h);
+  const t = target(group), c = camera(t, x, y, w, h);
   ctx.lineWidth = 1; drawGrid(ctx, c, t);
   const showMesh = meta.mesh && state.body !== "skeleton";
   const showSkeleton = !meta.mesh || state.body !== "mesh";
