@@ -90,6 +90,51 @@ def run_means(values: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     return np.where(c[..., None], mean, values)
 
 
+def window_means(values: np.ndarray, contacts: np.ndarray, half: int) -> np.ndarray:
+    """Each contact frame's mean value over the frames of its run at most ``half`` frames
+    away (``values`` elsewhere): the run's mean where the run is no longer than ``half`` + 1.
+    values (T, K, D), contacts (T, K) bool -> (T, K, D)"""
+    values = np.asarray(values, dtype=np.float64)
+    c = np.asarray(contacts, dtype=bool)
+    t = np.arange(len(c))[:, None]
+    lo = np.maximum(last_true(~c) + 1, t - half)
+    hi = np.minimum(next_true(~c), t + half + 1)
+    sums = np.concatenate([np.zeros((1, *values.shape[1:])), np.cumsum(values, axis=0)])
+    k = np.arange(c.shape[1])[None, :]
+    mean = (sums[hi, k] - sums[lo, k]) / np.maximum(hi - lo, 1)[..., None]
+    return np.where(c[..., None], mean, values)
+
+
+def run_max(values: np.ndarray, contacts: np.ndarray) -> np.ndarray:
+    """Each contact run's largest value, on the run's frames (0 elsewhere).
+    values (T, K), contacts (T, K) bool -> (T, K)"""
+    c = np.asarray(contacts, dtype=bool)
+    T, K = c.shape
+    starts = c & ~np.concatenate([np.zeros((1, K), bool), c[:-1]])
+    run = np.cumsum(starts, axis=0) - 1  # each frame's run, counted per column
+    k = np.broadcast_to(np.arange(K)[None, :], (T, K))
+    best = np.zeros((int(run.max(initial=0)) + 1, K))
+    np.maximum.at(best, (run[c], k[c]), np.asarray(values, dtype=np.float64)[c])
+    return np.where(c, best[np.maximum(run, 0), k], 0.0)
+
+
+def travel_anchors(
+    xy: np.ndarray, smooth: np.ndarray, contacts: np.ndarray, travel_tol: float, half: int
+) -> np.ndarray:
+    """Where each held foot joint stays: its mean over its contact run, or, on a run over
+    which its smoothed position strays more than ``travel_tol`` from that mean (a foot that
+    travels on the floor: a shuffle, a slide, a pivot; a standing foot's denoised wander
+    stays under it), its mean over the run's frames within ``half`` frames either side.
+    xy, smooth: (T, K, 2) the joints' horizontal positions, as they are and smoothed;
+    contacts: (T, K) bool -> (T, K, 2)"""
+    anchors = run_means(xy, contacts)
+    stray = run_max(np.linalg.norm(smooth - run_means(smooth, contacts), axis=-1), contacts)
+    travels = stray > travel_tol
+    if not travels.any():
+        return anchors
+    return np.where(travels[..., None], window_means(xy, contacts, half), anchors)
+
+
 def hold_targets(
     positions: np.ndarray, contacts: np.ndarray, goals: np.ndarray, weights: np.ndarray
 ) -> np.ndarray:

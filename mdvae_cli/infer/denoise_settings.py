@@ -10,6 +10,7 @@ The command builds a ``DenoiseSettings`` from its options; a Python user builds 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
@@ -25,7 +26,7 @@ from mdvae_cli.infer.rest_pose import keep_rest_frames
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.time_pieces import denoise_in_pieces
 from mdvae_cli.model.denoiser import Denoiser
-from mdvae_cli.motion.motion import Motion
+from mdvae_cli.motion.motion import Motion, check_motions, unshared
 
 FEET = ("lock", "off")
 
@@ -141,6 +142,7 @@ def denoise(
     """
     import copy
 
+    motions = check_motions(motions)
     settings = settings or DenoiseSettings()
     if denoiser is None:
         from mdvae_cli.model.denoiser import load_denoiser
@@ -188,14 +190,17 @@ def denoise(
 
         return denoise_in_pieces(ms, lps, run, progress, on_fallback, on_blend, finish=lock)
 
-    return keep_rest_frames(motions, run_all) if settings.rest_pose else run_all(motions)
+    out = keep_rest_frames(motions, run_all) if settings.rest_pose else run_all(motions)
+    return [unshared(o, m) for o, m in zip(out, motions, strict=True)]
 
 
 def lock_config(settings: DenoiseSettings) -> FootLockConfig | None:
     """The foot lock's settings for ``settings`` (None with ``feet="off"``): a kind whose feet
-    may read clean and still jitter (video) has them smoothed as the lock's goal."""
+    may read clean and still jitter (video) has them smoothed as the lock's goal, and its
+    contacts held to their means however far they stray (a video estimate's standing foot
+    drifts by decimetres in depth: no sign of a foot that travels, ``travel_tol``)."""
     if settings.feet != "lock":
         return None
     if kind_settings(settings.input_kind).feet_as_came:
         return FootLockConfig()
-    return FootLockConfig(clean_jitter=0.0)
+    return FootLockConfig(clean_jitter=0.0, travel_tol=math.inf)

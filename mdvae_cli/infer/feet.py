@@ -57,8 +57,9 @@ import numpy as np
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_smooth
 from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
-from mdvae_cli.infer.contact_runs import clean_contacts, fade_weights, hold_targets, run_means
+from mdvae_cli.infer.contact_runs import clean_contacts, fade_weights, hold_targets, travel_anchors
 from mdvae_cli.infer.fill import holes_from
+from mdvae_cli.infer.foot_jitter import JITTER_FPS, at_jitter_rate, input_jitter, jitter_of  # noqa: F401
 from mdvae_cli.infer.leg_ik import (
     CHUNK_FRAMES,
     LEGS,
@@ -98,14 +99,18 @@ class FootLockConfig:
     of the Gaussian on the input's feet used as goal; clean_jitter (m): under this foot
     jitter the input's feet are goals nearer as they came, that smoothing and the lift of a
     foot joint under its height over the floor scaled by jitter / clean_jitter (0: always in
-    full); passes: IK passes (a second puts the soles on the floor as posed by the first);
+    full; the jitter read as at 30 Hz, :func:`input_trust`); passes: IK passes (a second
+    puts the soles on the floor as posed by the first);
     knee_stiffness, bend_stiffness (m/rad): how far an ankle may miss a goal further from
     (nearer to) the hip than the knee's bend gives, rather than straighten (bend) the knee by
     a radian; sunk_tol (m): a foot deeper than this under the floor bends its knee as far as
     needed to be lifted (None, the default: never);
     keep_smooth_s: std of the Gaussian on the movement a held joint keeps (``keep``);
     noisy_from, noisy_to (m): the input's foot jitter over which height_tol, speed_tol and keep
-    go linearly to noisy_height_tol, noisy_speed_tol and noisy_keep (:func:`for_noise`).
+    go linearly to noisy_height_tol, noisy_speed_tol and noisy_keep (:func:`for_noise`);
+    travel_tol (m), travel_jitter: a held joint straying over a run further than travel_tol
+    plus travel_jitter times the input's foot jitter (none over noisy_from) from its mean
+    travels (``contact_runs.travel_anchors``): held to its mean within travel_s either side.
     """
 
     smooth_s: float = 0.05
@@ -130,11 +135,14 @@ class FootLockConfig:
     noisy_height_tol: float = 0.1
     noisy_speed_tol: float = 1.2
     noisy_keep: float = 0.0
+    travel_tol: float = 0.15
+    travel_jitter: float = 1.0
+    travel_s: float = 0.25
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
                      "trust_below", "reference_smooth_s", "clean_jitter",
-                     "keep_smooth_s"):  # fmt: skip
+                     "keep_smooth_s", "travel_tol", "travel_jitter", "travel_s"):  # fmt: skip
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not (self.height_tol > 0 and self.speed_tol > 0):
@@ -175,22 +183,6 @@ def detect_contacts(feet: np.ndarray, fps: float, cfg: FootLockConfig) -> np.nda
     )
 
 
-def input_jitter(feet: np.ndarray) -> float:
-    """How much a take's foot joints shake: the median over frames and joints of
-    |x[t-1] - 2 x[t] + x[t+1]| / sqrt(6), in metres. White noise of std s per axis gives 1.54 s
-    (the median of a chi distribution with 3 degrees of freedom); clean mocap gives a few
-    millimetres, the feet being still or moving smoothly most of the time (CMU val clips: 0.6
-    to 7 mm clean, 18 to 27 mm with Pose-NDF noise of 0.02 rad, 45 to 68 mm at 0.05 rad).
-    feet (T, 4, 3) -> metres"""
-    if len(feet) < 3:
-        return 0.0
-    return _jitter(feet[:-2] - 2 * feet[1:-1] + feet[2:])
-
-
-def _jitter(d2: np.ndarray) -> float:
-    return float(np.median(np.linalg.norm(d2, axis=-1)) / math.sqrt(6))
-
-
 #: a long take's jitter is read on this many triples of consecutive frames, spread evenly
 JITTER_TRIPLES = 4096
 
@@ -205,13 +197,16 @@ def feet_of(pos: np.ndarray) -> np.ndarray:
 
 
 def input_trust(
-    source: Motion, model: LegModel, cfg: FootLockConfig
-) -> tuple[float, np.ndarray | None, float]:
+    source: Motion, model: LegModel, cfg: FootLockConfig, cleaned: np.ndarray | None = None
+) -> tuple[float, np.ndarray | None, float, float]:
     """How far the input's own feet are a goal (1 clean, 0 noisy), and those feet smoothed
     (None when the trust is 0: a noisy take's legs are posed only on ``JITTER_TRIPLES``
-    triples of frames, enough for the median), and their jitter (:func:`input_jitter`, m).
-    model: the legs of the input's shape.  -> (trust, (T, 4, 3) or None, jitter)"""
+    triples of frames, enough for the median), their jitter (:func:`input_jitter`, m) and
+    the jitter as at 30 Hz that :func:`clean_scale` reads (``at_jitter_rate`` with
+    ``cleaned``, the cleaned motion's feet (T, 4, 3)). model: the legs of the input's shape.
+    -> (trust, (T, 4, 3) or None, jitter, jitter as at 30 Hz)"""
     T = source.num_frames
+    rated = cleaned is not None and source.fps < JITTER_FPS and T >= 3
     if T > 3 * JITTER_TRIPLES:
         starts = np.linspace(0, T - 3, JITTER_TRIPLES).astype(int)
         frames = (starts[:, None] + np.arange(3)).reshape(-1)
@@ -220,20 +215,25 @@ def input_trust(
             root, leg_rotations(source, frames), source.trans[frames] + model.pelvis, model.bones
         )
         f = feet_of(pos).reshape(JITTER_TRIPLES, 3, 4, 3)
-        jitter = _jitter(f[:, 0] - 2 * f[:, 1] + f[:, 2])
+        d2 = f[:, 0] - 2 * f[:, 1] + f[:, 2]
+        c = cleaned[frames].reshape(JITTER_TRIPLES, 3, 4, 3) if rated else None
+        d2_cleaned = None if c is None else c[:, 0] - 2 * c[:, 1] + c[:, 2]
         src = None
     else:
         src = feet_of(pose_legs(source, model, soles=False)[0])
-        jitter = input_jitter(src)
+        d2 = src[:-2] - 2 * src[1:-1] + src[2:]
+        d2_cleaned = cleaned[:-2] - 2 * cleaned[1:-1] + cleaned[2:] if rated else None
+    jitter = jitter_of(d2) if len(d2) else 0.0
+    at_30 = jitter_of(at_jitter_rate(d2, d2_cleaned, source.fps)) if rated else jitter
     span = cfg.distrust_above - cfg.trust_below
     trust = float(np.clip((cfg.distrust_above - jitter) / span, 0.0, 1.0))
     if trust == 0:
-        return 0.0, None, jitter
+        return 0.0, None, jitter, at_30
     if src is None:
         src = feet_of(pose_legs(source, model, soles=False)[0])
     if len(src) > 1:
-        src = gaussian_smooth(src, clean_scale(cfg, jitter) * cfg.reference_smooth_s * source.fps)
-    return trust, src, jitter
+        src = gaussian_smooth(src, clean_scale(cfg, at_30) * cfg.reference_smooth_s * source.fps)
+    return trust, src, jitter, at_30
 
 
 def clean_scale(cfg: FootLockConfig, jitter: float) -> float:
@@ -280,28 +280,32 @@ def lock_feet(
     if source is not None and source.num_frames != motion.num_frames:
         raise ValueError(f"{motion.num_frames} frames to lock, {source.num_frames} in the input")
     model = LegModel.build(body, motion.betas)
-    trust, reference, lift_share = 0.0, None, 1.0
+    trust, reference, lift_share, travel_tol = 0.0, None, 1.0, cfg.travel_tol
+    pos, soles = pose_legs(motion, model)
+    feet = feet_of(pos)
     if source is not None:
         same = np.array_equal(source.betas, motion.betas)
         legs = model if same else LegModel.build(body, source.betas)
-        trust, reference, jitter = input_trust(source, legs, cfg)
+        trust, reference, jitter, at_30 = input_trust(source, legs, cfg, feet)
         unspiked = without_spikes(source) if trust > 0 else source
         if unspiked is not source:  # its feet are a goal: not where its spikes put them
-            trust, reference, jitter = input_trust(holes_from(unspiked, motion), legs, cfg)
+            unspiked = holes_from(unspiked, motion)
+            trust, reference, jitter, at_30 = input_trust(unspiked, legs, cfg, feet)
         cfg = for_noise(cfg, jitter)
+        # a noisier input's feet wander further once denoised (a noisy one's as a shuffle does)
+        travel_tol += math.inf if jitter > cfg.noisy_from else cfg.travel_jitter * jitter
         # a clean take's feet are lifted only by the share of the goal that is not its own
-        lift_share = 1.0 - trust * (1.0 - clean_scale(cfg, jitter))
-    pos, soles = pose_legs(motion, model)
-    feet = feet_of(pos)
+        lift_share = 1.0 - trust * (1.0 - clean_scale(cfg, at_30))
     contacts = detect_contacts(feet, motion.fps, cfg)
     if not contacts.any():
         return motion.with_body()
     floor = estimate_floor(soles, foot_of_joints(contacts))
-    anchors = run_means(feet[..., :2], contacts)
-    goals = feet.copy()
     kept = feet[..., :2]
     if len(feet) > 1 and cfg.keep_smooth_s > 0:
         kept = gaussian_smooth(kept, cfg.keep_smooth_s * motion.fps)
+    anchors = travel_anchors(feet[..., :2], kept, contacts, travel_tol,
+                             round(cfg.travel_s * motion.fps))  # fmt: skip
+    goals = feet.copy()
     goals[..., :2] = anchors + cfg.keep * (kept - anchors)
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
     # (T, 2) a foot deep under the floor: its knee bends as far as lifting it needs

@@ -52,6 +52,11 @@ SPIKE_LEVELS = 8.0
 #: ... and at least this far from it (rad for rotations, m for the root's translation)
 SPIKE_FLOOR_RAD = 0.15
 SPIKE_FLOOR_M = 0.05
+#: the rate at which a channel whose spike threshold (SPIKE_LEVELS noise levels) is under its
+#: floor was read as clean; under it a smooth motion's third differences, which the noise is
+#: read from, grow as (CLEAN_FPS / fps)^3 (a clean 24 Hz walk's ankle reads 0.8 degrees of
+#: noise from its own motion, 0.05 at 120 Hz), and the floor with them (:func:`spike_frames`)
+CLEAN_FPS = 30.0
 #: the slow and fast bands are split by a Gaussian of this width (seconds)
 BAND_SECONDS = 0.05
 #: how many times its noise variance a band's residual must exceed before any is put back
@@ -83,15 +88,18 @@ def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
     return (c[hi] - c[lo]) / n
 
 
-def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.ndarray:
+def spike_frames(
+    values: np.ndarray, noise_var: np.ndarray, floor: float, fps: float = CLEAN_FPS
+) -> np.ndarray:
     """Frames of each channel that jump away from both neighbours and back, by far more than
     the noise and by at least ``floor`` (a fast move also bends the track, but it does not
     come back; on a clean take the noise is tiny, and only a real glitch is that far). On a
-    clean channel (its noise far under ``floor``) a frame is also one that neither side's
-    line leads to (:func:`missed_by_both_sides`): a toe snapping back at toe-off at 24-30 Hz
-    leaves its neighbours' midpoint too, but the frames before it lead there.
+    clean channel (its spike threshold under the floor, scaled by :data:`CLEAN_FPS` under 30
+    Hz) a frame is also one that neither side's line leads to (:func:`missed_by_both_sides`):
+    a toe snapping back at toe-off, an ankle's peak at 24 Hz leave their neighbours' midpoint
+    too, but the frames before them lead there.
 
-    values: (T, C, 3), noise_var: (C,) -> (T, C) bool"""
+    values: (T, C, 3), noise_var: (C,), fps: the values' rate -> (T, C) bool"""
     T = values.shape[0]
     out = np.zeros(values.shape[:2], dtype=bool)
     if T < 3:
@@ -101,7 +109,7 @@ def spike_frames(values: np.ndarray, noise_var: np.ndarray, floor: float) -> np.
     # a frame's distance from its neighbours' midpoint: variance 1.5 s^2 per component
     level = np.sqrt(1.5 * 3.0 * noise_var) + 1e-9
     out[1:-1] = (away > np.maximum(SPIKE_LEVELS * level, floor)) & (away > across)
-    clean = SPIKE_LEVELS * level <= floor  # (C,) the floor decides: a clean channel
+    clean = SPIKE_LEVELS * level <= floor * max(1.0, CLEAN_FPS / fps) ** 3  # (C,)
     if T >= 5 and clean.any():
         out[2:-2] &= missed_by_both_sides(values, floor) | ~clean
     return out
@@ -273,7 +281,7 @@ def _blend_rotations(
         # an unwrapped vector past half a turn gives the flipped quaternion (w < 0) back
         before = (s[-1:], rotvec_to_quat(flipped[-1:]))
     noise = noise_variance(unwrapped, None if missing is None else ~missing)  # (J,)
-    spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD)
+    spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD, fps)
     if missing is not None:
         spikes = spikes & ~missing
     kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
@@ -300,7 +308,7 @@ def blend_translation(
     back (T,), spikes (T,))"""
     seen = None if missing is None else ~missing[:, None]
     noise = noise_variance(source[:, None, :], seen)  # (1,)
-    spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M)
+    spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M, fps)
     kept, share = keep_unexplained(
         (source - denoised)[:, None, :], noise, spikes, fps, fast,
         None if missing is None else missing[:, None],
@@ -322,10 +330,10 @@ def source_spikes(source: Motion, joints: list[int] | None = None) -> np.ndarray
     rot = torch.as_tensor(source.joint_rotations[:, cols], dtype=torch.float64)
     unwrapped = rotvec_unwrap(rot, dim=0).numpy()
     noise = noise_variance(unwrapped, seen[:, cols])
-    out[:, cols] = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD) & seen[:, cols]
+    out[:, cols] = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD, source.fps) & seen[:, cols]
     trans = np.asarray(source.trans, np.float64)[:, None, :]
     noise_t = noise_variance(trans, seen[:, :1])
-    out[:, 0] |= spike_frames(trans, noise_t, SPIKE_FLOOR_M)[:, 0] & seen[:, 0]
+    out[:, 0] |= spike_frames(trans, noise_t, SPIKE_FLOOR_M, source.fps)[:, 0] & seen[:, 0]
     return out
 
 
