@@ -2,7 +2,8 @@
 
 * :func:`build_joint_map` finds, by name, the source joints for the SMPL joints with a clear
   anatomical counterpart (*direct* joints: hips, knees, ankles, toe bases, shoulders, elbows,
-  wrists) and the anchors (pelvis, head, collars) the others hang from.
+  wrists) and the anchors (pelvis, head, collars) the others hang from; a rig named
+  mirror-wise gets its sides exchanged (:mod:`mdvae_cli.retarget.sides`).
 * :func:`canonical_rotation` / :func:`canonicalise` turn the source world (a signed axis
   permutation read off the rest pose) so that up is +y, the body's left +x and forward +z,
   SMPL's own frame.
@@ -16,6 +17,7 @@ Plain numpy, no torch and no files: used by :mod:`mdvae_cli.retarget.fit_shape` 
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass, field, replace
 
@@ -24,6 +26,7 @@ import numpy as np
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.retarget.sides import exchange_sides, named_sides_mirrored
 
 _N = NUM_BODY_JOINTS
 _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
@@ -33,27 +36,30 @@ _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
 _ALIASES: dict[str, tuple[str, ...]] = {
     "pelvis": ("root", "hips", "pelvis", "hip"),
     "left_hip": ("lfemur", "leftupleg", "leftthigh", "lefthip", "lthigh", "lhip", "leftupperleg",
-                 "lupleg", "leftfemur"),
+                 "lupleg", "leftfemur", "lthighbend"),
     "left_knee": ("ltibia", "leftleg", "leftshin", "leftknee", "lshin", "lknee", "leftlowerleg",
                   "leftloleg", "leftlowleg", "leftcalf"),
     "left_ankle": ("leftankle", "lankle", "lfoot", "leftfoot"),
     "left_foot": ("ltoes", "lefttoebase", "lefttoe", "lefttoes", "ltoe", "leftforefoot",
                   "leftball", "lefttoe0", "leftfoot"),
-    "left_shoulder": ("lhumerus", "leftarm", "leftupperarm", "leftuparm", "lshldr", "lshoulder",
-                      "leftshoulder"),
+    "left_shoulder": ("lhumerus", "leftarm", "leftupperarm", "leftuparm", "lshldr", "lshldrbend",
+                      "luarm", "lshoulder", "leftshoulder"),
     "left_collar": ("lclavicle", "leftshoulder", "leftcollar", "lcollar", "leftclavicle",
-                    "lclav"),
+                    "lclav", "lshoulder", "leftscapula"),
     "left_elbow": ("lradius", "leftforearm", "leftlowerarm", "leftelbow", "lforearm", "lelbow",
-                   "leftloarm", "leftlowarm"),
+                   "leftloarm", "leftlowarm", "lforearmbend", "lfarm"),
     "left_wrist": ("lhand", "leftwrist", "lefthand", "lwrist"),
-    "head": ("head", "neck1"),
+    "head": ("head", "neck1", "spine006"),
 }  # fmt: skip
 
-#: rig prefixes that carry no anatomy (SMPL's FBX rig, 3ds Max Biped, Character Creator)
-_PREFIXES = re.compile(r"^(?:[fm]_avg_|smpl_|bip\d*[\s_]|cc_base_)", re.IGNORECASE)
+#: rig prefixes that carry no anatomy (SMPL's FBX rig, 3ds Max Biped, Character Creator,
+#: Blender Rigify's deform bones, VRoid)
+_PREFIXES = re.compile(r"^(?:[fm]_avg_|smpl_|bip\d*[\s_]|cc_base_|def-|j_bip_)", re.IGNORECASE)
 #: a side written apart from the name: ``L_Hip``, ``Hand_L``, ``hand.l``, ``Left Arm``
 _SIDE_FIRST = re.compile(r"^(l|r|left|right)[\s_.\-]+(.+)$", re.IGNORECASE)
 _SIDE_LAST = re.compile(r"^(.+?)[\s_.\-]+(l|r|left|right)$", re.IGNORECASE)
+#: a centre-line mark written apart: VRoid's ``J_Bip_C_Head``, AdvancedSkeleton's ``Head_M``
+_CENTRE = re.compile(r"^(?:c|m)[\s_.\-]+(.+)$|^(.+?)[\s_.\-]+(?:c|m)$", re.IGNORECASE)
 
 _REQUIRED = ("pelvis", "left_hip", "left_knee", "left_ankle", "left_shoulder", "left_elbow",
              "left_wrist", "head")  # fmt: skip
@@ -85,7 +91,24 @@ def normalise_name(name: str) -> str:
             side = "left" if m.group(s).lower().startswith("l") else "right"
             name = m.group(rest)
             break
+    else:
+        m = _CENTRE.match(name)
+        name = (m.group(1) or m.group(2)) if m else name
     return side + re.sub(r"[\s_.\-]", "", name).lower()
+
+
+def shared_prefix(names: list[str]) -> str:
+    """The prefix a rig puts on every joint name (``Character1_``, ``mixamorig_``, ``mixamorig``
+    before a capital), a root named otherwise allowed; "" when there is none."""
+    for group in (names, names[1:]):
+        p = os.path.commonprefix(group) if len(group) >= 2 else ""
+        for k in range(len(p), 2, -1):
+            if p[k - 1] in " _:|.-" or (
+                not p[k - 1].isupper() and all(n[k : k + 1].isupper() for n in group)
+            ):
+                side = re.fullmatch(r"(?i)(l|r|left|right)[\s_.:|\-]*", p[:k])
+                return "" if side else p[:k]
+    return ""
 
 
 @dataclass
@@ -168,9 +191,10 @@ def _find_anchors(src: SourceMotion) -> dict[str, int]:
     first); InputError naming every required joint that is missing."""
     norm: dict[str, int] = {}
     helpers = [i for i, n in enumerate(src.names) if n.startswith("__")]  # MakeHuman's helpers
+    cut = len(shared_prefix([n for n, e in zip(src.names, src.end_site, strict=True) if not e]))
     for i in [i for i in range(len(src.names)) if i not in helpers] + helpers:
         if not src.end_site[i]:
-            norm.setdefault(normalise_name(src.names[i]), i)
+            norm.setdefault(normalise_name(src.names[i][cut:] or src.names[i]), i)
     anchor = _user_anchors(src, src.info.get("joint_map") or {})
     for smpl, aliases in _ALIASES.items():
         for side, name in zip(("l", "r"), _sides(smpl), strict=False):
@@ -184,10 +208,11 @@ def _find_anchors(src: SourceMotion) -> dict[str, int]:
     missing = [name for smpl in _REQUIRED for name in _sides(smpl)
                if name not in anchor and smpl != "pelvis"]  # fmt: skip
     if missing:
-        more = ", ..." if len(src.names) > 12 else ""
+        joints = [n for n, end in zip(src.names, src.end_site, strict=True) if not end]
+        more = ", ..." if len(joints) > 12 else ""
         raise InputError(
             f"cannot map the skeleton onto SMPL: no joint found for {', '.join(missing)} "
-            f"(joints: {', '.join(src.names[:12])}{more}); name them in a --joint-map FILE.json, "
+            f"(joints: {', '.join(joints[:12])}{more}); name them in a --joint-map FILE.json, "
             f'e.g. {{"{missing[0]}": "<joint name>"}}'
         )
     if "pelvis" not in (src.info.get("joint_map") or {}):
@@ -221,6 +246,14 @@ def build_joint_map(src: SourceMotion) -> JointMap:
     that cannot be found.
     """
     anchor = _find_anchors(src)
+    given = src.info.get("joint_map") or {}
+    if not any(k.startswith(("left_", "right_")) for k in given) and named_sides_mirrored(
+        src, anchor
+    ):
+        anchor = exchange_sides(anchor)
+        note = "the joints named left are the body's right (knees and toes say so): sides exchanged"
+        if note not in src.notes:
+            src.notes.append(note)
     parents = src.parents
     chain = _path(parents, anchor["pelvis"], anchor["head"])
     if not chain:
