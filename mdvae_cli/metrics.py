@@ -23,7 +23,7 @@ from mdvae_cli.export import DEFAULT_CHUNK_FRAMES, as_body_model, pose_motion_ch
 from mdvae_cli.foot_metrics import compare_feet
 from mdvae_cli.motion.contacts import foot_vertex_ids, lowest_sole_points
 from mdvae_cli.motion.holes import observed
-from mdvae_cli.motion.motion import Motion, slice_frames
+from mdvae_cli.motion.motion import Motion, check_motion, slice_frames
 
 Array = torch.Tensor | np.ndarray
 
@@ -210,8 +210,13 @@ def evaluate_pair(
     inner frames whose neighbours are scored too. Meshes are built ``chunk_frames`` at a
     time, so memory does not grow with clip length; the (T, 22, 3) joint tracks are kept
     whole for the accelerations. Raises InputError when the frame rates or lengths differ,
-    or when no frame is observed in both.
+    or when no frame is observed in both, or either is not a motion (``check_motion``).
     """
+    for name, motion in (("ground truth", gt), ("prediction", pred)):
+        try:
+            check_motion(motion)
+        except InputError as exc:
+            raise InputError(f"{name}: {exc}") from None
     check_compatible(gt, pred)
     scored = scored_frames(gt, pred)
     if not scored.any():

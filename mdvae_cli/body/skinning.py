@@ -140,9 +140,14 @@ class BodyModel(nn.Module):
         pose_extra: (B, J - 22, 3) axis-angle for the remaining joints, or None for rest;
         vertices: also return the full mesh (costly), else only joints and markers;
         vertex_ids: (K,) return only these vertices (plus markers) in ``vertices``.
+        Each may be a tensor or a numpy array (read on the model's device).
         """
-        B = root_orient.shape[0]
         dtype, device = self.v_template.dtype, self.v_template.device
+        root_orient, pose_body, trans, betas, pose_extra, vertex_ids = (
+            x if x is None or isinstance(x, torch.Tensor) else torch.as_tensor(x, device=device)
+            for x in (root_orient, pose_body, trans, betas, pose_extra, vertex_ids)
+        )
+        B = root_orient.shape[0]
         if betas is None:
             betas = torch.zeros(B, self.num_betas, dtype=dtype, device=device)
         betas = self.fit_betas(betas.to(dtype))

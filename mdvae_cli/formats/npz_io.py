@@ -34,7 +34,7 @@ from mdvae_cli.formats.npz_values import (
     real_array,
     safe_keys,
 )
-from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, check_fps
+from mdvae_cli.motion.motion import POSE_WIDTHS, Motion, as_numpy, check_fps
 from mdvae_cli.npz_archive import NpzArchive, write_npz
 
 FPS_KEYS = ("mocap_framerate", "mocap_frame_rate")
@@ -122,8 +122,10 @@ def motion_from_arrays(
     arrays (``root_orient``, ``pose_body``, and ``pose_jaw``/``pose_eye``/``pose_hand`` when
     present, see SPLIT_KEYS). ``layout`` records what :func:`motion_to_arrays` needs to write
     the file back as it was: key order, dtypes and shapes, split arrays, compression.
+    The values may be numpy arrays, numbers or torch tensors (read as their values).
     """
     path = Path(path)
+    data = {key: as_numpy(value) for key, value in data.items()}
     notes: list[str] = []
     has_poses = "poses" in data
     if has_poses:

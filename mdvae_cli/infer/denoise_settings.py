@@ -13,7 +13,9 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
+from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.infer.denoise import denoise_motions
@@ -122,8 +124,8 @@ def loops_of(motions: list[Motion], settings: DenoiseSettings) -> list[bool]:
 def denoise(
     motions: list[Motion],
     settings: DenoiseSettings | None = None,
-    denoiser: Denoiser | None = None,
-    body: BodyModel | None = None,
+    denoiser: Denoiser | Path | str | None = None,
+    body: BodyModel | BodyModelData | Path | str | None = None,
     *,
     loops: list[bool] | None = None,
     progress: Callable[[dict], None] | None = None,
@@ -132,7 +134,8 @@ def denoise(
 ) -> list[Motion]:
     """Denoise motions as ``mdvae denoise`` does with ``settings`` (default: its defaults).
 
-    denoiser / body: None loads the shipped weights / the built-in body. ``loops``: which
+    denoiser / body: None loads the shipped weights / the built-in body, a path the
+    checkpoint (or run folder) / body-model file; a ``BodyModelData`` is wrapped. ``loops``: which
     motions are cycles (None: :func:`loops_of`). Optimisation mode fine-tunes a copy of the
     denoiser, never the one passed. The callbacks: see ``infer.denoise.denoise_motions``.
     A take longer than 1.5 ``infer.time_pieces.PIECE_FRAMES`` frames that is no cycle is
@@ -144,14 +147,14 @@ def denoise(
 
     motions = check_motions(motions)
     settings = settings or DenoiseSettings()
-    if denoiser is None:
+    if not isinstance(denoiser, Denoiser):  # None: the shipped weights; else a path
         from mdvae_cli.model.denoiser import load_denoiser
 
-        denoiser, _ = load_denoiser(None)
-    if body is None:
+        denoiser, _ = load_denoiser(denoiser)
+    if not isinstance(body, BodyModel):  # None: the built-in body; a path; BodyModelData
         from mdvae_cli.body.formats import load_body_model
 
-        body = BodyModel(load_body_model(None))
+        body = BodyModel(body if isinstance(body, BodyModelData) else load_body_model(body))
     refine = settings.refine()
     model = copy.deepcopy(denoiser) if settings.optimize_steps else denoiser
 

@@ -312,9 +312,18 @@ def fit_on(prior: Path) -> str:
     return f"fit a denoiser on it first with `mdvae fit-dataset NOISY --prior {prior} -o DENOISER`"
 
 
-def load_denoiser(path: Path | str | None = None) -> tuple[Denoiser, dict]:
+def load_denoiser(
+    path: Path | str | None = None, *, keep_rng: bool = True
+) -> tuple[Denoiser, dict]:
     """Load a denoiser checkpoint (file, or a fit-dataset folder's ``denoiser.npz``); None
-    loads the weights shipped with the package."""
+    loads the weights shipped with the package. ``keep_rng``: torch's global random state
+    is as it was (building the networks draws their first weights from it); training
+    passes False, so that a seeded run draws what it always drew."""
+    with torch.random.fork_rng(devices=[], enabled=keep_rng):
+        return _load_denoiser(path)
+
+
+def _load_denoiser(path: Path | str | None) -> tuple[Denoiser, dict]:
     path = default_weights("denoiser") if path is None else Path(path)
     if path.is_dir():
         if not (path / "denoiser.npz").exists() and (path / "best.npz").exists():

@@ -53,9 +53,15 @@ def model_tensors(model: nn.Module, prefix: str = "model/") -> dict[str, torch.T
     return {prefix + k: v for k, v in model.state_dict().items()}
 
 
-def load_prior(path: Path | str) -> tuple[PriorModel, dict]:
+def load_prior(path: Path | str, *, keep_rng: bool = True) -> tuple[PriorModel, dict]:
     """Load a prior from a checkpoint file (``*.npz`` + ``*.json``) or a training run folder
-    (its ``best.npz``). Returns the model in eval mode and the checkpoint metadata."""
+    (its ``best.npz``). Returns the model in eval mode and the checkpoint metadata.
+    ``keep_rng``: as ``model.denoiser.load_denoiser``'s."""
+    with torch.random.fork_rng(devices=[], enabled=keep_rng):
+        return _load_prior(path)
+
+
+def _load_prior(path: Path | str) -> tuple[PriorModel, dict]:
     path = Path(path)
     if path.is_dir():
         if not (path / "best.npz").exists() and (path / "denoiser.npz").exists():

@@ -119,7 +119,12 @@ class Motion:
     def from_poses(
         poses: np.ndarray, trans: np.ndarray, betas: np.ndarray, fps: float, **kwargs
     ) -> Motion:
-        """Split an AMASS ``poses`` array (T, W) with W >= 66 into a Motion."""
+        """Split an AMASS ``poses`` array (T, W) with W >= 66 into a Motion (numpy arrays or
+        torch tensors, copied). ``formats.npz_io.motion_from_arrays`` checks every value too
+        and reads NaN as holes."""
+        poses, trans, betas = as_numpy(poses), as_numpy(trans), as_numpy(betas)
+        if poses.ndim != 2 or poses.shape[1] < 66:
+            raise InputError(f"poses has shape {poses.shape}, expected (T, 66 + K)")
         T = poses.shape[0]
         return Motion(
             root_orient=poses[:, :3].copy(),
@@ -130,6 +135,80 @@ class Motion:
             pose_extra=poses[:, 66:].copy(),
             **kwargs,
         )
+
+
+def as_numpy(x) -> np.ndarray:
+    """A numpy array of ``x``: an array, a list, or a torch tensor (detached, on the CPU)."""
+    if hasattr(x, "detach") and hasattr(x, "cpu"):  # a torch tensor, without importing torch
+        x = x.detach().cpu().numpy()
+    return np.asarray(x)
+
+
+def check_motion(motion: Motion) -> None:
+    """InputError (one line) unless ``motion`` is one a denoise can read: root_orient (T, 3),
+    pose_body (T, 21, 3), trans (T, 3), pose_extra (T, K), joint_mask (T, 22) or None, all
+    real and finite, T >= 1, and a frame rate in FPS_RANGE."""
+    T = np.shape(motion.root_orient)[0] if np.ndim(motion.root_orient) else 0
+    shapes = {"root_orient": (T, 3), "pose_body": (T, NUM_BODY_JOINTS - 1, 3), "trans": (T, 3)}
+    for name, shape in shapes.items():
+        arr = getattr(motion, name)
+        if np.shape(arr) != shape:
+            raise InputError(f"{name} has shape {np.shape(arr)}, expected {shape}")
+        kind = np.asarray(arr).dtype.kind
+        if kind not in "iuf":
+            raise InputError(f"{name} is not real numbers (dtype {np.asarray(arr).dtype})")
+        bad = ~np.isfinite(arr).reshape(T, -1).all(axis=1)
+        if bad.any():
+            raise InputError(
+                f"{name} holds NaN or infinite values in {int(bad.sum())} frame(s), the first "
+                f"{int(np.argmax(bad))}; mark holes in joint_mask with finite values "
+                "(formats.npz_io.motion_from_arrays reads NaN as holes)"
+            )
+    if T < 1:
+        raise InputError("the motion has no frames")
+    if np.ndim(motion.pose_extra) != 2 or len(motion.pose_extra) != T:
+        raise InputError(f"pose_extra has shape {np.shape(motion.pose_extra)}, expected ({T}, K)")
+    if motion.joint_mask is not None and np.shape(motion.joint_mask) != (T, NUM_BODY_JOINTS):
+        raise InputError(
+            f"joint_mask has shape {np.shape(motion.joint_mask)}, expected ({T}, {NUM_BODY_JOINTS})"
+        )
+    try:
+        fps = float(motion.fps)
+    except (TypeError, ValueError):
+        raise InputError(f"fps must be a number, got {motion.fps!r}") from None
+    check_fps(fps, "fps")
+
+
+def check_motions(motions) -> list[Motion]:
+    """``motions`` as a list, each checked (:func:`check_motion`); a one-line InputError
+    names the first bad one by its index, a TypeError anything that is not a list of Motion."""
+    if isinstance(motions, Motion):
+        raise TypeError("expected a list of motions, got one Motion: pass [motion]")
+    motions = list(motions)
+    for i, motion in enumerate(motions):
+        if not isinstance(motion, Motion):
+            raise TypeError(f"motion {i} is a {type(motion).__name__}, not a Motion")
+        try:
+            check_motion(motion)
+        except InputError as exc:
+            raise InputError(f"motion {i}: {exc}") from None
+    return motions
+
+
+def unshared(result: Motion, source: Motion) -> Motion:
+    """``result`` with a copy of each array it shares with ``source`` (hands, betas, extras
+    carried through), so that changing one in place leaves the other as it was."""
+    copies = {}
+    for name in ("root_orient", "pose_body", "trans", "betas", "pose_extra", "joint_mask"):
+        mine, theirs = getattr(result, name), getattr(source, name)
+        if mine is not None and theirs is not None and np.may_share_memory(mine, theirs):
+            copies[name] = mine.copy()
+    extras = {
+        k: v.copy() if isinstance(v, np.ndarray) and k in source.extras
+        and np.may_share_memory(v, source.extras[k]) else v
+        for k, v in result.extras.items()
+    }  # fmt: skip
+    return replace(result, extras=extras, **copies)
 
 
 def slice_frames(motion: Motion, start: int, stop: int) -> Motion:

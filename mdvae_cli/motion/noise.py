@@ -70,7 +70,7 @@ class NoiseSettings:
 def add_pose_noise(
     motion: Motion,
     sigma: float,
-    rng: np.random.Generator,
+    rng: np.random.Generator | int,
     trans_sigma: float = 0.0,
     drop_frac: float = 0.0,
     spike_frac: float = 0.0,
@@ -85,6 +85,7 @@ def add_pose_noise(
     See the module docstring for the exact protocol.
     """
     NoiseSettings(*map(float, (sigma, trans_sigma, drop_frac, spike_frac, spike_rad))).validate()
+    rng = np.random.default_rng(rng)  # a seed too; a Generator as it is
     pose_rng, trans_rng, drop_rng = rng.spawn(3)
     T = motion.num_frames
 
@@ -220,13 +221,14 @@ def _events(rng: np.random.Generator, T: int, rate: float, fps: float, longest: 
     return hit
 
 
-def add_video_noise(motion: Motion, noise: VideoNoise, rng: np.random.Generator) -> Motion:
+def add_video_noise(motion: Motion, noise: VideoNoise, rng: np.random.Generator | int) -> Motion:
     """A noisy copy of ``motion`` (z up) with the errors of a video pose estimator
     (:class:`VideoNoise`; the input is not modified). Each kind of noise draws from its own
     stream of ``rng``, so turning one off leaves the others' draws unchanged."""
     noise.validate()
     T, fps = motion.num_frames, motion.fps
     a = noise.slow_time * fps  # the slow parts' time scale in frames
+    rng = np.random.default_rng(rng)  # a seed too; a Generator as it is
     pose_rng, root_rng, trans_rng, swap_rng, turn_rng, spike_rng = rng.spawn(6)
 
     pose = motion.pose_body + pose_rng.normal(0.0, noise.pose_white, motion.pose_body.shape)

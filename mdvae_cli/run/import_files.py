@@ -29,7 +29,6 @@ class FileImporter:
     def __init__(self, body_model, out: Path, fps, settings, source_fps, scale, asf,
                  input_format=None, track=None, joint_map=None, estimate_fps=None,
                  estimate_floor=None, missing=(), on_notes=None):  # fmt: skip
-        torch.set_num_threads(1)  # small batched solves: one thread per process is fastest
         self.takes = TakeReader(load_body_model(body_model), asf, joint_map)
         self.body = self.takes.body
         self.format, self.track = input_format, track
@@ -42,6 +41,16 @@ class FileImporter:
         self.missing = missing  # --missing: holes of takes, marked in joint_mask
 
     def __call__(self, job: FileJob) -> dict:
+        """Import one file -> its row. Small batched solves: one torch thread is fastest; the
+        caller's thread count is as it was after."""
+        before = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            return self._import(job)
+        finally:
+            torch.set_num_threads(before)
+
+    def _import(self, job: FileJob) -> dict:
         item: CorpusItem | None = job.data
         is_take = suffix_of(job.source) in TAKE_SUFFIXES
         if item is None and not is_take:

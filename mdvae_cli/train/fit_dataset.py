@@ -152,6 +152,7 @@ TARGETS_FILE = "distill_targets.npz"
 RESUME_FILE = "resume.npz"
 
 
+@torch.random.fork_rng(devices=[])  # seeded inside; the caller's stream as it was
 def fit_dataset(
     cfg: FitConfig,
     out_dir: Path,
@@ -297,15 +298,17 @@ def _starting_point(cfg: FitConfig, out_dir: Path, resume: bool) -> tuple[Denois
     """The denoiser a run starts from, the ELBO and distillation steps it has taken, and what
     the networks had been through before the run (``init_from``: its path and record)."""
     if resume:
-        denoiser, meta = load_denoiser(checkpoint_to_resume(out_dir, "denoiser.npz"))
+        denoiser, meta = load_denoiser(
+            checkpoint_to_resume(out_dir, "denoiser.npz"), keep_rng=False
+        )
         steps, distilled = int(meta.get("steps", 0)), int(meta.get("distill_steps", 0))
         return denoiser, steps, distilled, meta.get("started_from", {})
     if cfg.init_from:
-        denoiser, meta = load_denoiser(cfg.init_from)
+        denoiser, meta = load_denoiser(cfg.init_from, keep_rng=False)
         cfg.denoiser = denoiser.cfg
         keep = ("fit_config", "steps", "distill_steps", "started_from")
         return denoiser, 0, 0, {"path": cfg.init_from, **{k: meta[k] for k in keep if k in meta}}
-    prior, _ = load_prior(cfg.prior if cfg.prior else default_weights("prior"))
+    prior, _ = load_prior(cfg.prior if cfg.prior else default_weights("prior"), keep_rng=False)
     return Denoiser(prior, cfg.denoiser), 0, 0, {}
 
 

@@ -149,7 +149,7 @@ def trainable_parameters(model: PriorModel, which: str) -> list[torch.nn.Paramet
 
 def init_from_prior(model: PriorModel, path: Path) -> None:
     """Start from a trained prior (fine-tuning): its weights *and* its normaliser."""
-    source, _ = load_prior(path)
+    source, _ = load_prior(path, keep_rng=False)  # the seeded run draws as it always did
     sizes = {"latent_dim": "--latent-dim", "hidden_dim": "--hidden-dim", "mlp_dim": None}
     other = [n for n in sizes if getattr(source.cfg, n) != getattr(model.cfg, n)]
     if other:  # widen_state fits extra inputs only: the widths must be the same
@@ -187,6 +187,7 @@ def stop_now(
     return bool(late.item())
 
 
+@torch.random.fork_rng(devices=[])  # seeded inside; the caller's stream as it was
 def train_prior(
     cfg: TrainConfig,
     run_dir: Path,
