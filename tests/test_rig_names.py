@@ -181,7 +181,9 @@ def test_a_rig_named_mirror_wise_is_mapped_by_its_body_not_its_names(tmp_path, t
     runs = []
     for path in (mirrored, plain):
         npz = tmp_path / (path.stem + ".npz")
-        assert run_cli("import", path, "-o", npz)[0] == 0
+        code, _, stderr = run_cli("import", path, "-o", npz)
+        assert code == 0
+        assert ("sides exchanged" in stderr) == (path == mirrored)  # the import says so
         runs.append(np.load(npz)["poses"])
     np.testing.assert_allclose(runs[0], runs[1], atol=1e-6)
 

@@ -69,6 +69,8 @@ class FileImporter:
 
         loaded = read(job.source, options, takes=self.takes)
         take, motion = loaded.take, loaded.single()  # with --missing: its holes marked
+        if self.on_notes is not None:  # what reading the take remarked (a rest pose, sides)
+            self.on_notes(job.relpath, list(dict.fromkeys([*loaded.notes, *motion.notes])))
         src, result = take.source, take.retarget
         key = skeleton_key(src)
         arrays = (motion.root_orient, motion.pose_body, motion.trans, motion.betas)
