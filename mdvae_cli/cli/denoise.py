@@ -109,12 +109,15 @@ def denoise(
         run = read_file(job.source, job.output, replace(options, progress=tell), takes=takes,
                         floor=floor, input_kind=input_kind)  # fmt: skip
         runs[job.source] = run
+        if settings.loop:
+            run.notes += _not_loops(run)
         for label, note in run.notes:
             where = job.relpath if label is None else f"{job.relpath.as_posix()} track {label}"
             print_notes(Path(where), [note])
 
     report = run_batch(jobs, read, "reading", quiet=True, within=True)
     good = [o.job for o in report.succeeded]
+    _note_unused(asf, joint_map_file, [runs[j.source] for j in good])
     chosen = kind_rows([runs[j.source] for j in good], settings)
     if good:
         if not as_json:
@@ -159,8 +162,42 @@ def _settings(outliers: bool, lr, per_file: bool, blend, **fields):
         raise InputError(
             f"--overlap ({fields['overlap']}) must be smaller than --window ({fields['window']})"
         )
+    _check_pairs(fields, blend)
     blend = not outliers if blend is None else blend  # --outliers weighs spikes itself
     return DenoiseSettings(lam=lam, lr=3e-4 if lr is None else lr, blend=blend, **fields)
+
+
+def _check_pairs(fields: dict, blend) -> None:
+    """InputError for an option that would do nothing beside the others given (refused, not
+    silently ignored): the offset's and the blend's options in the paper's plain mode
+    (--no-offset), --no-offset or --trans-offset with --refine (which fits both itself),
+    --refine-lr without --refine, --seed without --optimize."""
+    refine = fields["refine_steps"]
+    if refine and not fields["offset"]:
+        raise InputError("--refine already fits the offset; drop --no-offset "
+                         "(--refine-offset 0 for no rotation offset)")  # fmt: skip
+    if not (refine or fields["offset"]):
+        for name, on in (("--blend", blend), ("--guard", fields["guard"]),
+                         ("--refine-offset", fields["offset_std"] is not None),
+                         ("--trans-offset", fields["trans_offset_std"] is not None)):  # fmt: skip
+            if on:
+                raise InputError(f"{name} goes with the offset or --refine; drop --no-offset "
+                                 f"(the paper's plain regression mode) or {name}")  # fmt: skip
+    if refine and fields["trans_offset_std"] is not None:
+        raise InputError("--trans-offset is the offset's alone: --refine fits the translation "
+                         "itself; drop one of them")  # fmt: skip
+    needs = (("--refine-lr", "refine_lr", refine, "--refine N"),
+             ("--seed", "seed", fields["optimize_steps"], "--optimize N"))  # fmt: skip
+    for option, param, needed, flag in needs:
+        if not needed and _given(param):
+            raise InputError(f"{option} only applies with {flag}")
+
+
+def _given(param: str) -> bool:
+    """Whether the command line names the option of parameter ``param`` (not its default)."""
+    ctx = click.get_current_context(silent=True)
+    given = click.core.ParameterSource.COMMANDLINE
+    return ctx is not None and ctx.get_parameter_source(param) is given
 
 
 def _check_outputs(mesh_dir, mesh_format, view_dir, asf) -> None:
@@ -174,6 +211,18 @@ def _check_outputs(mesh_dir, mesh_format, view_dir, asf) -> None:
         raise InputError(f"--view {view_dir} is a file; give a folder")
     if asf is not None:
         check_named_file(Path(asf), "skeleton")
+
+
+def _note_unused(asf, joint_map_file, runs: list) -> None:
+    """A note for --asf or --joint-map when none of the inputs read (``runs``) is a take it
+    applies to (as --missing says of each file it does not apply to)."""
+    for option, given, applies, what in (
+        ("--asf", asf, any(r.format == "amc" for r in runs), "AMC takes"),
+        ("--joint-map", joint_map_file, any(r.take is not None for r in runs), "BVH/AMC takes"),
+    ):
+        if runs and given is not None and not applies:
+            console.print(f"[dim]note: {option} applies to {what}, and no input is one; "
+                          "ignored[/]", soft_wrap=True)  # fmt: skip
 
 
 def _print_kind_notes(chosen: dict) -> None:
@@ -265,6 +314,18 @@ def _print_summary(done: list) -> None:
     )
 
 
+def _not_loops(run) -> list[tuple[str | None, str]]:
+    """``--loop``'s note on each track of ``run`` whose ends do not meet (``infer.loop``)."""
+    from mdvae_cli.infer.loop import which_loop
+
+    ends_meet = which_loop([t.motion for t in run.tracks])
+    return [(t.label, NOT_LOOP_NOTE) for t, ok in zip(run.tracks, ends_meet, strict=True) if not ok]
+
+
+NOT_LOOP_NOTE = (
+    "--loop: its last frame does not meet its first (not a loop): denoised as a cycle anyway, "
+    "its ends drawn together"
+)
 LOOP_NOTE = (
     "looks like a loop (its last frame meets its first): denoised as a cycle; --no-loop to "
     "treat it as a take"

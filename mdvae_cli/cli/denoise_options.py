@@ -107,7 +107,8 @@ OPTIONS = [
         help="Denoise every take as a cycle (a game loop whose last frame leads into its first): "
         "its ends get context from each other and the seam stays continuous when it plays on "
         "repeat. Default: a take whose last pose is within two frame steps of its first is "
-        "treated as a loop, and said so; --no-loop never.",
+        "treated as a loop, and said so; --no-loop never (--loop on a take whose ends do not meet "
+        "says so too).",
     ),
     click.option(
         "--blend/--no-blend",

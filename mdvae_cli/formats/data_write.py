@@ -133,7 +133,10 @@ def write_data(obj: Any, path: Path, container: str, forbid: tuple[Path, ...] = 
 def _torch_save(obj: Any, tmp: Path) -> None:
     import torch
 
-    torch.save(obj, tmp)
+    # into a file object: torch names the archive's folder after a path it is given, here the
+    # random temporary name, so that the same result would be written as different bytes
+    with open(tmp, "wb") as fh:
+        torch.save(obj, fh)
 
 
 def _npy_save(obj: Any, tmp: Path) -> None:

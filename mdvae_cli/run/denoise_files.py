@@ -45,6 +45,8 @@ class TrackRun:
     fallbacks: list[list[float]] = field(default_factory=list)
     blend: BlendReport | None = None
     filled: bool = True
+    meshes: Path | None = None  # where --mesh-dir wrote its meshes
+    page: Path | None = None  # where --view wrote its before/after page
 
     def to_dict(self) -> dict[str, Any]:
         """What ``--json`` says of the track."""
@@ -62,6 +64,7 @@ class TrackRun:
             "spike_share": None if kept is None else round(kept.spike_share, 4),
             "loop": self.loop,
             **fill_counts(self.motion, self.filled),
+            **{k: str(v) for k, v in (("meshes", self.meshes), ("page", self.page)) if v},
         }
 
 
@@ -288,6 +291,7 @@ def write_file(
 
             target = track_output(Path(mesh_dir), track.label)
             export_mesh_sequence(motion, body, target, mesh_format, forbid=forbid)
+            track.meshes = target
         if not track.filled:  # an npz gets its NaN back, a take its own frames
             from mdvae_cli.formats.npz_holes import keep_holes
 
@@ -305,6 +309,7 @@ def write_file(
             where = track_output(Path(page), track.label)
             write_before_after(track.motion, motion, run.source, track.output, where, body,
                                forbid=forbid)  # fmt: skip
+            track.page = where
     if together:
         cleaned = LoadedFile(run.source, run.format, run.input_kind, together,
                              document=run.document)  # fmt: skip
