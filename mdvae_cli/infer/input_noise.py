@@ -59,3 +59,40 @@ def _channel_noise(v: np.ndarray, ok: np.ndarray | None, pool: bool) -> np.ndarr
         warnings.simplefilter("ignore", RuntimeWarning)  # a channel never seen: 0, no warning
         med = np.nan_to_num(np.nanmedian(d3, axis=0)) if np.isfinite(d3).any() else d3[0] * 0
     return np.nan_to_num(med) / scale
+
+
+#: the lag-1 correlation of white noise's third differences is -15/20; a component whose third
+#: differences correlate below this is read as noise (a smooth motion's correlate near +1)
+WHITE_CORRELATION = -0.5
+#: ... and the white components' share is taken only where it is this many times the pooled
+#: median (a hinge's noise reads far above its still axes; a clean take's own jitter does not)
+ONE_AXIS_MARGIN = 10.0
+
+
+def component_noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
+    """Each channel's noise variance, not read below the share of it that its components
+    that are white noise hold: :func:`noise_variance`'s median over the pooled components
+    reads a noise that sits on one axis alone (an AMC knee's one dof, a BVH joint with one
+    moving channel) at the still axes' level; here each component whose third differences are
+    white noise's (lag-1 correlation under :data:`WHITE_CORRELATION`) counts its own noise,
+    a third of the channel's, where that is far above the pooled median
+    (:data:`ONE_AXIS_MARGIN`). A smooth or clean channel reads as before.
+
+    values: (T, C, K); seen: (T, C) bool or None -> (C,)"""
+    T, C, K = values.shape
+    pooled = noise_variance(values, seen)
+    if T < NOISE_ORDER + 3:
+        return pooled
+    flat = values.reshape(T, C * K)
+    per = noise_variance(flat, None if seen is None else np.repeat(seen, K, axis=1))
+    d3 = np.diff(flat, n=NOISE_ORDER, axis=0)
+    if seen is not None:
+        ok = np.ones(d3.shape, bool)
+        for k in range(NOISE_ORDER + 1):
+            ok &= np.repeat(seen, K, axis=1)[k : k + len(ok)]
+        d3 = np.where(ok, d3, 0.0)
+    lag = (d3[1:] * d3[:-1]).sum(axis=0)
+    power = (d3**2).sum(axis=0)
+    white = lag < WHITE_CORRELATION * np.maximum(power, 1e-300)
+    share = (np.where(white, per, 0.0).reshape(C, K)).sum(axis=-1) / K
+    return np.where(share > ONE_AXIS_MARGIN * pooled, share, pooled)

@@ -41,7 +41,7 @@ from mdvae_cli.geometry.rotations import (
     rotvec_unwrap,
 )
 from mdvae_cli.infer.fill import fill_spikes
-from mdvae_cli.infer.input_noise import noise_variance
+from mdvae_cli.infer.input_noise import component_noise_variance, noise_variance
 from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion
 
@@ -280,11 +280,15 @@ def _blend_rotations(
         unwrapped[frames] = flipped.numpy()
         # an unwrapped vector past half a turn gives the flipped quaternion (w < 0) back
         before = (s[-1:], rotvec_to_quat(flipped[-1:]))
-    noise = noise_variance(unwrapped, None if missing is None else ~missing)  # (J,)
+    seen = None if missing is None else ~missing
+    noise = noise_variance(unwrapped, seen)  # (J,)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD, fps)
     if missing is not None:
         spikes = spikes & ~missing
-    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
+    # the residual's mean square over its components holds the noise's mean over them
+    kept, share = keep_unexplained(
+        residual, component_noise_variance(unwrapped, seen), spikes, fps, fast, missing
+    )
     out = np.empty(src.shape)
     # the denoised quaternions are made again chunk by chunk rather than kept whole: on a long
     # take a whole array of them is a large share of the peak memory, and cheap to make
