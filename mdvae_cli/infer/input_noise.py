@@ -85,14 +85,14 @@ def component_noise_variance(values: np.ndarray, seen: np.ndarray | None = None)
         return pooled
     flat = values.reshape(T, C * K)
     per = noise_variance(flat, None if seen is None else np.repeat(seen, K, axis=1))
-    d3 = np.diff(flat, n=NOISE_ORDER, axis=0)
-    if seen is not None:
-        ok = np.ones(d3.shape, bool)
-        for k in range(NOISE_ORDER + 1):
-            ok &= np.repeat(seen, K, axis=1)[k : k + len(ok)]
-        d3 = np.where(ok, d3, 0.0)
-    lag = (d3[1:] * d3[:-1]).sum(axis=0)
-    power = (d3**2).sum(axis=0)
-    white = lag < WHITE_CORRELATION * np.maximum(power, 1e-300)
+    white = np.zeros(C * K, bool)
+    for i in range(C * K):  # a component at a time: no copies of the take's size
+        d3 = np.diff(flat[:, i], n=NOISE_ORDER)
+        if seen is not None:
+            ok = np.ones(len(d3), bool)
+            for k in range(NOISE_ORDER + 1):
+                ok &= seen[k : k + len(ok), i // K]
+            d3 = np.where(ok, d3, 0.0)
+        white[i] = np.dot(d3[1:], d3[:-1]) < WHITE_CORRELATION * max(np.dot(d3, d3), 1e-300)
     share = (np.where(white, per, 0.0).reshape(C, K)).sum(axis=-1) / K
     return np.where(share > ONE_AXIS_MARGIN * pooled, share, pooled)

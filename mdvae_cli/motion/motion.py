@@ -196,19 +196,29 @@ def check_motions(motions) -> list[Motion]:
 
 
 def unshared(result: Motion, source: Motion) -> Motion:
-    """``result`` with a copy of each array it shares with ``source`` (hands, betas, extras
-    carried through), so that changing one in place leaves the other as it was."""
-    copies = {}
-    for name in ("root_orient", "pose_body", "trans", "betas", "pose_extra", "joint_mask"):
-        mine, theirs = getattr(result, name), getattr(source, name)
-        if mine is not None and theirs is not None and np.may_share_memory(mine, theirs):
-            copies[name] = mine.copy()
-    extras = {
-        k: v.copy() if isinstance(v, np.ndarray) and k in source.extras
-        and np.may_share_memory(v, source.extras[k]) else v
-        for k, v in result.extras.items()
-    }  # fmt: skip
-    return replace(result, extras=extras, **copies)
+    """``result`` with each array it shares with ``source`` (hands, betas, extras carried
+    through) as a read-only view, so that changing one in place cannot change the other
+    (it raises), and nothing is copied (a 30-minute 120 Hz take's hands: 155 MB)."""
+
+    def guarded(mine, theirs):
+        if (
+            isinstance(mine, np.ndarray)
+            and theirs is not None
+            and np.may_share_memory(mine, theirs)
+        ):
+            view = mine.view()
+            view.flags.writeable = False
+            return view
+        return mine
+
+    names = ("root_orient", "pose_body", "trans", "betas", "pose_extra", "joint_mask")
+    fields = {n: guarded(getattr(result, n), getattr(source, n)) for n in names}
+    extras = {k: guarded(v, source.extras.get(k)) for k, v in result.extras.items()}
+    if all(fields[n] is getattr(result, n) for n in names) and all(
+        extras[k] is v for k, v in result.extras.items()
+    ):
+        return result
+    return replace(result, extras=extras, **fields)
 
 
 def slice_frames(motion: Motion, start: int, stop: int) -> Motion:
