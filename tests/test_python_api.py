@@ -223,9 +223,8 @@ def test_changing_a_result_in_place_leaves_its_input():
     motion = load_motion(NOISY)
     hands, betas = motion.pose_extra.copy(), motion.betas.copy()
     clean = denoise([motion], DenoiseSettings(feet="off"))[0]
-    for shared in (clean.pose_extra, clean.betas):  # before: the input's, the very same array
-        with pytest.raises(ValueError, match="read-only"):
-            shared[:] = 0.0  # a read-only view: nothing copied, nothing changed through it
+    clean.pose_extra[:] = 0.0  # before: the input's hands, the very same array (now a copy)
+    clean.betas[:] = 0.0
     np.testing.assert_array_equal(motion.pose_extra, hands)
     np.testing.assert_array_equal(motion.betas, betas)
 
@@ -253,3 +252,18 @@ def test_evaluate_refuses_a_motion_that_is_not_one_in_one_line():
         evaluate_pair(truth, pred.with_body(pose_body=pose_body), load_body_model())
     with pytest.raises(InputError, match=r"ground truth: trans has shape \(79, 2\)"):
         evaluate_pair(truth.with_body(trans=truth.trans[:, :2]), pred, load_body_model())
+
+
+def test_a_long_takes_shared_arrays_are_read_only_views_not_copies():
+    from dataclasses import replace
+
+    from mdvae_cli.motion.motion import unshared
+
+    motion = load_motion(NOISY)
+    T = 20000  # hands of 20,000 frames: 14 MB, over the size that is copied
+    big = Motion.from_poses(np.zeros((T, 156)), np.zeros((T, 3)), motion.betas, 30.0)
+    out = unshared(replace(big, trans=np.ones((T, 3))), big)
+    assert np.shares_memory(out.pose_extra, big.pose_extra) and not out.pose_extra.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        out.pose_extra[:] = 1.0
+    assert not np.shares_memory(out.betas, big.betas) and out.betas.flags.writeable  # copied

@@ -195,10 +195,16 @@ def check_motions(motions) -> list[Motion]:
     return motions
 
 
+#: arrays a result shares with its input are copied under this many bytes, viewed read-only
+#: above it (a long take's per-frame arrays)
+_COPY_BELOW = 1 << 20
+
+
 def unshared(result: Motion, source: Motion) -> Motion:
     """``result`` with each array it shares with ``source`` (hands, betas, extras carried
-    through) as a read-only view, so that changing one in place cannot change the other
-    (it raises), and nothing is copied (a 30-minute 120 Hz take's hands: 155 MB)."""
+    through) copied, or one of a long take's size (:data:`_COPY_BELOW`) as a read-only view,
+    so that changing one in place cannot change the other (it raises) and a 30-minute 120 Hz
+    take's hands (155 MB) are not copied."""
 
     def guarded(mine, theirs):
         if (
@@ -206,6 +212,8 @@ def unshared(result: Motion, source: Motion) -> Motion:
             and theirs is not None
             and np.may_share_memory(mine, theirs)
         ):
+            if mine.nbytes < _COPY_BELOW:
+                return mine.copy()
             view = mine.view()
             view.flags.writeable = False
             return view
