@@ -69,7 +69,9 @@ WHITE_CORRELATION = -0.5
 ONE_AXIS_MARGIN = 10.0
 
 
-def component_noise_variance(values: np.ndarray, seen: np.ndarray | None = None) -> np.ndarray:
+def component_noise_variance(
+    values: np.ndarray, seen: np.ndarray | None = None, pooled: np.ndarray | None = None
+) -> np.ndarray:
     """Each channel's noise variance, not read below the share of it that its components
     that are white noise hold: :func:`noise_variance`'s median over the pooled components
     reads a noise that sits on one axis alone (an AMC knee's one dof, a BVH joint with one
@@ -78,9 +80,10 @@ def component_noise_variance(values: np.ndarray, seen: np.ndarray | None = None)
     a third of the channel's, where that is far above the pooled median
     (:data:`ONE_AXIS_MARGIN`). A smooth or clean channel reads as before.
 
-    values: (T, C, K); seen: (T, C) bool or None -> (C,)"""
+    values: (T, C, K); seen: (T, C) bool or None; pooled: :func:`noise_variance` of the same
+    values, when the caller has it -> (C,)"""
     T, C, K = values.shape
-    pooled = noise_variance(values, seen)
+    pooled = noise_variance(values, seen) if pooled is None else pooled
     if T < NOISE_ORDER + 3:
         return pooled
     flat = values.reshape(T, C * K)

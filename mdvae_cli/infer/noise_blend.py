@@ -287,7 +287,7 @@ def _blend_rotations(
         spikes = spikes & ~missing
     # the residual's mean square over its components holds the noise's mean over them
     kept, share = keep_unexplained(
-        residual, component_noise_variance(unwrapped, seen), spikes, fps, fast, missing
+        residual, component_noise_variance(unwrapped, seen, noise), spikes, fps, fast, missing
     )
     out = np.empty(src.shape)
     # the denoised quaternions are made again chunk by chunk rather than kept whole: on a long
