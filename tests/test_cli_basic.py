@@ -98,7 +98,7 @@ def test_add_noise_then_eval_json(make_motion_file, tmp_path, hash_tree):
     code, out, err = run("eval", "--gt", clean, "--pred", noisy, "--json")
     assert code == 0, err
     data = json.loads(out)  # stdout holds exactly one JSON document
-    assert set(data) == {"files", "mean", "failed", "units", "body_model"}
+    assert set(data) == {"files", "mean", "failed", "unpaired_predictions", "units", "body_model"}
     assert data["failed"] == 0
     (row,) = data["files"]
     assert set(row) == {"file", "gt", "pred", "ok", "error", "result"}  # metrics said once

@@ -112,6 +112,46 @@ def test_fit_dataset_stopped_and_resumed_ends_bit_identical(tiny_prior, noisy_di
     assert not all(torch.equal(x, y) for x, y in pairs)
 
 
+def test_a_sigterm_stops_fit_dataset_after_its_step_and_resume_ends_bit_identical(
+    tiny_prior, noisy_dir, tmp_path, monkeypatch
+):
+    """The first SIGTERM (or Ctrl-C) saves the networks after the step it came in and exits
+    143, the second would stop at once; --resume then ends with exactly the networks of the
+    whole run. Before: the signal stopped the run at once, the steps since the last save
+    (every 200) lost."""
+    import os
+    import signal
+
+    cfg = tiny_fit(tiny_prior, noisy_dir, epochs=2)
+    whole = fit_dataset(cfg, tmp_path / "whole")
+    config = tmp_path / "fit.json"
+    config.write_text(json.dumps(cfg.to_dict()))
+    real, calls = Denoiser.elbo, []
+
+    def signalled_at_the_third_step(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Denoiser, "elbo", signalled_at_the_third_step)
+    out = tmp_path / "den"
+    args = ["fit-dataset", str(noisy_dir), "-o", str(out), "--config", str(config)]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 143, res.output
+    assert "stopped at step 3; the run's denoiser.npz continues it with --resume" in res.output
+    assert json.loads((out / "denoiser.json").read_text())["steps"] == 3
+    assert json.loads((out / "log.jsonl").read_text())["interrupted"] is True
+    monkeypatch.setattr(Denoiser, "elbo", real)
+    res = CliRunner().invoke(cli, ["fit-dataset", str(noisy_dir), "-o", str(out), "--resume"])
+    assert res.exit_code == 0, res.output
+    a, _ = load_denoiser(tmp_path / "whole")
+    b, meta = load_denoiser(out)
+    assert meta["steps"] == whole.steps > 3
+    for (name, x), y in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+        assert torch.equal(x, y), name
+
+
 def test_optimization_mode_changes_only_the_inference_networks(tiny_prior, noisy_dir):
     prior, _ = load_prior(tiny_prior / "run")
     den = Denoiser(prior, DenoiserConfig(hidden_dim=16))

@@ -143,13 +143,13 @@ def test_fit_dataset_distils_and_a_resumed_run_reuses_its_targets(
         resumed = fit_dataset(cfg, tmp_path / "den", resume=True)
         assert resumed.distill_steps == summary.distill_steps * 3 // 2
         # a new run from the same networks into the same folder may reuse them too
-        fit_dataset(cfg, tmp_path / "den")
+        fit_dataset(cfg, tmp_path / "den", overwrite=True)
     # but not a run from other networks
     cfg.init_from = str(tmp_path / "den")
     calls = []
     real = fd.refine_targets
     monkeypatch.setattr(fd, "refine_targets", lambda *a, **k: calls.append(1) or real(*a, **k))
-    fit_dataset(cfg, tmp_path / "den")
+    fit_dataset(cfg, tmp_path / "den", overwrite=True)
     assert calls == [1]
 
 

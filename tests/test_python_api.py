@@ -151,6 +151,20 @@ def test_one_motion_instead_of_a_list_is_named():
         Motion.from_poses(np.zeros((79, 60)), np.zeros((79, 3)), np.zeros(10), 30)
 
 
+def test_hands_of_the_wrong_length_are_refused_not_zeroed():
+    # before: pose_extra of 78 rows for 79 frames became 79 rows of zeros (the hands lost), a
+    # (90,) row became (79, 0) (no hands at all), both without a word
+    T, body = 79, dict(root_orient=np.zeros((79, 3)), pose_body=np.zeros((79, 21, 3)),
+                       trans=np.zeros((79, 3)), betas=np.zeros(10), fps=30.0)  # fmt: skip
+    for hands, shape in ((np.ones((T - 1, 90)), r"\(78, 90\)"), (np.ones(90), r"\(90,\)")):
+        with pytest.raises(InputError, match=rf"pose_extra has shape {shape}, expected \(79, K\)"):
+            Motion(**body, pose_extra=hands)
+    assert Motion(**body, pose_extra=np.ones((T, 90))).pose_extra.sum() == T * 90
+    assert Motion(**body).pose_extra.shape == (T, 0)  # none given: no hands
+    assert Motion(**body, pose_extra=None).pose_extra.shape == (T, 0)
+    assert Motion(**body, pose_extra=np.zeros((0, 90))).pose_extra.shape == (T, 90)
+
+
 def test_the_body_model_poses_numpy_arrays():
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
@@ -217,6 +231,44 @@ def test_training_leaves_the_callers_random_stream(tmp_path):
                     batch_size=8, epochs=1, device="cpu", seed=3)  # fmt: skip
     fit_dataset(cfg, tmp_path / "den", max_steps=1)
     np.testing.assert_array_equal(torch.rand(4).numpy(), expected.numpy())  # before: reseeded
+
+
+def test_training_leaves_the_callers_gpu_streams(tmp_path, monkeypatch):
+    # CUDA as the library sees it, two devices whose generator states are numbers; before: a
+    # run seeded every GPU's generator (torch.manual_seed) and gave back only the CPU's
+    from types import SimpleNamespace
+
+    from mdvae_cli.train.fit_dataset import FitConfig, fit_dataset
+    from mdvae_cli.train.run_state import seeded_run
+    from mdvae_cli.train.train_prior import train_prior
+    from tests.test_prior import tiny_config, write_corpus
+
+    data = write_corpus(tmp_path / "clean", n=2, T=40)
+    states = {0: 5, 1: 6}
+    for name, fake in {
+        "is_available": lambda: True,
+        "is_initialized": lambda: True,  # the caller has been using its GPU
+        "device_count": lambda: 2,
+        "get_rng_state": lambda device: states[device],
+        "set_rng_state": lambda state, device: states.__setitem__(device, state),
+        "manual_seed_all": lambda seed: states.update({0: seed, 1: seed}),
+    }.items():
+        monkeypatch.setattr(torch.cuda, name, fake)
+    seen = []
+
+    @seeded_run
+    def on_a_gpu(cfg):
+        seen.append(dict(states))
+        states[0] = 99  # the run's draws
+
+    on_a_gpu(SimpleNamespace(device="cuda", seed=3, validate=lambda: None))
+    assert seen == [{0: 3, 1: 3}] and states == {0: 5, 1: 6}
+    # runs on the CPU: the GPUs' generators are neither seeded nor moved
+    train_prior(tiny_config(data, epochs=1, seed=3, device="cpu"), tmp_path / "prior", max_steps=1)
+    cfg = FitConfig(data=[str(data)], prior=str(tmp_path / "prior"), window=20, stride=5,
+                    batch_size=8, epochs=1, device="cpu", seed=3)  # fmt: skip
+    fit_dataset(cfg, tmp_path / "den", max_steps=1)
+    assert states == {0: 5, 1: 6}
 
 
 def test_changing_a_result_in_place_leaves_its_input():

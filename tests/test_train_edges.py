@@ -69,6 +69,21 @@ def test_a_folder_of_takes_says_to_import_them(tmp_path):
     assert not (tmp_path / "r").exists()
 
 
+def test_files_of_other_formats_in_a_data_folder_are_said_to_be_left_out(tmp_path):
+    # before: a folder of npz takes and a studio's BVH and video files trained on the npz
+    # alone without a word (fit-dataset: "no noisy .npz files" when there were none)
+    takes = tmp_path / "takes"
+    takes.mkdir()
+    for name in ("walk.bvh", "run.BVH.gz", "wham_output.pkl"):
+        (takes / name).write_text("x")
+    note = ("note: 3 file(s) of other formats (bvh, pkl) left out: training reads AMASS-style "
+            f".npz; `mdvae import {takes} -o imported/` converts them")  # fmt: skip
+    for command in ("fit-dataset", "train-prior"):
+        res = CliRunner().invoke(cli, [command, str(takes), "-o", str(tmp_path / "r")])
+        assert res.exit_code == 1 and note in res.stderr, res.output
+        assert not (tmp_path / "r").exists()
+
+
 def test_resuming_with_other_data_is_refused(tmp_path):
     data = write_corpus(tmp_path / "data", n=3, T=40)
     other = write_corpus(tmp_path / "other", n=3, T=40)
@@ -171,6 +186,48 @@ def test_resuming_a_fit_refuses_settings_its_denoiser_keeps(tmp_path):
                                    "--lam", "10", "--json"])  # fmt: skip
     assert res.exit_code == 0, res.output
     assert json.loads((den / "config.json").read_text())["denoiser"]["lam"] == 10.0
+
+
+def test_a_new_fit_into_a_denoisers_folder_is_refused_unless_overwrite(tmp_path):
+    # before: `fit-dataset -o den` over a fitted denoiser replaced it without a word
+    from tests.test_train_options import tiny_fit_config
+
+    data = write_corpus(tmp_path / "data", n=3, T=40)
+    train_prior(tiny_config(data, epochs=1), tmp_path / "prior", max_steps=1)
+    den = tmp_path / "den"
+    fit_dataset(tiny_fit_config(data, tmp_path / "prior", epochs=2), den, max_steps=1)
+    before = {p.name: p.read_bytes() for p in den.iterdir()}
+    args = ["fit-dataset", str(data), "--prior", str(tmp_path / "prior"), "-o", str(den),
+            "--window", "20", "--stride", "5", "--batch-size", "8", "--device", "cpu",
+            "--max-steps", "1"]  # fmt: skip
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1 and res.output.count("\n") == 1
+    assert res.output == (
+        f"error: {den} already holds a run (denoiser.npz): add --resume to continue it, "
+        "--overwrite to replace it, or give another folder\n"
+    )
+    res = CliRunner().invoke(cli, ["fit-dataset", str(data), "-o", str(den), "--resume",
+                                   "--overwrite"])  # fmt: skip
+    assert res.exit_code == 1 and "give one" in res.output
+    assert {p.name: p.read_bytes() for p in den.iterdir()} == before
+    res = CliRunner().invoke(cli, [*args, "--overwrite", "--seed", "5"])
+    assert res.exit_code == 0, res.output
+    assert json.loads((den / "config.json").read_text())["seed"] == 5
+    assert (den / "denoiser.npz").read_bytes() != before["denoiser.npz"]
+    # another command's run is never written over (its config.json would go): before, a
+    # denoiser fitted into the prior's folder left `train-prior --resume` refusing it
+    prior = tmp_path / "prior"
+    kept = {p.name: p.read_bytes() for p in prior.iterdir()}
+    res = CliRunner().invoke(cli, ["fit-dataset", str(data), "-o", str(prior), "--overwrite"])
+    assert res.exit_code == 1
+    assert (
+        f"error: {prior} holds a train-prior run (last.npz, best.npz): give another" in res.output
+    )
+    res = CliRunner().invoke(cli, ["train-prior", str(data), "-o", str(den)])
+    assert (
+        res.exit_code == 1 and f"error: {den} holds a fit-dataset run (denoiser.npz)" in res.output
+    )
+    assert {p.name: p.read_bytes() for p in prior.iterdir()} == kept
 
 
 def test_resuming_with_fewer_epochs_than_taken_is_refused(tmp_path):

@@ -83,6 +83,19 @@ def test_a_cleaned_track_goes_back_in_the_files_own_form(tmp_path, kind):
         assert not np.array_equal(n[sel], o[sel])
 
 
+def test_denoise_json_says_the_write_back_notes_on_stderr(tmp_path):
+    # before: with --json the notes of writing a file back ('verts' left out) were in the JSON
+    # only, so that a pipeline's log and a user at a terminal never saw them
+    src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (vf.clip(40, seed=4), None)})
+    code, out, err = run("denoise", src, "-o", tmp_path / "clean.pkl", "--json")
+    assert code == 0, err
+    (row,) = json.loads(out)["files"]  # stdout: the JSON alone
+    note = "'verts' left out (vertices of the old pose; any SMPL tool makes them from the new)"
+    assert note in row["result"]["notes"]
+    assert f"note: wham_output.pkl: {note}" in err
+    assert "note: video input: λ = 10" in err
+
+
 def test_wham_camera_copy_follows_the_world_pose_and_verts_are_left_out(tmp_path):
     m = vf.clip(24, seed=4)
     src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (m, None)})

@@ -120,18 +120,17 @@ def denoise(
     _note_unused(asf, joint_map_file, [runs[j.source] for j in good])
     chosen = kind_rows([runs[j.source] for j in good], settings)
     if good:
-        if not as_json:
-            _print_kind_notes(chosen)
+        _print_kind_notes(chosen)  # on stderr, --json or not: the JSON alone is on stdout
         denoiser, _ = load_denoiser(denoiser_path)
         body = BodyModel(body_data)
         with progress_bar(transient=True) as progress:
             denoise_files([runs[j.source] for j in good], settings, denoiser, body,
                           per_file=per_file, progress=_ticker(progress))  # fmt: skip
-        if settings.loop is None and not as_json:  # --json: "loop"
+        if settings.loop is None:  # --json: "loop" too
             for job in good:
                 if any(t.loop for t in runs[job.source].tracks):
                     print_notes(job.relpath, [LOOP_NOTE])
-    write = _writer(runs, jobs, body if good else None, mesh_dir, mesh_format, view_dir, as_json)
+    write = _writer(runs, jobs, body if good else None, mesh_dir, mesh_format, view_dir)
     write_report = run_batch(good, write, "denoise", quiet=True, within=True)
     write_report.outcomes = report.failed + write_report.outcomes
     if len(jobs) > 1:
@@ -252,7 +251,7 @@ def _ticker(progress):
     return tick
 
 
-def _writer(runs: dict, jobs: list[FileJob], body, mesh_dir, mesh_format, view_dir, as_json):
+def _writer(runs: dict, jobs: list[FileJob], body, mesh_dir, mesh_format, view_dir):
     """The per-file step of writing: ``write_file`` with the file's mesh folder and page."""
     from mdvae_cli.run.denoise_files import write_file
 
@@ -267,10 +266,9 @@ def _writer(runs: dict, jobs: list[FileJob], body, mesh_dir, mesh_format, view_d
         run = write_file(runs[job.source], body, forbid=sources, mesh_dir=meshes,
                          mesh_format=mesh_format or "ply", page=page,
                          progress=tell)  # fmt: skip
-        if not as_json:  # --json has them under "fallbacks"
-            for track in run.tracks:
-                print_notes(job.relpath, [n for n in track.cleaned.notes if n.startswith("guard:")])
-            print_notes(job.relpath, run.written)
+        for track in run.tracks:  # --json has them under "fallbacks" and "notes" too
+            print_notes(job.relpath, [n for n in track.cleaned.notes if n.startswith("guard:")])
+        print_notes(job.relpath, run.written)
         return run
 
     return write

@@ -12,28 +12,19 @@ from rich.markup import escape
 from rich.table import Table
 
 from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.cli.batch import (
-    FileJob,
-    FileOutcome,
-    emit_json,
-    json_option,
-    print_found_notes,
-    print_notes,
-    run_batch,
-    strip_gz,
-)
+from mdvae_cli.cli.batch import FileJob, FileOutcome, emit_json, json_option, print_notes, run_batch
 from mdvae_cli.cli.common import (
     allow_pickle_option,
     body_model_option,
     console,
     handle_errors,
 )
+from mdvae_cli.cli.eval_pairs import NoPartner, base_name, pair_files
 from mdvae_cli.cli.motion_input import input_fps_option, one_track, track_option
 from mdvae_cli.cli.takes import take_options, take_reading
 from mdvae_cli.errors import InputError
-from mdvae_cli.fileio import check_regular, expand_inputs
 from mdvae_cli.foot_metrics import SLIDE_SPEED
-from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
+from mdvae_cli.formats.registry import ReadOptions, read
 from mdvae_cli.motion.contacts import FLOOR_QUANTILE, HEIGHT_TOL, SPEED_MAX
 
 if TYPE_CHECKING:  # the metrics pose meshes with torch: imported when the command runs
@@ -58,40 +49,6 @@ UNITS = {
     "float_pred": "cm",
     "floor_m": "m",
 }
-
-
-def pair_files(gt: Path, pred: Path) -> tuple[list[FileJob], list[Path]]:
-    """Match ground truth and prediction files; jobs carry the prediction path in ``data``.
-
-    Two files make one pair; two folders are matched by relative path (a ground-truth file
-    with no prediction becomes a job that fails). Returns the jobs and the prediction files
-    that have no ground truth.
-    """
-    for p in (gt, pred):
-        if not p.exists():
-            raise InputError(f"no such file or folder: {p}")
-    if gt.is_dir() != pred.is_dir():
-        raise InputError("--gt and --pred must both be files or both be folders")
-    if not gt.is_dir():
-        check_regular(gt)
-        check_regular(pred)
-        return [FileJob(Path(gt.name), gt, data=pred)], []
-    notes: list[str] = []
-    gt_items = expand_inputs([gt], READ_SUFFIXES, notes=notes)
-    print_found_notes(f"{gt.name}/{n}" for n in notes)
-    if not gt_items:
-        raise InputError(f"no motion files ({', '.join(READ_SUFFIXES)}) found in {gt}")
-    # a prediction made from take.npz.gz is take.npz: pair them without .gz
-    notes = []
-    pred_items = expand_inputs([pred], READ_SUFFIXES, notes=notes)
-    print_found_notes(f"{pred.name}/{n}" for n in notes)
-    pred_by_rel = {strip_gz(rel): src for src, rel in pred_items}
-    jobs = [
-        FileJob(rel, src, data=pred_by_rel.get(strip_gz(rel), pred / strip_gz(rel)))
-        for src, rel in gt_items
-    ]
-    unmatched = sorted(set(pred_by_rel) - {strip_gz(rel) for _, rel in gt_items})
-    return jobs, [pred_by_rel[rel] for rel in unmatched]
 
 
 def _fmt(value: float | None) -> str:
@@ -194,6 +151,10 @@ video track's skipped frames, filled or not) are not scored; a note says
 how many, and `frames` counts those scored. Files at different frame rates are scored at the
 slower rate (the faster one resampled, with a note); lengths must match there.
 
+Two folders are paired by relative path, then by name in the same sub-folder where one file
+fits (walk.bvh with walk.npz or walk_clean.npz): a note says each pair made by name and each
+prediction left without ground truth; a file several predictions fit fails alone.
+
 \b
 Example:
   mdvae eval --gt clean/ --pred denoised/ --json > scores.json
@@ -208,7 +169,8 @@ Example:
 )  # fmt: skip
 @click.option(
     "--pred", "pred", type=click.Path(path_type=Path), required=True,
-    help="Predicted motion file or folder (folders are matched to --gt by relative path).",
+    help="Predicted motion file or folder (folders are matched to --gt by relative path, "
+    "then by name where one file fits: walk_clean.npz or walk.npz for walk.bvh).",
 )  # fmt: skip
 @body_model_option
 @click.option(
@@ -228,16 +190,23 @@ def eval_command(
     from mdvae_cli.export import as_body_model
     from mdvae_cli.metrics import common_rate, evaluate_pair, mean_result
 
-    jobs, unmatched = pair_files(gt, pred)
+    jobs, unmatched, paired = pair_files(gt, pred)
     body = as_body_model(load_body_model(body_model))
     options = ReadOptions(allow_pickle=allow_pickle, body=body.data, fps=input_fps,
                           **take_reading(asf, joint_map_file))  # fmt: skip
+    for line in paired:
+        console.print(f"[dim]note: {escape(line)}[/]", soft_wrap=True)
     for path in unmatched:
-        console.print(f"[dim]note: {escape(str(path))} has no ground truth; skipped[/]")
+        console.print(f"[dim]note: {escape(str(path))} has no ground truth; skipped[/]",
+                      soft_wrap=True)  # fmt: skip
 
     def process(job: FileJob) -> EvalResult:
+        if isinstance(job.data, NoPartner):
+            raise InputError(f"{job.source}: no prediction paired: {job.data.reason}")
         if not Path(job.data).exists():
-            raise InputError(f"{job.source}: no prediction {job.data}")
+            stem = base_name(job.relpath)
+            raise InputError(f"{job.source}: no prediction: no {job.data}, nor one named "
+                             f"{stem}.* or {stem}_*.* beside it")  # fmt: skip
         truth = one_track(read(job.source, options), track)
         guess = one_track(read(job.data, options), track)
         try:
@@ -263,7 +232,7 @@ def eval_command(
                     {
                         "file": o.job.relpath.as_posix(),
                         "gt": str(o.job.source),
-                        "pred": str(o.job.data),
+                        "pred": None if isinstance(o.job.data, NoPartner) else str(o.job.data),
                         "ok": o.ok,
                         "error": o.error,
                         "result": o.result.to_dict() if o.ok else None,
@@ -272,6 +241,7 @@ def eval_command(
                 ],
                 "mean": None if mean is None else mean.to_dict(),
                 "failed": len(report.failed),
+                "unpaired_predictions": [str(p) for p in unmatched],
                 "units": UNITS,
                 "body_model": body.data.name or body.data.kind,
             }

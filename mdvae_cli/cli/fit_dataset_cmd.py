@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from mdvae_cli.cli.batch import emit_json, note_broken_links
+from mdvae_cli.cli.batch import emit_json
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
@@ -17,7 +17,14 @@ from mdvae_cli.cli.common import (
     handle_errors,
     progress_bar,
 )
-from mdvae_cli.cli.train_shared import apply_overrides, run_options, start_config, summary_dict
+from mdvae_cli.cli.train_shared import (
+    StopAfterStep,
+    apply_overrides,
+    note_skipped_data,
+    run_options,
+    start_config,
+    summary_dict,
+)
 from mdvae_cli.errors import InputError
 
 
@@ -131,6 +138,12 @@ from mdvae_cli.errors import InputError
     "state and the random draws); distillation restarts its Adam.",
 )
 @click.option(
+    "--overwrite",
+    is_flag=True,
+    help="Start a new run in an -o folder that already holds a denoiser, replacing it "
+    "(refused otherwise); its distillation targets are reused where the networks match.",
+)
+@click.option(
     "--max-steps",
     type=click.IntRange(min=1),
     help="Stop after this many ELBO steps in this invocation (a --resume counts afresh).",
@@ -145,6 +158,7 @@ def fit_dataset(
     config_file,
     init_from,
     resume,
+    overwrite,
     max_steps,
     threads,
     body_model,
@@ -183,7 +197,7 @@ def fit_dataset(
             cfg.init_from = str(init_from)
         if body_model is not None:
             cfg.body_model = str(body_model)
-    note_broken_links(cfg.data)  # the trainer skips them
+    note_skipped_data(cfg.data)  # what the trainer skips: broken links, other formats
     if overrides.get("short_windows") is not None:
         overrides["short_windows"] = parse_lengths(overrides["short_windows"])
     apply_overrides(
@@ -199,7 +213,23 @@ def fit_dataset(
         },
         resume=resume,
     )
-    if cfg.init_from is not None and prior_path is not None:
+    fixed = {"--prior": prior_path, "--init-from": init_from, "--body-model": body_model}
+    _check_starting_point(cfg, overrides, fixed, resume)
+    with progress_bar() as progress, StopAfterStep() as stop:
+        summary = run(cfg, out_dir, resume=resume, progress=FitReporter(progress),
+                      max_steps=max_steps, overwrite=overwrite, stop_requested=stop)  # fmt: skip
+    where = f"{summary.steps} ELBO + {summary.distill_steps} distillation"
+    stop.raise_stop(where if summary.distill_steps else summary.steps, "denoiser.npz")
+    if as_json:
+        emit_json(summary_dict(summary))
+    else:
+        _print_summary(summary, out_dir)
+
+
+def _check_starting_point(cfg, overrides: dict, fixed: dict, resume: bool) -> None:
+    """InputError for options the run's starting point rules out: a prior or denoiser
+    settings beside --init-from, ``fixed`` (option -> value given) on --resume."""
+    if cfg.init_from is not None and fixed["--prior"] is not None:
         raise InputError("--init-from brings its own prior: drop --prior")
     given = [f"--{k.replace('_', '-')}" for k in ("lam", "obs_unit", "input_window")
              if overrides.get(k) is not None]  # fmt: skip
@@ -207,17 +237,9 @@ def fit_dataset(
         raise InputError(
             f"{', '.join(given)}: the denoiser --init-from starts from keeps its own settings"
         )
-    fixed = {"--prior": prior_path, "--init-from": init_from, "--body-model": body_model}
     if resume and any(v is not None for v in fixed.values()):
         named = ", ".join(k for k, v in fixed.items() if v is not None)
         raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
-    with progress_bar() as progress:
-        summary = run(cfg, out_dir, resume=resume, progress=FitReporter(progress),
-                      max_steps=max_steps)  # fmt: skip
-    if as_json:
-        emit_json(summary_dict(summary))
-    else:
-        _print_summary(summary, out_dir)
 
 
 class FitReporter:

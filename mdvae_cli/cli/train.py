@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from mdvae_cli.cli.batch import emit_json, note_broken_links
+from mdvae_cli.cli.batch import emit_json
 from mdvae_cli.cli.common import (
     NON_NEGATIVE,
     POSITIVE,
@@ -21,6 +21,7 @@ from mdvae_cli.cli.train_shared import (
     StepReporter,
     StopAfterStep,
     apply_overrides,
+    note_skipped_data,
     run_options,
     start_config,
     summary_dict,
@@ -237,7 +238,7 @@ def train_prior(
             cfg.split_file = str(split_file)
         if body_model is not None:
             cfg.body_model = str(body_model)
-    note_broken_links(cfg.data)  # the trainer skips them
+    note_skipped_data(cfg.data)  # what the trainer skips: broken links, other formats
     if overrides.get("init_from") is not None:
         overrides["init_from"] = str(overrides["init_from"])
     if overrides.get("speeds") is not None:

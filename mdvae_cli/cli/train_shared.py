@@ -14,8 +14,10 @@ from pathlib import Path
 
 import click
 
+from mdvae_cli.cli.batch import note_broken_links
 from mdvae_cli.cli.common import SEED, console
 from mdvae_cli.errors import InputError, Terminated
+from mdvae_cli.fileio import MOTION_SUFFIXES, expand_inputs
 
 
 class StepReporter:
@@ -51,6 +53,26 @@ class StepReporter:
         )
         if not console.is_terminal and info["step"] % 50 == 0:  # logs of batch jobs
             console.print(f"step {info['step']}/{total} ep {info['epoch'] + 1} {terms}")
+
+
+def note_skipped_data(paths) -> None:
+    """``note:`` lines for what the trainer leaves out of the folders among ``paths``: broken
+    links, and motion files of other formats than AMASS-style .npz (BVH, AMC, video
+    pipelines' files), which ``mdvae import`` converts."""
+    from mdvae_cli.formats.registry import READ_SUFFIXES
+
+    note_broken_links(paths)
+    folders = [Path(p) for p in paths if Path(p).is_dir()]
+    others = [f for f, _ in expand_inputs(folders, READ_SUFFIXES)
+              if not f.name.lower().removesuffix(".gz").endswith(MOTION_SUFFIXES)]  # fmt: skip
+    if others:
+        kinds = sorted({f.name.lower().removesuffix(".gz").rsplit(".", 1)[-1] for f in others})
+        console.print(
+            f"[dim]note: {len(others)} file(s) of other formats ({', '.join(kinds)}) left out: "
+            f"training reads AMASS-style .npz; `mdvae import {' '.join(map(str, folders))} -o "
+            "imported/` converts them[/]",
+            soft_wrap=True,
+        )
 
 
 def start_config(cls, run_dir: Path, resume: bool, config_file: Path | None, data=None):
@@ -172,7 +194,7 @@ class StopAfterStep:
             raise KeyboardInterrupt if signum == signal.SIGINT else Terminated
         self.signal = signum
         console.print("[yellow]stopping after this step[/] and saving a checkpoint that "
-                      "--resume continues (again to stop at once)")  # fmt: skip
+                      "--resume continues (again to stop at once)", soft_wrap=True)  # fmt: skip
 
     def __enter__(self) -> StopAfterStep:
         if threading.current_thread() is threading.main_thread():
@@ -187,9 +209,11 @@ class StopAfterStep:
                 handler = signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL
             signal.signal(s, handler)
 
-    def raise_stop(self, step: int) -> None:
-        """Exit as the caught signal would (after the run saved its checkpoint at ``step``)."""
+    def raise_stop(self, step: int | str, saved: str = "last.npz") -> None:
+        """Exit as the caught signal would (after the run saved its checkpoint ``saved`` at
+        ``step``)."""
         if self.signal is None:
             return
-        console.print(f"stopped at step {step}; the run's last.npz continues it with --resume")
+        console.print(f"stopped at step {step}; the run's {saved} continues it with --resume",
+                      soft_wrap=True)  # fmt: skip
         raise KeyboardInterrupt if self.signal == signal.SIGINT else Terminated

@@ -56,6 +56,7 @@ def fit_denoiser(
     first_step: int = 0,
     total_steps: int | None = None,
     optimizer: torch.optim.Optimizer | None = None,
+    stop_requested: Callable[[], bool] | None = None,
 ) -> list[float]:
     """Maximise the ELBO over phi, gamma, omega for ``steps`` Adam steps on ``groups``.
 
@@ -67,7 +68,8 @@ def fit_denoiser(
     (x0 alone) have nothing to fit and are left out. Returns the loss of every step; a loss
     that is not finite raises InputError before its step is taken.
     The ELBO's Monte-Carlo draws come from ``sample_generator`` (None: torch's global
-    generator, which ``mdvae fit-dataset`` seeds).
+    generator, which ``mdvae fit-dataset`` seeds). ``stop_requested()`` true after a step (a
+    Ctrl-C the command caught) ends the loop there: fewer losses than ``steps``.
     """
     device = device or torch.device("cpu")
     groups = [g for g in groups if g.moves]
@@ -98,5 +100,7 @@ def fit_denoiser(
             done = step + 1 - first_step
             progress({"step": done, "steps": steps, **{k: v.item() for k, v in terms.items()}})
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
+        if stop_requested is not None and stop_requested():
+            break
     denoiser.eval()
     return losses

@@ -69,10 +69,8 @@ class Motion:
     notes: list[str] = field(default_factory=list)
 
     def __post_init__(self):
-        T = self.root_orient.shape[0]
-        if self.pose_extra.shape[0] != T:
-            self.pose_extra = np.zeros((T, self.pose_extra.shape[1] if self.pose_extra.ndim == 2
-                                        else 0))  # fmt: skip
+        T = np.shape(self.root_orient)[0] if np.ndim(self.root_orient) else 0
+        self.pose_extra = frame_rows(self.pose_extra, int(T))
 
     @property
     def num_frames(self) -> int:
@@ -135,6 +133,23 @@ class Motion:
             pose_extra=poses[:, 66:].copy(),
             **kwargs,
         )
+
+
+def frame_rows(pose_extra, T: int) -> np.ndarray:
+    """``pose_extra`` as (T, K) rows: None or an empty array (no hands, jaw or eyes) becomes
+    (T, K) zeros, K its column count (0 for None, a 1-D or the default (0, 0) array); one with
+    values must have T rows, else InputError (one line): no hands are dropped silently."""
+    if pose_extra is None:
+        return np.zeros((T, 0))
+    if np.size(pose_extra) == 0:
+        width = np.shape(pose_extra)[1] if np.ndim(pose_extra) == 2 else 0
+        return pose_extra if np.shape(pose_extra) == (T, width) else np.zeros((T, width))
+    if np.ndim(pose_extra) < 2 or np.shape(pose_extra)[0] != T:
+        raise InputError(
+            f"pose_extra has shape {np.shape(pose_extra)}, expected ({T}, K): one row of hand, "
+            "jaw and eye axis-angles per frame (np.tile(row, (T, 1)) repeats one)"
+        )
+    return pose_extra
 
 
 def as_numpy(x) -> np.ndarray:

@@ -149,6 +149,7 @@ def distill(
     progress: Callable[[dict], None] | None = None,
     checkpoint: Callable[[int], None] | None = None,
     checkpoint_every: int = 200,
+    stop_requested: Callable[[], bool] | None = None,
 ) -> list[float]:
     """Train the encoder and the x0 predictor on ``targets`` for ``cfg.epochs`` passes.
 
@@ -158,7 +159,7 @@ def distill(
     permutation of its windows. ``done`` steps were taken before (resume: the learning-rate
     schedule and the batch order carry on where they were); ``checkpoint(step)`` is called every
     ``checkpoint_every`` steps with the number of distillation steps taken so far. Returns
-    every step's loss.
+    every step's loss; ``stop_requested()`` true after a step ends the loop there.
     """
     groups = group if isinstance(group, list) else [group]
     all_targets = targets if isinstance(targets, list) else [targets]
@@ -193,6 +194,8 @@ def distill(
         if progress is not None:
             progress({"step": step + 1, "steps": total, **{k: v.item() for k, v in terms.items()}})
         checkpoint_in_eval(denoiser, checkpoint, step + 1, checkpoint_every)
+        if stop_requested is not None and stop_requested():
+            break
     denoiser.eval()
     return losses
 

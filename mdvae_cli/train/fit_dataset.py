@@ -38,6 +38,7 @@ from mdvae_cli.train.guards import (
     check_run_folder,
     checkpoint_to_resume,
     pick_device,
+    refuse_to_overwrite,
     weights_are_finite,
 )
 from mdvae_cli.train.noisy_windows import load_noisy_windows
@@ -46,6 +47,7 @@ from mdvae_cli.train.run_state import (
     optimizer_to_tensors,
     restore_rng,
     rng_tensors,
+    seeded_run,
 )
 from mdvae_cli.weights import default_weights
 
@@ -145,6 +147,8 @@ class FitSummary:
     distill_steps: int = 0
     distill_first_loss: float = math.nan
     distill_last_loss: float = math.nan
+    #: whether a stop asked for (``stop_requested``) ended the run
+    interrupted: bool = False
 
 
 TARGETS_FILE = "distill_targets.npz"
@@ -152,13 +156,15 @@ TARGETS_FILE = "distill_targets.npz"
 RESUME_FILE = "resume.npz"
 
 
-@torch.random.fork_rng(devices=[])  # seeded inside; the caller's stream as it was
+@seeded_run  # with cfg.seed; the caller's random streams (CPU, GPUs) as they were
 def fit_dataset(
     cfg: FitConfig,
     out_dir: Path,
     resume: bool = False,
     progress: Callable[[dict], None] | None = None,
     max_steps: int | None = None,
+    overwrite: bool = False,
+    stop_requested: Callable[[], bool] | None = None,
 ) -> FitSummary:
     """Fit the inference networks to noisy files (no clean data) and save ``denoiser.npz``.
 
@@ -167,7 +173,11 @@ def fit_dataset(
     ``cfg.epochs`` of ELBO steps and ``cfg.distill.epochs`` of amortised refinement, whose
     targets are kept in ``out_dir`` (``distill_targets.npz``) for a resumed run. ``progress``
     gets every step's dict with "stage": "fit", "targets" or "distill". ``max_steps`` caps
-    the ELBO steps (tests; 0 = none). ``cfg`` is validated here (fields may have changed since
+    the ELBO steps (tests; 0 = none). A new run (not ``resume``) into a folder that holds a
+    denoiser is refused unless ``overwrite`` (distillation targets there made from the same
+    networks are reused). ``stop_requested()`` true after a step (a Ctrl-C the command
+    caught) saves where the run stands and ends it (``interrupted``): ``resume`` continues it,
+    the ELBO fit exactly. ``cfg`` is validated here (fields may have changed since
     it was made). A loss or weights that stop being finite end the run with InputError, and
     such weights are never saved.
     """
@@ -176,9 +186,14 @@ def fit_dataset(
         require_int("max_steps", max_steps, 0)
     start = time.time()
     out_dir = Path(out_dir)
+    if resume and overwrite:
+        raise InputError(
+            "--resume continues the run in the folder, --overwrite replaces it: give one"
+        )
+    if not resume:  # a denoiser there: --overwrite replaces it; a prior's run: never
+        refuse_to_overwrite(out_dir, "fit-dataset", "--overwrite", replace=overwrite)
     check_run_folder(out_dir)
     device = pick_device(cfg.device)
-    torch.manual_seed(cfg.seed)
     denoiser, done, distilled, history = _starting_point(cfg, out_dir, resume)
     if cfg.holes > 0:
         denoiser.add_hole_reader()
@@ -241,19 +256,21 @@ def fit_dataset(
         first_step=done,
         total_steps=total,
         optimizer=opt,
+        stop_requested=stop_requested,
     )
-    done += steps
+    done += len(losses) if losses else steps  # fewer when stopped
     last = {"final_loss": losses[-1]} if losses else {}
     save(done, distilled, **last)
+    asked = stop_requested or (lambda: False)
     d_losses = []
-    if cfg.distill.epochs > 0:
+    if cfg.distill.epochs > 0 and not asked():
         targets = _distill_targets(
             denoiser, groups, cfg, out_dir, steps > 0, distilled > 0, progress
         )
         d_losses = distill(
             denoiser, groups if len(groups) > 1 else groups[0],
             targets if len(groups) > 1 else targets[0], cfg.distill, cfg.seed, distilled,
-            _staged(progress, "distill"), lambda step: save(done, step),
+            _staged(progress, "distill"), lambda step: save(done, step), stop_requested=asked,
         )  # fmt: skip
         distilled += len(d_losses)
         if d_losses:
@@ -266,6 +283,7 @@ def fit_dataset(
             "distill_steps": distilled,
             "distill_losses": d_losses[:: max(1, len(d_losses) // 200)],
             "seconds": time.time() - start,
+            **({"interrupted": True} if asked() else {}),
         }
         fh.write(json.dumps(record) + "\n")
     return FitSummary(
@@ -278,6 +296,7 @@ def fit_dataset(
         distilled,
         d_losses[0] if d_losses else math.nan,
         d_losses[-1] if d_losses else math.nan,
+        bool(asked()),
     )
 
 

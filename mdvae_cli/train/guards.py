@@ -59,15 +59,27 @@ def json_safe(value):
     return value
 
 
-def refuse_to_overwrite(run_dir, names: tuple[str, ...]) -> None:
-    """InputError when ``run_dir`` already holds a run (any of ``names``): a new run there would
-    mix its files with the old one's; ``--resume`` continues it."""
-    held = [n for n in names if (Path(run_dir) / n).exists()]
-    if held:
-        raise InputError(
-            f"{run_dir} already holds a run ({', '.join(held)}): add --resume to continue it, "
-            "or give another folder"
-        )
+#: the files that mark a run folder, by the command that writes it
+RUN_FILES = {"train-prior": ("last.npz", "best.npz"), "fit-dataset": ("denoiser.npz",)}
+
+
+def refuse_to_overwrite(run_dir, command: str, option: str = "", replace: bool = False) -> None:
+    """InputError when ``run_dir`` already holds a run of ``command`` (its :data:`RUN_FILES`):
+    a new run there would mix its files with the old one's; ``--resume`` continues it, and
+    ``option`` (e.g. "--overwrite"), where the command has one, replaces it (``replace``: it was
+    given). A run of another command there is refused whatever the options: a new run would
+    overwrite its config.json, so that it could never be resumed."""
+    for other, marks in RUN_FILES.items():
+        held = [n for n in marks if (Path(run_dir) / n).exists()]
+        if held and other != command:
+            raise InputError(f"{run_dir} holds a {other} run ({', '.join(held)}): give "
+                             "another folder")  # fmt: skip
+        if held and not replace:
+            also = f", {option} to replace it" if option else ""
+            raise InputError(
+                f"{run_dir} already holds a run ({', '.join(held)}): add --resume to continue it"
+                f"{also}, or give another folder"
+            )
 
 
 def checkpoint_to_resume(run_dir, name: str) -> Path:

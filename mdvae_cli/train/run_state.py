@@ -3,6 +3,8 @@ generators, as flat tensors for :func:`mdvae_cli.model.checkpoint.save_checkpoin
 
 from __future__ import annotations
 
+import functools
+
 import torch
 
 
@@ -53,3 +55,31 @@ def restore_rng(tensors: dict[str, torch.Tensor], device: torch.device) -> None:
         torch.set_rng_state(tensors["rng/cpu"])
     if "rng/cuda" in tensors and device.type == "cuda":
         torch.cuda.set_rng_state(tensors["rng/cuda"], device)
+
+
+def seed_streams(seed: int, device: torch.device) -> None:
+    """Seed torch's CPU generator and, for a run on a GPU, every CUDA device's (as
+    ``torch.manual_seed`` does); a run on the CPU leaves the GPUs' generators alone (not even
+    a seed queued for when CUDA starts)."""
+    torch.default_generator.manual_seed(seed)
+    if device.type == "cuda":
+        torch.cuda.manual_seed_all(seed)
+
+
+def seeded_run(fn):
+    """``fn(cfg, ...)``, a training run, started with torch's generators seeded with
+    ``cfg.seed`` (:func:`seed_streams`: the GPUs' too where it runs on one) and leaving the
+    caller's as they were: the CPU's and, where CUDA is in use (by the run, or already by the
+    caller), every CUDA device's. ``cfg`` is validated first."""
+
+    @functools.wraps(fn)
+    def run(cfg, *args, **kwargs):
+        cfg.validate()
+        gpu = torch.cuda.is_available() and cfg.device != "cpu"
+        started = torch.cuda.is_available() and torch.cuda.is_initialized()
+        devices = list(range(torch.cuda.device_count())) if gpu or started else []
+        with torch.random.fork_rng(devices=devices):
+            seed_streams(cfg.seed, torch.device("cuda" if gpu else "cpu"))
+            return fn(cfg, *args, **kwargs)
+
+    return run

@@ -51,6 +51,8 @@ from mdvae_cli.train.run_state import (
     optimizer_to_tensors,
     restore_rng,
     rng_tensors,
+    seed_streams,
+    seeded_run,
 )
 from mdvae_cli.train.train_config import TRAINABLE, TrainConfig
 
@@ -69,10 +71,9 @@ def evaluate(
 ) -> dict[str, float]:
     """Validation: the full-weight loss terms with a fixed noise seed."""
     model.eval()
-    # the generators as they were afterwards (the GPU's too: a training step's noise must not
-    # restart from the validation seed every epoch)
+    # the generators as they were afterwards (the GPU's too: steps' noise goes on as it was)
     with torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
-        torch.manual_seed(1234)
+        seed_streams(1234, device)
         totals, n = _evaluate_batches(model, data, body, vertex_ids, cfg, device, batch_size)
     model.train()
     return {k: v / n for k, v in totals.items()}
@@ -187,7 +188,7 @@ def stop_now(
     return bool(late.item())
 
 
-@torch.random.fork_rng(devices=[])  # seeded inside; the caller's stream as it was
+@seeded_run  # with cfg.seed; the caller's random streams (CPU, GPUs) as they were
 def train_prior(
     cfg: TrainConfig,
     run_dir: Path,
@@ -218,14 +219,13 @@ def train_prior(
     deadline = None if max_minutes is None else start + 60.0 * max_minutes
     run_dir = Path(run_dir)
     if not resume:
-        refuse_to_overwrite(run_dir, ("last.npz", "best.npz"))
+        refuse_to_overwrite(run_dir, "train-prior")
     check_run_folder(run_dir)
     device = pick_device(cfg.device)
     dist = init_distributed(device)
     if device.type == "cuda" and dist.enabled:
         device = torch.device("cuda", dist.local_rank)
     try:
-        torch.manual_seed(cfg.seed)
         body = BodyModel(load_body_model(cfg.body_model)).to(device)
         vertex_ids = spread_vertex_ids(body.v_template.shape[0], cfg.body_vertices).to(device)
         split = Path(cfg.split_file) if cfg.split_file else None
