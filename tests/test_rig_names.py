@@ -1,7 +1,8 @@
 """Joint names as studio tools and game engines write them map onto the same SMPL joints as the
 test rig's Mixamo-style names: OptiTrack Motive, Daz Genesis 3/8, Blender Rigify deform bones,
-Maya AdvancedSkeleton (``Head_M``), VRoid (``J_Bip_C_Head``), and a prefix every joint carries
-(``mixamorig_``, ``mixamorig`` before a capital, Maya HumanIK's ``Character1_``)."""
+Maya AdvancedSkeleton (``Head_M``), VRoid (``J_Bip_C_Head``), 3ds Max CAT (``Base HumanLCalf``,
+``CATRigLLeg2``), and a prefix every joint carries (``mixamorig_``, ``mixamorig`` before a
+capital, Maya HumanIK's ``Character1_``)."""
 
 from __future__ import annotations
 
@@ -36,6 +37,21 @@ CONVENTIONS = {
                "J_Bip_{s}_Shoulder", "J_Bip_{s}_UpperArm", "J_Bip_{s}_LowerArm", "J_Bip_{s}_Hand",
                "J_Bip_{s}_UpperLeg", "J_Bip_{s}_LowerLeg", "J_Bip_{s}_Foot", "J_Bip_{s}_ToeBase"),
               ("L", "R")),
+    # 3ds Max CAT: <rig name><limb><bone>; the Base Human preset's bones, and a rig built from
+    # scratch ("CATRig": hubs, limbs LLeg / LArm with numbered bones, Ankle, Palm, Digit11)
+    "cat_base_human": (("Base HumanPelvis", "Base HumanSpine1", "Base HumanRibcage",
+                        "Base HumanNeck", "Base HumanHead", "Base Human{s}Collarbone",
+                        "Base Human{s}Upperarm", "Base Human{s}Forearm", "Base Human{s}Palm",
+                        "Base Human{s}Thigh", "Base Human{s}Calf", "Base Human{s}Foot",
+                        "Base Human{s}Toe"), ("L", "R")),
+    "cat_segments": (("CharPelvis", "CharSpine1", "CharRibcage", "CharNeck1", "CharHead",
+                      "Char{s}Collarbone", "Char{s}Upperarm1", "Char{s}Forearm1", "Char{s}Palm",
+                      "Char{s}Thigh1", "Char{s}Calf1", "Char{s}Foot", "Char{s}Toe0"),
+                     ("L", "R")),
+    "cat_from_scratch": (("CATRigHub001", "CATRigSpine1", "CATRigHub002", "CATRigSpine2",
+                          "CATRigHub003", "CATRig{s}ArmCollarbone", "CATRig{s}Arm1",
+                          "CATRig{s}Arm2", "CATRig{s}ArmPalm", "CATRig{s}Leg1", "CATRig{s}Leg2",
+                          "CATRig{s}LegAnkle", "CATRig{s}LegDigit11"), ("L", "R")),
 }  # fmt: skip
 for _prefix, _key in (("mixamorig_", "mixamo_underscore"), ("mixamorig", "mixamo_no_colon"),
                       ("Character1_", "humanik_character1")):  # fmt: skip
@@ -105,38 +121,40 @@ def test_a_prefixed_mixamo_take_imports_as_the_plain_one(tmp_path):
 
 
 def test_an_unknown_rig_names_its_own_joints_and_a_joint_map_file_fixes_it(tmp_path):
-    # 3ds Max CAT-style names: nothing known after the shared "BaseHuman " prefix but the head
-    cat = {"LeftUpLeg": "LLeg1", "LeftLeg": "LLeg2", "LeftFoot": "LLegAnkle", "LeftArm": "LArm1",
-           "LeftForeArm": "LArm2", "LeftHand": "LArmPalm", "LeftShoulder": "LArmCollarbone",
-           "LeftToeBase": "LLegDigit11"}  # fmt: skip
-    cat.update({k.replace("Left", "Right"): "R" + v[1:] for k, v in cat.items()})
-    rig = [("BaseHuman " + cat.get(n, n), p and "BaseHuman " + cat.get(p, p), off)
+    # bones numbered as made: nothing known after the shared "Rig " prefix but the head
+    order = ("UpLeg", "Leg", "Foot", "ToeBase", "Arm", "ForeArm", "Hand", "Shoulder")
+    bones = {f"{side}{b}": f"Bone{10 * k + i:02d}" for k, side in enumerate(("Left", "Right"))
+             for i, b in enumerate(order)}  # fmt: skip
+    rig = [("Rig " + bones.get(n, n), p and "Rig " + bones.get(p, p), off)
            for n, p, off in F._BVH_RIG]  # fmt: skip
-    path = tmp_path / "cat.bvh"
+    path = tmp_path / "bones.bvh"
     path.write_text(F.bvh_text().replace(F.bvh_hierarchy()[0], F.bvh_hierarchy(rig)[0]))
     code, out, err = run_cli("import", path, "-o", tmp_path / "x.npz")
     line = one_error_line(code, out, err)
     assert "no joint found for left_hip, right_hip, left_knee" in line and "head" not in line
-    assert "--joint-map" in line and "BaseHuman Head, BaseHuman LArmCollarbone" in line
-    smpl = {
-        "hip": "Leg1",
-        "knee": "Leg2",
-        "ankle": "LegAnkle",
-        "foot": "LegDigit11",
-        "shoulder": "Arm1",
-        "elbow": "Arm2",
-        "wrist": "ArmPalm",
-        "collar": "ArmCollarbone",
-    }
-    jmap = {f"{side}_{k}": f"BaseHuman {side[0].upper()}{v}" for k, v in smpl.items()
-            for side in ("left", "right")}  # fmt: skip
+    assert "--joint-map" in line and "Rig Head, Rig Bone07" in line
+    smpl = ("hip", "knee", "ankle", "foot", "shoulder", "elbow", "wrist", "collar")
+    jmap = {f"{side}_{k}": f"Rig Bone{10 * s + i:02d}" for i, k in enumerate(smpl)
+            for s, side in enumerate(("left", "right"))}  # fmt: skip
     (tmp_path / "map.json").write_text(json.dumps(jmap))
-    npz = tmp_path / "cat.npz"
+    npz = tmp_path / "bones.npz"
     code, out, err = run_cli("import", path, "-o", npz, "--joint-map", tmp_path / "map.json")
     assert code == 0, out + err
     plain = tmp_path / "plain.npz"
     assert run_cli("import", _take(tmp_path, None), "-o", plain)[0] == 0
     np.testing.assert_allclose(np.load(npz)["poses"], np.load(plain)["poses"], atol=1e-6)
+
+
+def test_a_cat_rig_imports_as_the_plain_one_without_a_joint_map(tmp_path):
+    """Before: "no joint found for left_hip, ... name them in a --joint-map FILE.json"."""
+    plain = tmp_path / "plain.npz"
+    assert run_cli("import", _take(tmp_path, None), "-o", plain)[0] == 0
+    for convention in ("cat_base_human", "cat_from_scratch"):
+        npz = tmp_path / f"{convention}.npz"
+        code, out, err = run_cli("import", _take(tmp_path, convention), "-o", npz)
+        assert code == 0, out + err
+        np.testing.assert_allclose(np.load(npz)["poses"], np.load(plain)["poses"], atol=1e-6)
+        np.testing.assert_allclose(np.load(npz)["trans"], np.load(plain)["trans"], atol=1e-6)
 
 
 def _mirrored(tmp_path, toes: bool = True):

@@ -1,7 +1,7 @@
 """What a detector or tracker leaves in a video pipeline's file: an empty track (no frames) in
 a file of several people, skipped with a note and written back as it came, the other tracks
-cleaned (``video_layout.tracks_with_frames``); NaN rows, refused in one line that says
-which (``video_tracks.where_not_finite``); a frame id listed twice, refused."""
+cleaned (``video_layout.tracks_with_frames``); NaN everywhere (nothing to fill a hole from),
+refused in one line that says which; a frame id listed twice, refused."""
 
 from __future__ import annotations
 
@@ -51,22 +51,32 @@ def test_vibe_file_of_empty_tracks_only_is_one_error_line(tmp_path):
     assert "every track is empty (no frames in 'pose')" in err and "Traceback" not in err
 
 
-def test_nan_rows_are_refused_naming_them(tmp_path):
-    """Before: "'pose' holds NaN or infinite values", with no word of where."""
+def test_nothing_to_fill_from_is_refused_naming_it(tmp_path):
+    """NaN rows are holes, filled (``test_video_holes``); a pose with no finite value, a
+    translation with none, or a joint never observed leaves nothing to fill them from: one
+    line that says which."""
     src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (vf.clip(30, seed=1), None)})
     data = load_data(src)
-    data[np.int64(0)]["pose_world"][[4, 5, 20]] = np.nan
+    good = data[np.int64(0)]["pose_world"].copy()
+    data[np.int64(0)]["pose_world"][:] = np.nan
     write_data(data, src, "joblib")
     code, _, err = run("denoise", src, "-o", tmp_path / "clean.pkl")
     assert code == 1 and len(err.strip().splitlines()) == 1
-    assert "'pose_world' holds NaN or infinite values in 3 of 30 frame(s) (rows 4, 5, 20)" in err
+    assert "'pose_world' holds NaN or infinite values in 30 of 30 frame(s)" in err
+    assert "nothing observed to fill them from" in err
+    data[np.int64(0)]["pose_world"] = good
+    data[np.int64(0)]["pose_world"][:, 15:18] = np.nan  # joint 5 in every frame
+    write_data(data, src, "joblib")
+    code, _, err = run("denoise", src, "-o", tmp_path / "clean.pkl")
+    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert "joint 5 (right_knee) in all 30 frames; a joint never observed cannot be filled" in err
     src = vf.write_hybrik(tmp_path / "res.pk", vf.clip(12, seed=2))
     res = load_data(src)
-    res["transl"][7] = np.inf
+    res["transl"][:] = np.inf
     write_data(res, src, "pickle")
     code, _, err = run("denoise", src, "-o", tmp_path / "clean.pk")
-    assert code == 1
-    assert "the track holds NaN or infinite values in 1 of 12 frame(s) (row 7)" in err
+    assert code == 1 and len(err.strip().splitlines()) == 1
+    assert "'translation' contains NaN or infinite values in every frame" in err
 
 
 def test_a_frame_id_listed_twice_is_refused_naming_the_rows(tmp_path):

@@ -1,5 +1,5 @@
 """A video track's skipped frames (gaps in its frame ids) written back as rows of the
-pipeline's own file, filled by the cleaning (``formats.video_rows.gap_rows`` and the layouts
+pipeline's own file, filled by the cleaning (``formats.video_gap_rows.gap_rows`` and the layouts
 that take them: WHAM, VIBE / PARE, ROMP, 4D-Humans / PHALP)."""
 
 from __future__ import annotations

@@ -156,6 +156,7 @@ def _imported_from_video(motion) -> bool:
 
 def _load_video(path, name, data, fps, track, body, container=None) -> LoadedFile:
     from mdvae_cli.formats.video_formats import READERS, VIDEO_FPS, read_tram
+    from mdvae_cli.formats.video_holes import track_holes
     from mdvae_cli.formats.video_tracks import track_to_motion
 
     if isinstance(data, np.ndarray) and data.dtype.hasobject and data.ndim == 0:
@@ -177,6 +178,7 @@ def _load_video(path, name, data, fps, track, body, container=None) -> LoadedFil
 
     out, document = [], VideoDocument(name, data, container=container)
     for raw in raws:
+        raw = track_holes(raw, str(path))  # NaN / inf: holes with placeholders, as in an npz
         rate = fps if fps is not None else (raw.fps or VIDEO_FPS)
         motion = track_to_motion(raw, rate, body, str(path))
         if fps is None and raw.fps is None:

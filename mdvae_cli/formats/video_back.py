@@ -11,12 +11,15 @@ value, bit for bit, as does every row it left alone. Camera-frame copies of a wo
 per-frame camera: ``R_c = R_cam R_world^T`` from the file's two roots, the new camera root
 ``R_c R_world'`` and translation ``t_cam + R_c (t_world' - t_world)``. Arrays derived from
 the old pose that would now contradict it (vertices, joints from the pose, network internals)
-are left out with a note; the pipeline's other per-frame estimates (2D and 3D keypoints it
-detected, boxes, cameras) stay as they came. Frames a WHAM, VIBE / PARE, ROMP or PHALP track
-lacks (gaps in its frame ids) get a row each, filled by the cleaning, its other arrays (betas,
-the camera its camera-frame copy follows, VIBE's weak-perspective camera and boxes, PHALP's
-per-person entries in that frame) the nearest row's (``video_rows.gap_rows_added``,
-``phalp_rows_added``).
+are left out with a note; the weak-perspective crop cameras a translation is made from
+(TRAM's ``pred_cam``, PHALP's ``camera_bbox``) are solved for the new one
+(``video_rows.crop_camera_follows``); the pipeline's other per-frame estimates (2D and 3D
+keypoints it detected, boxes) stay as they came. Where the file holds NaN / inf (holes), the
+filled values themselves go into every copy (``formats.video_holes``). Frames a WHAM,
+VIBE / PARE, ROMP or PHALP track lacks (gaps in its frame ids) get a row each, filled by the
+cleaning, its other arrays (betas, the camera its camera-frame copy follows, VIBE's
+weak-perspective camera and boxes, PHALP's per-person entries in that frame) the nearest
+row's (``video_gap_rows.gap_rows_added``, ``phalp_rows_added``).
 
     doc = loaded.document                        # formats.registry.read of a video file
     notes = write_video(doc, {label: cleaned}, Path("clean.pkl"))
@@ -38,23 +41,23 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_write import write_data
+from mdvae_cli.formats.video_gap_rows import gap_rows_added, phalp_rows_added
+from mdvae_cli.formats.video_holes import scales_in_holes, weak_camera_in_holes
 from mdvae_cli.formats.video_layout import track_items
-from mdvae_cli.formats.video_people import phalp_entries
+from mdvae_cli.formats.video_people_back import put_phalp, put_romp, put_slahmr, romp_track
 from mdvae_cli.formats.video_rows import (
     Rows,
     camera_follows,
+    crop_camera_follows,
     file_rows,
-    gap_rows_added,
-    like,
-    phalp_rows_added,
     put_axis_angle,
+    put_betas,
     put_body,
     put_matrices,
     put_root,
+    put_transl,
     row_scales,
-    shifted,
     six_d_follows,
-    stacked,
     track_ids,
 )
 from mdvae_cli.formats.video_side import side_files_copied
@@ -154,7 +157,9 @@ def put_wham(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     world = "pose_world" in d and "trans_world" in d
     pose, trans = ("pose_world", "trans_world") if world else ("pose", "trans")
     d[pose] = put_axis_angle(d[pose], rows)
-    d[trans] = shifted(d[trans], rows.shift)
+    d[trans] = put_transl(d[trans], rows)
+    if "betas" in d:
+        d["betas"] = put_betas(d["betas"], rows)
     if world and "pose" in d and "trans" in d:
         old = np.asarray(d["pose"])
         cam_root, d["trans"] = camera_follows(old.reshape(len(old), -1)[:, :3], d["trans"],
@@ -169,6 +174,9 @@ def put_vibe(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     d = _track_dict(data, raw)
     pose = np.asarray(d["pose"])
     d["pose"] = put_axis_angle(pose, rows) if pose[0].size == 72 else put_matrices(pose, rows)
+    d["betas"] = put_betas(d["betas"], rows)
+    if "orig_cam" in d and rows.fill:  # its NaN rows: the camera that places the filled pelvis
+        d["orig_cam"] = weak_camera_in_holes(d["orig_cam"], rows.transl)
     if np.any(rows.shift != 0):
         notes.append("the file stores no translation: 'orig_cam' kept as it came")
     _drop(d, ("verts", "joints3d"), "made from the old pose", notes)
@@ -176,14 +184,15 @@ def put_vibe(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 
 def put_hybrik(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     data["pred_thetas"] = put_matrices(data["pred_thetas"], rows)
+    data["pred_betas"] = put_betas(data["pred_betas"], rows)
     key = "transl" if "transl" in data else "pred_cam_root"
     for twin in ("transl_camsys", "pred_cam_root"):  # copies of transl, scaled per frame
         scale = None if twin == key or twin not in data else row_scales(data[twin], data[key])
-        if scale is not None:
-            data[twin] = shifted(data[twin], rows.shift * scale[:, None])
+        if scale is not None:  # rows a hole leaves without one: as the rows beside them
+            data[twin] = put_transl(data[twin], rows, scales_in_holes(scale))
         elif twin != key and twin in data and np.any(rows.shift != 0):
             notes.append(f"'{twin}' is no per-frame multiple of '{key}': kept as it came")
-    data[key] = shifted(data[key], rows.shift)
+    data[key] = put_transl(data[key], rows)
     kept = [k for k in ("pred_xyz_29", "pred_xyz_17", "pred_xyz_24_struct", "pred_uvd")
             if k in data]  # fmt: skip
     if kept:
@@ -193,7 +202,7 @@ def put_hybrik(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 def put_aistpp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     scale = float(np.asarray(data.get("smpl_scaling", 1.0)).reshape(-1)[0])
     data["smpl_poses"] = put_axis_angle(data["smpl_poses"], rows)
-    data["smpl_trans"] = shifted(data["smpl_trans"], rows.shift, scale)
+    data["smpl_trans"] = put_transl(data["smpl_trans"], rows, scale)
 
 
 def put_gvhmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
@@ -201,7 +210,10 @@ def put_gvhmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     params = data["smpl_params_global" if world else "smpl_params_incam"]
     params["global_orient"] = put_root(params["global_orient"], rows)
     params["body_pose"] = put_body(params["body_pose"], rows)
-    params["transl"] = shifted(params["transl"], rows.shift)
+    params["transl"] = put_transl(params["transl"], rows)
+    for part in (params, data.get("smpl_params_incam")):
+        if isinstance(part, dict) and "betas" in part:
+            part["betas"] = put_betas(part["betas"], rows)
     incam = data.get("smpl_params_incam")
     if world and isinstance(incam, dict) and {"global_orient", "transl"} <= set(incam):
         if "body_pose" in incam:
@@ -214,77 +226,25 @@ def put_gvhmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 
 def put_tram(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     """TRAM: ``pred_rotmat``, ``pred_trans``; ``pred_pose`` (the same rotations in 6D)
-    follows ``pred_rotmat`` where it is a copy of it."""
-    old = data["pred_rotmat"]
+    follows ``pred_rotmat`` where it is a copy of it, ``pred_cam`` (the weak-perspective crop
+    camera ``pred_trans`` is made from) ``pred_trans`` (``video_rows.crop_camera_follows``)."""
+    old, trans = data["pred_rotmat"], data["pred_trans"]
     data["pred_rotmat"] = put_matrices(old, rows)
-    data["pred_trans"] = shifted(data["pred_trans"], rows.shift)
+    data["pred_trans"] = put_transl(trans, rows)
+    data["pred_shape"] = put_betas(data["pred_shape"], rows)
+    if "pred_cam" in data:  # the crop camera pred_trans is made from: solved for the new one
+        cam = crop_camera_follows(data["pred_cam"], trans, data["pred_trans"], rows.fill)
+        if cam is not None:
+            data["pred_cam"] = cam
+        elif np.any(rows.shift != 0):
+            notes.append("'pred_cam' holds no crop camera of 'pred_trans' (no positive scale "
+                         "with a positive depth): kept as it came")  # fmt: skip
     if "pred_pose" in data:
         six = six_d_follows(data["pred_pose"], old, data["pred_rotmat"])
         if six is not None:
             data["pred_pose"] = six
         else:
             notes.append("'pred_pose' (6D rotations, not of 'pred_rotmat') kept as it came")
-
-
-def put_phalp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
-    """4D-Humans / PHALP: the track's rows are its entries in the frames taken in the
-    reader's order (``video_people.read_phalp``); each entry's ``smpl`` and ``camera``."""
-    for row, (frame, i) in enumerate(phalp_entries(data, raw.label)):
-        if isinstance(frame["camera"], np.ndarray):  # shared with the file as read: a copy
-            frame["camera"] = frame["camera"].copy()
-        smpl = frame["smpl"][i]
-        mats = np.concatenate([np.asarray(smpl["global_orient"]).reshape(1, 3, 3),
-                               np.asarray(smpl["body_pose"]).reshape(23, 3, 3)])  # fmt: skip
-        one = Rows(rows.root[row : row + 1], rows.body[row : row + 1],
-                   rows.transl[row : row + 1], rows.root_moved[row : row + 1],
-                   rows.body_moved[row : row + 1], rows.shift[row : row + 1])  # fmt: skip
-        new = put_matrices(mats[None], one)[0]
-        dtype = np.asarray(smpl["body_pose"]).dtype
-        smpl["global_orient"] = new[:1].reshape(np.shape(smpl["global_orient"])).astype(dtype)
-        smpl["body_pose"] = new[1:].reshape(np.shape(smpl["body_pose"])).astype(dtype)
-        frame["camera"][i] = shifted(np.asarray(frame["camera"][i])[None], one.shift)[0]
-    kept = sorted({k for f in data.values() if isinstance(f, dict)
-                   for k in ("3d_joints", "2d_joints") if k in f})  # fmt: skip
-    if kept:
-        notes.append(f"{', '.join(kept)} (the old pose's joints) kept as they came")
-
-
-def _romp_track(data: dict, raw: RawTrack) -> dict:
-    """The track's dict in a ROMP file's ``sequence_results`` (a dict in a 0-d object array)."""
-    holder = data["sequence_results"]
-    seq = holder.item() if isinstance(holder, np.ndarray) else holder
-    return next(v for k, v in seq.items() if str(k) == raw.label)
-
-
-def put_romp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
-    """ROMP / BEV: the track's per-frame entries in ``sequence_results`` (lists of arrays or
-    arrays, kept as they were); ``cam_trans`` is the translation (``video_people.read_romp``)."""
-    d = _romp_track(data, raw)
-    d["global_orient"] = like(d["global_orient"], put_root(stacked(d["global_orient"]), rows))
-    d["body_pose"] = like(d["body_pose"], put_body(stacked(d["body_pose"]), rows))
-    d["cam_trans"] = like(d["cam_trans"], shifted(stacked(d["cam_trans"]), rows.shift))
-    made = sorted(k for k in d if k == "verts" or k.startswith(("j3d", "pj2d", "joints")))
-    if made:
-        notes.append(f"{', '.join(made)} (made from the old pose) kept as they came")
-    if "results" in data:
-        notes.append("'results' (the per-image estimates) kept as they came")
-
-
-def put_slahmr(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
-    """SLAHMR: track b of its (B, T, ...) arrays (a file of one track may lack the B axis)."""
-    b, batched = int(raw.label), np.ndim(data["root_orient"]) == 3
-
-    def put(key: str, fn) -> None:
-        a = np.array(data[key], copy=True)
-        if batched:
-            a[b] = fn(a[b])
-        else:
-            a = fn(a)
-        data[key] = a
-
-    put("root_orient", lambda a: put_root(a, rows))
-    put("pose_body", lambda a: put_body(a, rows))
-    put("trans", lambda a: shifted(a, rows.shift))
 
 
 PUTTERS: dict[str, Putter] = {
@@ -347,7 +307,7 @@ def write_video(
 
 
 #: ``(data, track, before, after) -> (track, before, rows added)``: rows for the frames missing
-#: from a track's frame ids, filled (``video_rows.gap_rows_added``)
+#: from a track's frame ids, filled (``video_gap_rows.gap_rows_added``)
 RowsAdded = Callable[[Any, RawTrack, Motion, Motion], tuple[RawTrack, Motion, int]]
 
 
@@ -363,7 +323,7 @@ def _rows_in_dict(getter: Callable[[Any, RawTrack], dict], ids_key: str, leave=(
 ROWS_ADDED: dict[str, RowsAdded] = {
     "wham": _rows_in_dict(_track_dict, "frame_ids", ("verts",)),
     "vibe": _rows_in_dict(_track_dict, "frame_ids", ("verts", "joints3d")),
-    "romp": _rows_in_dict(_romp_track, "frame_id"),
+    "romp": _rows_in_dict(romp_track, "frame_id"),
     "phalp": phalp_rows_added,
 }
 

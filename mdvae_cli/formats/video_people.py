@@ -176,7 +176,8 @@ def _floor_up(data: dict, root_orient: np.ndarray) -> tuple[float, float, float]
     """SLAHMR's up: the floor plane's normal, signed to agree with the bodies' mean up. The
     plane is SLAHMR's 3-vector (its normal times its distance) or a plane's (a, b, c, d), one
     or one per track (the first is taken)."""
-    body_up = rotvec_to_rotmat(root_orient.reshape(-1, 3).astype(np.float64))[:, :, 1].mean(0)
+    rv = root_orient.reshape(-1, 3).astype(np.float64)
+    body_up = rotvec_to_rotmat(rv[np.isfinite(rv).all(1)])[:, :, 1].mean(0)  # holes: not read
     plane = np.asarray(data.get("floor_plane", CAMERA_UP), np.float64)
     if plane.ndim == 0 or plane.size == 0 or plane.shape[-1] not in (3, 4):
         raise InputError(f"'floor_plane' has shape {plane.shape}: expected (3,) (a normal) or "

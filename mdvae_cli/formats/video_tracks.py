@@ -53,7 +53,9 @@ class RawTrack:
     model: "smpl", "smplh", "smplx" or "body" (the pose layout written); pose_extra: (T, K)
     axis-angles after the body in that layout; frame_ids: (T,) video frame numbers or None
     (consecutive); observed: (T,) bool, False for frames the pipeline filled in itself (they
-    are marked unobserved in ``joint_mask``), or None; extras: per-frame (first dim T) or
+    are marked unobserved in ``joint_mask``), or None; missing: (T, 22) bool, True for the
+    joints (pelvis: with the translation) the file holds NaN / inf for, their values here
+    placeholders (``formats.video_holes``), or None; extras: per-frame (first dim T) or
     constant arrays to carry through;
     world: a ``(R (T, 3, 3), t (T, 3))`` camera-to-world transform applied before ``up`` (TRAM),
     or None; notes: remarks for the user; fps: the file's own frame rate, if it has one.
@@ -70,6 +72,7 @@ class RawTrack:
     pose_extra: np.ndarray | None = None
     frame_ids: np.ndarray | None = None
     observed: np.ndarray | None = None
+    missing: np.ndarray | None = None
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     world: tuple[np.ndarray, np.ndarray] | None = None
     notes: list[str] = field(default_factory=list)
@@ -103,7 +106,8 @@ def up_to_z(up: tuple[float, float, float] | np.ndarray) -> np.ndarray:
 
 def pose_values(x, what: str, label: str) -> np.ndarray:
     """A pose array as float64, refused in one line when it is not real numbers, has no
-    frames or holds NaN/inf (a rotation cannot be made of those)."""
+    frames or holds no finite value at all (nothing to fill from). NaN / inf in some frames
+    or joints are holes, kept as they are (``formats.video_holes``)."""
     a = np.asarray(x)
     if np.iscomplexobj(a):
         raise InputError(f"{label}: '{what}' holds complex numbers; poses must be real")
@@ -112,8 +116,9 @@ def pose_values(x, what: str, label: str) -> np.ndarray:
     a = a.astype(np.float64)
     if a.ndim >= 1 and a.shape[0] == 0:
         raise InputError(f"{label}: '{what}' has no frames")
-    if not np.isfinite(a).all():
-        raise InputError(f"{label}: '{what}' holds NaN or infinite values{where_not_finite(a)}")
+    if a.size and not np.isfinite(a).any():
+        raise InputError(f"{label}: '{what}' holds NaN or infinite values{where_not_finite(a)}; "
+                         "nothing observed to fill them from")  # fmt: skip
     return a
 
 
@@ -145,7 +150,8 @@ def rotmats(m: np.ndarray, joints: int, what: str, label: str) -> np.ndarray:
     if a.ndim < 2 or a[0].size != joints * 9:
         raise InputError(f"{label}: '{what}' has shape {a.shape}, expected (T, {joints}, 3, 3)")
     a = a.reshape(a.shape[0], joints, 3, 3)
-    det = np.linalg.det(a) if a.size else np.ones(0)
+    det = np.linalg.det(np.where(np.isfinite(a), a, 0.0)) if a.size else np.ones(0)
+    det[~np.isfinite(a).all(axis=(-2, -1))] = 1.0  # holes: filled later
     if np.any(np.abs(det - 1.0) > 0.5):  # drift is orthonormalised away; zeros are no rotation
         worst = float(det.reshape(-1)[np.argmax(np.abs(det - 1.0))])
         raise InputError(f"{label}: '{what}' holds matrices that are not rotations "
@@ -155,11 +161,13 @@ def rotmats(m: np.ndarray, joints: int, what: str, label: str) -> np.ndarray:
 
 def matrices_to_rotvecs(m: np.ndarray) -> np.ndarray:
     """Rotation matrices (..., 3, 3) (orthonormalised first: estimators' outputs drift) ->
-    axis-angles (..., 3)."""
-    u, _, vt = np.linalg.svd(m)
+    axis-angles (..., 3); NaN for a matrix with a NaN / inf (a hole)."""
+    m = np.asarray(m, np.float64)
+    ok = np.isfinite(m).all(axis=(-2, -1))
+    u, _, vt = np.linalg.svd(np.where(ok[..., None, None], m, np.eye(3)))
     d = np.sign(np.linalg.det(u @ vt))
     u[..., :, -1] *= d[..., None]
-    return rotmat_to_rotvec(u @ vt)
+    return np.where(ok[..., None], rotmat_to_rotvec(u @ vt), np.nan)
 
 
 def rest_pelvis(body: BodyModelData, betas: np.ndarray) -> np.ndarray:
@@ -211,17 +219,24 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
             f"{int((~mask[:, 0]).sum())} frame(s) the pipeline filled in itself "
             "marked unobserved in joint_mask"
         )
+    there = None if raw.missing is None else ~np.asarray(raw.missing, bool)  # (T, 22)
+    if there is not None:
+        mask = there if mask is None else mask & there
     if raw.frame_ids is not None:
+        rows_mask = mask
         root, pose_body, trans, extra, extras, gaps, ids = _fill_gaps(
             raw.frame_ids, root, pose_body, trans, extra, extras, source, raw.label
         )
-        if mask is not None:  # the pipeline's own filled frames, where they land now
-            mask = _observed_at(raw.frame_ids, raw.observed, ids) & (True if gaps is None else gaps)
+        if mask is not None:  # the file's holes and filled frames, where they land now
+            rows = np.ones((len(ids), 22), bool) if gaps is None else gaps
+            mask = _observed_at(raw.frame_ids, rows_mask, ids) & rows
+            if there is not None:  # the frames a track skips are no NaN of the file's
+                there = _observed_at(raw.frame_ids, there, ids) | ~rows
         else:
             mask = gaps
         extras["frame_ids"] = ids
         if gaps is not None:
-            missing = int((~mask[:, 0]).sum())
+            missing = int((~gaps[:, 0]).sum())
             notes.append(
                 f"{missing} missing frame(s) filled by interpolation and marked "
                 "unobserved in joint_mask"
@@ -234,7 +249,7 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         "has_gender": True,
         "key_order": ["poses", "trans", "betas", "mocap_framerate", "gender"],
     }
-    return Motion(
+    motion = Motion(
         root_orient=root,
         pose_body=pose_body,
         trans=trans,
@@ -247,17 +262,26 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
         layout=layout,
         notes=notes,
     )
+    if there is None or there.all():
+        return motion
+    from mdvae_cli.formats.npz_holes import HOLES, with_nan_holes
+
+    marked = with_nan_holes(motion, there)  # an .npz written with --fill off: NaN back
+    marked.layout.pop(HOLES)
+    return marked
 
 
 def _observed_at(src_ids, observed, ids: np.ndarray) -> np.ndarray:
-    """(T', 22) the pipeline's ``observed`` (T,) flags moved onto the consecutive frame ids
-    ``ids`` (T',) as :func:`_fill_gaps` orders them (the first of repeated ids kept); False
-    for frames absent from ``src_ids``."""
+    """(T', 22) the pipeline's ``observed`` (T,) flags (or (T, 22) per joint) moved onto the
+    consecutive frame ids ``ids`` (T',) as :func:`_fill_gaps` orders them (the first of
+    repeated ids kept); False for frames absent from ``src_ids``."""
     src = np.asarray(src_ids).reshape(-1).astype(np.int64)
     first, at = np.unique(src, return_index=True)
-    seen = np.zeros(len(ids), bool)
-    seen[first - ids[0]] = np.asarray(observed, bool)[at]
-    return np.repeat(seen[:, None], 22, axis=1)
+    flags = np.asarray(observed, bool)
+    flags = flags if flags.ndim == 2 else np.repeat(flags.reshape(-1, 1), 22, axis=1)
+    seen = np.zeros((len(ids), 22), bool)
+    seen[first - ids[0]] = flags[at]
+    return seen
 
 
 def _mean_up(root_orient: np.ndarray) -> float:

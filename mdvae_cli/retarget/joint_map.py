@@ -32,23 +32,28 @@ _N = NUM_BODY_JOINTS
 _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
 
 #: source joint names (normalised: lower case, no namespace, no ``_ - . space``) per SMPL joint;
-#: the first that exists wins. Left side only; the right is derived.
+#: the first that exists wins. Left side only; the right is derived. 3ds Max CAT names a bone
+#: <rig><limb><bone><segment> with the side glued on: its Base Human preset ``LThigh1``,
+#: ``LCalf``, ``LFoot``, ``LToe0``, ``LCollarbone``, ``LUpperarm1``, ``LForearm1``, ``LPalm``; a
+#: rig built from scratch ``LLeg1``, ``LLeg2``, ``LLegAnkle``, ``LLegDigit11``,
+#: ``LArmCollarbone``, ``LArm1``, ``LArm2``, ``LArmPalm`` (the rig's name, a prefix every bone
+#: shares, is cut by :func:`shared_prefix`; its head hub: :func:`_cat_head`)
 _ALIASES: dict[str, tuple[str, ...]] = {
     "pelvis": ("root", "hips", "pelvis", "hip"),
     "left_hip": ("lfemur", "leftupleg", "leftthigh", "lefthip", "lthigh", "lhip", "leftupperleg",
-                 "lupleg", "leftfemur", "lthighbend"),
+                 "lupleg", "leftfemur", "lthighbend", "lthigh1", "lleg1"),
     "left_knee": ("ltibia", "leftleg", "leftshin", "leftknee", "lshin", "lknee", "leftlowerleg",
-                  "leftloleg", "leftlowleg", "leftcalf"),
-    "left_ankle": ("leftankle", "lankle", "lfoot", "leftfoot"),
+                  "leftloleg", "leftlowleg", "leftcalf", "lcalf", "lcalf1", "lleg2"),
+    "left_ankle": ("leftankle", "lankle", "lfoot", "leftfoot", "llegankle"),
     "left_foot": ("ltoes", "lefttoebase", "lefttoe", "lefttoes", "ltoe", "leftforefoot",
-                  "leftball", "lefttoe0", "leftfoot"),
+                  "leftball", "lefttoe0", "leftfoot", "ltoe0", "ltoe01", "ltoe1", "llegdigit11"),
     "left_shoulder": ("lhumerus", "leftarm", "leftupperarm", "leftuparm", "lshldr", "lshldrbend",
-                      "luarm", "lshoulder", "leftshoulder"),
+                      "luarm", "lshoulder", "leftshoulder", "lupperarm", "lupperarm1", "larm1"),
     "left_collar": ("lclavicle", "leftshoulder", "leftcollar", "lcollar", "leftclavicle",
-                    "lclav", "lshoulder", "leftscapula"),
+                    "lclav", "lshoulder", "leftscapula", "lcollarbone", "larmcollarbone"),
     "left_elbow": ("lradius", "leftforearm", "leftlowerarm", "leftelbow", "lforearm", "lelbow",
-                   "leftloarm", "leftlowarm", "lforearmbend", "lfarm"),
-    "left_wrist": ("lhand", "leftwrist", "lefthand", "lwrist"),
+                   "leftloarm", "leftlowarm", "lforearmbend", "lfarm", "lforearm1", "larm2"),
+    "left_wrist": ("lhand", "leftwrist", "lefthand", "lwrist", "lpalm", "larmpalm"),
     "head": ("head", "neck1", "spine006"),
 }  # fmt: skip
 
@@ -205,6 +210,10 @@ def _find_anchors(src: SourceMotion) -> dict[str, int]:
             hit = next((norm[a] for a in names if a in norm and norm[a] not in taken), None)
             if hit is not None:
                 anchor[name] = hit
+    if "head" not in anchor:
+        head = _cat_head(src, norm, anchor)
+        if head is not None:
+            anchor["head"] = head
     missing = [name for smpl in _REQUIRED for name in _sides(smpl)
                if name not in anchor and smpl != "pelvis"]  # fmt: skip
     if missing:
@@ -221,6 +230,26 @@ def _find_anchors(src: SourceMotion) -> dict[str, int]:
         legs_and_head = [anchor["left_hip"], anchor["right_hip"], anchor["head"]]
         anchor["pelvis"] = _common_ancestor(src.parents, legs_and_head)
     return anchor
+
+
+def _cat_head(src: SourceMotion, norm: dict[str, int], anchor: dict[str, int]) -> int | None:
+    """The head of a 3ds Max CAT rig built from scratch, whose hubs are numbered as made
+    (``Hub001`` the pelvis, ``Hub002`` the ribcage, ``Hub003`` the head): of its hubs that
+    carry no arm (no shoulder below them), the deepest; None without hubs or shoulders."""
+    shoulders = [anchor[k] for k in ("left_shoulder", "right_shoulder") if k in anchor]
+    hubs = [j for name, j in norm.items() if re.fullmatch(r"hub\d+", name)]
+    if not shoulders or not hubs:
+        return None
+
+    def above(j: int) -> list[int]:
+        out = []
+        while j >= 0:
+            out.append(j)
+            j = int(src.parents[j])
+        return out
+
+    armless = [h for h in hubs if not any(h in above(s) for s in shoulders)]
+    return max(armless, key=lambda h: len(above(h)), default=None)
 
 
 def _through_zero_offsets(src: SourceMotion, j: int) -> int:
