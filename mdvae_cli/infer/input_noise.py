@@ -70,15 +70,18 @@ ONE_AXIS_MARGIN = 10.0
 
 
 def component_noise_variance(
-    values: np.ndarray, seen: np.ndarray | None = None, pooled: np.ndarray | None = None
+    values: np.ndarray,
+    seen: np.ndarray | None = None,
+    pooled: np.ndarray | None = None,
+    margin: float = ONE_AXIS_MARGIN,
 ) -> np.ndarray:
     """Each channel's noise variance, not read below the share of it that its components
     that are white noise hold: :func:`noise_variance`'s median over the pooled components
     reads a noise that sits on one axis alone (an AMC knee's one dof, a BVH joint with one
     moving channel) at the still axes' level; here each component whose third differences are
     white noise's (lag-1 correlation under :data:`WHITE_CORRELATION`) counts its own noise,
-    a third of the channel's, where that is far above the pooled median
-    (:data:`ONE_AXIS_MARGIN`). A smooth or clean channel reads as before.
+    a third of the channel's, where that is ``margin`` times the pooled median. A smooth or
+    clean channel reads as before.
 
     values: (T, C, K); seen: (T, C) bool or None; pooled: :func:`noise_variance` of the same
     values, when the caller has it -> (C,)"""
@@ -98,4 +101,4 @@ def component_noise_variance(
             d3 = np.where(ok, d3, 0.0)
         white[i] = np.dot(d3[1:], d3[:-1]) < WHITE_CORRELATION * max(np.dot(d3, d3), 1e-300)
     share = (np.where(white, per, 0.0).reshape(C, K)).sum(axis=-1) / K
-    return np.where(share > ONE_AXIS_MARGIN * pooled, share, pooled)
+    return np.where(share > margin * pooled, share, pooled)

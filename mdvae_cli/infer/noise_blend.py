@@ -40,28 +40,28 @@ from mdvae_cli.geometry.rotations import (
     rotvec_to_quat,
     rotvec_unwrap,
 )
-from mdvae_cli.infer.fill import fill_spikes
-from mdvae_cli.infer.input_noise import component_noise_variance, noise_variance
+from mdvae_cli.infer.fill import TAKE_NOISE_RAD, fill_spikes
+from mdvae_cli.infer.input_noise import ONE_AXIS_MARGIN, component_noise_variance, noise_variance
+from mdvae_cli.infer.spikes import SPIKE_FLOOR_M, SPIKE_FLOOR_RAD, spike_frames
 from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion
 
 #: the stretch over which the denoiser's change is measured (seconds)
 BLEND_SECONDS = 1.0
-#: a frame this many noise levels away from its neighbours' midpoint (and back) is a spike
-SPIKE_LEVELS = 8.0
-#: ... and at least this far from it (rad for rotations, m for the root's translation)
-SPIKE_FLOOR_RAD = 0.15
-SPIKE_FLOOR_M = 0.05
-#: the rate at which a channel whose spike threshold (SPIKE_LEVELS noise levels) is under its
-#: floor was read as clean; under it a smooth motion's third differences, which the noise is
-#: read from, grow as (CLEAN_FPS / fps)^3 (a clean 24 Hz walk's ankle reads 0.8 degrees of
-#: noise from its own motion, 0.05 at 120 Hz), and the floor with them (:func:`spike_frames`)
-CLEAN_FPS = 30.0
 #: the slow and fast bands are split by a Gaussian of this width (seconds)
 BAND_SECONDS = 0.05
 #: how many times its noise variance a band's residual must exceed before any is put back
 SLOW_MARGIN = 1.0
 FAST_MARGIN = 3.0
+#: on a take that reads noisy at 60 Hz and up, the fast band is split where the model's own
+#: samples end (its Nyquist frequency, Hz): above it the denoiser's output holds nothing of
+#: the motion, the take's residual is its noise, and a share of it put back as the band below
+#: was (the pelvis of CMU 07_01 at 120 Hz under sigma 0.1, its noise read at 0.6 of its
+#: variance) shook the whole body: acceleration 71 m/s^2 against the truth's 17
+VERY_FAST_HZ = 15.0
+#: a noisy take's translation noise on one axis (a retarget's pelvis height) is read at its
+#: share from this many times the pooled median (rotations: ``input_noise.ONE_AXIS_MARGIN``)
+TRANS_AXIS_MARGIN = 2.0
 
 
 @dataclass
@@ -86,43 +86,6 @@ def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
     hi = np.clip(np.arange(T) + h + 1, 0, T)
     n = (hi - lo).reshape(-1, *([1] * (x.ndim - 1)))
     return (c[hi] - c[lo]) / n
-
-
-def spike_frames(
-    values: np.ndarray, noise_var: np.ndarray, floor: float, fps: float = CLEAN_FPS
-) -> np.ndarray:
-    """Frames of each channel that jump away from both neighbours and back, by far more than
-    the noise and by at least ``floor`` (a fast move also bends the track, but it does not
-    come back; on a clean take the noise is tiny, and only a real glitch is that far). On a
-    clean channel (its spike threshold under the floor, scaled by :data:`CLEAN_FPS` under 30
-    Hz) a frame is also one that neither side's line leads to (:func:`missed_by_both_sides`):
-    a toe snapping back at toe-off, an ankle's peak at 24 Hz leave their neighbours' midpoint
-    too, but the frames before them lead there.
-
-    values: (T, C, 3), noise_var: (C,), fps: the values' rate -> (T, C) bool"""
-    T = values.shape[0]
-    out = np.zeros(values.shape[:2], dtype=bool)
-    if T < 3:
-        return out
-    away = np.linalg.norm(values[1:-1] - 0.5 * (values[2:] + values[:-2]), axis=-1)
-    across = np.linalg.norm(values[2:] - values[:-2], axis=-1)
-    # a frame's distance from its neighbours' midpoint: variance 1.5 s^2 per component
-    level = np.sqrt(1.5 * 3.0 * noise_var) + 1e-9
-    out[1:-1] = (away > np.maximum(SPIKE_LEVELS * level, floor)) & (away > across)
-    clean = SPIKE_LEVELS * level <= floor * max(1.0, CLEAN_FPS / fps) ** 3  # (C,)
-    if T >= 5 and clean.any():
-        out[2:-2] &= missed_by_both_sides(values, floor) | ~clean
-    return out
-
-
-def missed_by_both_sides(values: np.ndarray, floor: float) -> np.ndarray:
-    """(T - 4, C) bool: whether frame t (2 .. T-3) lies further than ``floor`` from both the
-    line through frames t-2, t-1 and the line through t+2, t+1 (extended to t).
-
-    values: (T, C, 3)"""
-    left = np.linalg.norm(values[2:-2] - (2 * values[1:-3] - values[:-4]), axis=-1)
-    right = np.linalg.norm(values[2:-2] - (2 * values[3:-1] - values[4:]), axis=-1)
-    return np.minimum(left, right) > floor
 
 
 def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
@@ -173,10 +136,12 @@ def keep_unexplained(
     fps: float,
     with_fast: bool = True,
     missing: np.ndarray | None = None,
+    very_fast: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """What of the input's difference from the denoiser's output to keep: the part its noise
     does not explain, band by band (a slow band, where the denoiser's own errors sit, and a
-    fast one, where white noise sits), and nothing at the input's spikes nor where it has no
+    fast one, where white noise sits; with ``very_fast`` at 60 Hz and up, the fast one split
+    at :data:`VERY_FAST_HZ`), and nothing at the input's spikes nor where it has no
     value. A long take goes :data:`BLEND_PIECE` frames at a time, each with the frames either
     side that its bands and shares read (the same values as the take at once, to rounding).
 
@@ -188,13 +153,14 @@ def keep_unexplained(
     # residual a kernel's radius further
     halo = len(gaussian_coefficients(BAND_SECONDS * fps)) // 2 + _blend_width(fps) // 2 + 1
     if T <= BLEND_PIECE + 2 * halo:
-        return _keep_unexplained(residual, noise_var, spikes, fps, with_fast, missing)
+        return _keep_unexplained(residual, noise_var, spikes, fps, with_fast, missing, very_fast)
     kept, share = np.empty(residual.shape), np.empty(residual.shape[:2])
     for a in range(0, T, BLEND_PIECE):
         b = min(a + BLEND_PIECE, T)
         lo, hi = max(0, a - halo), min(T, b + halo)
+        holes = None if missing is None else missing[lo:hi]
         part = _keep_unexplained(residual[lo:hi], noise_var, spikes[lo:hi], fps, with_fast,
-                                 None if missing is None else missing[lo:hi])  # fmt: skip
+                                 holes, very_fast)  # fmt: skip
         kept[a:b], share[a:b] = part[0][a - lo : b - lo], part[1][a - lo : b - lo]
     return kept, share
 
@@ -211,29 +177,52 @@ def _keep_unexplained(
     fps: float,
     with_fast: bool,
     missing: np.ndarray | None,
+    very_fast: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`keep_unexplained` on the frames given, at once."""
     r = np.where(spikes[..., None], 0.0, residual)
     kernel = gaussian_coefficients(BAND_SECONDS * fps)
-    if missing is None:
-        slow = smooth_in_time(r, kernel)
-    else:  # the input's values alone make the slow band beside a hole (no pull to zero)
-        seen3 = (~missing).astype(float)[..., None]
-        slow = smooth_in_time(r * seen3, kernel) / np.maximum(smooth_in_time(seen3, kernel), 1e-6)
-        r, slow = r * seen3, slow * seen3
+    seen3 = None if missing is None else (~missing).astype(float)[..., None]
+    if seen3 is not None:  # the input's values alone make the bands beside a hole
+        r = r * seen3
+    slow = _smooth_seen(r, kernel, seen3)
     fast = r - slow
     # white noise's variance in each band, per unit of input noise variance
     delta = np.zeros_like(kernel)
     delta[len(kernel) // 2] = 1.0
     width = _blend_width(fps)
     slow_noise = SLOW_MARGIN * noise_var * (kernel**2).sum()
-    fast_noise = FAST_MARGIN * noise_var * ((delta - kernel) ** 2).sum()
     seen = None if missing is None else (~missing).astype(float)
     keep_slow = kept_share((slow**2).mean(-1), slow_noise, width, seen)
     if not with_fast:
         return keep_slow[..., None] * slow, keep_slow
-    keep_fast = kept_share((fast**2).mean(-1), fast_noise, width, seen)
-    return keep_slow[..., None] * slow + keep_fast[..., None] * fast, keep_slow
+    split = np.sqrt(np.log(2.0)) / (2.0 * np.pi * VERY_FAST_HZ) * fps  # half power there
+    if (
+        not very_fast
+        or fps < 4.0 * VERY_FAST_HZ
+        or len(gaussian_coefficients(split)) >= len(kernel)
+    ):
+        bands = [(fast, delta - kernel)]
+    else:
+        inner = gaussian_coefficients(split)
+        below = _smooth_seen(r, inner, seen3)
+        inner = np.pad(inner, (len(kernel) - len(inner)) // 2)  # the gains, tap by tap
+        bands = [(below - slow, inner - kernel), (r - below, delta - inner)]
+    out = keep_slow[..., None] * slow
+    for band, gain in bands:
+        keep = kept_share(
+            (band**2).mean(-1), FAST_MARGIN * noise_var * (gain**2).sum(), width, seen
+        )
+        out += keep[..., None] * band
+    return out, keep_slow
+
+
+def _smooth_seen(r: np.ndarray, kernel: np.ndarray, seen3: np.ndarray | None) -> np.ndarray:
+    """``smooth_in_time`` of r (T, C, 3) over the frames where ``seen3`` (T, C, 1) is 1 alone
+    (no pull to zero beside a hole), zero where it is 0; all frames when None."""
+    if seen3 is None:
+        return smooth_in_time(r, kernel)
+    return smooth_in_time(r, kernel) / np.maximum(smooth_in_time(seen3, kernel), 1e-6) * seen3
 
 
 def blend_rotations(
@@ -259,9 +248,10 @@ def _blend_rotations(
     fps: float,
     fast: bool,
     missing: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`blend_rotations`, and the source's unwrapped rotation vectors it read the noise
-    from (T, J, 3), which the spikes' fill reads again."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+    """:func:`blend_rotations`, the source's unwrapped rotation vectors it read the noise
+    from (T, J, 3), which the spikes' fill reads again, and whether the take reads as noisy
+    (:func:`noisy_take`)."""
     src = torch.as_tensor(source, dtype=torch.float64)
     den = torch.as_tensor(denoised, dtype=torch.float64)
     conjugate = torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
@@ -281,14 +271,16 @@ def _blend_rotations(
         # an unwrapped vector past half a turn gives the flipped quaternion (w < 0) back
         before = (s[-1:], rotvec_to_quat(flipped[-1:]))
     seen = None if missing is None else ~missing
-    noise = noise_variance(unwrapped, seen)  # (J,)
+    pooled = noise_variance(unwrapped, seen)  # (J,)
+    noisy = noisy_take(pooled)
+    # the noise of a joint whose noise sits on one axis (an AMC knee's one dof) is read there:
+    # read at its still axes' level, a noisy knee's every tenth frame reads as a spike
+    noise = component_noise_variance(unwrapped, seen, pooled)
     spikes = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD, fps)
     if missing is not None:
         spikes = spikes & ~missing
     # the residual's mean square over its components holds the noise's mean over them
-    kept, share = keep_unexplained(
-        residual, component_noise_variance(unwrapped, seen, noise), spikes, fps, fast, missing
-    )
+    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing, noisy)
     out = np.empty(src.shape)
     # the denoised quaternions are made again chunk by chunk rather than kept whole: on a long
     # take a whole array of them is a large share of the peak memory, and cheap to make
@@ -296,7 +288,13 @@ def _blend_rotations(
         frames = slice(a, a + CACHE_FRAMES)
         q_kept = rotvec_to_quat(torch.as_tensor(kept[frames]))
         out[frames] = quat_to_rotvec(quat_multiply(rotvec_to_quat(den[frames]), q_kept)).numpy()
-    return out, share, spikes, unwrapped
+    return out, share, spikes, unwrapped, noisy
+
+
+def noisy_take(noise_var: np.ndarray) -> bool:
+    """Whether a take reads as noisy: the median of its joints' noise variances (J,) over
+    ``infer.fill.TAKE_NOISE_RAD`` squared (a clean take's is 0.0005-0.0084 rad)."""
+    return bool(len(noise_var)) and float(np.median(noise_var)) > TAKE_NOISE_RAD**2
 
 
 def blend_translation(
@@ -305,17 +303,21 @@ def blend_translation(
     fps: float,
     fast: bool = True,
     missing: np.ndarray | None = None,
+    noisy: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The root translation, blended as :func:`blend_rotations` does.
 
-    source, denoised: (T, 3); missing: (T,) bool or None -> (blended (T, 3), slow share put
-    back (T,), spikes (T,))"""
+    source, denoised: (T, 3); missing: (T,) bool or None; noisy: whether the take's rotations
+    read as noisy (:func:`noisy_take`: its noise on one axis read at its share from
+    :data:`TRANS_AXIS_MARGIN` times the pooled median, and its very fast band split off) ->
+    (blended (T, 3), slow share put back (T,), spikes (T,))"""
     seen = None if missing is None else ~missing[:, None]
-    noise = noise_variance(source[:, None, :], seen)  # (1,)
+    margin = TRANS_AXIS_MARGIN if noisy else ONE_AXIS_MARGIN
+    noise = component_noise_variance(source[:, None, :], seen, margin=margin)  # (1,)
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M, fps)
     kept, share = keep_unexplained(
         (source - denoised)[:, None, :], noise, spikes, fps, fast,
-        None if missing is None else missing[:, None],
+        None if missing is None else missing[:, None], noisy,
     )  # fmt: skip
     return denoised + kept[:, 0], share[:, 0], spikes[:, 0]
 
@@ -333,7 +335,8 @@ def source_spikes(source: Motion, joints: list[int] | None = None) -> np.ndarray
     seen = observed(source)
     rot = torch.as_tensor(source.joint_rotations[:, cols], dtype=torch.float64)
     unwrapped = rotvec_unwrap(rot, dim=0).numpy()
-    noise = noise_variance(unwrapped, seen[:, cols])
+    pooled = noise_variance(unwrapped, seen[:, cols])
+    noise = component_noise_variance(unwrapped, seen[:, cols], pooled)
     out[:, cols] = spike_frames(unwrapped, noise, SPIKE_FLOOR_RAD, source.fps) & seen[:, cols]
     trans = np.asarray(source.trans, np.float64)[:, None, :]
     noise_t = noise_variance(trans, seen[:, :1])
@@ -354,13 +357,16 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
     rot_src = source.joint_rotations
     rot_den = denoised.joint_rotations
     missing = None if source.joint_mask is None else ~np.asarray(source.joint_mask, bool)
-    rot, share, spikes, unwrapped = _blend_rotations(rot_src, rot_den, source.fps, fast, missing)
+    rot, share, spikes, unwrapped, noisy = _blend_rotations(
+        rot_src, rot_den, source.fps, fast, missing
+    )
     trans, _, trans_spikes = blend_translation(
         np.asarray(source.trans, np.float64),
         np.asarray(denoised.trans, np.float64),
         source.fps,
         fast,
         None if missing is None else missing[:, 0],
+        noisy,
     )
     dtype = denoised.pose_body.dtype
     out = denoised.with_body(
