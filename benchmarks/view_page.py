@@ -51,7 +51,7 @@ FPS = 30.0
 def concatenate(motions: Sequence[Motion], frames: int) -> Motion:
     """``frames`` frames of the motions one after another (at 30 Hz), each moved so that it
     starts where the one before ended (the first one's shape for all)."""
-    parts, rot, body, trans, end = [], [], [], [], None
+    parts, rot, body, extra, trans, end = [], [], [], [], [], None
     for m in motions:
         m = resample_motion(m, FPS)
         t = m.trans.copy()
@@ -60,6 +60,7 @@ def concatenate(motions: Sequence[Motion], frames: int) -> Motion:
         end = t[-1, :2]
         rot.append(m.root_orient)
         body.append(m.pose_body)
+        extra.append(m.pose_extra)
         trans.append(t)
         parts.append(m.num_frames)
         if sum(parts) >= frames:
@@ -69,6 +70,7 @@ def concatenate(motions: Sequence[Motion], frames: int) -> Motion:
         root_orient=np.concatenate(rot)[:frames],
         pose_body=np.concatenate(body)[:frames],
         trans=np.concatenate(trans)[:frames],
+        pose_extra=np.concatenate(extra)[:frames],
     )
 
 
@@ -89,7 +91,9 @@ def long_take(frames: int, corpus: Path | None) -> tuple[Motion, str]:
     walk = load_motion(REPO / "examples/walk.npz")
     cycle = np.concatenate([np.arange(walk.num_frames), np.arange(walk.num_frames - 2, 0, -1)])
     idx = np.resize(cycle, frames)
-    take = walk.with_body(walk.root_orient[idx], walk.pose_body[idx], walk.trans[idx])
+    take = walk.with_body(
+        walk.root_orient[idx], walk.pose_body[idx], walk.trans[idx], walk.pose_extra[idx]
+    )
     return take, "examples/walk.npz played forth and back"
 
 

@@ -3,6 +3,7 @@ native-rate path around the 30 Hz denoiser (infer.denoise.to_model_rate / to_inp
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -157,12 +158,14 @@ def test_a_high_rate_take_keeps_its_own_motion_between_the_model_samples():
     and with its own acceleration (within 10 %), with no frozen tail."""
     walk = _walk()
     src = np.arange((walk.num_frames - 1) * 4 + 1) / 4.0
-    fast = walk.with_body(
+    fast = dataclasses.replace(
+        walk,
         root_orient=interp_cubic(walk.root_orient, src),
         pose_body=interp_cubic(walk.pose_body, src),
         trans=interp_cubic(walk.trans, src),
+        pose_extra=np.zeros((len(src), walk.pose_extra.shape[1])),
+        fps=120.0,
     )
-    fast = type(walk)(**{**fast.__dict__, "fps": 120.0})
     body = BodyModel(load_body_model(None))
     den, _ = load_denoiser(None)
     out = denoise_motions([fast], den, body, refine=RefineConfig(steps=0), blend=True)[0]

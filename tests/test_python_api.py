@@ -165,6 +165,21 @@ def test_hands_of_the_wrong_length_are_refused_not_zeroed():
     assert Motion(**body, pose_extra=np.zeros((0, 90))).pose_extra.shape == (T, 90)
 
 
+def test_with_body_to_another_frame_count_carries_the_hands_it_is_given():
+    hands = Motion(root_orient=np.zeros((5, 3)), pose_body=np.zeros((5, 21, 3)),
+                   trans=np.zeros((5, 3)), betas=np.zeros(10), fps=30.0,
+                   pose_extra=np.ones((5, 90)))  # fmt: skip
+    with pytest.raises(InputError, match=r"changes the frame count \(5 -> 3\).*pose_extra="):
+        hands.with_body(np.zeros((3, 3)), np.zeros((3, 21, 3)), np.zeros((3, 3)))
+    cut = hands.with_body(np.zeros((3, 3)), np.zeros((3, 21, 3)), np.zeros((3, 3)),
+                          np.full((3, 90), 2.0))  # fmt: skip
+    assert cut.pose_extra.shape == (3, 90) and cut.pose_extra.sum() == 3 * 90 * 2.0
+    bare = Motion(root_orient=np.zeros((5, 3)), pose_body=np.zeros((5, 21, 3)),
+                  trans=np.zeros((5, 3)), betas=np.zeros(10), fps=30.0)  # fmt: skip
+    longer = bare.with_body(np.zeros((8, 3)), np.zeros((8, 21, 3)), np.zeros((8, 3)))
+    assert longer.pose_extra.shape == (8, 0)  # no hands: nothing to carry
+
+
 def test_the_body_model_poses_numpy_arrays():
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel

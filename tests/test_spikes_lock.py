@@ -30,6 +30,7 @@ def static_take_with_spike(joint: int, T: int = 90, at: int = 45):
         root_orient=np.repeat(walk.root_orient[:1], T, 0),
         pose_body=np.repeat(walk.pose_body[:1], T, 0),
         trans=np.repeat(walk.trans[:1], T, 0),
+        pose_extra=np.repeat(walk.pose_extra[:1], T, 0),
     )
     spiky = still.with_body()
     spiky.pose_body = still.pose_body.copy()

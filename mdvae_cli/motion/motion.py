@@ -101,13 +101,27 @@ class Motion:
         are not copied).  -> (n, 22, 3)"""
         return np.concatenate([self.root_orient[frames][:, None], self.pose_body[frames]], axis=1)
 
-    def with_body(self, root_orient=None, pose_body=None, trans=None) -> Motion:
-        """A copy with some body parameters replaced (same T)."""
+    def with_body(self, root_orient=None, pose_body=None, trans=None, pose_extra=None) -> Motion:
+        """A copy with some body parameters replaced. A new frame count needs ``pose_extra``
+        for the new frames too, where the motion has hands (else InputError: they are never
+        dropped silently)."""
+        root_orient = self.root_orient if root_orient is None else root_orient
+        if pose_extra is None:
+            pose_extra = self.pose_extra
+            T = len(root_orient)
+            if T != self.num_frames and pose_extra.shape[1]:
+                raise InputError(
+                    f"with_body changes the frame count ({self.num_frames} -> {T}) of a motion "
+                    "with hands: pass pose_extra= for the new frames"
+                )
+            if T != self.num_frames:
+                pose_extra = np.zeros((T, 0))
         return replace(
             self,
-            root_orient=self.root_orient if root_orient is None else root_orient,
+            root_orient=root_orient,
             pose_body=self.pose_body if pose_body is None else pose_body,
             trans=self.trans if trans is None else trans,
+            pose_extra=pose_extra,
             extras=dict(self.extras),
             layout=dict(self.layout),
             notes=list(self.notes),
