@@ -181,6 +181,10 @@ def common_rate(gt: Motion, pred: Motion) -> tuple[Motion, Motion, str | None]:
     rate = min(gt.fps, pred.fps)
     which = "ground truth" if gt.fps > pred.fps else "prediction"
     fast = max(gt.fps, pred.fps)
+    end = {
+        "ground truth": (gt.num_frames - 1) / gt.fps,
+        "prediction": (pred.num_frames - 1) / pred.fps,
+    }
     gt, pred = resample_motion(gt, rate), resample_motion(pred, rate)
     if abs(gt.num_frames - pred.num_frames) > 1:
         raise InputError(
@@ -188,8 +192,13 @@ def common_rate(gt: Motion, pred: Motion) -> tuple[Motion, Motion, str | None]:
             f"{pred.num_frames / rate:.2f} s (at {rate:g} fps)"
         )
     n = min(gt.num_frames, pred.num_frames)
+    note = f"evaluated at {rate:g} fps: the {which} resampled from {fast:g} fps"
+    if gt.num_frames != pred.num_frames:  # one frame past the other's end: said, not scored
+        longer, shorter = ("ground truth", "prediction")[:: 1 if gt.num_frames > n else -1]
+        note += (f"; the {longer}'s last frame ({n / rate:.3f} s) is past the {shorter}'s "
+                 f"end ({end[shorter]:.3f} s): not scored")  # fmt: skip
     gt, pred = slice_frames(gt, 0, n), slice_frames(pred, 0, n)
-    return gt, pred, f"evaluated at {rate:g} fps: the {which} resampled from {fast:g} fps"
+    return gt, pred, note
 
 
 def scored_frames(gt: Motion, pred: Motion) -> np.ndarray:

@@ -149,7 +149,9 @@ The mean row weights every frame equally (skate: every contact pair; float:
 every foot-frame down). Frames missing in either file (holes: NaN rows, a
 video track's skipped frames, filled or not) are not scored; a note says
 how many, and `frames` counts those scored. Files at different frame rates are scored at the
-slower rate (the faster one resampled, with a note); lengths must match there.
+slower rate (the faster one resampled, with a note); lengths must match there, but for
+a last frame past the other file's end, which the note says is not scored (31 frames at
+24 fps against their 38 at 30 fps: 30 scored).
 
 Two folders are paired by relative path, then by name in the same sub-folder where one file
 fits (walk.bvh with walk.npz or walk_clean.npz): a note says each pair made by name and each

@@ -10,7 +10,10 @@ places the frames a file lists by their numbers:
 * numbers out of order are taken in the order of their numbers (a note says where);
 * a number listed twice is refused, in one line naming the number and both lines;
 * a take whose first number is not 1 keeps its numbering; numbers spanning far more frames
-  than the file holds (``1 2 3 900000``) are refused, as for a video track's frame ids.
+  than the file holds (``1 2 3 900000``) are refused, as for a video track's frame ids;
+* numbers that step by k > 1 throughout (``1 3 5 7``: every 2nd frame of a capture kept) are
+  consecutive frames, not holes (``FramePlan.step``; the reader takes the rate as 1/k of the
+  assumed one).
 
 A last frame the reader dropped (cut off mid-way) takes no part: it stays last, to be written
 back as it was.
@@ -34,7 +37,8 @@ class FramePlan:
     source: (R,) int, the file frame (in file order) of each row, -1 for an added one.
     numbers: (R,) the frame numbers as written (an added row's as ``str``). added: (R,) bool,
     True for a frame the file lacks. T: the rows a motion holds (all but a cut-off frame).
-    notes: what the user is told (frames sorted, frames missing).
+    notes: what the user is told (frames sorted, frames missing). step: the step of numbers
+    that step by more than 1 throughout (every k-th frame of a capture), else 1.
     """
 
     source: np.ndarray
@@ -42,6 +46,7 @@ class FramePlan:
     added: np.ndarray
     T: int
     notes: list[str] = field(default_factory=list)
+    step: int = 1
 
     @property
     def changed(self) -> bool:
@@ -80,6 +85,11 @@ def arrange_frames(
     if complete == 0:
         return FramePlan(np.arange(F), list(numbers), np.zeros(F, bool), 0, notes)
     low, high = ints[order[0]], ints[order[-1]]
+    step = even_step([ints[i] for i in order])
+    if step > 1:  # every k-th frame of a capture: consecutive frames, not holes
+        rows = np.array(order + list(range(complete, F)), dtype=np.int64)
+        return FramePlan(rows, [numbers[i] for i in rows], np.zeros(F, bool), complete, notes,
+                         step)  # fmt: skip
     span = high - low + 1
     if span > 20 * complete + 1000:  # checked before any row is made
         raise InputError(
@@ -95,6 +105,13 @@ def arrange_frames(
     cut = np.arange(complete, F)  # a cut-off last frame stays last
     return FramePlan(np.concatenate([source, cut]), rows + [numbers[i] for i in cut],
                      np.concatenate([added, np.zeros(len(cut), bool)]), span, notes)  # fmt: skip
+
+
+def even_step(ints: list[int]) -> int:
+    """The step of sorted frame numbers (F,) that step by one k > 1 throughout (three frames
+    at least, ``1 3 5``), else 1."""
+    steps = set(np.diff(ints).tolist())
+    return steps.pop() if len(ints) >= 3 and len(steps) == 1 and min(steps) > 1 else 1
 
 
 def describe_gaps(first: int, added: np.ndarray) -> str:

@@ -129,13 +129,13 @@ def parse_asf(text: str, path: str = "<asf>") -> AsfSkeleton:
         if needed not in sections:
             raise InputError(f"{path}: not an ASF skeleton (no :{needed} section)")
 
-    units = dict(_key_values(sections.get("units", []), path))
+    units = _units(sections.get("units", []))
     length_unit = None
     if "length" in units:
         length_unit = float(_floats(units["length"][:1], "units length", path, 1)[0])
         if not length_unit > 0:
             raise InputError(f"{path}: :units length must be > 0")
-    angle = units.get("angle", ["deg"])[0].lower()
+    angle = _first(units.get("angle", ["deg"]), ":units angle", path).lower()
     if angle not in ("deg", "rad"):
         raise InputError(f"{path}: unknown angle unit {angle!r}")
 
@@ -144,7 +144,9 @@ def parse_asf(text: str, path: str = "<asf>") -> AsfSkeleton:
     for ch in root_order:
         if ch not in _DOF_NAMES[:6]:
             raise InputError(f"{path}: unknown root channel {ch!r}")
-    root_axis = _axis_order(root.get("axis", ["XYZ"])[0], "the root", path)
+    root_axis = _axis_order(
+        _first(root.get("axis", ["XYZ"]), "the root's axis", path), "the root", path
+    )
     position = _floats(root.get("position", ["0", "0", "0"]), "root position", path, 3)
     orientation = _floats(root.get("orientation", ["0", "0", "0"]), "root orientation", path, 3)
 
@@ -210,6 +212,22 @@ def _key_values(lines: list[str], path: str):
         yield words[0].lower(), words[1:]
 
 
+def _units(lines: list[str]) -> dict[str, list[str]]:
+    """The ``:units`` section, a value per line or all on one (``mass 1.0 length 0.45 angle
+    deg``): unit name -> [value] ([] for a name with none)."""
+    out: dict[str, list[str]] = {}
+    for words in (ln.split() for ln in lines):
+        out.update((words[i].lower(), words[i + 1 : i + 2]) for i in range(0, len(words), 2))
+    return out
+
+
+def _first(values: list[str], what: str, path: str) -> str:
+    """The first of a field's values; InputError when the field has none."""
+    if not values:
+        raise InputError(f"{path}: {what} has no value")
+    return values[0]
+
+
 def _bone(block: list[str], path: str) -> AsfBone:
     fields: dict[str, list[str]] = {}
     for ln in block:
@@ -217,7 +235,7 @@ def _bone(block: list[str], path: str) -> AsfBone:
         key = words[0].lower()
         if not key.startswith("("):  # "(" lines continue 'limits'
             fields[key] = words[1:]
-    name = fields.get("name", [None])[0]
+    name = (fields.get("name") or [None])[0]
     if not name:
         raise InputError(f"{path}: a bone block has no name")
     for needed in ("direction", "length"):

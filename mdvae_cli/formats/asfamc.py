@@ -102,8 +102,8 @@ def dof_rotation(C: np.ndarray, radians: np.ndarray, axes: str) -> np.ndarray:
 
 def _read_amc_values(text: str, layout: dict[str, int], path: str):
     """Frame values per bone: {name: (T, n)}, the angle unit if the header says one, notes on
-    frames that lacked bones, and the :class:`AmcLayout` fields (header, frames, bones,
-    tokens, frames read).
+    frames that lacked bones, the :class:`AmcLayout` fields (header, frames, bones,
+    tokens, frames read) and the step of the frame numbers (``amc_frames.even_step``).
 
     A fast path handles files whose frames all list the same bones in the same order (CMU);
     other files go through a line-by-line reader.
@@ -154,7 +154,8 @@ def _read_amc_values(text: str, layout: dict[str, int], path: str):
         values, written, listed = apply_plan(plan, values, written, listed)
         numbers, T = plan.numbers, plan.T
     notes += plan.notes
-    return values, degrees, notes, (header, newline, numbers, listed, written, plan.added, T)
+    kept = (header, newline, numbers, listed, written, plan.added, T)
+    return values, degrees, notes, kept, plan.step
 
 
 def _number_lines(lines: list[str], start: int):
@@ -256,13 +257,14 @@ def _slow_amc(lines: list[str], layout: dict[str, int], path: str):
 def load_amc(
     path: Path | str,
     skeleton: AsfSkeleton | Path | str,
-    fps: float = 120.0,
+    fps: float | None = None,
     scale: float | None = None,
     max_frames: int | None = None,
 ) -> SourceMotion:
     """Read an ``.amc`` (or ``.amc.gz``) motion on an ASF skeleton into a :class:`SourceMotion`.
 
     fps: AMC files do not store their rate; CMU's are 120 (60 for some subjects, see ``cmu``).
+        None assumes 120, or 120 / k for frames numbered every k-th (``1 3 5 ...``).
     scale: metres per file unit; None follows the ASF's ``:units length`` (Acclaim/CMU inches).
     max_frames: keep only the first frames (for quick looks and tests).
     """
@@ -274,7 +276,14 @@ def load_amc(
         raise InputError(f"{path}: this is an ASF skeleton, not an AMC motion")
     layout = {"root": len(skeleton.root_order)}
     layout.update({name: len(b.dofs) for name, b in skeleton.bones.items()})
-    file_values, amc_degrees, amc_notes, kept = _read_amc_values(text, layout, path)
+    file_values, amc_degrees, amc_notes, kept, step = _read_amc_values(text, layout, path)
+    assumed = fps is None
+    fps = 120.0 / step if assumed else fps
+    if step > 1:
+        rate = f"{fps:g} fps" + (f" (120 / {step} assumed)" if assumed else "")
+        amc_notes.append(f"frame numbers step by {step} throughout ({', '.join(kept[2][:3])}, "
+                         f"...): one frame in {step} of a capture, read as consecutive frames "
+                         f"at {rate}, not as holes")  # fmt: skip
     if not any(kept[3]):  # the bones each frame lists: none in any frame
         raise InputError(f"{path}: frame numbers but no bone lines: the AMC holds no motion")
     degrees = skeleton.degrees if amc_degrees is None else amc_degrees

@@ -40,6 +40,16 @@ from mdvae_cli.formats.source import (
 _CMUCONVERT_SIGNATURE = {"LHipJoint", "RHipJoint", "LowerBack", "LeftFingerBase"}
 
 
+def _is_added_pose(channels, row) -> bool:
+    """Whether a frame is a pose set by hand, as the cmuconvert release's added T-pose frame 0
+    (every rotation a whole number of degrees: 0, -21, 8, ...), not a captured one.
+
+    channels: (C,) (joint, kind, axis); row: (C,) one frame's values.
+    """
+    angles = np.array([v for (_, kind, _), v in zip(channels, row, strict=True) if kind == "r"])
+    return bool(np.all(np.abs(angles - np.round(angles)) < 1e-6))
+
+
 @dataclass
 class BvhLayout:
     """What it takes to write a BVH file again on its own skeleton.
@@ -196,7 +206,8 @@ def load_bvh(
 
     scale: metres per file unit; None guesses it from the skeleton's height (m, cm, mm, inches
         or CMU units) and uses CMU units for the cmuconvert release.
-    drop_first: drop frame 0; None drops it for cmuconvert files (where it is an added T-pose).
+    drop_first: drop frame 0; None drops it for cmuconvert files whose frame 0 is the T-pose
+        that release adds (a take trimmed or resampled on that rig keeps its frame 0).
     max_frames: read at most this many frames (after the drop), for quick looks and tests.
 
     The file may be gzipped (by name, any case, or by its first bytes), UTF-8 or not (read as
@@ -255,7 +266,7 @@ def load_bvh(
     notes: list[str] = []
     cmuconvert = _CMUCONVERT_SIGNATURE <= set(names)
     if drop_first is None:
-        drop_first = cmuconvert
+        drop_first = cmuconvert and _is_added_pose(channels, data[0])
     rows = layout.rows
     if drop_first:
         data, rows = data[1:], rows[1:]

@@ -358,7 +358,7 @@ def load_source(
     elif name.endswith(".amc"):
         if skeleton is None:
             raise InputError(f"{path}: an AMC motion needs its ASF skeleton (pass --asf)")
-        src = load_amc(path, skeleton, scale=scale, max_frames=max_frames)
+        src = load_amc(path, skeleton, fps=fps, scale=scale, max_frames=max_frames)  # no rate
     else:
         raise InputError(f"{path}: not a .bvh or .amc file")
     if joint_map:

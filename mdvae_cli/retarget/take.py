@@ -209,14 +209,25 @@ def write_take(
     if as_read:
         _restore_missing(take, values)
     write_amc(take.source.layout, values, out, forbid=forbid, gaps=not as_read)
-    if take.skeleton_file is not None:
-        copy = out.parent / take.skeleton_file.name
-        if not copy.exists():
-            asf = take.skeleton_file
-            write_atomic(copy, lambda tmp: shutil.copyfile(asf, tmp), forbid=forbid)
+    notes = _copy_skeleton(take.skeleton_file, out, forbid)
     if any(ch.startswith("t") for ch in take.source.layout.skeleton.root_order):
+        return notes
+    return notes + _dropped_move(take, cleaned)
+
+
+def _copy_skeleton(asf: Path | None, out: Path, forbid: tuple) -> list[str]:
+    """Copy a take's ``.asf`` next to its output ``out`` when none of its name is there; a
+    note when another skeleton of that name is (left as it is). -> notes"""
+    if asf is None:
         return []
-    return _dropped_move(take, cleaned)
+    copy = out.parent / asf.name
+    if not copy.exists():
+        write_atomic(copy, lambda tmp: shutil.copyfile(asf, tmp), forbid=forbid)
+        return []
+    if copy.is_file() and copy.read_bytes() == asf.read_bytes():
+        return []
+    return [f"{copy} is not the take's skeleton {asf}: left as it is; read {out.name} with "
+            f"--asf {asf}"]  # fmt: skip
 
 
 #: a move of the root (m) under which no note is given when the file cannot carry it
@@ -244,11 +255,16 @@ def find_asf(path: Path) -> Path | None:
         for name in (f"{ids[0]}.asf", f"{ids[0]}.asf.gz"):
             if (path.parent / name).is_file():
                 return path.parent / name
-    found = [
-        p for p in sorted(path.parent.iterdir())
+    found = asf_beside(path)
+    return found[0] if len(found) == 1 else None
+
+
+def asf_beside(path: Path) -> list[Path]:
+    """The ``.asf`` (``.asf.gz``) files in the folder of ``path``, sorted by name."""
+    return [
+        p for p in sorted(Path(path).parent.iterdir())
         if p.is_file() and p.name.lower().removesuffix(".gz").endswith(".asf")
     ]  # fmt: skip
-    return found[0] if len(found) == 1 else None
 
 
 class TakeReader:
@@ -285,7 +301,11 @@ class TakeReader:
             return None, None
         found = given or self.asf or find_asf(path)
         if found is None:
-            raise InputError(f"{path}: no .asf skeleton found next to it; pass --asf FILE")
+            beside = [p.name for p in asf_beside(path)]
+            names = ", ".join(beside[:3]) + (", ..." if len(beside) > 3 else "")
+            what = (f"{len(beside)} .asf skeletons next to it ({names}), none named for it"
+                    if beside else "no .asf skeleton found next to it")  # fmt: skip
+            raise InputError(f"{path}: {what}; pass --asf FILE")
         if found not in self.skeletons:
             self.skeletons[found] = load_asf(found)
         return self.skeletons[found], (None if given or self.asf else Path(found))

@@ -49,14 +49,22 @@ def _positions(src: SourceMotion, frames: np.ndarray) -> np.ndarray:
     return sub.forward_kinematics()[1]
 
 
+def _body_axes(src: SourceMotion, jmap: JointMap) -> np.ndarray:
+    """Unit pelvis -> head directions of the sampled frames (world axes).  -> (F, 3)"""
+    P = _positions(src, _sample(src.num_frames))
+    up = P[:, jmap.anchor["head"]] - P[:, jmap.anchor["pelvis"]]
+    return up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-12)
+
+
 def motion_up(src: SourceMotion, jmap: JointMap) -> np.ndarray:
     """Mean unit pelvis -> head direction over the take (world axes): where the body points
     on average, not by itself the world's up (a take may be done lying).  -> (3,)"""
-    frames = _sample(src.num_frames)
-    P = _positions(src, frames)
-    up = P[:, jmap.anchor["head"]] - P[:, jmap.anchor["pelvis"]]
-    up = up / np.maximum(np.linalg.norm(up, axis=1, keepdims=True), 1e-12)
-    return up.mean(0)
+    return _body_axes(src, jmap).mean(0)
+
+
+#: a take stands along its rest pose's up when this share of its frames do (pelvis -> head
+#: within 45 degrees of it): one that bends to the floor or lies down for the rest of it
+_STANDS = 0.1
 
 
 def _axes(up: np.ndarray, left: np.ndarray) -> np.ndarray | None:
@@ -109,7 +117,8 @@ def canonical_axes(src: SourceMotion, jmap: JointMap) -> tuple[np.ndarray, np.nd
     on the floor through the origin (its lowest joint within :data:`_ON_FLOOR` of the origin's
     level) - a y-up rest pose in a z-up scene (standing is likelier than lying when both fit).
     Otherwise a body that is not upright in the rest pose's axes (a take done lying, upside
-    down) is kept as it lies, with a note."""
+    down) is kept as it lies, with a note; none when it stands along that up in a share
+    :data:`_STANDS` of its frames (a take that bends to the floor or lies down)."""
     S_rest = canonical_rotation(src, jmap)
     up = motion_up(src, jmap)
     iu = int(np.argmax(np.abs(up)))
@@ -124,6 +133,8 @@ def canonical_axes(src: SourceMotion, jmap: JointMap) -> tuple[np.ndarray, np.nd
         raise InputError("cannot tell which way is up in the motion")
     if abs(ground_level(src, jmap, S_move[1])) <= _ON_FLOOR:
         return S_rest, S_move, None
+    if np.mean(_body_axes(src, jmap) @ S_rest[1] > np.sqrt(0.5)) >= _STANDS:
+        return S_rest, S_rest, None  # it stands up in its rest pose's axes part of the take
 
     def name(u: np.ndarray) -> str:
         k = int(np.argmax(np.abs(u)))
