@@ -38,9 +38,9 @@ it was made from (same frames):
    metres of miss worth a radian of knee), so a nearly straight knee is never pulled straight
    and the part of a goal the bend cannot reach is left as a small height miss. A foot more
    than ``sunk_tol`` under the floor may bend its knee as far as lifting it needs (off by
-   default: lifting noisy sinks cost more knee accuracy than it gained). The ankle turns to
-   point the foot at the ball's goal. ``passes`` times, each with the soles as the pass before
-   left them. Frames more than ``blend_s`` from a contact (with no foot under the floor), legs
+   default). The foot turns with the hip's swing only (both joints held: the ankle goes
+   halfway to where the ball's goal puts it). ``passes`` times, each with the soles as the last
+   left them. Frames more than ``blend_s`` from a contact (no foot under the floor), legs
    without a target, and every joint but hips, knees and ankles keep their exact values.
 
 Every step is vectorised over frames (no Python loop over frames or contact runs); the legs

@@ -223,15 +223,19 @@ def swing_ik(
     slope of reach against bend, the larger the share of the miss the knee takes: a bent knee
     follows most of it, a nearly straight one hardly turns and is never pulled straight). The
     hip then turns (smallest rotation) to point the leg at the ankle's target, kept at its
-    horizontal place where the leg's reach allows (the miss goes to the height), and the ankle
-    turns to point the foot at the ball's target, or keeps the foot's world orientation.
+    horizontal place where the leg's reach allows (the miss goes to the height). The foot
+    turns with the hip's swing, not with the knee's (a turn on a planted foot is the motion's
+    own: aiming the foot at the ball's target twisted ankles by up to 138 degrees); with both
+    joints held, the ankle's goal is the midpoint of its own target and the one the ball's
+    target gives the foot as it is.
     -> (B, 2, 4, 3, 3) the new local rotations (the ball's own unchanged).
     """
     pos, G = leg_chain(root, legs, pelvis, bones)
     hip, knee, ankle, ball = (pos[:, :, i] for i in range(4))
     hold_ankle, hold_ball = held[..., 0, None], held[..., 1, None]
     moved = np.where(hold_ball, ankle + targets[:, :, 1] - ball, ankle)
-    goal = np.where(hold_ankle, targets[:, :, 0], moved)
+    own = np.where(hold_ball, 0.5 * (targets[:, :, 0] + moved), targets[:, :, 0])
+    goal = np.where(hold_ankle, own, moved)
     n = G[:, :, 1, :, 0]
     thigh, shank = knee - hip, ankle - knee
     reach = np.linalg.norm(goal - hip, axis=-1)
@@ -248,13 +252,10 @@ def swing_ik(
     turned_leg = thigh + turn_about(shank, n, phi)
     aim_at = on_sphere(goal - hip, np.linalg.norm(turned_leg, axis=-1), limit=2.0)
     R0 = root[:, None]
-    hip_local = R0.swapaxes(-1, -2) @ rotmat_between(turned_leg, aim_at) @ R0 @ legs[:, :, 0]
+    swing = rotmat_between(turned_leg, aim_at)  # the leg's turn about the hip, in the world
+    hip_local = R0.swapaxes(-1, -2) @ swing @ R0 @ legs[:, :, 0]
     knee_world = R0 @ hip_local @ knee_local
-    turned = knee_world @ legs[:, :, 2]  # the foot turned with the shank
-    toe = (turned @ bones[:, 3, :, None])[..., 0]  # ankle -> ball, turned with the shank
-    aim = rotmat_between(toe, targets[:, :, 1] - (hip + aim_at)) @ turned
-    foot_world = np.where(hold_ball[..., None], aim, G[:, :, 2])
-    ankle_local = knee_world.swapaxes(-1, -2) @ foot_world
+    ankle_local = knee_world.swapaxes(-1, -2) @ swing @ G[:, :, 2]
     return np.stack([hip_local, knee_local, ankle_local, legs[:, :, 3]], axis=2)
 
 
