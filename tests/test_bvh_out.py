@@ -350,10 +350,13 @@ def test_add_noise_gives_a_take_back_noisy_on_its_own_skeleton(tmp_path, joints)
     assert after.split("MOTION")[0] == before.split("MOTION")[0]  # hierarchy verbatim
     src, noisy = load_bvh(path), load_bvh(out)
     assert noisy.num_frames == src.num_frames == 90
-    # the root's channels and the joints the body does not drive keep their values
+    # the root's channels and the joints the body does not drive keep their values (the
+    # root's position within 10 micrometres: the way back reads the retarget's miss of the
+    # pelvis along its course where the body was turned, and this clean take's miss wavers
+    # by a few micrometres about it)
     root_cols = [c for c, (j, _, _) in enumerate(src.layout.channels) if j == 0]
     np.testing.assert_allclose(noisy.layout.data[:, root_cols], src.layout.data[:, root_cols],
-                               atol=1e-4)  # fmt: skip
+                               atol=1e-3)  # fmt: skip
     fingers = [src.index(n) for n in ("Index1_L", "Index2_L", "Index1_R")]
     np.testing.assert_allclose(noisy.rotations[:, fingers], src.rotations[:, fingers], atol=1e-5)
     # the body's joints carry noise of about 0.1 rad (5.7 degrees an axis): 0.17 rad a joint

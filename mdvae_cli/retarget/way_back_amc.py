@@ -41,8 +41,10 @@ from mdvae_cli.retarget.dof_solve import axis_rotations, closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.held_channels import constant_channels
 from mdvae_cli.retarget.way_back import (
+    body_weight,
     driven_rotations,
     drivers,
+    miss_jitter,
     pelvis_point,
     smpl_change,
     smpl_globals,
@@ -158,10 +160,12 @@ def held_bones(layout: AmcLayout, values: dict[str, np.ndarray]) -> set[str]:
     return out
 
 
-def _carried(rt, src, layout, drive, motions, body, P, G, moved) -> dict:
+def _carried(rt, src, layout, drive, motions, body, P, G, moved, turn) -> dict:
     """Bones no SMPL joint drives that carry an SMPL joint's point (CMU's lowerback carries
     spine1): bone -> (the point's offset in the bone's frame (T, 3), where it should go (T, 3),
-    before the root's final ``moved`` (T, 3)), file units: it moves as the SMPL joint did."""
+    before the root's final ``moved`` (T, 3)), file units: it moves as the SMPL joint did,
+    from the course of the retarget's miss of it where the cleaning turned the joint (``turn``
+    (T, 22, 3, 3), :func:`body_weight`, :func:`miss_jitter`), as the pelvis does."""
     M = np.asarray(rt.to_output)
     scale = layout.metres_per_unit
     jm = rt.jmap
@@ -179,7 +183,9 @@ def _carried(rt, src, layout, drive, motions, body, P, G, moved) -> dict:
         local = (np.swapaxes(G[:, j], -1, -2) @ (target - P[:, j])[..., None])[..., 0]
         if np.linalg.norm(local, axis=-1).min() < 1e-6:
             continue  # the point sits on the joint: turning cannot move it
-        out[j] = (local, target + (Pc[:, k] - Po[:, k]) @ M / scale - moved)
+        move = Pc[:, k] - Po[:, k]
+        move += miss_jitter(Po[:, k], rt.targets[:, k], body_weight(turn), src.fps)
+        out[j] = (local, target + move @ M / scale - moved)
     return out
 
 
@@ -199,13 +205,14 @@ def write_back_amc(
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     scale = layout.metres_per_unit
     change = smpl_change(rt, original, cleaned, body, scale)
-    D, shift = change.turn, change.shift
+    D = change.turn
     L, t, G, P = amc_pose(src, layout, vals)
     drive = drivers(rt.jmap, src.num_joints)
     driven = driven_rotations(change, G, drive, src.fps)
     a = int(rt.jmap.anchor["pelvis"])
-    new_a = pelvis_point(rt, D, shift, P[:, a], scale)
-    carried = _carried(rt, src, layout, drive, (original, cleaned), body, P, G, new_a - P[:, a])
+    new_a = pelvis_point(rt, change, P[:, a], scale, src.fps)
+    carried = _carried(rt, src, layout, drive, (original, cleaned), body, P, G, new_a - P[:, a],
+                       D)  # fmt: skip
     new = {b: v.copy() for b, v in vals.items()}
     L2, G2, P2 = L.copy(), G.copy(), P.copy()
     unit = _unit(layout)
