@@ -387,7 +387,8 @@ def test_add_noise_with_holes_writes_takes_as_npz(tmp_path, make_motion_file):
 
 def test_driven_joints_read_their_offset_smoothed_where_the_cleaning_turned_them():
     from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
-    from mdvae_cli.retarget.way_back import STEADY_FROM_DEG, SmplChange, driven_rotations
+    from mdvae_cli.retarget.steady import STEADY_FROM_DEG
+    from mdvae_cli.retarget.way_back import SmplChange, driven_rotations
 
     rng = np.random.default_rng(5)
     T, fps = 240, 120.0

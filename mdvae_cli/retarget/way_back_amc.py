@@ -40,11 +40,10 @@ from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import axis_rotations, closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.held_channels import constant_channels
+from mdvae_cli.retarget.steady import body_weight, miss_jitter
 from mdvae_cli.retarget.way_back import (
-    body_weight,
     driven_rotations,
     drivers,
-    miss_jitter,
     pelvis_point,
     smpl_change,
     smpl_globals,
