@@ -1,8 +1,6 @@
-"""A noisy take at 120 Hz: the blend put back a share of the noise its median reading under-reads
-(a retarget's heavy-tailed pelvis: 0.6 of its variance) with the motion the 30 Hz model missed,
-and above 15 Hz that share was noise alone (CMU 07_01 AMC at 120 Hz, sigma 0.1: acceleration
-71 m/s^2 against the truth's 17); a hinge's one noisy axis read as spikes; the translation's
-noise on one axis read at the still axes' level. A clean take's fast band stays as it came."""
+"""A noisy take at 120 Hz: a hinge's one noisy axis read as spikes, and the translation's noise
+on one axis read at the still axes' level (CMU 07_01 AMC at 120 Hz, sigma 0.1: acceleration 71
+m/s^2 against the truth's 17, with the fast band above 15 Hz, split off then, 47 without it)."""
 
 from __future__ import annotations
 
@@ -35,15 +33,6 @@ def _noisy_take(T: int = 1200, fps: float = 120.0):
     return clean, noisy, denoised
 
 
-def test_the_blend_takes_a_heavy_tailed_pelvis_noise_out():
-    clean, noisy, denoised = _noisy_take()
-    out, _, _ = blend_rotations(noisy, denoised, 120.0)
-    # the share of the pelvis's noise left: third differences, where neither the denoiser's
-    # slow error nor the flutter is
-    left = np.sqrt(np.mean(np.diff(out[:, 0] - clean[:, 0], 3, axis=0) ** 2) / 20) / 0.007
-    assert left < 0.25, left  # before: 0.37
-
-
 def test_a_noisy_hinge_at_120_hz_has_no_spikes():
     """An AMC knee's one dof under 0.07 rad of noise: read at its still axes' level, every
     tenth frame was a spike, filled from the noisy frames' own curve."""
@@ -71,17 +60,3 @@ def test_translation_noise_on_one_axis_is_taken_out_of_a_noisy_take():
     assert left < 0.2, left  # before: 0.97
     same, _, _ = blend_translation(clean, clean + 1e-4, 120.0, noisy=False)
     assert np.abs(same - clean).max() < 2e-5  # a clean take's: as it came
-
-
-def test_a_clean_takes_fast_band_at_120_hz_is_blended_as_before(monkeypatch):
-    """A clean 120 Hz take (0.05 degrees of jitter: it reads clean) is blended as before the
-    very fast band was split off, bit for bit; the noisy take is not."""
-    import mdvae_cli.infer.noise_blend as nb
-
-    clean, noisy, denoised = _noisy_take()
-    take = clean + np.radians(0.05) * np.random.default_rng(7).standard_normal(clean.shape)
-    split = [blend_rotations(x, denoised, 120.0)[0] for x in (take, noisy)]
-    monkeypatch.setattr(nb, "VERY_FAST_HZ", 1e9)  # no band above it at any rate
-    whole = [blend_rotations(x, denoised, 120.0)[0] for x in (take, noisy)]
-    np.testing.assert_array_equal(split[0], whole[0])
-    assert np.abs(split[1] - whole[1]).max() > 1e-3

@@ -53,12 +53,6 @@ BAND_SECONDS = 0.05
 #: how many times its noise variance a band's residual must exceed before any is put back
 SLOW_MARGIN = 1.0
 FAST_MARGIN = 3.0
-#: on a take that reads noisy at 60 Hz and up, the fast band is split where the model's own
-#: samples end (its Nyquist frequency, Hz): above it the denoiser's output holds nothing of
-#: the motion, the take's residual is its noise, and a share of it put back as the band below
-#: was (the pelvis of CMU 07_01 at 120 Hz under sigma 0.1, its noise read at 0.6 of its
-#: variance) shook the whole body: acceleration 71 m/s^2 against the truth's 17
-VERY_FAST_HZ = 15.0
 #: a noisy take's translation noise on one axis (a retarget's pelvis height) is read at its
 #: share from this many times the pooled median (rotations: ``input_noise.ONE_AXIS_MARGIN``)
 TRANS_AXIS_MARGIN = 2.0
@@ -141,12 +135,10 @@ def keep_unexplained(
     fps: float,
     with_fast: bool = True,
     missing: np.ndarray | None = None,
-    very_fast: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """What of the input's difference from the denoiser's output to keep: the part its noise
     does not explain, band by band (a slow band, where the denoiser's own errors sit, and a
-    fast one, where white noise sits; with ``very_fast`` at 60 Hz and up, the fast one split
-    at :data:`VERY_FAST_HZ`), and nothing at the input's spikes nor where it has no
+    fast one, where white noise sits), and nothing at the input's spikes nor where it has no
     value. A long take goes :data:`BLEND_PIECE` frames at a time, each with the frames either
     side that its bands and shares read (the same values as the take at once, to rounding).
 
@@ -158,14 +150,14 @@ def keep_unexplained(
     # residual a kernel's radius further
     halo = len(gaussian_coefficients(BAND_SECONDS * fps)) // 2 + _blend_width(fps) // 2 + 1
     if T <= BLEND_PIECE + 2 * halo:
-        return _keep_unexplained(residual, noise_var, spikes, fps, with_fast, missing, very_fast)
+        return _keep_unexplained(residual, noise_var, spikes, fps, with_fast, missing)
     kept, share = np.empty(residual.shape), np.empty(residual.shape[:2])
     for a in range(0, T, BLEND_PIECE):
         b = min(a + BLEND_PIECE, T)
         lo, hi = max(0, a - halo), min(T, b + halo)
         holes = None if missing is None else missing[lo:hi]
         part = _keep_unexplained(residual[lo:hi], noise_var, spikes[lo:hi], fps, with_fast,
-                                 holes, very_fast)  # fmt: skip
+                                 holes)  # fmt: skip
         kept[a:b], share[a:b] = part[0][a - lo : b - lo], part[1][a - lo : b - lo]
     return kept, share
 
@@ -182,7 +174,6 @@ def _keep_unexplained(
     fps: float,
     with_fast: bool,
     missing: np.ndarray | None,
-    very_fast: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`keep_unexplained` on the frames given, at once."""
     r = np.where(spikes[..., None], 0.0, residual)
@@ -201,25 +192,9 @@ def _keep_unexplained(
     keep_slow = kept_share((slow**2).mean(-1), slow_noise, width, seen)
     if not with_fast:
         return keep_slow[..., None] * slow, keep_slow
-    split = np.sqrt(np.log(2.0)) / (2.0 * np.pi * VERY_FAST_HZ) * fps  # half power there
-    if (
-        not very_fast
-        or fps < 4.0 * VERY_FAST_HZ
-        or len(gaussian_coefficients(split)) >= len(kernel)
-    ):
-        bands = [(fast, delta - kernel)]
-    else:
-        inner = gaussian_coefficients(split)
-        below = _smooth_seen(r, inner, seen3)
-        inner = np.pad(inner, (len(kernel) - len(inner)) // 2)  # the gains, tap by tap
-        bands = [(below - slow, inner - kernel), (r - below, delta - inner)]
-    out = keep_slow[..., None] * slow
-    for band, gain in bands:
-        keep = kept_share(
-            (band**2).mean(-1), FAST_MARGIN * noise_var * (gain**2).sum(), width, seen
-        )
-        out += keep[..., None] * band
-    return out, keep_slow
+    fast_noise = FAST_MARGIN * noise_var * ((delta - kernel) ** 2).sum()
+    keep_fast = kept_share((fast**2).mean(-1), fast_noise, width, seen)
+    return keep_slow[..., None] * slow + keep_fast[..., None] * fast, keep_slow
 
 
 def _smooth_seen(r: np.ndarray, kernel: np.ndarray, seen3: np.ndarray | None) -> np.ndarray:
@@ -286,7 +261,7 @@ def _blend_rotations(
     if missing is not None:
         spikes = spikes & ~missing
     # the residual's mean square over its components holds the noise's mean over them
-    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing, noisy)
+    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
     out = np.empty(src.shape)
     # the denoised quaternions are made again chunk by chunk rather than kept whole: on a long
     # take a whole array of them is a large share of the peak memory, and cheap to make
@@ -315,7 +290,7 @@ def blend_translation(
 
     source, denoised: (T, 3); missing: (T,) bool or None; noisy: whether the take's rotations
     read as noisy (:func:`noisy_take`: its noise on one axis read at its share from
-    :data:`TRANS_AXIS_MARGIN` times the pooled median, and its very fast band split off) ->
+    :data:`TRANS_AXIS_MARGIN` times the pooled median) ->
     (blended (T, 3), slow share put back (T,), spikes (T,))"""
     seen = None if missing is None else ~missing[:, None]
     margin = TRANS_AXIS_MARGIN if noisy else ONE_AXIS_MARGIN
@@ -323,7 +298,7 @@ def blend_translation(
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M, fps)
     kept, share = keep_unexplained(
         (source - denoised)[:, None, :], noise, spikes, fps, fast,
-        None if missing is None else missing[:, None], noisy,
+        None if missing is None else missing[:, None],
     )  # fmt: skip
     return denoised + kept[:, 0], share[:, 0], spikes[:, 0]
 
