@@ -163,7 +163,9 @@ def test_init_from_a_prior_of_other_sizes_names_them(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
-def test_resuming_a_fit_refuses_settings_its_denoiser_keeps(tmp_path):
+def _fitted(tmp_path):
+    """A tiny corpus, a prior of one step and a denoiser fitted on it for one step: the data
+    folder, the denoiser's folder and its files' bytes."""
     from tests.test_train_options import tiny_fit_config
 
     data = write_corpus(tmp_path / "data", n=3, T=40)
@@ -171,6 +173,11 @@ def test_resuming_a_fit_refuses_settings_its_denoiser_keeps(tmp_path):
     den = tmp_path / "den"
     fit_dataset(tiny_fit_config(data, tmp_path / "prior", epochs=2), den, max_steps=1)
     before = {p.name: p.read_bytes() for p in den.iterdir()}
+    return data, den, before
+
+
+def test_resuming_a_fit_refuses_settings_its_denoiser_keeps(tmp_path):
+    data, den, before = _fitted(tmp_path)
     # they used to be written into config.json while the networks went on with lam 10
     # --holes 1 added a hole reader Adam's saved state has no room for: "error: ValueError:
     # loaded state dict contains a parameter group ...", config.json left saying holes 1.0,
@@ -190,13 +197,7 @@ def test_resuming_a_fit_refuses_settings_its_denoiser_keeps(tmp_path):
 
 def test_a_new_fit_into_a_denoisers_folder_is_refused_unless_overwrite(tmp_path):
     # before: `fit-dataset -o den` over a fitted denoiser replaced it without a word
-    from tests.test_train_options import tiny_fit_config
-
-    data = write_corpus(tmp_path / "data", n=3, T=40)
-    train_prior(tiny_config(data, epochs=1), tmp_path / "prior", max_steps=1)
-    den = tmp_path / "den"
-    fit_dataset(tiny_fit_config(data, tmp_path / "prior", epochs=2), den, max_steps=1)
-    before = {p.name: p.read_bytes() for p in den.iterdir()}
+    data, den, before = _fitted(tmp_path)
     args = ["fit-dataset", str(data), "--prior", str(tmp_path / "prior"), "-o", str(den),
             "--window", "20", "--stride", "5", "--batch-size", "8", "--device", "cpu",
             "--max-steps", "1"]  # fmt: skip
