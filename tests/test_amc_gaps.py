@@ -183,3 +183,70 @@ def test_add_noise_keeps_the_holes(takes, tmp_path):
     poses = np.load(tmp_path / "noisy.npz")["poses"]
     assert poses.shape[0] == T
     assert np.flatnonzero(np.isnan(poses).any(axis=1)).tolist() == list(GAP)
+
+
+def test_drop_frames_on_an_amc_take_leaves_their_numbers_out_and_denoise_fills_them(takes):
+    """``add-noise --drop-frames`` on an AMC take: the dropped frames' numbers left out (the
+    holes the reader reads), the rows the .npz output holds as NaN; the other frames byte for
+    byte as they came (--sigma 0). ``denoise`` fills them back, ``eval`` scores every frame."""
+    folder, values, runs = takes
+    src = folder / "full_01.amc"
+    code, out, err = run("add-noise", src, "-o", folder / "drop.amc", "--sigma", 0,
+                         "--drop-frames", "10x2", "--seed", 4, "--json")  # fmt: skip
+    assert code == 0, err
+    assert json.loads(out)["files"][0]["result"]["dropped_frames"] == 20
+    code, _, err = run("add-noise", src, "-o", folder / "drop.npz", "--sigma", 0,
+                       "--drop-frames", "10x2", "--seed", 4)  # fmt: skip
+    assert code == 0, err
+    gone = np.flatnonzero(np.isnan(np.load(folder / "drop.npz")["poses"]).all(axis=1))
+    assert len(gone) == 20
+    kept = [str(n) for n in range(1, T + 1) if n - 1 not in gone]
+    assert numbers(folder / "drop.amc") == kept
+    head, frames = frames_of(src.read_text())
+    assert frames_of((folder / "drop.amc").read_text()) == (
+        head,
+        [f for i, f in enumerate(frames) if i not in gone],
+    )
+
+    code, out, err = run("denoise", folder / "drop.amc", "-o", folder / "drop_filled.amc",
+                         "--json")  # fmt: skip
+    assert code == 0, err
+    result = json.loads(out)["files"][0]["result"]
+    assert result["filled_frames"] == 20 and result["unfilled_frames"] == 0
+    assert numbers(folder / "drop_filled.amc") == [str(n) for n in range(1, T + 1)]
+    filled = load_amc(folder / "drop_filled.amc", folder / "gen.asf").layout.values
+    whole = load_amc(runs["full"][0], folder / "gen.asf").layout.values
+    keep = np.ones(T, bool)
+    keep[gone] = False
+    for bone, v in filled.items():  # degrees; root translation in file units (1/80 inch)
+        np.testing.assert_allclose(v[gone], values[bone][gone], atol=0.5, err_msg=bone)
+        np.testing.assert_allclose(v[keep], whole[bone][keep], atol=0.05, err_msg=bone)
+    code, out, err = run("eval", "--gt", src, "--pred", folder / "drop_filled.amc", "--json")
+    assert code == 0, err
+    score = json.loads(out)["files"][0]["result"]
+    assert score["num_frames"] == T and score["unscored_frames"] == 0
+    assert score["mpjpe_cm"] < 1.0
+
+
+def test_drop_frames_on_an_amc_take_with_its_own_gap_and_what_amc_cannot_hold(takes, tmp_path):
+    """The take's own gap (41-50) stays left out beside the dropped frames; a limb missing
+    (--drop-joints) is no frame an AMC can leave out: refused in one line for an .amc output."""
+    folder, _, _ = takes
+    code, _, err = run("add-noise", folder / "gap_01.amc", "-o", tmp_path / "both.amc",
+                       "--sigma", 0.05, "--drop-frames", "8", "--seed", 2)  # fmt: skip
+    assert code == 0, err
+    got = [int(n) for n in numbers(tmp_path / "both.amc")]
+    missing = sorted(set(range(1, T + 1)) - set(got))
+    assert len(missing) == 18 and set(range(41, 51)) <= set(missing)
+    code, out, err = run("add-noise", folder / "full_01.amc", "-o", tmp_path / "limb.amc",
+                         "--drop-joints", "10")  # fmt: skip
+    assert code == 1 and "Traceback" not in err and not (tmp_path / "limb.amc").exists()
+    assert "AMC holds frames missing whole: --drop-frames alone" in err
+    # numbered every 2nd frame (one frame in 2 of a capture): a number left out is no hole
+    head, frames = frames_of(amc_file(motion_values(40)))
+    odd = [str(2 * i + 1) + f[len(str(i + 1)) :] for i, f in enumerate(frames)]
+    (folder / "odd_01.amc").write_text(joined(head, odd))
+    code, out, err = run("add-noise", folder / "odd_01.amc", "-o", tmp_path / "odd.amc",
+                         "--drop-frames", "5")  # fmt: skip
+    assert code == 1 and not (tmp_path / "odd.amc").exists()
+    assert "frame numbers step by more than 1" in err and "Traceback" not in err

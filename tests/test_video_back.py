@@ -96,6 +96,24 @@ def test_denoise_json_says_the_write_back_notes_on_stderr(tmp_path):
     assert "note: video input: λ = 10" in err
 
 
+@pytest.mark.parametrize("command", [("denoise",), ("add-noise", "--sigma", "0.05")])
+def test_the_verts_note_is_said_once_whatever_the_output(tmp_path, command):
+    # before: add-noise back into WHAM's own form said both the reader's "'verts' ... not
+    # carried" (what an .npz leaves out) and the writer's "'verts' left out": one thing twice
+    src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (vf.clip(40, seed=4), None)})
+    said = {}
+    for out in ("back.pkl", "back.npz"):
+        code, _, err = run(*command, src, "-o", tmp_path / out)
+        assert code == 0, err
+        said[out] = [ln for ln in err.splitlines() if "'verts'" in ln]
+    assert said == {
+        "back.pkl": ["note: wham_output.pkl: 'verts' left out (vertices of the old pose; any "
+                     "SMPL tool makes them from the new)"],
+        "back.npz": ["note: wham_output.pkl: 'verts' (made from the pose by any SMPL tool) not "
+                     "carried"],
+    }  # fmt: skip
+
+
 def test_wham_camera_copy_follows_the_world_pose_and_verts_are_left_out(tmp_path):
     m = vf.clip(24, seed=4)
     src = vf.write_wham(tmp_path / "wham_output.pkl", {0: (m, None)})

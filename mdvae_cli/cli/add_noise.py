@@ -105,7 +105,8 @@ def _parse_sets(values: tuple[str, ...]) -> dict[str, float]:
 @click.option(
     "--drop-frames", type=HOLES, default=None, metavar="LENGTH[xCOUNT]",
     help="Make holes: COUNT (default 1) stretches of LENGTH frames missing whole, written as "
-    "NaN in poses and trans (as a tracker that lost the person; mdvae denoise fills them).",
+    "NaN in poses and trans (as a tracker that lost the person; mdvae denoise fills them); "
+    "in an AMC take as frame numbers left out, the holes its reader reads.",
 )  # fmt: skip
 @click.option(
     "--drop-joints", type=HOLES, default=None, metavar="LENGTH[xCOUNT]",
@@ -139,8 +140,8 @@ def add_noise(
     motion files (AMASS .npz, video-pipeline outputs, BVH and ASF/AMC takes) or folders;
     folders are mirrored under --out. A take comes back in its own form, on its own skeleton
     (the noise put on its joints' rotations through the body it is read onto), and a video
-    pipeline's file as the pipeline wrote it, unless holes are asked for: none of those
-    forms can hold them, so such files are written as .npz.
+    pipeline's file as the pipeline wrote it, unless holes are asked for: written as .npz,
+    but an AMC take with --drop-frames alone (the frames' numbers left out).
 
     \b
     Examples:
@@ -167,15 +168,15 @@ def add_noise(
     settings = NoiseSettings(sigma, joint_noise, drop_frac, spike_frac, spike_rad).validate()
     jobs = plan_take_jobs(inputs, out)
     holes = drop_frac > 0 or drop_frames is not None or drop_joints is not None
-    jobs = takes_as_npz(jobs, Path(out)) if holes else jobs  # NaN: an AMASS-style .npz
+    partial = drop_frac > 0 or drop_joints is not None  # holes not of whole frames
+    jobs = takes_as_npz(jobs, Path(out), partial) if holes else jobs  # NaN: in an .npz
     sources = tuple(job.source for job in jobs)
-
     read_options = ReadOptions(format=input_format, fps=input_fps, track=track,
                                allow_pickle=allow_pickle,
                                **take_reading(asf, joint_map_file))  # fmt: skip
 
     def process(job: FileJob) -> dict:
-        loaded = read_input(job.source, job.relpath, read_options)
+        loaded = read_input(job.source, job.relpath, read_options, job.output, holes)
         frames, outputs, dropped, noisy_tracks = 0, [], {}, []
         target, own, why = own_output(loaded, job.output, holes)
         if why is not None:
@@ -217,18 +218,23 @@ def make_noisy(motion, rng, video, settings: NoiseSettings):
                           spike_rad=settings.spike_rad)  # fmt: skip
 
 
-def takes_as_npz(jobs: list[FileJob], out: Path) -> list[FileJob]:
+def takes_as_npz(jobs: list[FileJob], out: Path, partial: bool = True) -> list[FileJob]:
     """``jobs`` with each BVH / AMC output, and each video pipeline's, written as .npz
-    instead: holes are NaN, which none of those forms can hold. InputError when such an
-    output is the one named by ``-o``."""
+    instead: holes are NaN, which none of those forms can hold; but an AMC take's when the
+    holes are whole frames alone (not ``partial``: ``--drop-frames``), which it holds as frame
+    numbers left out (``formats.amc_frames``). InputError when such an output is the one
+    named by ``-o``."""
+    keep = () if partial else (".amc",)
     fixed = []
     for job in jobs:
-        if job.output is not None and suffix_of(job.output) in (*TAKE_SUFFIXES, *VIDEO_SUFFIXES):
+        kind = None if job.output is None else suffix_of(job.output)
+        if kind in (*TAKE_SUFFIXES, *VIDEO_SUFFIXES) and kind not in keep:
             if job.output == out:
+                amc = " (AMC holds frames missing whole: --drop-frames alone)" * (kind == ".amc")
                 raise InputError(
                     f"cannot write {out}: holes (--drop-frac, --drop-frames, --drop-joints) are "
-                    f"written as NaN, which {suffix_of(out)[1:].upper()} cannot hold; name an "
-                    ".npz output"
+                    f"written as NaN, which {kind[1:].upper()} cannot hold{amc}; name an .npz "
+                    "output"
                 )  # fmt: skip
             job = FileJob(job.relpath, job.source, strip_gz(job.output).with_suffix(".npz"))
         fixed.append(job)

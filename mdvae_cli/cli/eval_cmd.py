@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,6 +15,7 @@ from rich.table import Table
 from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.batch import FileJob, FileOutcome, emit_json, json_option, print_notes, run_batch
 from mdvae_cli.cli.common import (
+    POSITIVE,
     allow_pickle_option,
     body_model_option,
     console,
@@ -151,7 +153,9 @@ video track's skipped frames, filled or not) are not scored; a note says
 how many, and `frames` counts those scored. Files at different frame rates are scored at the
 slower rate (the faster one resampled, with a note); lengths must match there, but for
 a last frame past the other file's end, which the note says is not scored (31 frames at
-24 fps against their 38 at 30 fps: 30 scored).
+24 fps against their 38 at 30 fps: 30 scored). --fps gives the rate of both
+sides, --gt-fps or --pred-fps that of one (a 120 Hz BVH whose Frame Time is wrong
+against a video pipeline's output, which stores no rate: --gt-fps 120 --pred-fps 30).
 
 Two folders are paired by relative path, then by name in the same sub-folder where one file
 fits (walk.bvh with walk.npz or walk_clean.npz): a note says each pair made by name and each
@@ -181,21 +185,32 @@ Example:
 )  # fmt: skip
 @take_options
 @input_fps_option
+@click.option(
+    "--gt-fps", type=POSITIVE, default=None,
+    help="Frame rate of the ground truth alone (overrides --fps for it): a 120 Hz capture "
+    "scored against a 30 Hz prediction, say.",
+)  # fmt: skip
+@click.option(
+    "--pred-fps", type=POSITIVE, default=None,
+    help="Frame rate of the predictions alone (overrides --fps for them): a video "
+    "pipeline's output, which stores none, scored against a file that holds its own.",
+)  # fmt: skip
 @track_option("score this track (its id in the file) of both")
 @allow_pickle_option
 @json_option
 @handle_errors
 def eval_command(
-    gt, pred, body_model, chunk_frames, asf, joint_map_file, input_fps, track, allow_pickle,
-    as_json,
+    gt, pred, body_model, chunk_frames, asf, joint_map_file, input_fps, gt_fps, pred_fps, track,
+    allow_pickle, as_json,
 ) -> None:  # fmt: skip
     from mdvae_cli.export import as_body_model
     from mdvae_cli.metrics import common_rate, evaluate_pair, mean_result
 
     jobs, unmatched, paired = pair_files(gt, pred)
     body = as_body_model(load_body_model(body_model))
-    options = ReadOptions(allow_pickle=allow_pickle, body=body.data, fps=input_fps,
+    options = ReadOptions(allow_pickle=allow_pickle, body=body.data,
                           **take_reading(asf, joint_map_file))  # fmt: skip
+    gt_options, pred_options = side_options(options, input_fps, gt_fps, pred_fps)
     for line in paired:
         console.print(f"[dim]note: {escape(line)}[/]", soft_wrap=True)
     for path in unmatched:
@@ -209,8 +224,8 @@ def eval_command(
             stem = base_name(job.relpath)
             raise InputError(f"{job.source}: no prediction: no {job.data}, nor one named "
                              f"{stem}.* or {stem}_*.* beside it")  # fmt: skip
-        truth = one_track(read(job.source, options), track)
-        guess = one_track(read(job.data, options), track)
+        truth = one_track(read(job.source, gt_options), track)
+        guess = one_track(read(job.data, pred_options), track)
         try:
             truth, guess, note = common_rate(truth, guess)
             result = evaluate_pair(truth, guess, body, chunk_frames=chunk_frames)
@@ -254,6 +269,17 @@ def eval_command(
         for table in results_table(rows, mean if len(good) > 1 else None, out.width):
             out.print(table)
     report.exit()
+
+
+def side_options(
+    options: ReadOptions, both: float | None, gt_fps: float | None, pred_fps: float | None
+) -> tuple[ReadOptions, ReadOptions]:
+    """How the ground truth and the predictions are read: ``options`` with each side's frame
+    rate, its own (``--gt-fps`` / ``--pred-fps``) where given, else ``--fps`` (both)."""
+    return (
+        replace(options, fps=both if gt_fps is None else gt_fps),
+        replace(options, fps=both if pred_fps is None else pred_fps),
+    )
 
 
 def table_console() -> Console:

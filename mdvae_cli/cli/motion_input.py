@@ -96,14 +96,22 @@ missing_option = click.option(
 )
 
 
-def read_input(path: Path, relpath: Path, options: ReadOptions, takes=None) -> LoadedFile:
+def read_input(
+    path: Path, relpath: Path, options: ReadOptions, output: Path | None = None,
+    holes: bool = False, takes=None,
+) -> LoadedFile:  # fmt: skip
     """``formats.registry.read`` with the command's options, printing the file's notes.
-    takes: a ``retarget.take.TakeReader`` shared over the command's files."""
+    output: where the file goes (``holes``: written with holes), for the notes
+    (``run.tracks.reader_notes``). takes: a ``retarget.take.TakeReader`` shared over the
+    command's files."""
+    from mdvae_cli.run.tracks import own_output, reader_notes
+
     loaded = read(path, options, takes=takes)
+    own = output is not None and own_output(loaded, output, holes)[1]
     print_notes(relpath, loaded.notes)
     for label, motion in loaded.tracks:
         where = relpath if label is None else Path(f"{relpath.as_posix()} track {label}")
-        print_notes(where, motion.notes)
+        print_notes(where, reader_notes(motion.notes, own))
     return loaded
 
 

@@ -5,7 +5,9 @@ A take read by :func:`mdvae_cli.formats.asfamc.load_amc` keeps its
 header verbatim, every frame under its own number, each frame's bones in the order it listed
 them (a bone a frame left out stays out), with the file's line ending; a frame the file lacked
 (a missing frame number: a hole) in its place, listing the bones of the frame before it, unless
-the holes are to stay as they came (``gaps=False``). A value that changed by
+the holes are to stay as they came (``gaps=False``). Frames to be holes (``drop``: ``add-noise
+--drop-frames``) are left out, their numbers missing: the holes the reader reads
+(``formats.amc_frames``). A value that changed by
 less than half the last written decimal is written exactly as the file had it; a new one with
 :data:`DECIMALS` decimals (:data:`RADIAN_DECIMALS` for angles in radians), trailing zeros
 dropped.
@@ -37,10 +39,16 @@ def _decimals(layout: AmcLayout, bone: str) -> list[int]:
     return [angle if d.startswith("r") else DECIMALS for d in layout.dofs(bone)]
 
 
-def amc_text(layout: AmcLayout, values: dict[str, np.ndarray], gaps: bool = True) -> str:
+def amc_text(
+    layout: AmcLayout,
+    values: dict[str, np.ndarray],
+    gaps: bool = True,
+    drop: np.ndarray | None = None,
+) -> str:
     """The AMC file of ``layout`` with ``values`` (bone -> (F, n), every frame of the file; a
     bone left out keeps the file's values). gaps: write the frames the file lacked (its
-    missing frame numbers, ``AmcLayout.added``: filled), else the frames it came with alone."""
+    missing frame numbers, ``AmcLayout.added``: filled), else the frames it came with alone.
+    drop: (F,) bool, frames left out as well (holes: their numbers missing)."""
     lines: dict[str, list[str]] = {}  # bone -> its line in each frame
     for bone, old in layout.values.items():
         tokens = layout.tokens[bone].copy()
@@ -58,6 +66,7 @@ def amc_text(layout: AmcLayout, values: dict[str, np.ndarray], gaps: bool = True
     nl = layout.newline
     out = [layout.header]
     skip = np.zeros(len(layout.frames), bool) if gaps or layout.added is None else layout.added
+    skip = skip if drop is None else skip | np.asarray(drop, bool)
     for f, number in enumerate(layout.frames):
         if skip[f]:
             continue
@@ -72,6 +81,7 @@ def write_amc(
     path: Path | str,
     forbid: tuple = (),
     gaps: bool = True,
+    drop: np.ndarray | None = None,
 ) -> None:
     """Write :func:`amc_text` atomically; a name ending in ``.gz`` is gzip-compressed."""
-    write_text(path, amc_text(layout, values, gaps), forbid=forbid)
+    write_text(path, amc_text(layout, values, gaps, drop), forbid=forbid)

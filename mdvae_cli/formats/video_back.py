@@ -41,6 +41,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.data_write import write_data
+from mdvae_cli.formats.hybrik_holes import hybrik_rows_filled
 from mdvae_cli.formats.video_gap_rows import gap_rows_added, phalp_rows_added
 from mdvae_cli.formats.video_holes import scales_in_holes, weak_camera_in_holes
 from mdvae_cli.formats.video_layout import track_items
@@ -183,7 +184,8 @@ def put_vibe(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
 
 
 def put_hybrik(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
-    data["pred_thetas"] = put_matrices(data["pred_thetas"], rows)
+    old_thetas = data["pred_thetas"]
+    data["pred_thetas"] = put_matrices(old_thetas, rows)
     data["pred_betas"] = put_betas(data["pred_betas"], rows)
     key = "transl" if "transl" in data else "pred_cam_root"
     for twin in ("transl_camsys", "pred_cam_root"):  # copies of transl, scaled per frame
@@ -195,8 +197,12 @@ def put_hybrik(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:
     data[key] = put_transl(data[key], rows)
     kept = [k for k in ("pred_xyz_29", "pred_xyz_17", "pred_xyz_24_struct", "pred_uvd")
             if k in data]  # fmt: skip
+    # the rows a hole filled: every other array too (formats.hybrik_holes)
+    filled = hybrik_rows_filled(data, old_thetas) if rows.fill else []
     if kept:
-        notes.append(f"{', '.join(kept)} (the network's own joints) kept as they came")
+        notes.append(f"{', '.join(kept)} (the network's own joints) kept as they came"
+                     + (" in the rows the file holds" if filled else ""))  # fmt: skip
+    notes += filled
 
 
 def put_aistpp(data: dict, raw: RawTrack, rows: Rows, notes: list[str]) -> None:

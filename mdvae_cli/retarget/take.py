@@ -208,11 +208,48 @@ def write_take(
         raise InputError(f"{take.path}: {exc}; nothing written") from None
     if as_read:
         _restore_missing(take, values)
-    write_amc(take.source.layout, values, out, forbid=forbid, gaps=not as_read)
+    write_amc(take.source.layout, values, out, forbid=forbid, gaps=not as_read,
+              drop=dropped_frames(take, cleaned))  # fmt: skip
     notes = _copy_skeleton(take.skeleton_file, out, forbid)
     if any(ch.startswith("t") for ch in take.source.layout.skeleton.root_order):
         return notes
     return notes + _dropped_move(take, cleaned)
+
+
+def dropped_frames(take: Take, cleaned: Motion) -> np.ndarray | None:
+    """(F,) bool, the frames of an AMC take's file that ``cleaned``, written with its holes as
+    they came (``npz_holes.keep_holes``: ``add-noise``, ``--fill off``), misses whole (NaN in
+    every body value: ``add-noise --drop-frames``): left out of the file, their numbers
+    missing, the holes the AMC reader reads (``formats.amc_frames``). None: none, or a motion
+    not one row per file frame. InputError for a take whose numbers step by more than 1 (one
+    frame in k of a capture), where a missing number is no hole."""
+    from mdvae_cli.formats.amc_frames import even_step
+    from mdvae_cli.formats.npz_holes import AS_READ, HOLES, NUM_JOINTS
+
+    as_read, layout = cleaned.layout.get(AS_READ), take.source.layout
+    if cleaned.layout.get(HOLES) != "as read" or not as_read:
+        return None
+    if as_read["frames"] != len(layout.rows) or cleaned.num_frames != len(layout.rows):
+        return None
+    rows, cols, values = (np.asarray(a) for a in as_read["poses"])
+    body = (cols < 3 * NUM_JOINTS) & ~np.isfinite(values.astype(float))
+    nan = np.zeros((cleaned.num_frames, 3 * NUM_JOINTS), bool)
+    nan[rows[body].astype(int), cols[body].astype(int)] = True
+    whole = nan.all(axis=1)
+    if not whole.any():
+        return None
+    whole_frames = [int(n) for n, cut in zip(layout.frames, _added(layout), strict=True) if not cut]
+    if even_step(sorted(whole_frames)) > 1:
+        raise InputError(f"{take.path}: its frame numbers step by more than 1 (one frame in k "
+                         "of a capture), so a missing number is no hole; write .npz")  # fmt: skip
+    drop = np.zeros(len(layout.frames), bool)
+    drop[layout.rows[whole]] = True
+    return drop
+
+
+def _added(layout) -> np.ndarray:
+    """(F,) bool, the frames an AMC layout added for missing numbers."""
+    return np.zeros(len(layout.frames), bool) if layout.added is None else layout.added
 
 
 def _copy_skeleton(asf: Path | None, out: Path, forbid: tuple) -> list[str]:

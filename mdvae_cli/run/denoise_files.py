@@ -25,7 +25,7 @@ from mdvae_cli.infer.noise_blend import BlendReport
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.run.tracks import on_floor, outputs_of, own_output, track_output
+from mdvae_cli.run.tracks import on_floor, outputs_of, own_output, reader_notes, track_output
 
 #: the output forms written back as a take on its own skeleton
 TAKE_OUTPUTS = (".bvh", ".amc")
@@ -166,9 +166,7 @@ def read_file(
         notes.append((None, why))
     tracks, short = [], []
     for label, motion, out in outputs_of(loaded, output):
-        # the reader's "not carried" says what the .npz form leaves out; the file's own form
-        # says what it leaves out when it is written
-        notes += [(label, n) for n in motion.notes if not (own and n.endswith("not carried"))]
+        notes += [(label, n) for n in reader_notes(motion.notes, own)]
         if floor:
             motion = on_floor(motion, _body_data(options))
             notes.append((label, motion.notes[-1]))

@@ -35,6 +35,18 @@ def outputs_of(
     return [(lab, m, output if own else track_output(output, lab)) for lab, m in loaded.tracks]
 
 
+#: how a reader's note ends when it says what the AMASS-style .npz leaves out of a file
+#: ("'verts' (made from the pose by any SMPL tool) not carried")
+NOT_CARRIED = "not carried"
+
+
+def reader_notes(notes: list[str], own: bool) -> list[str]:
+    """A track's notes from its reader to tell the user: in the file's own form (``own``)
+    without those saying what the .npz form leaves out, since writing the file back says
+    what it leaves out itself (``formats.video_back``: "'verts' left out"), once."""
+    return [n for n in notes if not (own and n.endswith(NOT_CARRIED))]
+
+
 def own_output(
     loaded: LoadedFile, output: Path, holes: bool = False
 ) -> tuple[Path, bool, str | None]:
