@@ -108,6 +108,30 @@ def test_hold_targets_holds_the_goal_and_leaves_far_frames():
     assert shifts[0] < 0 and np.all(np.diff(np.abs(shifts)) < 0)
 
 
+def test_a_pinned_fade_keeps_the_joint_near_its_goal_next_to_the_run():
+    T = 30
+    pos = np.zeros((T, 1, 3))
+    pos[:, 0, 0] = 0.01 * np.arange(T)  # sliding 1 cm per frame, in and out of the run
+    pos[:, 0, 2] = 0.002 * np.arange(T)
+    c = np.zeros((T, 1), dtype=bool)
+    c[10:20] = True
+    goals = pos.copy()
+    goals[10:20, 0, 0] = 0.145
+    w = fade_weights(c, 3)
+    shifted, pinned = hold_targets(pos, c, goals, w), hold_targets(pos, c, goals, w, pin=1.0)
+    assert np.array_equal(pinned[10:20], shifted[10:20])  # in the run: the goal either way
+    assert np.array_equal(pinned[..., 2], shifted[..., 2])  # heights fade as before
+    assert np.array_equal(pinned[:6], pos[:6]) and np.array_equal(pinned[24:], pos[24:])
+    # the frame after the run (weight 0.84) and the one before it: shifted, the joint moves
+    # on with the motion and the fade (1.70 cm); pinned (by the weight squared, 0.71), by
+    # 0.99 cm, the rest of the way being made up further out in the swing
+    steps = lambda t: np.diff(t[:, 0, 0])  # noqa: E731
+    assert steps(shifted)[[19, 9]] == pytest.approx([0.01703125] * 2)
+    assert steps(pinned)[[19, 9]] == pytest.approx([0.00991211] * 2, abs=1e-8)
+    assert steps(pinned)[20:23] == pytest.approx([0.02758789, 0.02973633, 0.01776367], abs=1e-8)
+    assert np.allclose(hold_targets(pos, c, goals, w, pin=0.5), (shifted + pinned) / 2)
+
+
 def _naive_fades_means_targets(c, blend, values, goals):
     """Per-run loops (the plain reading of the docstrings) for the vectorised helpers."""
     T, K = c.shape
@@ -179,6 +203,8 @@ def test_a_noisier_input_gets_wider_contact_thresholds():
 def test_config_is_checked():
     with pytest.raises(ValueError, match="keep"):
         FootLockConfig(keep=1.5)
+    with pytest.raises(ValueError, match="pin"):
+        FootLockConfig(pin=-0.5)
     with pytest.raises(ValueError, match="blend_s"):
         FootLockConfig(blend_s=-1)
     with pytest.raises(ValueError, match="distrust_above"):
@@ -336,8 +362,8 @@ def test_a_foot_under_the_floor_is_lifted_onto_it(body):
     m.trans[:, 2] = on_floor + 0.05 * np.sin(np.arange(60) / 5)  # bobbing 5 cm up and down
     m.trans[10:20, 0] = m.trans[10, 0]  # but still for 10 frames, on the floor: a contact
     m.trans[10:20, 2] = on_floor
-    cfg = FootLockConfig(sunk_tol=0.02)
-    locked = lock_feet(m, body, cfg)
+    cfg = FootLockConfig(sunk_tol=0.02, pin=0.0)  # (a pinned fade holds the foot back: its IK
+    locked = lock_feet(m, body, cfg)  # moves the sole by a millimetre or two beside the run)
     _, before = feet_and_soles(m, body)
     _, after = feet_and_soles(locked, body)
     # sunk more than sunk_tol: lifted onto the floor (the knee bends as far as that needs; the

@@ -136,14 +136,22 @@ def travel_anchors(
 
 
 def hold_targets(
-    positions: np.ndarray, contacts: np.ndarray, goals: np.ndarray, weights: np.ndarray
+    positions: np.ndarray,
+    contacts: np.ndarray,
+    goals: np.ndarray,
+    weights: np.ndarray,
+    pin: float = 0.0,
 ) -> np.ndarray:
     """Where each foot joint should be: on its goal in contact, fading back around it.
 
     positions: (T, K, 3) the joints as they are; contacts: (T, K) bool; goals: (T, K, 3) where
     they should be at the contact frames; weights: (T, K, 2) from :func:`fade_weights`.
     Out of contact, a frame moves by the correction (goal - position) at the end of the run
-    before it and the start of the run after it, times their weights.
+    before it and the start of the run after it, times their weights; ``pin`` (0 to 1) times
+    the weight again of that horizontal move instead takes the joint toward the goal itself,
+    so that next to a run the joint stays nearer where it was held and then catches up with
+    the motion (a joint the motion lifts a frame early or puts down a frame late slides less
+    there; the pin fading as the weight squared, the swing further out is hardly changed).
     -> (T, K, 3); equal to ``positions`` where ``weights`` are 0.
     """
     inside = np.asarray(contacts, dtype=bool)
@@ -151,11 +159,12 @@ def hold_targets(
     shift = np.where(inside[..., None], goals - positions, 0.0)
     k = np.arange(inside.shape[1])[None, :]
     before, after = last_true(inside), next_true(inside)
-    ends = np.stack(
-        [
-            np.where((before >= 0)[..., None], shift[np.maximum(before, 0), k], 0.0),
-            np.where((after < T)[..., None], shift[np.minimum(after, T - 1), k], 0.0),
-        ],
-        axis=-2,
-    )  # the shift at the end of the run before, the start of the next
-    return positions + np.where(inside[..., None], shift, (weights[..., None] * ends).sum(-2))
+    b, a = np.maximum(before, 0), np.minimum(after, T - 1)
+    has = np.stack([before >= 0, after < T], axis=-1)[..., None]  # (T, K, 2, 1)
+    ends = np.where(has, np.stack([shift[b, k], shift[a, k]], axis=-2), 0.0)
+    move = ends  # the shift at the end of the run before, the start of the next
+    if pin > 0:  # toward the goal there: by the distance from where the joint was there
+        drift = np.stack([positions[b, k], positions[a, k]], axis=-2) - positions[:, :, None]
+        drift = np.where(has, drift, 0.0) * np.array([1.0, 1.0, 0.0]) * weights[..., None]
+        move = ends + pin * drift
+    return positions + np.where(inside[..., None], shift, (weights[..., None] * move).sum(-2))

@@ -30,8 +30,11 @@ it was made from (same frames):
    it came with, rolling from heel to toe; between ``trust_below`` and ``distrust_above`` the
    two goals are blended.
 4. **Fades.** A run's correction fades out over ``blend_s`` before and after it (smoothstep),
-   in the swing: a fade inside the contact would be sliding itself. Anywhere else, a foot
-   whose sole is under the floor gets a goal on it.
+   in the swing: a fade inside the contact would be sliding itself; ``pin`` times the fade's
+   weight (times 1 - the input's trust) of its horizontal part takes the joint toward its goal
+   rather than moving it with the motion, so a foot the motion lifts early or puts down late
+   slides less next to the run. Anywhere else, a foot whose sole is under the floor gets a
+   goal on it.
 5. **Leg IK that keeps the knee's bend** (:func:`mdvae_cli.infer.leg_ik.swing_ik`): each held
    leg swings about its hip to put the ankle over its goal, the knee bent as the motion has it;
    the knee turns only by a damped least-squares step (``knee_stiffness``, ``bend_stiffness``:
@@ -61,15 +64,13 @@ from mdvae_cli.infer.contact_runs import clean_contacts, fade_weights, hold_targ
 from mdvae_cli.infer.fill import holes_from
 from mdvae_cli.infer.foot_jitter import JITTER_FPS, at_jitter_rate, input_jitter, jitter_of  # noqa: F401
 from mdvae_cli.infer.leg_ik import (
-    CHUNK_FRAMES,
     LEGS,
     LegModel,
+    feet_of,
     leg_chain,
     leg_rotations,
     pose_legs,
-    sole_heights,
-    swing_ik,
-    to_rotvecs,
+    solve_legs,
 )
 from mdvae_cli.infer.noise_blend import source_spikes
 from mdvae_cli.motion.contacts import (
@@ -110,7 +111,11 @@ class FootLockConfig:
     go linearly to noisy_height_tol, noisy_speed_tol and noisy_keep (:func:`for_noise`);
     travel_tol (m), travel_jitter: a held joint straying over a run further than travel_tol
     plus travel_jitter times the input's foot jitter (none over noisy_from) from its mean
-    travels (``contact_runs.travel_anchors``): held to its mean within travel_s either side.
+    travels (``contact_runs.travel_anchors``): held to its mean within travel_s either side;
+    over 30 Hz the tolerance is scaled by 30 / fps (the denoised feet err less there: a
+    120 Hz squat's travel is the take's own); pin: times the fade's weight, the share of a
+    fade's horizontal correction that takes the joint toward its goal
+    (``contact_runs.hold_targets``).
     """
 
     smooth_s: float = 0.05
@@ -138,6 +143,7 @@ class FootLockConfig:
     travel_tol: float = 0.15
     travel_jitter: float = 1.0
     travel_s: float = 0.25
+    pin: float = 0.5
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
@@ -147,8 +153,8 @@ class FootLockConfig:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not (self.height_tol > 0 and self.speed_tol > 0):
             raise ValueError("height_tol and speed_tol must be > 0")
-        if not 0 <= self.keep <= 1:
-            raise ValueError(f"keep must be in [0, 1], got {self.keep}")
+        if not (0 <= self.keep <= 1 and 0 <= self.pin <= 1):
+            raise ValueError(f"keep and pin must be in [0, 1], got {self.keep}, {self.pin}")
         if not (self.noisy_to > self.noisy_from and 0 <= self.noisy_keep <= 1):
             raise ValueError("noisy_to must be larger than noisy_from, noisy_keep in [0, 1]")
         if not (self.noisy_height_tol > 0 and self.noisy_speed_tol > 0):
@@ -189,11 +195,6 @@ JITTER_TRIPLES = 4096
 
 # --------------------------------------------------------------------------------------------
 # the whole step
-
-
-def feet_of(pos: np.ndarray) -> np.ndarray:
-    """Leg positions (T, 2, 4, 3) -> the foot joints (T, 4, 3) in ``FOOT_JOINTS`` order."""
-    return pos[:, :, 2:].transpose(0, 2, 1, 3).reshape(-1, 4, 3)
 
 
 def input_trust(
@@ -296,6 +297,7 @@ def lock_feet(
         travel_tol += math.inf if jitter > cfg.noisy_from else cfg.travel_jitter * jitter
         # a clean take's feet are lifted only by the share of the goal that is not its own
         lift_share = 1.0 - trust * (1.0 - clean_scale(cfg, at_30))
+    travel_tol *= min(1.0, JITTER_FPS / motion.fps)  # over 30 Hz the denoised feet err less
     contacts = detect_contacts(feet, motion.fps, cfg)
     if not contacts.any():
         return motion.with_body()
@@ -324,56 +326,19 @@ def lock_feet(
         heights[f] = floor + clearance
         goals[..., 2] = heights
         goal = goals if reference is None else trust * reference + (1 - trust) * goals
-        targets = hold_targets(feet, contacts, goal, weights)[f]
+        targets = hold_targets(feet, contacts, goal, weights, cfg.pin * (1 - trust))[f]
         lift = lift_share * np.maximum(heights[f] - targets[..., 2], 0.0)
         targets[..., 2] = np.where(free, targets[..., 2] + lift, targets[..., 2])
         last = i == cfg.passes - 1
-        clearance, new_rotvecs = _solve_legs(
-            motion, model, f, targets[:, columns], held[f][:, columns], sunk[f], cfg, last
+        stiff = (cfg.knee_stiffness, cfg.bend_stiffness)
+        clearance, new_rotvecs = solve_legs(
+            motion, model, f, targets[:, columns], held[f][:, columns], sunk[f], stiff, last
         )
     out = motion.pose_body.copy()
     b, leg = np.nonzero(held[f][:, columns].any(-1))  # frames where each leg has a target
     joints = np.asarray(LEGS)[leg, :3] - 1  # pose_body rows of hip, knee, ankle
     out[f[b, None], joints] = new_rotvecs[b, leg]
     return motion.with_body(pose_body=out)
-
-
-def _solve_legs(
-    motion: Motion,
-    model: LegModel,
-    frames: np.ndarray,
-    targets: np.ndarray,
-    held: np.ndarray,
-    sunk: np.ndarray,
-    cfg: FootLockConfig,
-    rotvecs: bool,
-) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The leg IK (:func:`swing_ik`) on ``frames`` of ``motion``, ``CHUNK_FRAMES`` at a time.
-
-    targets: (B, 2, 2, 3), held: (B, 2, 2) bool, per leg (ankle, ball); sunk: (B, 2) bool, legs
-    whose foot is deeper than ``sunk_tol`` under the floor (their knees bend as far as needed).
-    -> with ``rotvecs`` (the last pass): (None, the new hip, knee and ankle axis-angles
-    (B, 2, 3, 3) on the branch of the motion's own); else (the foot joints' heights above their
-    soles as posed after it (B, 4), None), for the next pass."""
-    B = len(frames)
-    clearance = None if rotvecs else np.empty((B, 4))
-    out = np.empty((B, 2, 3, 3)) if rotvecs else None
-    rows = np.asarray(LEGS)[:, :3] - 1  # pose_body rows of hip, knee, ankle per leg
-    for s in range(0, B, CHUNK_FRAMES):
-        sl = slice(s, min(s + CHUNK_FRAMES, B))
-        f = frames[sl]
-        root = rotvec_to_rotmat(np.asarray(motion.root_orient[f], dtype=np.float64))
-        pelvis = motion.trans[f] + model.pelvis
-        legs = leg_rotations(motion, f)
-        flexion = motion.pose_body[f][:, rows[:, 1], 0]
-        new = swing_ik(root, legs, pelvis, model.bones, targets[sl], held[sl], flexion,
-                       cfg.knee_stiffness, np.where(sunk[sl], 0.0, cfg.bend_stiffness))  # fmt: skip
-        if out is not None:
-            out[sl] = to_rotvecs(new[:, :, :3], motion.pose_body[f][:, rows])
-        else:
-            pos, G = leg_chain(root, new, pelvis, model.bones)
-            clearance[sl] = feet_of(pos)[..., 2] - sole_heights(pos, G, model)[:, list(FOOT_SIDE)]
-    return clearance, out
 
 
 def lock_motions(

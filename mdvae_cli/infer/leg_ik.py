@@ -23,7 +23,7 @@ from mdvae_cli.geometry.rotations_np import (
     rotmat_to_rotvec,
     rotvec_to_rotmat,
 )
-from mdvae_cli.motion.contacts import foot_vertex_ids
+from mdvae_cli.motion.contacts import FOOT_SIDE, foot_vertex_ids
 from mdvae_cli.motion.motion import Motion
 
 #: per leg (left, right): hip, knee, ankle, ball-of-foot joints (SMPL indices)
@@ -267,3 +267,48 @@ def to_rotvecs(rotmats: np.ndarray, reference: np.ndarray) -> np.ndarray:
     other = rotvec * (1.0 - 2 * math.pi / np.maximum(angle, 1e-12))
     far = np.linalg.norm(other - reference, axis=-1) < np.linalg.norm(rotvec - reference, axis=-1)
     return np.where((far & (angle[..., 0] > 1e-12))[..., None], other, rotvec)
+
+
+def feet_of(pos: np.ndarray) -> np.ndarray:
+    """Leg positions (T, 2, 4, 3) -> the foot joints (T, 4, 3) in ``FOOT_JOINTS`` order."""
+    return pos[:, :, 2:].transpose(0, 2, 1, 3).reshape(-1, 4, 3)
+
+
+def solve_legs(
+    motion: Motion,
+    model: LegModel,
+    frames: np.ndarray,
+    targets: np.ndarray,
+    held: np.ndarray,
+    sunk: np.ndarray,
+    stiffness: tuple[float, float],
+    rotvecs: bool,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """:func:`swing_ik` on ``frames`` of ``motion``, ``CHUNK_FRAMES`` at a time (the foot
+    lock's legs, ``infer.feet``).
+
+    targets: (B, 2, 2, 3), held: (B, 2, 2) bool, per leg (ankle, ball); sunk: (B, 2) bool, legs
+    whose foot is deeper than ``sunk_tol`` under the floor (their knees bend as far as needed);
+    stiffness: (knee_stiffness, bend_stiffness) of :func:`swing_ik`.
+    -> with ``rotvecs`` (the last pass): (None, the new hip, knee and ankle axis-angles
+    (B, 2, 3, 3) on the branch of the motion's own); else (the foot joints' heights above their
+    soles as posed after it (B, 4), None), for the next pass."""
+    B = len(frames)
+    clearance = None if rotvecs else np.empty((B, 4))
+    out = np.empty((B, 2, 3, 3)) if rotvecs else None
+    rows = np.asarray(LEGS)[:, :3] - 1  # pose_body rows of hip, knee, ankle per leg
+    for s in range(0, B, CHUNK_FRAMES):
+        sl = slice(s, min(s + CHUNK_FRAMES, B))
+        f = frames[sl]
+        root = rotvec_to_rotmat(np.asarray(motion.root_orient[f], dtype=np.float64))
+        pelvis = motion.trans[f] + model.pelvis
+        legs = leg_rotations(motion, f)
+        flexion = motion.pose_body[f][:, rows[:, 1], 0]
+        new = swing_ik(root, legs, pelvis, model.bones, targets[sl], held[sl], flexion,
+                       stiffness[0], np.where(sunk[sl], 0.0, stiffness[1]))  # fmt: skip
+        if out is not None:
+            out[sl] = to_rotvecs(new[:, :, :3], motion.pose_body[f][:, rows])
+        else:
+            pos, G = leg_chain(root, new, pelvis, model.bones)
+            clearance[sl] = feet_of(pos)[..., 2] - sole_heights(pos, G, model)[:, list(FOOT_SIDE)]
+    return clearance, out
