@@ -262,6 +262,13 @@ def _blend_rotations(
         spikes = spikes & ~missing
     # the residual's mean square over its components holds the noise's mean over them
     kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
+    # on a noisy take the root's fast band is the denoiser's: the local rotations below it were
+    # made for the denoiser's root, and the input's fast turns (its noise, or motion the
+    # denoiser's root lacks) turned the whole body with them (docs/model.md, "Do no harm")
+    if noisy and fast:
+        root = None if missing is None else missing[:, :1]
+        kept[:, :1], share[:, :1] = keep_unexplained(residual[:, :1], noise[:1], spikes[:, :1],
+                                                     fps, False, root)  # fmt: skip
     out = np.empty(src.shape)
     # the denoised quaternions are made again chunk by chunk rather than kept whole: on a long
     # take a whole array of them is a large share of the peak memory, and cheap to make
