@@ -18,11 +18,12 @@ from mdvae_cli.formats.hybrik_holes import (
     chained_joints,
     hybrik_rows_filled,
     interpolated_rows,
-    world_rotations,
 )
+from mdvae_cli.geometry.kinematics import world_rotations
 from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "video" / "hybrik"
+SMPL = PARENTS_29[:24]  # SMPL's own 24 joints
 HOLE = list(range(60, 66))  # rows 60-65 NaN in every float array
 
 
@@ -34,7 +35,7 @@ def run(*args):
 def _chain(local: np.ndarray, bones: np.ndarray) -> np.ndarray:
     """Joints (R, 29, 3) of the 29-joint chain: local rotations (R, 24, 3, 3), bones (29, 3)
     in the parent's frame, the root at 0."""
-    G = world_rotations(local)
+    G = world_rotations(local, SMPL)
     x = np.zeros((len(local), 29, 3))
     for j in range(1, 29):
         p = PARENTS_29[j]
@@ -50,12 +51,12 @@ def test_chained_joints_are_the_chain_of_the_filled_pose():
     truth = _chain(local, bones)
     x = truth.copy()
     x[10:14] = np.nan
-    old = world_rotations(local)
+    old = world_rotations(local, SMPL)
     old[10:14] = np.nan  # the file's pose is lost there too
-    new = world_rotations(local)  # the pose the cleaning filled in (here: the true one)
+    new = world_rotations(local, SMPL)  # the pose filled in (here: the true one)
     out = chained_joints(x, PARENTS_29, old, new)
     assert np.abs(out - truth).max() < 1e-12
-    moved = world_rotations(rotvec_to_rotmat(rng.normal(0, 0.4, (R, 24, 3))))
+    moved = world_rotations(rotvec_to_rotmat(rng.normal(0, 0.4, (R, 24, 3))), SMPL)
     out = chained_joints(x, PARENTS_29, old, moved)  # another filled pose: its own chain
     G = moved[10:14]
     for j in range(1, 29):
@@ -100,8 +101,8 @@ def test_real_hybrik_file_rows_filled_whole(tmp_path):
         assert np.array_equal(out[k][keep], orig[k][keep]), k  # the rows it holds: as they came
     # the struct joints of a filled row: the chain of the filled pose, on the file's bones
     R = len(out["pred_thetas"])
-    G = world_rotations(np.asarray(out["pred_thetas"], np.float64).reshape(R, 24, 3, 3))
-    G0 = world_rotations(np.asarray(orig["pred_thetas"], np.float64).reshape(R, 24, 3, 3))
+    G = world_rotations(np.asarray(out["pred_thetas"], np.float64).reshape(R, 24, 3, 3), SMPL)
+    G0 = world_rotations(np.asarray(orig["pred_thetas"], np.float64).reshape(R, 24, 3, 3), SMPL)
     x = np.asarray(out["pred_xyz_24_struct"], np.float64).reshape(R, 24, 3)
     x0 = np.asarray(orig["pred_xyz_24_struct"], np.float64).reshape(R, 24, 3)
     for j in range(1, 24):

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from mdvae_cli.body.data import SMPL_PARENTS
+from mdvae_cli.formats.npz_holes import interp_columns
 
 #: HybrIK's 29 joints: SMPL's 24, then head top (on the head), left / right middle finger
 #: (on the hands), left / right big toe (on the feet)
@@ -41,15 +42,6 @@ ANCHORED = ("pred_xyz_17",)
 INTERPOLATED = ("pred_uvd", "pred_scores", "pred_camera", "pred_phi", "bbox")
 
 
-def world_rotations(local: np.ndarray) -> np.ndarray:
-    """SMPL's 24 world rotations from its local ones (root first).  (R, 24, 3, 3) -> same"""
-    G = np.empty_like(local)
-    G[:, 0] = local[:, 0]
-    for j in range(1, 24):
-        G[:, j] = G[:, PARENTS_29[j]] @ local[:, j]
-    return G
-
-
 def _bad_rows(values: np.ndarray) -> np.ndarray:
     """(R,) rows of ``values`` (R, ...) holding a non-finite number."""
     return ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
@@ -58,12 +50,9 @@ def _bad_rows(values: np.ndarray) -> np.ndarray:
 def _interp(values: np.ndarray, known: np.ndarray) -> np.ndarray:
     """``values`` (R, ...) with the rows not ``known`` (R,) interpolated linearly from those
     that are (ends held)."""
-    out = np.array(values, dtype=np.float64)
-    rows = np.arange(len(out))
-    flat = out.reshape(len(out), -1)
-    for c in range(flat.shape[1]):
-        flat[~known, c] = np.interp(rows[~known], rows[known], flat[known, c])
-    return flat.reshape(out.shape)
+    flat = np.reshape(values, (len(values), -1))
+    bad = np.repeat(~known[:, None], flat.shape[1], axis=1)
+    return interp_columns(flat, bad).reshape(np.shape(values))
 
 
 def interpolated_rows(values: np.ndarray) -> np.ndarray:
@@ -127,10 +116,13 @@ def hybrik_rows_filled(data: dict, old_thetas: np.ndarray) -> list[str]:
     """Fill, in place, HybrIK's arrays (module docstring) in the rows they hold a non-finite
     value in, ``data["pred_thetas"]`` being the written (filled) pose and ``old_thetas`` the
     file's (R, 216 or 24 x 3 x 3). -> a note naming the arrays filled, or none."""
-    R = len(old_thetas)
+    from mdvae_cli.geometry.kinematics import world_rotations  # torch: loaded by then
+
+    R, smpl = len(old_thetas), PARENTS_29[:24]
     with np.errstate(invalid="ignore", over="ignore"):  # the file's NaN / inf rows stay so
-        old = world_rotations(np.asarray(old_thetas, dtype=np.float64).reshape(R, 24, 3, 3))
-    new = world_rotations(np.asarray(data["pred_thetas"], dtype=np.float64).reshape(R, 24, 3, 3))
+        old = world_rotations(np.asarray(old_thetas, dtype=np.float64).reshape(R, 24, 3, 3), smpl)
+    new = world_rotations(np.asarray(data["pred_thetas"], dtype=np.float64).reshape(R, 24, 3, 3),
+                          smpl)  # fmt: skip
     filled = []
     for key, parents in CHAINED.items():
         if _fillable(data, key, R, len(parents)):

@@ -128,11 +128,11 @@ def fill_placeholders(motion: Motion, trans_bad: np.ndarray) -> Motion:
     keep = ~trans_bad.any(axis=1)
     filled.trans[keep] = trans[keep]
     if extra.any():
-        filled.pose_extra = _interp_columns(motion.pose_extra, extra)
+        filled.pose_extra = interp_columns(motion.pose_extra, extra)
     return filled
 
 
-def _interp_columns(values: np.ndarray, bad: np.ndarray) -> np.ndarray:
+def interp_columns(values: np.ndarray, bad: np.ndarray) -> np.ndarray:
     """(T, K) values with the entries where ``bad`` interpolated linearly column by column
     (the ends held)."""
     out = np.array(values, dtype=np.float64)
