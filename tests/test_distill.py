@@ -16,11 +16,12 @@ from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.infer.refine import refine_posterior
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import make_windows
+from mdvae_cli.model.checkpoint import load_checkpoint
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.motion.mirror import mirror_motion
 from mdvae_cli.motion.resample import resample_motion
-from mdvae_cli.train import fit_dataset as fd
+from mdvae_cli.train import distill_targets as dt
 from mdvae_cli.train.distill import DistillConfig, distill, refine_targets
 from mdvae_cli.train.fit_dataset import FitConfig, fit_dataset, load_noisy_windows
 from tests.test_denoise import noisy_dir, tiny_prior, write_denoiser  # noqa: F401 (fixtures)
@@ -48,6 +49,47 @@ def test_refine_targets_are_what_refinement_finds(windows):
     # refinement moved the posterior away from the encoder's answer
     start = den.infer(group.yn, with_prior=False)["q_z"].mean
     assert (targets.z - start).abs().mean() > 1e-3
+
+
+def test_targets_made_in_parts_are_the_targets_made_at_once(windows):
+    """A stop after a batch returns the first windows' targets; refinement started from them
+    makes the rest, and the whole is what one pass makes (each window's steps are its own)."""
+    den, group = windows
+    whole = refine_targets(den, group, steps=3, batch=4)
+    asked, kept = [], []
+    first = refine_targets(
+        den, group, steps=3, batch=4, stop_requested=lambda: asked.append(1) or len(asked) == 2,
+        keep=lambda so_far: kept.append(len(so_far())),
+    )  # fmt: skip
+    assert len(group) > 8 and len(first) == 8 and kept == [4]
+    rest = refine_targets(den, group, steps=3, batch=4, start=first)
+    assert len(rest) == len(group)
+    for name in ("z", "x0", "z_logvar"):
+        torch.testing.assert_close(getattr(rest, name), getattr(whole, name))
+    # other batch sizes give the same targets
+    torch.testing.assert_close(refine_targets(den, group, steps=3, batch=5).z, whole.z)
+
+
+def test_targets_are_saved_as_they_are_made(windows, tmp_path, monkeypatch):
+    """A run killed outright while refining keeps what its last save held (every
+    ``keep_seconds``); a run reading the file goes on after those windows."""
+    den, group = windows
+    real, saved = dt.save_targets, []
+
+    def spy(path, groups, steps, digest, targets):
+        saved.append(len(targets[0]))
+        real(path, groups, steps, digest, targets)
+
+    monkeypatch.setattr(dt, "save_targets", spy)
+    monkeypatch.setattr(dt, "refine_targets", lambda *a, **k: refine_targets(*a, **k, batch=4))
+    made = dt.distill_targets(den, [group], 2, tmp_path, False, False, keep_seconds=0.0)
+    n = len(group)
+    assert saved == [*range(4, n, 4), n] and dt.complete(made, [group])
+    digest = dt.parameter_digest(den)
+    stored = dt.stored_targets(tmp_path / dt.TARGETS_FILE, [group], 2, digest, False)
+    torch.testing.assert_close(stored[0].z, made[0].z)
+    assert dt.stored_targets(tmp_path / dt.TARGETS_FILE, [group], 3, digest, False) is None
+    assert dt.stored_targets(tmp_path / dt.TARGETS_FILE, [group], 2, "other", False) is None
 
 
 @pytest.mark.slow  # ~18 s on 2 cores
@@ -127,7 +169,7 @@ def test_fit_dataset_distils_and_a_resumed_run_reuses_its_targets(
     den, meta = load_denoiser(tmp_path / "den")
     assert meta["distill_steps"] == summary.distill_steps
     assert meta["started_from"]["path"] == str(start)
-    assert (tmp_path / "den" / fd.TARGETS_FILE).exists()
+    assert (tmp_path / "den" / dt.TARGETS_FILE).exists()
     saved = json.loads((tmp_path / "den" / "config.json").read_text())
     assert saved["distill"]["epochs"] == 2 and saved["init_from"] == str(start)
     # the networks it started from are not the ones it ends with
@@ -138,7 +180,7 @@ def test_fit_dataset_distils_and_a_resumed_run_reuses_its_targets(
         raise AssertionError("targets recomputed")
 
     with monkeypatch.context() as patch:
-        patch.setattr(fd, "refine_targets", no_refining)
+        patch.setattr(dt, "refine_targets", no_refining)
         cfg.distill.epochs = 3
         resumed = fit_dataset(cfg, tmp_path / "den", resume=True)
         assert resumed.distill_steps == summary.distill_steps * 3 // 2
@@ -147,10 +189,71 @@ def test_fit_dataset_distils_and_a_resumed_run_reuses_its_targets(
     # but not a run from other networks
     cfg.init_from = str(tmp_path / "den")
     calls = []
-    real = fd.refine_targets
-    monkeypatch.setattr(fd, "refine_targets", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = dt.refine_targets
+    monkeypatch.setattr(dt, "refine_targets", lambda *a, **k: calls.append(1) or real(*a, **k))
     fit_dataset(cfg, tmp_path / "den", overwrite=True)
     assert calls == [1]
+
+
+def test_a_sigterm_while_refining_targets_keeps_them_and_resume_refines_the_rest(
+    tiny_prior,  # noqa: F811
+    noisy_dir,  # noqa: F811
+    tmp_path,
+    monkeypatch,
+):
+    """The first SIGTERM while the distillation targets are refined stops after the batch it
+    came in, saves the targets made so far and exits 143; --resume refines the rest only and
+    ends with the networks of a run never stopped. Before: the stop waited for every window's
+    refinement (most of an hour on the real corpus), or a second signal lost all of it."""
+    import os
+    import signal
+
+    start = write_denoiser(tiny_prior, tmp_path / "start")
+    cfg = FitConfig(
+        data=[str(noisy_dir)], init_from=str(start), window=20, stride=5, batch_size=8,
+        epochs=0, device="cpu", distill=DistillConfig(epochs=1, batch_size=8, refine_steps=2),
+    )  # fmt: skip
+    real, batches = dt.refine_targets, []
+
+    def in_batches_of_4(*args, **kwargs):
+        return real(*args, **kwargs, batch=4)
+
+    monkeypatch.setattr(dt, "refine_targets", in_batches_of_4)
+    whole = fit_dataset(cfg, tmp_path / "whole")
+    config = tmp_path / "fit.json"
+    config.write_text(json.dumps(cfg.to_dict()))
+
+    def signalled_in_the_second_batch(info):
+        batches.append(info["step"])
+        if len(batches) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    def refining(*args, **kwargs):
+        return real(*args[:3], signalled_in_the_second_batch, **{**kwargs, "batch": 4})
+
+    monkeypatch.setattr(dt, "refine_targets", refining)
+    out = tmp_path / "den"
+    args = ["fit-dataset", str(noisy_dir), "-o", str(out), "--config", str(config)]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 143, res.output
+    assert "windows' targets still to refine" in res.output and "--resume" in res.output
+    tensors, meta = load_checkpoint(out / dt.TARGETS_FILE)
+    assert tensors["z"].shape[0] == 8 < meta["windows"] == whole.windows
+    assert json.loads((out / "log.jsonl").read_text())["interrupted"] is True
+    assert json.loads((out / "denoiser.json").read_text())["distill_steps"] == 0
+
+    made = []
+    monkeypatch.setattr(
+        dt, "refine_targets", lambda *a, **k: made.append(k["start"]) or in_batches_of_4(*a, **k)
+    )
+    res = CliRunner().invoke(cli, ["fit-dataset", str(noisy_dir), "-o", str(out), "--resume"])
+    assert res.exit_code == 0, res.output
+    assert len(made) == 1 and len(made[0]) == 8  # it went on after the kept windows
+    a, _ = load_denoiser(tmp_path / "whole")
+    b, meta = load_denoiser(out)
+    assert meta["distill_steps"] == whole.distill_steps > 0
+    for (name, x), y in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+        torch.testing.assert_close(x, y, msg=name)
 
 
 def test_cli_fit_dataset_distill_options(tiny_prior, noisy_dir, tmp_path):  # noqa: F811
@@ -203,9 +306,8 @@ def test_short_takes_join_the_fit_and_the_distillation(
     total = sum(len(g) for g in groups)
     assert summary.windows == total and summary.steps == -(-total // 8)
     assert summary.distill_steps == total // 8
-    from mdvae_cli.model.checkpoint import load_checkpoint
 
-    tensors, meta = load_checkpoint(tmp_path / "den" / fd.TARGETS_FILE)
+    tensors, meta = load_checkpoint(tmp_path / "den" / dt.TARGETS_FILE)
     assert meta["windows"] == [len(g) for g in groups]
     assert tensors["g1/z"].shape[:2] == (len(groups[1]), 5)
     with pytest.raises(InputError, match="--short-windows 30 is not shorter"):

@@ -135,7 +135,8 @@ from mdvae_cli.errors import InputError
     is_flag=True,
     help="Continue the -o run from its denoiser.npz (saved every 200 ELBO steps). The ELBO "
     "fit then ends with exactly the networks of an uninterrupted run (resume.npz keeps Adam's "
-    "state and the random draws); distillation restarts its Adam.",
+    "state and the random draws); the distillation targets refined so far are kept (saved "
+    "on a stop and every 5 minutes) and the rest refined; distillation restarts its Adam.",
 )
 @click.option(
     "--overwrite",
@@ -218,8 +219,12 @@ def fit_dataset(
     with progress_bar() as progress, StopAfterStep() as stop:
         summary = run(cfg, out_dir, resume=resume, progress=FitReporter(progress),
                       max_steps=max_steps, overwrite=overwrite, stop_requested=stop)  # fmt: skip
-    where = f"{summary.steps} ELBO + {summary.distill_steps} distillation"
-    stop.raise_stop(where if summary.distill_steps else summary.steps, "denoiser.npz")
+    where: int | str = summary.steps
+    if summary.distill_steps:
+        where = f"{summary.steps} ELBO + {summary.distill_steps} distillation"
+    elif summary.targets_left:  # the targets made so far are kept in the run folder too
+        where = f"{summary.steps} ({summary.targets_left:,} windows' targets still to refine)"
+    stop.raise_stop(where, "denoiser.npz")
     if as_json:
         emit_json(summary_dict(summary))
     else:

@@ -88,15 +88,31 @@ def refine_targets(
     group: WindowGroup,
     steps: int,
     progress: Callable[[dict], None] | None = None,
+    *,
+    start: Targets | None = None,
+    stop_requested: Callable[[], bool] | None = None,
+    keep: Callable[[Callable[[], Targets]], None] | None = None,
+    batch: int = RefineConfig.batch_windows,
 ) -> Targets:
     """Refine every window of ``group`` (its raw noisy states: ``make_windows(observations=
-    True)``) for ``steps`` steps; ``progress`` gets {"step", "steps"} counted in windows."""
+    True)``) for ``steps`` steps; ``progress`` gets {"step", "steps"} counted in windows.
+
+    start: the targets of the group's first windows, made before (a stopped run): refinement
+    goes on after them (each window's steps depend on that window alone). stop_requested():
+    true after a batch ends the loop there, and the targets returned cover the group's first
+    windows only. keep(so_far) is called after each batch but the last, ``so_far()`` giving
+    the targets made so far (to save them now and then). batch: windows refined together.
+    """
     if group.obs is None:
         raise ValueError("refinement targets need the raw states: make_windows(observations=True)")
-    cfg = RefineConfig(steps=steps)
+    cfg = RefineConfig(steps=steps, batch_windows=batch)
     denoiser.eval()
-    parts = []
-    for i in range(0, len(group), cfg.batch_windows):
+    parts = [] if start is None else [(start.z, start.x0, start.z_logvar)]
+
+    def so_far() -> Targets:
+        return Targets(*(torch.cat(t) for t in zip(*parts, strict=True)))
+
+    for i in range(0 if start is None else len(start), len(group), cfg.batch_windows):
         idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
         g = group.batch(idx, with_y3d=False)
         joints = None if g.weight is None else g.weight[..., :22]
@@ -106,7 +122,11 @@ def refine_targets(
         parts.append((refined.z, refined.x0, refined.z_logvar))
         if progress is not None:
             progress({"step": int(idx[-1]) + 1, "steps": len(group)})
-    return Targets(*(torch.cat(t) for t in zip(*parts, strict=True)))
+        if stop_requested is not None and stop_requested():
+            break
+        if keep is not None and int(idx[-1]) + 1 < len(group):
+            keep(so_far)
+    return so_far()
 
 
 def column_weights(velocity_weight: float, dim: int = 138) -> torch.Tensor:

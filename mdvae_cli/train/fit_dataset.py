@@ -19,7 +19,6 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError, diverged
 from mdvae_cli.fileio import expand_inputs
 from mdvae_cli.infer.elbo_fit import fit_denoiser
-from mdvae_cli.infer.window_groups import WindowGroup
 from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.model.config import (
     check_config_keys,
@@ -31,8 +30,8 @@ from mdvae_cli.model.config import (
 from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, save_denoiser
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.train.corpus import outside
-from mdvae_cli.train.distill import DistillConfig, Targets, distill, refine_targets
-from mdvae_cli.train.distributed import parameter_digest
+from mdvae_cli.train.distill import DistillConfig, distill
+from mdvae_cli.train.distill_targets import complete, distill_targets, windows_left
 from mdvae_cli.train.guards import (
     check_device,
     check_run_folder,
@@ -149,9 +148,10 @@ class FitSummary:
     distill_last_loss: float = math.nan
     #: whether a stop asked for (``stop_requested``) ended the run
     interrupted: bool = False
+    #: windows whose distillation targets are still to be made (a run stopped making them)
+    targets_left: int = 0
 
 
-TARGETS_FILE = "distill_targets.npz"
 #: Adam's state and the random generators' where the ELBO fit stands (fit-dataset --resume)
 RESUME_FILE = "resume.npz"
 
@@ -262,11 +262,14 @@ def fit_dataset(
     last = {"final_loss": losses[-1]} if losses else {}
     save(done, distilled, **last)
     asked = stop_requested or (lambda: False)
-    d_losses = []
+    d_losses, left = [], 0
     if cfg.distill.epochs > 0 and not asked():
-        targets = _distill_targets(
-            denoiser, groups, cfg, out_dir, steps > 0, distilled > 0, progress
-        )
+        targets = distill_targets(
+            denoiser, groups, cfg.distill.refine_steps, out_dir, steps > 0, distilled > 0,
+            _staged(progress, "targets"), asked,
+        )  # fmt: skip
+        left = windows_left(targets, groups)
+    if cfg.distill.epochs > 0 and not asked() and complete(targets, groups):
         d_losses = distill(
             denoiser, groups if len(groups) > 1 else groups[0],
             targets if len(groups) > 1 else targets[0], cfg.distill, cfg.seed, distilled,
@@ -297,6 +300,7 @@ def fit_dataset(
         d_losses[0] if d_losses else math.nan,
         d_losses[-1] if d_losses else math.nan,
         bool(asked()),
+        left,
     )
 
 
@@ -329,45 +333,6 @@ def _starting_point(cfg: FitConfig, out_dir: Path, resume: bool) -> tuple[Denois
         return denoiser, 0, 0, {"path": cfg.init_from, **{k: meta[k] for k in keep if k in meta}}
     prior, _ = load_prior(cfg.prior if cfg.prior else default_weights("prior"), keep_rng=False)
     return Denoiser(prior, cfg.denoiser), 0, 0, {}
-
-
-def _distill_targets(
-    denoiser: Denoiser,
-    groups: list[WindowGroup],
-    cfg: FitConfig,
-    out_dir: Path,
-    fresh: bool,
-    distilling: bool,
-    progress: Callable[[dict], None] | None,
-) -> list[Targets]:
-    """The refined targets of a run, one per group: read back from ``out_dir`` when they were
-    made for these windows and settings from these very networks (or, ``distilling`` — a
-    resumed run part way through distillation — from the networks this run started from;
-    ``fresh``: ELBO steps were just taken, never reuse), else computed and saved there. (One
-    group's tensors are stored as before, unprefixed; more groups' as ``g<i>/...``.)"""
-    path = out_dir / TARGETS_FILE
-    sizes = [len(g) for g in groups]
-    key = {"windows": sizes[0] if len(sizes) == 1 else sizes,
-           "refine_steps": cfg.distill.refine_steps}  # fmt: skip
-    names = ("z", "x0", "z_logvar")
-    prefixes = [""] if len(groups) == 1 else [f"g{i}/" for i in range(len(groups))]
-    digest = parameter_digest(denoiser)
-    if path.exists() and not fresh:
-        tensors, meta = load_checkpoint(path)
-        same = all(meta.get(k) == v for k, v in key.items())
-        same = same and all(p + n in tensors for p in prefixes for n in names)
-        if same and (distilling or meta.get("networks") == digest):
-            return [Targets(*(tensors[p + n] for n in names)) for p in prefixes]
-    device = next(denoiser.parameters()).device
-    denoiser.cpu()  # refinement runs batch by batch on the CPU copy of the windows
-    targets = [
-        refine_targets(denoiser, g, cfg.distill.refine_steps, _staged(progress, "targets"))
-        for g in groups
-    ]
-    denoiser.to(device)
-    tensors = {p + n: getattr(t, n) for p, t in zip(prefixes, targets, strict=True) for n in names}
-    save_checkpoint(path, tensors, {"kind": "mdvae-distill-targets", "networks": digest, **key})
-    return targets
 
 
 def _staged(progress: Callable[[dict], None] | None, stage: str) -> Callable[[dict], None] | None:
