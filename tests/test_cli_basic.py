@@ -449,3 +449,26 @@ def test_export_mesh_sequence_library(tiny_body, tmp_path):
         "frame_12.ply",
         "notes.txt",
     ]
+
+
+def test_process_seconds_counts_from_the_process_start(monkeypatch):
+    """The summary's seconds: since the process started (start-up and imports included, which
+    a command's own clock misses), or since the command began where /proc is not there."""
+    import builtins
+    import time
+
+    from mdvae_cli.cli.common import process_seconds
+
+    began = time.perf_counter()
+    since_start = process_seconds(began)
+    assert since_start >= time.perf_counter() - began  # this test session began before
+    assert since_start > 0.2  # Python, pytest and the imports before this test
+    real_open = builtins.open
+
+    def no_proc(path, *args, **kwargs):
+        if str(path).startswith("/proc"):
+            raise FileNotFoundError(path)
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", no_proc)
+    assert 0 <= process_seconds(began) <= time.perf_counter() - began

@@ -254,6 +254,9 @@ def test_cli_denoise_keeps_layout_frames_and_extras(tiny_prior, make_motion_file
     assert (
         report["succeeded"] == 1 and report["mode"] == "regression+offset"
     )  # the default: offset on
+    # the run's seconds are what the user waited: each file's reading, denoising and writing,
+    # and the command's start-up (the networks loaded)
+    assert report["seconds"] > report["files"][0]["result"]["seconds"] > 0
     assert src.read_bytes() == before
     with np.load(src) as a, np.load(out) as b:
         assert set(a.files) == set(b.files)

@@ -157,3 +157,19 @@ def progress_bar(transient: bool = False) -> Progress:
         transient=transient,
         disable=not console.is_terminal,
     )
+
+
+def process_seconds(fallback_start: float) -> float:
+    """Seconds since this process started (what a user waited for a command: Python's and the
+    libraries' start-up included), from ``/proc`` where the system has it; elsewhere since
+    ``fallback_start`` (a ``time.perf_counter()`` value taken when the command began)."""
+    import time
+
+    try:
+        with open("/proc/self/stat") as fh:  # field 22: start time, clock ticks after boot
+            ticks = int(fh.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as fh:
+            uptime = float(fh.read().split()[0])
+        return max(uptime - ticks / os.sysconf("SC_CLK_TCK"), 0.0)
+    except (OSError, ValueError, IndexError):
+        return time.perf_counter() - fallback_start

@@ -6,6 +6,7 @@ A thin layer: options -> ``DenoiseSettings`` -> ``run.denoise_files`` (read, den
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from mdvae_cli.cli.common import (
     body_model_option,
     console,
     handle_errors,
+    process_seconds,
     progress_bar,
 )
 from mdvae_cli.cli.denoise_options import denoise_options, fill_setting, fill_words
@@ -84,6 +86,7 @@ def denoise(
     floor, guard, blend, loop, mesh_dir, mesh_format, view_dir, window, overlap, asf,
     joint_map_file, input_format, input_fps, track, body_model, allow_pickle, as_json,
 ) -> None:  # fmt: skip
+    started = time.perf_counter()  # where the system cannot tell when the process started
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.formats.registry import ReadOptions
@@ -135,10 +138,11 @@ def denoise(
     write_report.outcomes = report.failed + write_report.outcomes
     if len(jobs) > 1:
         write_report.print_summary("denoise")
+    waited = process_seconds(started)  # what the user waited, start-up included
     if as_json:
-        emit_json({**write_report.to_dict(), **_json_head(settings, chosen)})
+        emit_json({**write_report.to_dict(), **_json_head(settings, chosen), "seconds": waited})
     elif write_report.succeeded:
-        _print_summary([o.result for o in write_report.succeeded])
+        _print_summary([o.result for o in write_report.succeeded], waited)
     write_report.exit()
 
 
@@ -292,13 +296,13 @@ def _json_head(settings, chosen: dict) -> dict:
     }
 
 
-def _print_summary(done: list) -> None:
-    """``denoised N file(s), F frames in S s (R frames/s)`` and what the blend and guard did."""
+def _print_summary(done: list, secs: float) -> None:
+    """``denoised N file(s), F frames in S s (R frames/s)`` (S: the command's seconds, its
+    start-up included; each file's own are in --json) and what the blend and guard did."""
     from mdvae_cli.run.denoise_files import frame_mean
 
     rows = [run.to_dict() for run in done]
     total = sum(r["frames"] for r in rows)
-    secs = sum(r["seconds"] for r in rows)
     words = ""
     kept = frame_mean(rows, "input_share")
     if kept is not None:
