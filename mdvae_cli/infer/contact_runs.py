@@ -118,13 +118,36 @@ def run_max(values: np.ndarray, contacts: np.ndarray) -> np.ndarray:
     return np.where(c, best[np.maximum(run, 0), k], 0.0)
 
 
+def stuck_path(path: np.ndarray, contacts: np.ndarray, stick: float) -> np.ndarray:
+    """``path`` within each contact run moved only by the part of each frame's step over
+    ``stick`` (m per frame; a static friction: a wander slower than that is no step), about
+    the run's mean of ``path``. path (T, K, 2), contacts (T, K) bool -> (T, K, 2), ``path``
+    out of contact"""
+    c = np.asarray(contacts, dtype=bool)
+    step = np.diff(np.asarray(path, dtype=np.float64), axis=0)
+    size = np.linalg.norm(step, axis=-1, keepdims=True)
+    inside = (c[1:] & c[:-1])[..., None]
+    step = np.where(inside, step * np.maximum(0.0, 1 - stick / np.maximum(size, 1e-12)), 0.0)
+    walked = np.concatenate([np.zeros((1, *step.shape[1:])), np.cumsum(step, axis=0)])
+    return np.where(c[..., None], walked - run_means(walked, c) + run_means(path, c), path)
+
+
 def travel_anchors(
-    xy: np.ndarray, smooth: np.ndarray, contacts: np.ndarray, travel_tol: float, half: int
+    xy: np.ndarray,
+    smooth: np.ndarray,
+    contacts: np.ndarray,
+    travel_tol: float,
+    half: int,
+    stick: float = 0.0,
 ) -> np.ndarray:
     """Where each held foot joint stays: its mean over its contact run, or, on a run over
     which its smoothed position strays more than ``travel_tol`` from that mean (a foot that
     travels on the floor: a shuffle, a slide, a pivot; a standing foot's denoised wander
     stays under it), its mean over the run's frames within ``half`` frames either side.
+    With ``stick`` (m per frame) > 0, that mean is taken twice over ``half`` / 2 (a triangular
+    window of the same reach) and moves only by its steps' part over ``stick``
+    (:func:`stuck_path`): a travel is followed that much slower, a creep under it is held
+    (a denoised standing foot's wander is slow).
     xy, smooth: (T, K, 2) the joints' horizontal positions, as they are and smoothed;
     contacts: (T, K) bool -> (T, K, 2)"""
     anchors = run_means(xy, contacts)
@@ -132,7 +155,13 @@ def travel_anchors(
     travels = stray > travel_tol
     if not travels.any():
         return anchors
-    return np.where(travels[..., None], window_means(xy, contacts, half), anchors)
+    if stick > 0:
+        narrow = round(half / 2)
+        tapered = window_means(window_means(xy, contacts, narrow), contacts, narrow)
+        path = stuck_path(tapered, contacts, stick)
+    else:
+        path = window_means(xy, contacts, half)
+    return np.where(travels[..., None], path, anchors)
 
 
 def hold_targets(

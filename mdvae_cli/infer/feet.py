@@ -113,7 +113,9 @@ class FootLockConfig:
     plus travel_jitter times the input's foot jitter (none over noisy_from) from its mean
     travels (``contact_runs.travel_anchors``): held to its mean within travel_s either side;
     over 30 Hz the tolerance is scaled by 30 / fps (the denoised feet err less there: a
-    120 Hz squat's travel is the take's own); pin: times the fade's weight, the share of a
+    120 Hz squat's travel is the take's own) and that mean, tapered, moves only by its
+    speed over travel_stick (m/s; ``contact_runs.stuck_path``: a denoised standing foot's
+    wander is slow; 0: the plain mean); pin: times the fade's weight, the share of a
     fade's horizontal correction that takes the joint toward its goal
     (``contact_runs.hold_targets``).
     """
@@ -143,12 +145,13 @@ class FootLockConfig:
     travel_tol: float = 0.15
     travel_jitter: float = 1.0
     travel_s: float = 0.25
+    travel_stick: float = 0.05
     pin: float = 0.5
 
     def __post_init__(self):
         for name in ("smooth_s", "min_contact_s", "max_gap_s", "extend_s", "blend_s",
-                     "trust_below", "reference_smooth_s", "clean_jitter",
-                     "keep_smooth_s", "travel_tol", "travel_jitter", "travel_s"):  # fmt: skip
+                     "trust_below", "reference_smooth_s", "clean_jitter", "keep_smooth_s",
+                     "travel_tol", "travel_jitter", "travel_s", "travel_stick"):  # fmt: skip
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not (self.height_tol > 0 and self.speed_tol > 0):
@@ -305,8 +308,9 @@ def lock_feet(
     kept = feet[..., :2]
     if len(feet) > 1 and cfg.keep_smooth_s > 0:
         kept = gaussian_smooth(kept, cfg.keep_smooth_s * motion.fps)
+    stick = cfg.travel_stick / motion.fps if motion.fps > JITTER_FPS else 0.0
     anchors = travel_anchors(feet[..., :2], kept, contacts, travel_tol,
-                             round(cfg.travel_s * motion.fps))  # fmt: skip
+                             round(cfg.travel_s * motion.fps), stick)  # fmt: skip
     goals = feet.copy()
     goals[..., :2] = anchors + cfg.keep * (kept - anchors)
     weights = fade_weights(contacts, round(cfg.blend_s * motion.fps))
