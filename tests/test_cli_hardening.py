@@ -393,6 +393,18 @@ def test_output_names_mean_what_they_say(tmp_path):
     )
     assert notes.read_text() == "keep"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["existing.txt", "new.npz"]
+    # a name with another file kind's suffix is refused, not made a folder holding the take
+    for command in ("add-noise", "denoise"):
+        line = one_error_line(invoke(command, NOISY, "-o", tmp_path / "clean.txt"))
+        assert line.endswith(
+            f"cannot write {tmp_path / 'clean.txt'}: .txt is not a motion file mdvae writes; "
+            "name an .npz (any input), a .bvh or .amc (a take of that form) or the input's own "
+            "form, or end the name with / for a folder"
+        ), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing.txt", "new.npz"]
+    # a dotted name that is no file kind (digits) is a folder as before
+    res = invoke("add-noise", NOISY, "-o", tmp_path / "run.v2")
+    assert res.exit_code == 0 and (tmp_path / "run.v2" / "noisy_walk.npz").is_file()
 
 
 def test_denoise_mesh_subfolders_are_named_as_export_mesh_names_them(tmp_path):
