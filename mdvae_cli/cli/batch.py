@@ -165,6 +165,7 @@ def plan_jobs(
         return no_clashes([FileJob(items[0][1], items[0][0], out)])
     if single and not as_folder and not out.is_dir():
         refuse_gz(out, out_suffix)
+        refuse_file_name(out, f"a file ending in {out_suffix}")
         if out.exists():
             raise InputError(
                 f"the output {out} is a file that is not {out_suffix}: name an {out_suffix} "
@@ -203,6 +204,18 @@ def refuse_unsupported(out: Path) -> None:
         raise InputError(
             f"cannot write {out}: mdvae writes {kind[1:].upper()} only back for a video "
             f"pipeline's file of that form; name the output {npz}, or a folder"
+        )
+
+
+def refuse_file_name(out: Path, what: str) -> None:
+    """InputError for one input's output named as a file of another kind (``clean.txt``,
+    ``out.json``: a suffix of letters, not ``what`` the command writes): it would be taken for
+    a folder name and the result written inside it. A trailing slash asks for such a folder."""
+    suffix = out.suffix
+    if 1 < len(suffix) <= 6 and suffix[1:].isalpha() and not out.exists():
+        raise InputError(
+            f"cannot write {out}: {suffix} is not a motion file mdvae writes; name {what}, or "
+            "end the name with / for a folder"
         )
 
 

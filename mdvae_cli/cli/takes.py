@@ -14,6 +14,7 @@ from mdvae_cli.cli.batch import (
     is_kind,
     no_clashes,
     plan_jobs,
+    refuse_file_name,
     refuse_gz,
     refuse_unsupported,
     strip_gz,
@@ -92,22 +93,10 @@ def plan_take_jobs(inputs, out) -> list[FileJob]:
         if name.endswith(".gz"):
             refuse_gz(out)
         if not wants:
-            refuse_file_name(out)
+            refuse_file_name(out, "an .npz (any input), a .bvh or .amc (a take of that "
+                             "form) or the input's own form")  # fmt: skip
     return plan_jobs(inputs, str(out) + ("/" if as_folder else ""), DENOISE_SUFFIXES,
                      rename=output_name)  # fmt: skip
-
-
-def refuse_file_name(out: Path) -> None:
-    """InputError for an output named as a file of another kind (``clean.txt``, ``take.npy``,
-    ``out.json``: a suffix of letters) for one input: it would be taken for a folder name and
-    the take written inside it. A folder of such a name is asked for with a trailing slash."""
-    suffix = out.suffix
-    if 1 < len(suffix) <= 6 and suffix[1:].isalpha() and not out.exists():
-        raise InputError(
-            f"cannot write {out}: {suffix} is not a motion file mdvae writes; name an .npz "
-            "(any input), a .bvh or .amc (a take of that form) or the input's own form, or end "
-            "the name with / for a folder"
-        )
 
 
 #: bytes a ``--joint-map`` file may hold
