@@ -402,6 +402,13 @@ def test_output_names_mean_what_they_say(tmp_path):
             "form, or end the name with / for a folder"
         ), line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["existing.txt", "new.npz"]
+    for command, wanted in (("export-bvh", ".bvh"), ("import", ".npz")):
+        line = one_error_line(invoke(command, NOISY, "-o", tmp_path / "m.txt"))
+        assert line.endswith(
+            f"cannot write {tmp_path / 'm.txt'}: .txt is not a motion file mdvae writes; name a "
+            f"file ending in {wanted}, or end the name with / for a folder"
+        ), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["existing.txt", "new.npz"]
     # a dotted name that is no file kind (digits) is a folder as before
     res = invoke("add-noise", NOISY, "-o", tmp_path / "run.v2")
     assert res.exit_code == 0 and (tmp_path / "run.v2" / "noisy_walk.npz").is_file()
