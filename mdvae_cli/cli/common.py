@@ -159,17 +159,26 @@ def progress_bar(transient: bool = False) -> Progress:
     )
 
 
+#: seconds a process may take to reach a command (Python's start-up and the imports): a
+#: longer time read from ``/proc`` is taken for clocks that do not match (a container's)
+STARTUP_LIMIT_S = 60.0
+
+
 def process_seconds(fallback_start: float) -> float:
     """Seconds since this process started (what a user waited for a command: Python's and the
-    libraries' start-up included), from ``/proc`` where the system has it; elsewhere since
-    ``fallback_start`` (a ``time.perf_counter()`` value taken when the command began)."""
+    libraries' start-up included), from ``/proc`` where the system has it; elsewhere, or where
+    its clocks disagree with ours, since ``fallback_start`` (a ``time.perf_counter()`` value
+    taken when the command began)."""
     import time
 
+    own = time.perf_counter() - fallback_start
     try:
         with open("/proc/self/stat") as fh:  # field 22: start time, clock ticks after boot
             ticks = int(fh.read().rsplit(")", 1)[1].split()[19])
         with open("/proc/uptime") as fh:
             uptime = float(fh.read().split()[0])
-        return max(uptime - ticks / os.sysconf("SC_CLK_TCK"), 0.0)
     except (OSError, ValueError, IndexError):
-        return time.perf_counter() - fallback_start
+        return own
+    since = uptime - ticks / os.sysconf("SC_CLK_TCK")
+    # /proc counts in clock ticks (10 ms): a process younger than one reads as 0
+    return since if own - 0.02 <= since <= own + STARTUP_LIMIT_S else own
