@@ -453,31 +453,38 @@ def test_export_mesh_sequence_library(tiny_body, tmp_path):
 
 def test_process_seconds_counts_from_the_process_start(monkeypatch):
     """The summary's seconds: since the process started (start-up and imports included, which
-    a command's own clock misses), or since the command began where /proc is not there."""
+    a command's own clock misses), read from /proc; since the command began where /proc is not
+    there or its clocks disagree with ours (a container's uptime, a process far older than a
+    command's start-up)."""
     import builtins
     import io
+    import os
     import time
 
-    from mdvae_cli.cli.common import process_seconds
+    from mdvae_cli.cli.common import STARTUP_LIMIT_S, process_seconds
 
-    began = time.perf_counter()
-    since_start = process_seconds(began)
-    assert since_start >= time.perf_counter() - began - 0.02  # this session began before
-    assert since_start > 0.2  # Python, pytest and the imports before this test
-    # a /proc whose clocks disagree with ours (a container's uptime): the command's own time
-    uptimes = {"/proc/uptime": "1.0 1.0\n"}
+    tick = os.sysconf("SC_CLK_TCK")
+    start_ticks = 9_850 * tick // 100  # the process started 98.5 s after boot
     real_open = builtins.open
 
-    def young_uptime(path, *args, **kwargs):
-        if str(path) in uptimes:
-            return io.StringIO(uptimes[str(path)])
-        return real_open(path, *args, **kwargs)
+    def fake_proc(uptime: float | None):
+        def fake(path, *args, **kwargs):
+            if str(path).startswith("/proc"):
+                if uptime is None:
+                    raise FileNotFoundError(path)
+                if str(path) == "/proc/uptime":
+                    return io.StringIO(f"{uptime:.2f} 1.0\n")
+                return io.StringIO(f"123 (python3 (x)) S {' '.join(['0'] * 18)} {start_ticks} 0\n")
+            return real_open(path, *args, **kwargs)
 
-    def no_proc(path, *args, **kwargs):
-        if str(path).startswith("/proc"):
-            raise FileNotFoundError(path)
-        return real_open(path, *args, **kwargs)
+        return fake
 
-    for fake in (young_uptime, no_proc):
-        monkeypatch.setattr(builtins, "open", fake)
+    began = time.perf_counter()
+    monkeypatch.setattr(builtins, "open", fake_proc(100.0))  # 1.5 s after the start
+    assert abs(process_seconds(began) - 1.5) < 1e-6
+    for uptime in (1.0, 98.5 + STARTUP_LIMIT_S + 10, None):  # before it, far after, no /proc
+        monkeypatch.setattr(builtins, "open", fake_proc(uptime))
         assert 0 <= process_seconds(began) <= time.perf_counter() - began
+    monkeypatch.undo()
+    # this process, on this system: at least the time since ``began``
+    assert process_seconds(began) >= time.perf_counter() - began - 0.02
