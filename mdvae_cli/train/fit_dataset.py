@@ -31,7 +31,7 @@ from mdvae_cli.model.denoiser import Denoiser, DenoiserConfig, load_denoiser, sa
 from mdvae_cli.model.prior_model import load_prior
 from mdvae_cli.train.corpus import outside
 from mdvae_cli.train.distill import DistillConfig, distill
-from mdvae_cli.train.distill_targets import complete, distill_targets, windows_left
+from mdvae_cli.train.distill_targets import distill_targets, windows_left
 from mdvae_cli.train.guards import (
     check_device,
     check_run_folder,
@@ -268,16 +268,17 @@ def fit_dataset(
             denoiser, groups, cfg.distill.refine_steps, out_dir, steps > 0, distilled > 0,
             _staged(progress, "targets"), asked,
         )  # fmt: skip
-        left = windows_left(targets, groups)
-    if cfg.distill.epochs > 0 and not asked() and complete(targets, groups):
-        d_losses = distill(
-            denoiser, groups if len(groups) > 1 else groups[0],
-            targets if len(groups) > 1 else targets[0], cfg.distill, cfg.seed, distilled,
-            _staged(progress, "distill"), lambda step: save(done, step), stop_requested=asked,
-        )  # fmt: skip
-        distilled += len(d_losses)
-        if d_losses:
-            save(done, distilled, **last, final_distill_loss=d_losses[-1])
+        left = windows_left(targets, groups)  # > 0: stopped while making them
+        if left == 0 and not asked():
+            d_losses = distill(
+                denoiser, groups if len(groups) > 1 else groups[0],
+                targets if len(groups) > 1 else targets[0], cfg.distill, cfg.seed, distilled,
+                _staged(progress, "distill"), lambda step: save(done, step),
+                stop_requested=asked,
+            )  # fmt: skip
+            distilled += len(d_losses)
+            if d_losses:
+                save(done, distilled, **last, final_distill_loss=d_losses[-1])
     denoiser.cpu()
     with open(out_dir / "log.jsonl", "a") as fh:
         record = {
