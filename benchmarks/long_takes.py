@@ -7,18 +7,18 @@ Protocol. A take of N minutes is made once into ``--work``: the files of a corpu
 (``--corpus``, resampled) end to end, each one's root moved on to where the last one ended,
 with Pose-NDF noise (sigma 0.10 rad, seed 0); as AMASS npz at 30 Hz and as BVH at 120 Hz (the
 SMPL skeleton, ``registry.write``). Each run is a fresh process (``python -m
-mdvae_cli.cli.main``, one torch thread): its wall time from start to exit and its peak
-resident memory (``wait4``). Runs: ``default`` (`mdvae denoise take -o clean`), ``refine``
-(`--refine 50`), ``view`` (`mdvae view take clean -o page.html`, on the default's output), and
-``scipy``: the same file read and written by the same reader and writer (npz:
-``npz_io.load_motion`` / ``save_motion``; BVH: ``formats.bvh.load_bvh`` / ``write_bvh``) with
-``scipy.signal.savgol_filter`` (9 frames, order 2) over its channels in between; the others are
-quoted as ratios to it. With ``--baseline DIR`` (a tree holding another ``mdvae_cli``) every
-run is done there too, alternating with this tree's, and the table quotes both and how far
-the outputs are apart (npz: max |difference| of poses (rad) and trans (m); BVH: of the channel
-values). With ``--repeats N`` each run is done N times (this tree's and the baseline's in turn)
-and the table quotes the median wall time and the largest peak: on a shared machine one run's
-time can move by a fifth.
+mdvae_cli.cli.main``, one torch thread): its wall time from start to exit and its peak resident
+memory (its own since its start, ``VmHWM`` read as it exits: :data:`OWN_PEAK`). Runs:
+``default`` (`mdvae denoise take -o clean`), ``refine`` (`--refine 50`), ``view`` (`mdvae view
+take clean -o page.html`, on the default's output), and ``scipy``: the same file read and
+written by the same reader and writer (npz: ``npz_io.load_motion`` / ``save_motion``; BVH:
+``formats.bvh.load_bvh`` / ``write_bvh``) with ``scipy.signal.savgol_filter`` (9 frames, order
+2) over its channels in between; the others are quoted as ratios to it. With ``--baseline DIR``
+(a tree holding another ``mdvae_cli``) every run is done there too, alternating with this
+tree's, and the table quotes both and how far the outputs are apart (npz: max |difference| of
+poses (rad) and trans (m); BVH: of the channel values). With ``--repeats N`` each run is done N
+times (this tree's and the baseline's in turn) and the table quotes the median wall time and
+the largest peak: on a shared machine one run's time can move by a fifth.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,6 +65,30 @@ else:
     data = layout.data.copy()
     data[layout.rows] = savgol_filter(data[layout.rows], 9, 2, axis=0)
     write_bvh(layout, data, out)
+"""
+
+#: runs a child's command (``-m module ...`` or ``-c code ...``, its own arguments after it)
+#: and, as it exits, writes its peak resident memory in kB (``VmHWM``: the peak of its own
+#: memory since its start) to the file ``MDVAE_BENCH_PEAK`` names. wait4's ``ru_maxrss`` is
+#: not that: Linux counts the parent's resident memory at the fork in it, so every run after
+#: this script had made a 30-minute take quoted the script's 1.7 GB.
+OWN_PEAK = """
+import atexit, os, runpy, sys
+def _peak():
+    try:
+        with open("/proc/self/status") as f:
+            kb = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
+        with open(os.environ["MDVAE_BENCH_PEAK"], "w") as f:
+            f.write(str(kb))
+    except (OSError, StopIteration, KeyError):
+        pass
+atexit.register(_peak)
+flag, what, *rest = sys.argv[1:]
+sys.argv = [what if flag == "-m" else "-c", *rest]
+if flag == "-m":
+    runpy.run_module(what, run_name="__main__", alter_sys=True)
+else:
+    exec(compile(what, "<string>", "exec"), {"__name__": "__main__"})
 """
 
 
@@ -105,20 +130,24 @@ class Run:
 def run_process(args: list[str], tree: Path, threads: int) -> Run:
     """Run ``python args`` in ``tree`` (first on the path: ``python -m`` puts the working
     folder before PYTHONPATH); its wall time and peak memory."""
-    env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": str(threads),
-           "MKL_NUM_THREADS": str(threads)}  # fmt: skip
-    start = time.perf_counter()
-    proc = subprocess.Popen(
-        [sys.executable, *args], env=env, cwd=tree, stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )  # fmt: skip
-    out = proc.stdout.read().decode(errors="replace")
-    _, status, usage = os.wait4(proc.pid, 0)
-    seconds = time.perf_counter() - start
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}):\n{out[-2000:]}")
-    return Run(seconds, usage.ru_maxrss / 1024, out)
+    with tempfile.TemporaryDirectory() as scratch:
+        peak_file = Path(scratch) / "peak_kb"
+        env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": str(threads),
+               "MKL_NUM_THREADS": str(threads), "MDVAE_BENCH_PEAK": str(peak_file)}  # fmt: skip
+        start = time.perf_counter()
+        proc = subprocess.Popen(
+            [sys.executable, "-c", OWN_PEAK, *args], env=env, cwd=tree, stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )  # fmt: skip
+        out = proc.stdout.read().decode(errors="replace")
+        _, status, usage = os.wait4(proc.pid, 0)
+        seconds = time.perf_counter() - start
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}):\n{out[-2000:]}")
+        # without /proc: wait4's figure, which counts this process's memory too
+        peak_kb = int(peak_file.read_text()) if peak_file.exists() else usage.ru_maxrss
+    return Run(seconds, peak_kb / 1024, out)
 
 
 def typical(runs: list[Run]) -> Run:

@@ -62,3 +62,16 @@ def test_rows_round_trip_and_the_sections(tmp_path):
 def test_repeats_give_the_median_time_and_the_largest_peak():
     got = typical([Run(9.0, 100.0, "a"), Run(30.0, 120.0, "b"), Run(10.0, 110.0, "c")])
     assert (got.seconds, got.peak_mb, got.output) == (10.0, 120.0, "c")
+
+
+def test_a_run_s_peak_is_its_own_memory_not_this_process_s():
+    """wait4's ru_maxrss counts the parent's resident memory at the fork: a benchmark that had
+    just made a long take quoted its own size for every run. The peak is the child's own."""
+    import numpy as np
+
+    held = np.ones(400 * 2**20 // 8)  # 400 MB resident here, in the parent
+    small = run_process(["-c", "pass"], REPO, 1)
+    big = run_process(["-c", "import numpy as np; x = np.ones(300 * 2**20 // 8)"], REPO, 1)
+    assert held.sum() > 0
+    assert small.peak_mb < 100, small.peak_mb
+    assert 300 < big.peak_mb < 400, big.peak_mb

@@ -122,6 +122,17 @@ def test_denoise_summary_counts_files_that_could_not_be_read(tmp_path):
     assert sorted(p.name for p in (tmp_path / "out").glob("*.npz")) == ["walk.npz"]
 
 
+def test_summary_and_notes_are_one_line_each_however_narrow_the_output(tmp_path):
+    """A pipeline's log is read line by line: a narrow terminal or pipe (COLUMNS=40) breaks
+    no message in two (the summary line is longer than 100 characters)."""
+    res = CliRunner().invoke(cli, ["denoise", str(NOISY), "-o", str(tmp_path / "c.npz")],
+                             env={"COLUMNS": "40"})  # fmt: skip
+    assert res.exit_code == 0, res.output
+    summary = [ln for ln in res.output.splitlines() if ln.startswith("denoised ")]
+    assert len(summary) == 1 and len(summary[0]) > 100, res.output
+    assert summary[0].rstrip().endswith("%")  # the share kept, on the same line
+
+
 def test_a_result_that_is_not_finite_is_never_written(tmp_path, monkeypatch):
     from mdvae_cli.infer import denoise as denoise_module
 

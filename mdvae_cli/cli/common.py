@@ -24,8 +24,9 @@ from rich.progress import (
 
 from mdvae_cli.errors import MdvaeError, NotAvailableError, stop_words
 
-#: the one console for human-readable output; machine output (--json) goes to stdout directly
-console = Console(stderr=True, highlight=False)
+#: the one console for human-readable output, each message one line however narrow the
+#: terminal or pipe (a log is read with grep); machine output (--json) goes to stdout directly
+console = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
 class OutputPath(click.Path):

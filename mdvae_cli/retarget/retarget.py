@@ -90,9 +90,6 @@ __all__ = [
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
-# --- the solve ---------------------------------------------------------------------------------
-
-
 # --- driver ------------------------------------------------------------------------------------
 
 
@@ -142,18 +139,20 @@ class RetargetSettings:
     """twist_weight: metres of joint error that one radian of departure from the source's local
     rotation costs; iterations: Gauss-Newton steps; floor: "plane" puts the ground under the
     soles at z = 0 and levels it (tilts up to ``max_tilt`` where the clip travels far enough to
-    measure one), "flat" only shifts heights, "none" keeps the source's heights."""
+    measure one), "flat" only shifts heights, "none" keeps the source's heights; key_rate:
+    ``pose_solve.key_stride``'s (0: every frame takes every step)."""
 
     twist_weight: float = 0.02
     iterations: int = 3
     floor: str = "plane"
     max_tilt: float = 0.035  # rise per metre (2 degrees)
+    key_rate: float = 15.0  # Hz
 
     def validate(self) -> RetargetSettings:
         if self.floor not in ("plane", "flat", "none"):
             raise InputError(f"floor must be plane, flat or none, not {self.floor!r}")
-        if not (self.twist_weight > 0 and self.iterations >= 0 and self.max_tilt >= 0):
-            raise InputError("twist_weight must be > 0, iterations and max_tilt >= 0")
+        if not (self.twist_weight > 0 and min(self.iterations, self.max_tilt, self.key_rate) >= 0):
+            raise InputError("twist_weight must be > 0, iterations, max_tilt and key_rate >= 0")
         return self
 
 
