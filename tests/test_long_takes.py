@@ -196,7 +196,8 @@ def test_between_key_frames_the_departures_are_interpolated():
     truth = L_init @ rotvec_to_rotmat(turn)
     moved = root_init + 0.03 * t[:, 0] * torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)
     key = key_frames(T, 8)  # 0, 8, 16, 20
-    L, root = between_keys(L_init, root_init, key, truth[key], moved[key], active)
+    L, root, far = between_keys(L_init, root_init, key, truth[key], moved[key], active)
+    assert not far.any()  # 0.08 rad between key frames at most
     assert (L[:, active] - truth[:, active]).abs().max() < 1e-12
     assert (root - moved).abs().max() < 1e-12
     others = [j for j in range(22) if j not in active]
@@ -242,6 +243,43 @@ def test_a_high_rate_take_solved_from_key_frames_lands_nearer_the_optimum():
         return (forward_kinematics(L, bones, parents, root=r)[1] - targets).norm(dim=-1).mean()
 
     assert error(keyed, r_keyed) < 1.001 * error(best, r_best)
+
+
+def test_frames_between_key_frames_far_apart_take_every_step(monkeypatch):
+    """Where a joint's departure from its start changes by over KEY_TURN between two key
+    frames, the frames between them are solved as without key frames (a line between two
+    far departures is no start to trust); the others keep the key frames' start."""
+    import torch
+
+    import mdvae_cli.retarget.pose_solve as ps
+    from mdvae_cli.body.data import SMPL_PARENTS
+    from mdvae_cli.geometry.kinematics import forward_kinematics
+    from mdvae_cli.geometry.rotations import rotvec_to_rotmat
+
+    parents = list(SMPL_PARENTS[:22])
+    g = torch.Generator().manual_seed(4)
+    T = 41
+    X = 0.15 * torch.randn(22, 3, generator=g, dtype=torch.float64)
+    X[0] = 0.0
+    bones = X.clone()
+    bones[1:] = X[1:] - X[parents[1:]]
+    truth = rotvec_to_rotmat(0.3 * torch.randn(T, 22, 3, generator=g, dtype=torch.float64))
+    targets = forward_kinematics(truth, bones * 1.04, parents, root=torch.zeros(T, 3))[1]
+    turn = torch.full((T, 22, 3), 0.02, dtype=torch.float64)
+    turn[16] = 0.6  # key frame 16 starts far off: its departure jumps from both neighbours'
+    start = truth @ rotvec_to_rotmat(turn)
+    key = ps.key_frames(T, 8)
+    L_key, r_key = ps.solve_pose(targets[key], start[key], X, parents)
+    far = ps.between_keys(start, targets[:, 0], key, L_key, r_key, ps._Tree(parents).active)[2]
+    idx = list(range(8, 24))
+    assert far.nonzero()[:, 0].tolist() == idx
+    keyed, _ = ps.solve_pose(targets, start, X, parents, stride=8)
+    alone, _ = ps.solve_pose(targets[idx], start[idx], X, parents)
+    assert torch.equal(keyed[idx], alone)
+    monkeypatch.setattr(ps, "KEY_TURN", float("inf"))
+    lined, _ = ps.solve_pose(targets, start, X, parents, stride=8)
+    rest = [t for t in range(T) if t not in idx]
+    assert torch.equal(keyed[rest], lined[rest]) and not torch.equal(keyed[idx], lined[idx])
 
 
 def test_reading_a_take_tells_its_progress(tmp_path):
