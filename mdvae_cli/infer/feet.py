@@ -110,9 +110,9 @@ class FootLockConfig:
     noisy_from, noisy_to (m): the input's foot jitter over which height_tol, speed_tol and keep
     go linearly to noisy_height_tol, noisy_speed_tol and noisy_keep (:func:`for_noise`);
     travel_tol (m), travel_jitter: a held joint straying over a run further than travel_tol
-    plus travel_jitter times the input's foot jitter (none over noisy_from) from its mean
-    travels (``contact_runs.travel_anchors``): held to its mean within travel_s either side;
-    over 30 Hz the tolerance is scaled by 30 / fps (the denoised feet err less there: a
+    (plus, over 30 Hz, travel_jitter times the input's foot jitter; none over noisy_from)
+    from its mean travels (``contact_runs.travel_anchors``): held to its mean within travel_s
+    either side; over 30 Hz the tolerance is scaled by 30 / fps (the denoised feet err less there: a
     120 Hz squat's travel is the take's own) and that mean, tapered, moves only by its
     speed over travel_stick (m/s; ``contact_runs.stuck_path``: a denoised standing foot's
     wander is slow; 0: the plain mean); pin: times the fade's weight, the share of a
@@ -296,8 +296,11 @@ def lock_feet(
             unspiked = holes_from(unspiked, motion)
             trust, reference, jitter, at_30 = input_trust(unspiked, legs, cfg, feet)
         cfg = for_noise(cfg, jitter)
-        # a noisier input's feet wander further once denoised (a noisy one's as a shuffle does)
-        travel_tol += math.inf if jitter > cfg.noisy_from else cfg.travel_jitter * jitter
+        # a very noisy input's feet wander as far as a shuffle goes once denoised; over 30 Hz,
+        # where the tolerance is scaled down to the rate, a noisier one's wander further
+        # (at 30 Hz and under a shuffle's steps are the take's: the tolerance alone)
+        over_30 = motion.fps > JITTER_FPS
+        travel_tol += math.inf if jitter > cfg.noisy_from else over_30 * cfg.travel_jitter * jitter
         # a clean take's feet are lifted only by the share of the goal that is not its own
         lift_share = 1.0 - trust * (1.0 - clean_scale(cfg, at_30))
     travel_tol *= min(1.0, JITTER_FPS / motion.fps)  # over 30 Hz the denoised feet err less
