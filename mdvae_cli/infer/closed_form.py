@@ -61,6 +61,12 @@ NUM_ROTATIONS = 22
 NUM_GROUPS = NUM_ROTATIONS + 1
 
 
+#: the share of a window's frames a group must have observed for the offset to start from
+#: a free fit of them (with 60 % of the joints missing at random the free fit followed the
+#: noise: docs/model.md)
+FREE_SHARE = 0.75
+
+
 def per_group(rotation: float, translation: float, like: torch.Tensor) -> torch.Tensor:
     """A value per residual group: ``rotation`` for groups 0-21, ``translation`` for 22. -> (23,)"""
     out = like.new_full((NUM_GROUPS,), rotation)
@@ -210,24 +216,29 @@ class ClosedFormFactors:
         self.offset_precision = (1.0 / scale**2).expand(N, -1).clone()  # E[1/s_g^2]: (N, 23)
 
     def start(self, x_hat: torch.Tensor) -> None:
-        """Where coordinate ascent starts when every frame is observed: the slow cosines
-        fitted to the residual by least squares (next to no shrinkage), and the per-group
-        offset scales that fit implies.
+        """Where coordinate ascent starts when every frame is observed: the slow cosines fitted
+        to the residual by least squares (next to no shrinkage), and the per-group offset
+        scales that fit implies.
 
         From a zero offset the first noise estimate holds the whole slow discrepancy, the
         offset is shrunk hard, and it creeps up over 10 or more rounds; from here 3 rounds
-        land where 100 from zero do (docs/model.md). Where a free fit would follow the noise
-        — missing frames, fewer than 4 frames per cosine (a short motion), or outliers
-        (``cfg.outlier_dof`` > 0) — the offset starts from zero. x_hat: (N, T, 138).
+        land where 100 from zero do (docs/model.md). With missing frames the fit reads the
+        observed ones, in each window and group that has at least 4 of them per cosine and
+        :data:`FREE_SHARE` of its frames; where a free fit would follow the noise — fewer
+        observed frames than that (a short motion, a window much in a hole, joints missing
+        at random), or outliers (``cfg.outlier_dof`` > 0) — the offset starts from zero (a
+        5-frame hole in a window once started the whole window from zero: on an unseen dance
+        whose one pass is 40 cm off, the window stayed 40 cm off). x_hat: (N, T, 138).
         """
         self.started = True
         T, K = self.basis.shape
-        free = self.mask is None and T >= 4 * K and self.cfg.outlier_dof == 0
-        if not bool(self.has_offset.any()) or not free:
+        if not bool(self.has_offset.any()) or T < 4 * K or self.cfg.outlier_dof != 0:
             return
         res = observation_residuals(x_hat.detach(), self.obs)
         unit = res.new_ones(res.shape[0], NUM_GROUPS)
-        coef, var = offset_coefficients(res, unit, None, self.basis, 1e-3 * self.relative)
+        coef, var = offset_coefficients(res, unit, self.mask, self.basis, 1e-3 * self.relative)
+        if self.mask is not None:  # (N, 23): enough frames observed for a free fit
+            coef = coef * (self.mask.sum(1) >= max(4 * K, FREE_SHARE * T))[..., None, None]
         self._set_offset(coef, torch.zeros_like(var))
 
     def update(self, x_hat: torch.Tensor) -> None:
