@@ -216,9 +216,8 @@ class ClosedFormFactors:
         self.offset_precision = (1.0 / scale**2).expand(N, -1).clone()  # E[1/s_g^2]: (N, 23)
 
     def start(self, x_hat: torch.Tensor) -> None:
-        """Where coordinate ascent starts when every frame is observed: the slow cosines fitted
-        to the residual by least squares (next to no shrinkage), and the per-group offset
-        scales that fit implies.
+        """Where coordinate ascent starts: the slow cosines fitted to the residual by least
+        squares (next to no shrinkage), and the per-group offset scales that fit implies.
 
         From a zero offset the first noise estimate holds the whole slow discrepancy, the
         offset is shrunk hard, and it creeps up over 10 or more rounds; from here 3 rounds

@@ -112,8 +112,8 @@ class FootLockConfig:
     travel_tol (m), travel_jitter: a held joint straying over a run further than travel_tol
     (plus, over 30 Hz, travel_jitter times the input's foot jitter; none over noisy_from)
     from its mean travels (``contact_runs.travel_anchors``): held to its mean within travel_s
-    either side; over 30 Hz the tolerance is scaled by 30 / fps (the denoised feet err less there: a
-    120 Hz squat's travel is the take's own) and that mean, tapered, moves only by its
+    either side; over 30 Hz the tolerance is scaled by 30 / fps (the denoised feet err less
+    there: a 120 Hz squat's travel is the take's own) and that mean, tapered, moves only by its
     speed over travel_stick (m/s; ``contact_runs.stuck_path``: a denoised standing foot's
     wander is slow; 0: the plain mean); pin: times the fade's weight, the share of a
     fade's horizontal correction that takes the joint toward its goal
