@@ -299,8 +299,10 @@ def lock_feet(
         # a very noisy input's feet wander as far as a shuffle goes once denoised; over 30 Hz,
         # where the tolerance is scaled down to the rate, a noisier one's wander further
         # (at 30 Hz and under a shuffle's steps are the take's: the tolerance alone)
-        over_30 = motion.fps > JITTER_FPS
-        travel_tol += math.inf if jitter > cfg.noisy_from else over_30 * cfg.travel_jitter * jitter
+        if jitter > cfg.noisy_from:
+            travel_tol = math.inf
+        elif motion.fps > JITTER_FPS:
+            travel_tol += cfg.travel_jitter * jitter
         # a clean take's feet are lifted only by the share of the goal that is not its own
         lift_share = 1.0 - trust * (1.0 - clean_scale(cfg, at_30))
     travel_tol *= min(1.0, JITTER_FPS / motion.fps)  # over 30 Hz the denoised feet err less
