@@ -18,7 +18,9 @@ written by the same reader and writer (npz: ``npz_io.load_motion`` / ``save_moti
 tree's, and the table quotes both and how far the outputs are apart (npz: max |difference| of
 poses (rad) and trans (m); BVH: of the channel values). With ``--repeats N`` each run is done N
 times (this tree's and the baseline's in turn) and the table quotes the median wall time and
-the largest peak: on a shared machine one run's time can move by a fifth.
+the largest peak: on a shared machine one run's time can move by a fifth. Each tree's modules
+are compiled first (``compileall``), as an installed package has them: a Python told not to
+write bytecode (``PYTHONDONTWRITEBYTECODE``) would compile every module in every run.
 """
 
 from __future__ import annotations
@@ -150,6 +152,12 @@ def run_process(args: list[str], tree: Path, threads: int) -> Run:
     return Run(seconds, peak_kb / 1024, out)
 
 
+def compile_tree(tree: Path) -> None:
+    """Byte-compile ``tree``'s ``mdvae_cli`` (module docstring)."""
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "mdvae_cli")],
+                   check=True, stdout=subprocess.DEVNULL)  # fmt: skip
+
+
 def typical(runs: list[Run]) -> Run:
     """Repeats of one run: the median wall time, the largest peak, the last output."""
     return Run(float(np.median([r.seconds for r in runs])), max(r.peak_mb for r in runs),
@@ -204,6 +212,8 @@ def measure(args) -> list[Row]:
     """Every run on every take (the baseline's alternating with this tree's)."""
     work = Path(args.work)
     rows: list[Row] = []
+    for tree in [REPO] + ([Path(args.baseline)] if args.baseline else []):
+        compile_tree(tree)
     for fmt in args.formats:
         for minutes in args.minutes:
             fps = RATES[fmt]

@@ -66,6 +66,25 @@ def test_constant_channels_are_found_to_the_last_written_digit():
     assert not constant_channels(data[:1]).any()
 
 
+def test_constant_channels_read_the_rows_asked_for_a_block_at_a_time(monkeypatch):
+    """Of the rows asked for alone, read a block at a time: the same columns as numpy's
+    peak-to-peak of those rows gathered at once; a NaN column holds no one value."""
+    from mdvae_cli.retarget import held_channels
+
+    rng = np.random.default_rng(1)
+    data = rng.normal(size=(50, 6))
+    data[1:, 2] = 4.0  # constant but for the first row
+    data[:, 4] = -2.0
+    data[7, 5] = np.nan
+    rows = np.arange(1, 50)
+    want = np.ptp(data[rows], axis=0) < held_channels.SPREAD
+    monkeypatch.setattr(held_channels, "_BLOCK", 8)
+    got = constant_channels(data, rows)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got, [False, False, True, False, True, False])
+    assert not constant_channels(data, rows[:1]).any()
+
+
 def test_held_channels_solve_the_others_exactly_when_the_rotation_allows():
     rng = np.random.default_rng(0)
     for axes in ("zxy", "xyz", "yzx"):
@@ -111,7 +130,8 @@ def test_a_hinge_and_a_still_foot_come_back_as_they_came(tmp_path, joints, monke
     for c in cols.values():  # the held channels: identical, every frame
         np.testing.assert_array_equal(data[:, c], layout.data[:, c])
     # the way back without holding them: the rotation the cleaning asked for
-    monkeypatch.setattr(way_back, "constant_channels", lambda d: np.zeros(d.shape[1], bool))
+    none_held = lambda d, rows=None: np.zeros(d.shape[1], bool)  # noqa: E731
+    monkeypatch.setattr(way_back, "constant_channels", none_held)
     free = write_back_data(*args)
     assert max(np.abs(free[:, c] - layout.data[:, c]).max() for c in cols.values()) > 0.5
     names = list(take.source.names)

@@ -4,6 +4,9 @@ pieces against the same take denoised whole."""
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 import pytest
 from conftest import motion_arrays
@@ -23,6 +26,7 @@ from mdvae_cli.metrics import evaluate_pair
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.noise import add_pose_noise
+from mdvae_cli.workers import map_in_order
 
 
 def _take(T: int, fps: float = 30.0, seed: int = 3) -> Motion:
@@ -75,12 +79,20 @@ def test_hand_over_slerps_from_one_result_to_the_other():
     np.testing.assert_allclose(trans, np.repeat(w[:, None], 3, axis=1), atol=1e-12)
 
 
-def test_pieces_are_joined_with_callbacks_on_the_whole_take():
+def _workers(monkeypatch, n: int) -> None:
+    """The pieces of a take run on ``n`` threads where they may run on every core, whatever
+    the machine's cores."""
+    monkeypatch.setattr(time_pieces, "map_in_order", lambda fn, items, workers=None:
+                        map_in_order(fn, items, n if workers is None else workers))  # fmt: skip
+
+
+def test_pieces_are_joined_with_callbacks_on_the_whole_take(monkeypatch):
     """A stand-in denoiser that adds its piece's number to the translation and reports a
     fallback and a blend per piece: each piece's own frames carry its number, the hand-overs
     lie between, the fallbacks come back in the take's seconds (clipped to what each piece
     owns), the blend shares weighted by the frames each owns, the progress counted over
     all the runs, and a short take beside the long one goes to the denoiser as it came."""
+    _workers(monkeypatch, 1)  # the stand-in counts its calls: one piece after the other
     long, short = _take(3000), _take(200, seed=4)
     calls = []
 
@@ -121,7 +133,53 @@ def test_pieces_are_joined_with_callbacks_on_the_whole_take():
     assert fallbacks == [(1, 1.0, 2.0), (0, 1.0, 2.0)]
     assert blends[1].input_share == 0.0
     np.testing.assert_allclose(blends[0].input_share, (0.1 * 1000 + 0.2 * 1000 + 0.3 * 1000) / 3000)
-    assert [t["step"] for t in told] == [1, 3, 5, 7] and {t["steps"] for t in told} == {8}
+    # the short take's run, then the pieces' steps summed (they may go on side by side)
+    assert [t["step"] for t in told] == [1, 3, 4, 5] and {t["steps"] for t in told} == {8}
+
+
+@pytest.mark.parametrize("pieces", [3, 5])
+def test_pieces_side_by_side_join_as_one_after_the_other(monkeypatch, pieces):
+    """On two threads the pieces of a take of at most ``SIDE_BY_SIDE_PIECES`` go on side by
+    side (a longer one's one after the other) and finish in any order; the joined take, the
+    fallbacks and the blend shares are those of one piece after the other, told in the
+    pieces' order, and each stage's progress only rises."""
+    T = 1000 * pieces
+    long = _take(T).with_body(trans=np.stack([np.arange(T) / 1000, np.zeros(T), np.zeros(T)], 1))
+    threads = set()
+
+    def run(ms, loops, progress, on_fallback, on_blend, piece=False):
+        (m,) = ms
+        threads.add(threading.get_ident())
+        lo = int(round(m.trans[0, 0] * 1000))  # the stand-in take's x is its frame / 1000
+        time.sleep(0.05 if lo == 0 else 0.0)  # the first piece finishes last
+        for step in (1, 2):
+            progress({"stage": "denoise", "step": step, "steps": 2})
+        on_fallback(0, 0.0, m.num_frames / m.fps)  # all of it: each piece tells what it owns
+        on_blend(0, BlendReport(input_share=lo / 1e4, spike_share=0.0))
+        return [m.with_body(trans=m.trans + lo)]
+
+    results = []
+    for n in (1, 2):
+        _workers(monkeypatch, n)
+        threads.clear()
+        falls, blends, told = [], [], []
+
+        def fell(i, a, b, falls=falls):
+            falls.append((round(a, 6), round(b, 6)))
+
+        def blended(i, r, blends=blends):
+            blends.append(r)
+
+        out = denoise_in_pieces([long], [False], run, told.append, fell, blended, piece=1000)
+        results.append((out[0], falls, blends, told, len(threads)))
+    (one, falls1, blends1, _, _), (two, falls2, blends2, told2, used) = results
+    np.testing.assert_array_equal(two.trans, one.trans)
+    np.testing.assert_array_equal(two.joint_rotations, one.joint_rotations)
+    assert falls2 == falls1 and len(falls1) == pieces
+    assert [b.input_share for b in blends2] == [b.input_share for b in blends1]
+    assert used == (2 if pieces <= time_pieces.SIDE_BY_SIDE_PIECES else 1)
+    steps = [t["step"] for t in told2]
+    assert steps == sorted(steps) and steps[-1] == 2 * pieces and told2[-1]["steps"] == 2 * pieces
 
 
 @pytest.fixture(scope="module")

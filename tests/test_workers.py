@@ -4,6 +4,7 @@ one thread or several."""
 
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -102,7 +103,23 @@ def test_a_bvh_read_and_written_back_in_chunks_side_by_side_is_the_same_bits(tmp
 
 @pytest.mark.parametrize("n", [1, 2])
 def test_each_finished_chunk_gives_its_memory_back(monkeypatch, n):
+    """What the stage before let go of, at once, before the first chunk; then after each
+    chunk, at most every ``TRIM_SECONDS``."""
     given = []
-    monkeypatch.setattr(workers, "give_back_memory", lambda: given.append(1))
+    monkeypatch.setattr(workers, "give_back_memory", lambda *every: given.append(every))
     assert list(map_in_order(lambda k: k, range(5), workers=n)) == list(range(5))
-    assert len(given) == 5
+    assert given == [(0.0,)] + [()] * 5
+
+
+def test_memory_is_given_back_at_most_every_trim_seconds(monkeypatch):
+    """A trim walks every heap and makes the next chunk fault its pages in again: chunks
+    finishing within ``TRIM_SECONDS`` of the last trim give nothing back."""
+    trims, clock = [], [100.0]
+    monkeypatch.setattr(workers, "_TRIM", lambda pad: trims.append(pad))
+    monkeypatch.setattr(workers, "_last_trim", [float("-inf")])
+    monkeypatch.setattr(workers, "time", SimpleNamespace(monotonic=lambda: clock[0]))
+    for dt in (0.0, 0.1, 0.1, 0.04, 0.02, 0.3):
+        clock[0] += dt
+        workers.give_back_memory()
+    # at 100.0 (the first), 100.26 (0.26 after it), 100.56; not at 100.1, 100.2 or 100.24
+    assert trims == [0, 0, 0]

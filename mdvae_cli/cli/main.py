@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import atexit
+import os
 import signal
 import sys
 import threading
+from typing import NoReturn
 
 import click
 
@@ -98,5 +101,36 @@ for module in (
         cli.add_command(command)
 
 
+def exit_now(code: int | str | None) -> NoReturn:
+    """End the process with ``code`` (as ``sys.exit`` reads it) without the interpreter's
+    teardown: the exit handlers run (logging, temporary folders) and the standard streams
+    are flushed, then the process ends. Tearing torch down costs a quarter of a second of
+    every command (`python -c "import torch"`: 1.05 s against 0.81 s), and every output is
+    written and closed by then."""
+    if code is None:
+        code = 0
+    elif not isinstance(code, int):
+        print(code, file=sys.stderr)
+        code = 1
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe or stream: nothing more to say
+            pass
+    os._exit(code)
+
+
+def main() -> NoReturn:
+    """The ``mdvae`` console script: :func:`cli`, then :func:`exit_now` (an error no command
+    caught still ends with its traceback, as Python ends it)."""
+    try:
+        cli()
+        code: int | str | None = 0
+    except SystemExit as exc:
+        code = exc.code
+    exit_now(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    cli()
+    main()

@@ -22,7 +22,7 @@ import numpy as np
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.bvh_hierarchy import Tokens, parse_hierarchy
-from mdvae_cli.formats.bvh_rotations import channel_rotations
+from mdvae_cli.formats.bvh_rotations import ChannelRotations
 from mdvae_cli.formats.bvh_write import line_ending
 from mdvae_cli.formats.source import (
     BVH_UNIT_GUESSES,
@@ -63,9 +63,7 @@ class BvhLayout:
     metres_per_unit: the scale the SourceMotion is in. world_channels: joints whose position
     channels hold world positions (ignored on reading, rewritten on writing).
     moving: joints other than the root whose position channels move the joint.
-    rotations: (T, J, 3, 3) the local rotations the reader made from the channels of the rows
-    ``rows`` (the SourceMotion's own array while it keeps it), so that the way back need not
-    make them again; None when not kept. encoding: the one the file's bytes were read with
+    encoding: the one the file's bytes were read with
     (``source.decode_text``: ``"utf-8"``, ``"utf-8-sig"`` or ``"latin-1"``), to write its
     header back byte for byte. labels: the ``Frames:`` and ``Frame Time:`` words as the file
     spells them, with the spaces or tab after them (``"frame time:\t"``).
@@ -80,7 +78,6 @@ class BvhLayout:
     metres_per_unit: float
     world_channels: tuple[int, ...] = ()
     moving: tuple[int, ...] = ()
-    rotations: np.ndarray | None = None
     encoding: str = "utf-8"
     labels: tuple[str, str] = ("Frames: ", "Frame Time: ")
 
@@ -119,6 +116,7 @@ def _split_positions(names, parents, offsets, layout, data, rotations, root_pos,
                 varying[j] = t
     if not varying:
         return rest, None
+    rotations = np.asarray(rotations)
     local = np.tile(rest, (T, 1, 1))
     G = np.empty((T, max(varying), 3, 3))
     P = np.empty((T, max(varying), 3))
@@ -294,8 +292,9 @@ def load_bvh(
         rot = layout.joint_columns(j, "r")
         if rot:
             check_angles(np.deg2rad(data[:, [c for c, _ in rot]]), f"joint {names[j]}", path)
-    rotations = channel_rotations(layout, data, J)
-    layout.rotations = rotations
+    # made from the channels a chunk of frames at a time when asked (the retarget's solve,
+    # the way back): held whole, a 30-minute 120 Hz take's were 342 MB at the peak
+    rotations = ChannelRotations(layout, J)
     rest, local = _split_positions(names, parents, offsets, layout, data, rotations, root_pos,
                                    notes)  # fmt: skip
     for j in layout.moving:

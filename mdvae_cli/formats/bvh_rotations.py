@@ -1,5 +1,6 @@
-"""A BVH take's local joint rotations made from its Euler channels: by the reader, by the
-way back, and on demand for a take that has let go of its array (:class:`ChannelRotations`)."""
+"""A BVH take's local joint rotations made from its Euler channels, a chunk of frames at a
+time when asked (:class:`ChannelRotations`: what the reader gives a take), by the retarget's
+solve and by the way back."""
 
 from __future__ import annotations
 
@@ -29,9 +30,10 @@ def channel_rotations(layout: BvhLayout, data: np.ndarray, num_joints: int) -> n
 
 class ChannelRotations:
     """A BVH take's local rotations (T, J, 3, 3), made from its channels
-    (:func:`channel_rotations`) each time frames are asked for instead of held: what a take
-    keeps for its way back once it is retargeted (:func:`let_go_of_rotations`; the array is
-    373 MB on a 30-minute 120 Hz take of 24 joints). Indexed by frames first (then anything
+    (:func:`channel_rotations`) each time frames are asked for instead of held: what the
+    reader gives a take (``formats.bvh.load_bvh``) and a retargeted take keeps for its way
+    back (:func:`let_go_of_rotations`; the array is 373 MB on a 30-minute 120 Hz take of 24
+    joints). Indexed by frames first (then anything
     else) it gives an array; ``np.asarray`` gives all of it."""
 
     ndim = 4
@@ -62,9 +64,9 @@ class ChannelRotations:
 
 
 def let_go_of_rotations(src: SourceMotion) -> SourceMotion:
-    """``src`` (a BVH take read by :func:`load_bvh`) with its rotations made from the channels
-    when asked (:class:`ChannelRotations`) instead of held, and its layout's copy of them
-    dropped; any other take as it is."""
+    """``src`` (a BVH take read by :func:`load_bvh`, whose rotations the retarget may have
+    made an array: a turned or re-rested take) with its rotations made from the channels
+    when asked (:class:`ChannelRotations`) instead of held; any other take as it is."""
     from mdvae_cli.formats.bvh import BvhLayout
 
     layout = src.layout
@@ -72,5 +74,4 @@ def let_go_of_rotations(src: SourceMotion) -> SourceMotion:
         return src
     if len(layout.rows) != src.num_frames:
         return src
-    layout.rotations = None
     return replace(src, rotations=ChannelRotations(layout, src.num_joints))

@@ -4,6 +4,7 @@ denoised, stitched, blended, feet locked: a long take's progress inside it)."""
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 
 Progress = Callable[[dict], None] | None
@@ -52,3 +53,25 @@ def one_of_runs(progress: Progress, k: int, runs: int) -> Progress:
         progress({**info, "step": k * steps + int(info["step"]), "steps": runs * steps})
 
     return tell
+
+
+def side_by_side(progress: Progress, k: int, runs: int, count: int) -> list[Progress]:
+    """:func:`one_of_runs` for ``count`` runs (the k-th to the (k + count - 1)-th of ``runs``)
+    that go on at the same time, from any thread: each tells the steps all of them have done
+    so far in its stage, so that a stage's count only rises."""
+    if progress is None or runs == 1:
+        return [progress] * count
+    done: dict[str | None, list[int]] = {}
+    lock = threading.Lock()
+
+    def teller(i: int) -> Callable[[dict], None]:
+        def tell(info: dict) -> None:
+            steps = int(info["steps"])
+            with lock:
+                stage = done.setdefault(info.get("stage"), [0] * count)
+                stage[i] = int(info["step"])
+                progress({**info, "step": k * steps + sum(stage), "steps": runs * steps})
+
+        return tell
+
+    return [teller(i) for i in range(count)]

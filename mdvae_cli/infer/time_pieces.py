@@ -4,11 +4,12 @@ Every stage of a denoise (the 30 Hz copy, the windows, the stitch, the blend, th
 hole fills, the foot lock) holds a few arrays the size of the take; on a 30-minute 120 Hz take
 they add up to gigabytes. A take longer than :data:`PIECE_FRAMES` frames is cut into pieces
 of about that many frames, and each piece, with :data:`OVERLAP_SECONDS` of its neighbours on
-each side, is denoised on its own, one after the other; only its result is kept. Neighbouring
-results hand over to each other over :data:`FADE_SECONDS` centred on the cut (slerp of the
-rotations, lerp of the translation, weights rising smoothly), far from either piece's edges,
-where a denoise has less context. A cut is moved off any stretch with missing frames, so a
-hole is always filled by one piece that sees both of its sides.
+each side, is denoised on its own (side by side, one per core, on a take of at most
+:data:`SIDE_BY_SIDE_PIECES` pieces; else one after the other); only its result is kept.
+Neighbouring results hand over to each other over :data:`FADE_SECONDS` centred on the cut
+(slerp of the rotations, lerp of the translation, weights rising smoothly), far from either
+piece's edges, where a denoise has less context. A cut is moved off any stretch with missing
+frames, so a hole is always filled by one piece that sees both of its sides.
 
 What a piece estimates from its own frames (the input's noise per channel, the floor) is
 then estimated over minutes of the take instead of all of it; on a take whose noise does not
@@ -27,9 +28,10 @@ import torch
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat
 from mdvae_cli.infer.guard import guard_note, is_guard_note, merged_stretches
 from mdvae_cli.infer.noise_blend import BlendReport
-from mdvae_cli.infer.progress import one_of_runs
+from mdvae_cli.infer.progress import one_of_runs, side_by_side
 from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion, slice_frames
+from mdvae_cli.workers import map_in_order
 
 #: frames in a piece of a long take (4.5 minutes at 120 Hz, 18 at 30 Hz); a take of up to 1.5
 #: times this is denoised whole
@@ -38,6 +40,11 @@ PIECE_FRAMES = 2**15
 OVERLAP_SECONDS = 8.0
 #: and hands over to the next piece over this long, centred on the cut
 FADE_SECONDS = 4.0
+
+#: a take of at most this many pieces has them denoised side by side, one per core; a longer
+#: one a piece at a time: its own arrays leave no room for a second piece's working memory
+#: (about 300 MB at 120 Hz) within 1.5 GB (a 30-minute 120 Hz take: 1,460 MB side by side)
+SIDE_BY_SIDE_PIECES = 4
 
 #: ``run(motions, loops, progress, on_fallback, on_blend, piece=False)``:
 #: ``infer.denoise_settings.denoise`` on a list of motions with these callbacks; with
@@ -175,27 +182,37 @@ def denoise_in_pieces(
 
 def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_fallback,
           on_blend) -> Motion:  # fmt: skip
-    """One take denoised piece by piece (:func:`denoise_in_pieces`)."""
+    """One take denoised piece by piece (:func:`denoise_in_pieces`), the pieces side by side
+    on the process's cores where the take has at most :data:`SIDE_BY_SIDE_PIECES`
+    (``workers.map_in_order``: much of a piece's work holds one core) and joined in order;
+    what they tell (fallbacks, blend reports) is told in the pieces' order."""
     T, fps, half = m.num_frames, m.fps, plan.fade // 2
     rot = trans = mask = None
     stretches: list[tuple[float, float]] = []
     shares, told = np.zeros(2), False
     notes: list[str] = list(m.notes)
-    for k, (lo, hi) in enumerate(plan.spans):
-        own_a, own_b = plan.cuts[k], plan.cuts[k + 1]
-        reports: list[BlendReport] = []
+    tells = side_by_side(progress, done, runs, len(plan.spans))
 
-        def tell(_j, a, b, lo=lo, own_a=own_a, own_b=own_b):
+    def piece(k: int):
+        lo, hi = plan.spans[k]
+        falls: list[tuple[float, float]] = []
+        reports: list[BlendReport] = []
+        part = slice_frames(m, lo, hi)
+        part.notes = list(m.notes)
+        r = run([part], [False], tells[k], lambda _j, a, b: falls.append((a, b)),
+                lambda _j, rep: reports.append(rep), True)[0]  # fmt: skip
+        return r, falls, reports
+
+    workers = 1 if len(plan.spans) > SIDE_BY_SIDE_PIECES else None  # None: every core
+    for k, (r, falls, reports) in enumerate(map_in_order(piece, range(len(plan.spans)), workers)):
+        lo = plan.spans[k][0]
+        own_a, own_b = plan.cuts[k], plan.cuts[k + 1]
+        for a, b in falls:
             a, b = max(a + lo / fps, own_a / fps), min(b + lo / fps, own_b / fps)
             if b > a:
                 stretches.append((a, b))
                 if on_fallback is not None:
                     on_fallback(index, a, b)
-
-        part = slice_frames(m, lo, hi)
-        part.notes = list(m.notes)
-        r = run([part], [False], one_of_runs(progress, done + k, runs), tell,
-                lambda _j, rep, reports=reports: reports.append(rep), True)[0]  # fmt: skip
         for rep in reports:
             shares += (own_b - own_a) * np.array([rep.input_share, rep.spike_share])
         told |= bool(reports)
@@ -218,7 +235,7 @@ def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_
             rot[fade], trans[fade] = faded
         if mask is not None and r.joint_mask is not None:
             mask[own_a:own_b] = r.joint_mask[own_a - lo : own_b - lo]
-        del r, part, rk, tk
+        del r, rk, tk
     joined = m.with_body(root_orient=rot[:, 0], pose_body=rot[:, 1:], trans=trans)
     joined.joint_mask = mask if mask is not None else m.joint_mask
     if stretches:

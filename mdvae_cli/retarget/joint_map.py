@@ -348,8 +348,9 @@ def canonicalise(src: SourceMotion, S: np.ndarray, S_motion: np.ndarray | None =
     S_motion = S if S_motion is None else S_motion
     if np.allclose(S, np.eye(3)) and np.allclose(S_motion, np.eye(3)):
         return src
-    rot = np.einsum("ab,tjbc,dc->tjad", S, src.rotations, S)
-    rot[:, 0] = S_motion @ src.rotations[:, 0] @ S.T
+    R = np.asarray(src.rotations)  # a BVH take's are made from its channels: once
+    rot = np.einsum("ab,tjbc,dc->tjad", S, R, S)
+    rot[:, 0] = S_motion @ R[:, 0] @ S.T
     local = None if src.local_positions is None else src.local_positions @ S.T
     return replace(src, offsets=src.offsets @ S.T, root_positions=src.root_positions @ S_motion.T,
                    rotations=rot, info=dict(src.info), notes=list(src.notes),

@@ -289,7 +289,7 @@ def write_back_data(
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     out = layout.data.copy()
     halo = steady_halo(src.fps)
-    held = constant_channels(layout.data[layout.rows])  # as they came (``held_channels``)
+    held = constant_channels(layout.data, layout.rows)  # as they came (``held_channels``)
 
     def rows_of(i: int) -> np.ndarray:
         stop = min(i + chunk, T)
@@ -338,8 +338,7 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     scale = layout.metres_per_unit
     change = smpl_change(rt, original, cleaned, body, scale, frames)
 
-    kept = None if layout.rotations is None else layout.rotations[frames]
-    L, t = file_frames(src, layout, data, kept)
+    L, t = file_frames(src, layout, data)
     G = world_rotations(L, src.parents)  # the positions: of the joints asked for alone
     drive = drivers(rt.jmap, src.num_joints)
     G2 = driven_rotations(change, G, drive, src.fps)
