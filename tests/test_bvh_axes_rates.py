@@ -11,14 +11,17 @@ import numpy as np
 import pytest
 
 from mdvae_cli.body.formats import load_body_model
-from mdvae_cli.formats.bvh import rate_of_frame_time
+from mdvae_cli.formats.bvh import load_bvh, rate_of_frame_time
+from mdvae_cli.formats.bvh_rotations import ChannelRotations, TurnedRotations
 from mdvae_cli.formats.bvh_write import frame_time_text
 from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
 from mdvae_cli.motion.motion import slice_frames
 from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.joint_map import build_joint_map
 from mdvae_cli.retarget.retarget import RetargetSettings, import_motion, load_source
 from mdvae_cli.retarget.smpl_bvh import smpl_bvh
+from mdvae_cli.retarget.upright import to_smpl_axes
 from mdvae_cli.retarget.way_back import smpl_globals
 from tests.conftest import run_cli as run
 from tests.test_bvh_out import write_rig
@@ -105,3 +108,33 @@ def test_a_y_up_rest_pose_in_a_z_up_scene_still_stands(tmp_path, joints):
     assert (P[:, 15, 2] - P[:, 0, 2]).min() > 0.4  # the head above the pelvis, z up
     notes = json.loads(str(rt.motion.extras["source"]))["notes"]
     assert not any("kept as it lies" in n for n in notes)
+
+
+def test_turned_rotations_are_every_frames_turn_as_asked_for(tmp_path):
+    """``left[j] R[t, j] right[j]^T`` of the frames asked for, however they are indexed,
+    from an array or from a take's channels (made when asked, no array held)."""
+    rng = np.random.default_rng(0)
+    src = load_bvh(write_rig(tmp_path / "take.bvh", T=30))
+    J = src.num_joints
+    left, right = rotvec_to_rotmat(rng.normal(size=(2, J, 3)))
+    assert isinstance(src.rotations, ChannelRotations)
+    for base in (src.rotations, np.asarray(src.rotations)):
+        lazy = TurnedRotations(base, left, right)
+        whole = np.einsum("jab,tjbc,jdc->tjad", left, np.asarray(src.rotations), right)
+        assert lazy.shape == whole.shape and len(lazy) == 30
+        np.testing.assert_allclose(np.asarray(lazy), whole, atol=1e-12)
+        for key in (slice(5, 17), 3, -1, np.array([0, 4, 2]), (slice(None), 1),
+                    (slice(2, 9), 3, 0)):  # fmt: skip
+            np.testing.assert_allclose(lazy[key], whole[key], atol=1e-12)
+
+
+def test_a_take_turned_to_stand_holds_no_array_of_its_rotations(tmp_path, joints):
+    """A z-up take (and a rest pose replaced by an upright frame) is turned as its frames are
+    asked for: a long take's rotations are not held twice over."""
+    walk = slice_frames(load_motion(WALK), 0, 60)
+    Rx = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+    path = tmp_path / "take.bvh"
+    path.write_text(smpl_bvh(turned(walk, joints, Rx, np.zeros(3)), joints))
+    src = load_source(path)
+    turned_src, _ = to_smpl_axes(src, build_joint_map(src))
+    assert isinstance(turned_src.rotations, TurnedRotations) and turned_src.num_frames == 60

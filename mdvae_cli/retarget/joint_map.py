@@ -25,6 +25,7 @@ import numpy as np
 
 from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.bvh_rotations import TurnedRotations
 from mdvae_cli.formats.source import SourceMotion
 from mdvae_cli.retarget.sides import exchange_sides, named_sides_mirrored
 
@@ -348,9 +349,9 @@ def canonicalise(src: SourceMotion, S: np.ndarray, S_motion: np.ndarray | None =
     S_motion = S if S_motion is None else S_motion
     if np.allclose(S, np.eye(3)) and np.allclose(S_motion, np.eye(3)):
         return src
-    R = np.asarray(src.rotations)  # a BVH take's are made from its channels: once
-    rot = np.einsum("ab,tjbc,dc->tjad", S, R, S)
-    rot[:, 0] = S_motion @ R[:, 0] @ S.T
+    left = np.repeat(S[None], src.num_joints, axis=0)
+    left[0] = S_motion  # the root's turn is the world's
+    rot = TurnedRotations(src.rotations, left, np.repeat(S[None], src.num_joints, axis=0))
     local = None if src.local_positions is None else src.local_positions @ S.T
     return replace(src, offsets=src.offsets @ S.T, root_positions=src.root_positions @ S_motion.T,
                    rotations=rot, info=dict(src.info), notes=list(src.notes),

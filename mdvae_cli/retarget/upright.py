@@ -22,6 +22,7 @@ from dataclasses import replace
 import numpy as np
 
 from mdvae_cli.errors import InputError
+from mdvae_cli.formats.bvh_rotations import TurnedRotations
 from mdvae_cli.formats.source import BVH_UNIT_GUESSES, SourceMotion, guess_length_unit
 from mdvae_cli.retarget.joint_map import JointMap, canonical_rotation, canonicalise
 
@@ -167,7 +168,7 @@ def rerest(src: SourceMotion, frame: int) -> SourceMotion:
     Bp = B[np.maximum(parents, 0)]
     Bp[0] = np.eye(3)
     offsets = np.einsum("jab,jb->ja", Bp, src.offsets)
-    rot = np.einsum("jab,tjbc,jdc->tjad", Bp, src.rotations, B)
+    rot = TurnedRotations(src.rotations, Bp, B)
     moving = None
     if src.local_positions is not None:
         moving = np.einsum("jab,tjb->tja", Bp, src.local_positions)
