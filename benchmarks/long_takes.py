@@ -285,7 +285,8 @@ def section(rows: list[Row], argv: list[str]) -> str:
         "## Long takes (`benchmarks/long_takes.py`)",
         "",
         "Whole processes, file to file, one torch thread; wall time from start to exit (torch's "
-        "import included) and peak resident memory. Takes: corpus files end to end with "
+        "import included; every module byte-compiled, as an installed package has them) and peak "
+        "resident memory. Takes: corpus files end to end with "
         "Pose-NDF noise (σ = 0.10 rad); npz at 30 Hz, BVH at 120 Hz on the SMPL skeleton. "
         "*x scipy pass*: the run's wall time over that of the same file read, smoothed with "
         "scipy's Savitzky–Golay (9 frames, order 2) and written by the same reader and writer. "
