@@ -29,16 +29,40 @@ def channel_rotations(layout: BvhLayout, data: np.ndarray, num_joints: int) -> n
     return out
 
 
-class ChannelRotations:
-    """A BVH take's local rotations (T, J, 3, 3), made from its channels
-    (:func:`channel_rotations`) each time frames are asked for instead of held: what the
-    reader gives a take (``formats.bvh.load_bvh``) and a retargeted take keeps for its way
-    back (:func:`let_go_of_rotations`; the array is 373 MB on a 30-minute 120 Hz take of 24
-    joints). Indexed by frames first (then anything
-    else) it gives an array; ``np.asarray`` gives all of it."""
+class RotationsWhenAsked:
+    """Local rotations (T, J, 3, 3) made for the frames asked for, none held: indexed by
+    frames first (then anything else) they give an array, ``np.asarray`` gives all of them.
+    A subclass makes those of some frames (:meth:`made`)."""
 
     ndim = 4
     dtype = np.dtype(np.float64)
+    shape: tuple[int, int, int, int]
+
+    def made(self, frames) -> np.ndarray:
+        """The rotations of ``frames`` (an index array or slice -> (n, J, 3, 3); one index ->
+        (J, 3, 3))."""
+        raise NotImplementedError
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, key) -> np.ndarray:
+        frames, rest = (key[0], key[1:]) if isinstance(key, tuple) else (key, ())
+        out = self.made(frames)
+        one = not isinstance(frames, slice) and np.ndim(frames) == 0  # (J, 3, 3)
+        return out[rest] if one else out[(slice(None), *rest)]
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = self[:]
+        return out if dtype is None else out.astype(dtype)
+
+
+class ChannelRotations(RotationsWhenAsked):
+    """A BVH take's local rotations, made from its channels (:func:`channel_rotations`) each
+    time frames are asked for instead of held: what the reader gives a take
+    (``formats.bvh.load_bvh``) and a retargeted take keeps for its way back
+    (:func:`let_go_of_rotations`; the array is 373 MB on a 30-minute 120 Hz take of 24
+    joints)."""
 
     def __init__(self, layout: BvhLayout, num_joints: int):
         self.layout, self.num_joints = layout, num_joints
@@ -47,33 +71,19 @@ class ChannelRotations:
     def shape(self) -> tuple[int, int, int, int]:
         return (len(self.layout.rows), self.num_joints, 3, 3)
 
-    def __len__(self) -> int:
-        return len(self.layout.rows)
-
-    def __getitem__(self, key) -> np.ndarray:
-        frames, rest = (key[0], key[1:]) if isinstance(key, tuple) else (key, ())
+    def made(self, frames) -> np.ndarray:
         rows = self.layout.rows[frames]
         out = channel_rotations(self.layout, self.layout.data[np.atleast_1d(rows)],
                                 self.num_joints)  # fmt: skip
-        if np.ndim(rows) == 0:
-            return out[0][rest]
-        return out[(slice(None), *rest)]
-
-    def __array__(self, dtype=None, copy=None) -> np.ndarray:
-        out = self[:]
-        return out if dtype is None else out.astype(dtype)
+        return out[0] if np.ndim(rows) == 0 else out
 
 
-class TurnedRotations:
-    """Another set of local rotations (T, J, 3, 3), each joint's turned on both sides:
-    ``left[j] @ R[t, j] @ right[j]^T``, made when frames are asked for (a take's rest pose or
-    world axes changed, ``retarget.joint_map.canonicalise`` and ``retarget.upright.rerest``,
-    without an array the size of the take: 373 MB on a 30-minute 120 Hz take of 24 joints).
-    ``base``: an array or :class:`ChannelRotations`; left, right: (J, 3, 3). Indexed as
-    :class:`ChannelRotations` is."""
-
-    ndim = 4
-    dtype = np.dtype(np.float64)
+class TurnedRotations(RotationsWhenAsked):
+    """Another set of local rotations, each joint's turned on both sides: ``left[j] @ R[t, j]
+    @ right[j]^T``, made when frames are asked for (a take's rest pose or world axes changed,
+    ``retarget.joint_map.canonicalise`` and ``retarget.upright.rerest``, without an array the
+    size of the take: 373 MB on a 30-minute 120 Hz take of 24 joints). ``base``: an array or
+    :class:`RotationsWhenAsked`; left, right: (J, 3, 3)."""
 
     def __init__(self, base, left: np.ndarray, right: np.ndarray):
         self.base = base
@@ -81,22 +91,12 @@ class TurnedRotations:
         self.right = np.asarray(right, dtype=np.float64)
 
     @property
-    def shape(self) -> tuple[int, ...]:
-        return tuple(self.base.shape)
+    def shape(self) -> tuple[int, int, int, int]:
+        return tuple(self.base.shape)  # type: ignore[return-value]
 
-    def __len__(self) -> int:
-        return len(self.base)
-
-    def __getitem__(self, key) -> np.ndarray:
-        frames, rest = (key[0], key[1:]) if isinstance(key, tuple) else (key, ())
+    def made(self, frames) -> np.ndarray:
         R = np.asarray(self.base[frames], dtype=np.float64)  # (J, 3, 3) or (n, J, 3, 3)
-        out = self.left @ R @ np.swapaxes(self.right, -1, -2)
-        one = not isinstance(frames, slice) and np.ndim(frames) == 0  # one frame: (J, 3, 3)
-        return out[rest] if one else out[(slice(None), *rest)]
-
-    def __array__(self, dtype=None, copy=None) -> np.ndarray:
-        out = self[:]
-        return out if dtype is None else out.astype(dtype)
+        return self.left @ R @ np.swapaxes(self.right, -1, -2)
 
 
 def let_go_of_rotations(src: SourceMotion) -> SourceMotion:

@@ -349,9 +349,8 @@ def canonicalise(src: SourceMotion, S: np.ndarray, S_motion: np.ndarray | None =
     S_motion = S if S_motion is None else S_motion
     if np.allclose(S, np.eye(3)) and np.allclose(S_motion, np.eye(3)):
         return src
-    left = np.repeat(S[None], src.num_joints, axis=0)
-    left[0] = S_motion  # the root's turn is the world's
-    rot = TurnedRotations(src.rotations, left, np.repeat(S[None], src.num_joints, axis=0))
+    turn = np.repeat(S[None], src.num_joints, axis=0)  # the root's on its left: the world's
+    rot = TurnedRotations(src.rotations, np.concatenate([S_motion[None], turn[1:]]), turn)
     local = None if src.local_positions is None else src.local_positions @ S.T
     return replace(src, offsets=src.offsets @ S.T, root_positions=src.root_positions @ S_motion.T,
                    rotations=rot, info=dict(src.info), notes=list(src.notes),
