@@ -137,9 +137,9 @@ def test_pieces_are_joined_with_callbacks_on_the_whole_take(monkeypatch):
     assert [t["step"] for t in told] == [1, 3, 4, 5] and {t["steps"] for t in told} == {8}
 
 
-@pytest.mark.parametrize("pieces", [3, 5])
-def test_pieces_side_by_side_join_as_one_after_the_other(monkeypatch, pieces):
-    """On two threads the pieces of a take of at most ``SIDE_BY_SIDE_PIECES`` go on side by
+@pytest.mark.parametrize(("pieces", "side"), [(3, 4), (5, 4), (3, 2), (2, 2)])
+def test_pieces_side_by_side_join_as_one_after_the_other(monkeypatch, pieces, side):
+    """On two threads the pieces of a take of at most ``side_by_side`` pieces go on side by
     side (a longer one's one after the other) and finish in any order; the joined take, the
     fallbacks and the blend shares are those of one piece after the other, told in the
     pieces' order, and each stage's progress only rises."""
@@ -170,16 +170,31 @@ def test_pieces_side_by_side_join_as_one_after_the_other(monkeypatch, pieces):
         def blended(i, r, blends=blends):
             blends.append(r)
 
-        out = denoise_in_pieces([long], [False], run, told.append, fell, blended, piece=1000)
+        out = denoise_in_pieces([long], [False], run, told.append, fell, blended, piece=1000,
+                                side_by_side=side)  # fmt: skip
         results.append((out[0], falls, blends, told, len(threads)))
     (one, falls1, blends1, _, _), (two, falls2, blends2, told2, used) = results
     np.testing.assert_array_equal(two.trans, one.trans)
     np.testing.assert_array_equal(two.joint_rotations, one.joint_rotations)
     assert falls2 == falls1 and len(falls1) == pieces
     assert [b.input_share for b in blends2] == [b.input_share for b in blends1]
-    assert used == (2 if pieces <= time_pieces.SIDE_BY_SIDE_PIECES else 1)
+    assert used == (2 if pieces <= side else 1)
     steps = [t["step"] for t in told2]
     assert steps == sorted(steps) and steps[-1] == 2 * pieces and told2[-1]["steps"] == 2 * pieces
+
+
+@pytest.mark.parametrize(("refine", "side"), [(0, "SIDE_BY_SIDE_PIECES"),
+                                              (5, "SIDE_BY_SIDE_REFINED")])  # fmt: skip
+def test_refined_pieces_go_side_by_side_on_shorter_takes(monkeypatch, shipped, refine, side):
+    """Refinement's pieces hold more memory: ``denoise`` lets fewer of them go at once."""
+    import mdvae_cli.infer.denoise_settings as ds
+
+    seen = []
+    monkeypatch.setattr(ds, "denoise_in_pieces", lambda ms, *a, side_by_side, **k:
+                        seen.append(side_by_side) or ms)  # fmt: skip
+    denoise([_take(40)], DenoiseSettings(refine_steps=refine, rest_pose=False), *shipped)
+    assert seen == [getattr(time_pieces, side)]
+    assert time_pieces.SIDE_BY_SIDE_REFINED < time_pieces.SIDE_BY_SIDE_PIECES
 
 
 @pytest.fixture(scope="module")

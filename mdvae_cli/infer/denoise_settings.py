@@ -26,7 +26,11 @@ from mdvae_cli.infer.loop import which_loop
 from mdvae_cli.infer.noise_blend import BlendReport
 from mdvae_cli.infer.rest_pose import keep_rest_frames
 from mdvae_cli.infer.settings import RefineConfig
-from mdvae_cli.infer.time_pieces import denoise_in_pieces
+from mdvae_cli.infer.time_pieces import (
+    SIDE_BY_SIDE_PIECES,
+    SIDE_BY_SIDE_REFINED,
+    denoise_in_pieces,
+)
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion, check_motions, unshared
 
@@ -191,7 +195,9 @@ def denoise(
         def lock(joined: Motion, source: Motion) -> Motion:
             return joined if feet is None else lock_motions([joined], [source], body, feet)[0]
 
-        return denoise_in_pieces(ms, lps, run, progress, on_fallback, on_blend, finish=lock)
+        side = SIDE_BY_SIDE_REFINED if settings.refine_steps else SIDE_BY_SIDE_PIECES
+        return denoise_in_pieces(ms, lps, run, progress, on_fallback, on_blend, finish=lock,
+                                 side_by_side=side)  # fmt: skip
 
     out = keep_rest_frames(motions, run_all) if settings.rest_pose else run_all(motions)
     return [unshared(o, m) for o, m in zip(out, motions, strict=True)]

@@ -5,7 +5,8 @@ hole fills, the foot lock) holds a few arrays the size of the take; on a 30-minu
 they add up to gigabytes. A take longer than :data:`PIECE_FRAMES` frames is cut into pieces
 of about that many frames, and each piece, with :data:`OVERLAP_SECONDS` of its neighbours on
 each side, is denoised on its own (side by side, one per core, on a take of at most
-:data:`SIDE_BY_SIDE_PIECES` pieces; else one after the other); only its result is kept.
+:data:`SIDE_BY_SIDE_PIECES` pieces, :data:`SIDE_BY_SIDE_REFINED` with refinement; else one
+after the other); only its result is kept.
 Neighbouring results hand over to each other over :data:`FADE_SECONDS` centred on the cut
 (slerp of the rotations, lerp of the translation, weights rising smoothly), far from either
 piece's edges, where a denoise has less context. A cut is moved off any stretch with missing
@@ -45,6 +46,9 @@ FADE_SECONDS = 4.0
 #: one a piece at a time: its own arrays leave no room for a second piece's working memory
 #: (about 300 MB at 120 Hz) within 1.5 GB (a 30-minute 120 Hz take: 1,460 MB side by side)
 SIDE_BY_SIDE_PIECES = 4
+#: the same with latent refinement (``--refine``), whose pieces hold more: side by side, an
+#: 18-minute 120 Hz take (4 pieces) peaked at 1,490 MB, a 10-minute one (2) at 1,365 MB
+SIDE_BY_SIDE_REFINED = 2
 
 #: ``run(motions, loops, progress, on_fallback, on_blend, piece=False)``:
 #: ``infer.denoise_settings.denoise`` on a list of motions with these callbacks; with
@@ -140,6 +144,7 @@ def denoise_in_pieces(
     on_blend: Callable[[int, BlendReport], None] | None = None,
     piece: int | None = None,
     finish: Callable[[Motion, Motion], Motion] | None = None,
+    side_by_side: int = SIDE_BY_SIDE_PIECES,
 ) -> list[Motion]:
     """``run(motions, loops, progress, on_fallback, on_blend)`` with each long take that is
     not a cycle (:func:`plan_pieces`) denoised a piece at a time and joined; the short ones
@@ -149,6 +154,8 @@ def denoise_in_pieces(
     ``finish(joined, take)``: what a joined take goes through last, on the whole of it (the
     foot lock, whose floor and contacts are the take's: estimated piece by piece, the floor
     moved the feet by up to 4 % of the MPJPE on a 10-minute take, ``benchmarks/time_pieces.py``).
+    ``side_by_side``: a take of at most this many pieces has them run side by side, one per
+    core (``workers.map_in_order``); a longer one a piece at a time.
     """
     piece = PIECE_FRAMES if piece is None else piece
     plans = [
@@ -174,18 +181,20 @@ def denoise_in_pieces(
         done += 1
     for i, plan in enumerate(plans):
         if plan is not None:
-            joined = _join(motions[i], plan, run, i, progress, done, runs, on_fallback, on_blend)
+            workers = 1 if len(plan.spans) > side_by_side else None  # None: every core
+            joined = _join(motions[i], plan, run, i, progress, done, runs, on_fallback, on_blend,
+                           workers)  # fmt: skip
             out[i] = joined if finish is None else finish(joined, motions[i])
             done += len(plan.spans)
     return out  # type: ignore[return-value]
 
 
 def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_fallback,
-          on_blend) -> Motion:  # fmt: skip
-    """One take denoised piece by piece (:func:`denoise_in_pieces`), the pieces side by side
-    on the process's cores where the take has at most :data:`SIDE_BY_SIDE_PIECES`
-    (``workers.map_in_order``: much of a piece's work holds one core) and joined in order;
-    what they tell (fallbacks, blend reports) is told in the pieces' order."""
+          on_blend, workers: int | None) -> Motion:  # fmt: skip
+    """One take denoised piece by piece (:func:`denoise_in_pieces`), the pieces on
+    ``workers`` threads (``workers.map_in_order``; None: one per core, much of a piece's work
+    holding one core) and joined in order; what they tell (fallbacks, blend reports) is told
+    in the pieces' order."""
     T, fps, half = m.num_frames, m.fps, plan.fade // 2
     rot = trans = mask = None
     stretches: list[tuple[float, float]] = []
@@ -203,7 +212,6 @@ def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_
                 lambda _j, rep: reports.append(rep), True)[0]  # fmt: skip
         return r, falls, reports
 
-    workers = 1 if len(plan.spans) > SIDE_BY_SIDE_PIECES else None  # None: every core
     for k, (r, falls, reports) in enumerate(map_in_order(piece, range(len(plan.spans)), workers)):
         lo = plan.spans[k][0]
         own_a, own_b = plan.cuts[k], plan.cuts[k + 1]
