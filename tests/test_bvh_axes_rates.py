@@ -21,7 +21,7 @@ from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.joint_map import build_joint_map
 from mdvae_cli.retarget.retarget import RetargetSettings, import_motion, load_source
 from mdvae_cli.retarget.smpl_bvh import smpl_bvh
-from mdvae_cli.retarget.upright import to_smpl_axes
+from mdvae_cli.retarget.upright import rerest, to_smpl_axes
 from mdvae_cli.retarget.way_back import smpl_globals
 from tests.conftest import run_cli as run
 from tests.test_bvh_out import write_rig
@@ -138,3 +138,7 @@ def test_a_take_turned_to_stand_holds_no_array_of_its_rotations(tmp_path, joints
     src = load_source(path)
     turned_src, _ = to_smpl_axes(src, build_joint_map(src))
     assert isinstance(turned_src.rotations, TurnedRotations) and turned_src.num_frames == 60
+    rested = rerest(src, 5)
+    assert isinstance(rested.rotations, TurnedRotations)
+    P0, P1 = src.forward_kinematics()[1], rested.forward_kinematics()[1]
+    np.testing.assert_allclose(P1, P0, atol=1e-9)  # the same world positions, another rest
