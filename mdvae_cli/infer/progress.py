@@ -42,23 +42,11 @@ def more_phases(progress: Progress, extra: int) -> Progress:
     return tell
 
 
-def one_of_runs(progress: Progress, k: int, runs: int) -> Progress:
-    """``progress`` for the k-th of ``runs`` runs of the same kind (a long take's pieces):
-    each step counted among all of theirs."""
-    if progress is None or runs == 1:
-        return progress
-
-    def tell(info: dict) -> None:
-        steps = int(info["steps"])
-        progress({**info, "step": k * steps + int(info["step"]), "steps": runs * steps})
-
-    return tell
-
-
-def side_by_side(progress: Progress, k: int, runs: int, count: int) -> list[Progress]:
-    """:func:`one_of_runs` for ``count`` runs (the k-th to the (k + count - 1)-th of ``runs``)
-    that go on at the same time, from any thread: each tells the steps all of them have done
-    so far in its stage, so that a stage's count only rises."""
+def progress_of_runs(progress: Progress, k: int, runs: int, count: int) -> list[Progress]:
+    """``progress`` for ``count`` runs of the same kind (a long take's pieces: the k-th to the
+    (k + count - 1)-th of ``runs``), each step counted among all of theirs, the runs before
+    the k-th done. They may go on at the same time, from any thread: each tells the steps
+    all of them have done so far in its stage, so that a stage's count only rises."""
     if progress is None or runs == 1:
         return [progress] * count
     done: dict[str | None, list[int]] = {}

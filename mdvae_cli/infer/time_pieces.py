@@ -29,7 +29,7 @@ import torch
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat
 from mdvae_cli.infer.guard import guard_note, is_guard_note, merged_stretches
 from mdvae_cli.infer.noise_blend import BlendReport
-from mdvae_cli.infer.progress import one_of_runs, side_by_side
+from mdvae_cli.infer.progress import progress_of_runs
 from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.workers import map_in_order
@@ -172,7 +172,7 @@ def denoise_in_pieces(
         results = run(
             [motions[i] for i in whole],
             [loops[i] for i in whole],
-            one_of_runs(progress, done, runs),
+            progress_of_runs(progress, done, runs, 1)[0],
             None if on_fallback is None else lambda j, a, b: on_fallback(whole[j], a, b),
             None if on_blend is None else lambda j, r: on_blend(whole[j], r),
         )
@@ -200,7 +200,7 @@ def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_
     stretches: list[tuple[float, float]] = []
     shares, told = np.zeros(2), False
     notes: list[str] = list(m.notes)
-    tells = side_by_side(progress, done, runs, len(plan.spans))
+    tells = progress_of_runs(progress, done, runs, len(plan.spans))
 
     def piece(k: int):
         lo, hi = plan.spans[k]
