@@ -197,7 +197,8 @@ def test_frames_missing_in_either_file_are_not_scored(tiny_body):
     for t in range(30):
         one = evaluate_pair(slice_frames(gt, t, t + 1), slice_frames(pred, t, t + 1), tiny_body)
         per_frame.append(one.v2v_cm)
-    assert r.v2v_cm == pytest.approx(np.mean(np.array(per_frame)[keep]), rel=1e-9)
+    # float32 skinning is one product over the frames given: its rounding moves with their count
+    assert r.v2v_cm == pytest.approx(np.mean(np.array(per_frame)[keep]), rel=1e-6)
     # inner frames t with t-1, t, t+1 all scored: 1-8, 15-18, 22-28
     assert r.accel_count == 8 + 4 + 7 and r.accel_frames == 19
     swapped = evaluate_pair(pred, hole_gt, tiny_body)

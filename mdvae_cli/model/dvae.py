@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from mdvae_cli.model.config import ModelConfig
+from mdvae_cli.model.encoder_loop import LOGVAR_RANGE, encoder_loop
 
 
 def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
@@ -136,15 +137,25 @@ class Encoder(nn.Module):
         g_part = nn.functional.linear(g, first.weight[:, :H], first.bias)
         if self.x_skip:
             g_part = g_part + nn.functional.linear(x, first.weight[:, H + S :])
-        steps = EncoderSteps(self.cell, first.weight[:, H : H + S], decoder)
-        h, hd = self.init(x0), (decoder.init(x0) if self.reads_decoder else None)
-        zs, means, logvars, hds = [], [], [], []
+        if self.reads_decoder:  # the loop with its backward written out (``encoder_loop``)
+            eps = None
+            if sample:
+                B, T = x.shape[:2]
+                eps = torch.randn((T, B, self.cell.input_size), generator=generator,
+                                  dtype=x.dtype, device=x.device).transpose(0, 1)  # fmt: skip
+            z, mean, logvar, hds = encoder_loop(self.cell, first.weight[:, H : H + S], rest[-1],
+                                                decoder.rnn, g_part, self.init(x0),
+                                                decoder.init(x0), eps)  # fmt: skip
+            posterior = Gaussian(mean, logvar)
+            return (z, posterior, hds) if decoder_states else (z, posterior)
+        steps = EncoderSteps(self.cell, first.weight[:, H : H + S])
+        h = self.init(x0)
+        zs, means, logvars = [], [], []
         # one view per frame: indexing g_part[:, t] in the loop costs a full-size gradient each
         for t, g_t in enumerate(g_part.unbind(1)):
             h = steps.encoder_state(h)
-            pre = g_t + steps.state_part(h, hd)
-            mean, logvar = rest(pre).chunk(2, dim=-1)
-            logvar = logvar.clamp(-12.0, 6.0)
+            mean, logvar = rest(g_t + steps.state_h).chunk(2, dim=-1)
+            logvar = logvar.clamp(*LOGVAR_RANGE)
             if sample:
                 eps = torch.randn(
                     mean.shape, generator=generator, dtype=mean.dtype, device=mean.device
@@ -152,15 +163,11 @@ class Encoder(nn.Module):
                 z = mean + torch.exp(0.5 * logvar) * eps
             else:
                 z = mean
-            hd = steps.take_latent(z, hd, last=t == x.shape[1] - 1)
-            if hd is not None:
-                hds.append(hd)
+            steps.take_latent(z, last=t == x.shape[1] - 1)
             zs.append(z)
             means.append(mean)
             logvars.append(logvar)
         stack = lambda v: torch.stack(v, dim=1)  # noqa: E731
-        if decoder_states:
-            return stack(zs), Gaussian(stack(means), stack(logvars)), stack(hds)
         return stack(zs), Gaussian(stack(means), stack(logvars))
 
 
@@ -178,40 +185,29 @@ def gru_update(gi: torch.Tensor, gh: torch.Tensor, h: torch.Tensor) -> torch.Ten
 
 
 class EncoderSteps:
-    """The encoder's sequential loop with its matrix products fused: each step multiplies
-    each of its three changing vectors (h_t, hd_{t-1}, z_t) once, by the weights of every
-    network that reads it, instead of six separate products (same equations as
-    ``nn.GRUCell`` / ``torch.gru_cell``; the order of the products differs, so results
-    agree to float rounding).
+    """The loop of the encoder that does not read the decoder's state (the older layout) with
+    its matrix products fused: h_t is multiplied once by the head's state columns and the
+    cell's hidden weights together (same equations as ``nn.GRUCell``; the order of the
+    products differs, so results agree to float rounding). The layout that reads the
+    decoder's state runs ``encoder_loop``.
 
-    ``cell``: the encoder's GRUCell over z_{t-1}; ``w_state``: (M, H) or (M, 2H), the head's
-    first-layer columns for [h_t] or [h_t, hd_t]; ``decoder``: the decoder whose GRU the
-    encoder steps along, or None.
+    ``cell``: the encoder's GRUCell over z_{t-1}; ``w_state``: (M, H), the head's first-layer
+    columns for h_t.
     """
 
-    def __init__(self, cell: nn.GRUCell, w_state: torch.Tensor, decoder: Decoder | None):
-        H = cell.hidden_size
+    def __init__(self, cell: nn.GRUCell, w_state: torch.Tensor):
         self.M = w_state.shape[0]
-        self.G = 3 * H
-        self.reads_decoder = w_state.shape[1] == 2 * H
         # h_t -> [state columns | the encoder cell's hidden projection for step t+1]
-        self.w_h = torch.cat([w_state[:, :H], cell.weight_hh], dim=0)
+        self.w_h = torch.cat([w_state, cell.weight_hh], dim=0)
         self.b_h = torch.cat([cell.bias_hh.new_zeros(self.M), cell.bias_hh])
         self.cell = cell
         self.gi = cell.bias_ih.expand(1, -1)  # z_0 = 0: the input projection is its bias
         self.gh = None
-        if self.reads_decoder:
-            rnn = decoder.rnn
-            # hd_{t-1} -> [the decoder GRU's hidden projection | state columns]
-            self.w_hd = torch.cat([rnn.weight_hh_l0, w_state[:, H:]], dim=0)
-            self.b_hd = torch.cat([rnn.bias_hh_l0, rnn.bias_hh_l0.new_zeros(self.M)])
-            # z_t -> [the decoder GRU's input projection | the encoder cell's, for step t+1]
-            self.w_z = torch.cat([rnn.weight_ih_l0, cell.weight_ih], dim=0)
-            self.b_z = torch.cat([rnn.bias_ih_l0, cell.bias_ih])
-            self.hd_proj = None
+        self.state_h = None
 
     def encoder_state(self, h: torch.Tensor) -> torch.Tensor:
-        """h_{t-1} (B, H) -> h_t, from z_{t-1}'s projection kept by the previous step."""
+        """h_{t-1} (B, H) -> h_t, from z_{t-1}'s projection kept by the previous step; keeps
+        the head's first layer on h_t (``state_h``, (B, M))."""
         if self.gh is None:  # first step: h_0's projection
             self.gh = nn.functional.linear(h, self.cell.weight_hh, self.cell.bias_hh)
         h_new = gru_update(self.gi, self.gh, h)
@@ -219,24 +215,11 @@ class EncoderSteps:
         self.state_h, self.gh = both[:, : self.M], both[:, self.M :]
         return h_new
 
-    def state_part(self, h: torch.Tensor, hd: torch.Tensor | None) -> torch.Tensor:
-        """The head's first layer on [h_t, hd_{t-1}] (B, M); h_t's part is already made."""
-        if hd is None:
-            return self.state_h
-        both = torch.addmm(self.b_hd, hd, self.w_hd.t())
-        self.hd_proj = both[:, : self.G]
-        return self.state_h + both[:, self.G :]
-
-    def take_latent(self, z: torch.Tensor, hd: torch.Tensor | None, last: bool):
-        """Feed z_t (B, L): the decoder's state hd_t (or None), and the encoder cell's input
-        projection for step t+1 (skipped after the last step)."""
-        if hd is None:
-            if not last:
-                self.gi = nn.functional.linear(z, self.cell.weight_ih, self.cell.bias_ih)
-            return None
-        both = torch.addmm(self.b_z, z, self.w_z.t())
-        self.gi = both[:, self.G :]
-        return gru_update(both[:, : self.G], self.hd_proj, hd)
+    def take_latent(self, z: torch.Tensor, last: bool) -> None:
+        """Feed z_t (B, L): the encoder cell's input projection for step t+1 (none after the
+        last step)."""
+        if not last:
+            self.gi = nn.functional.linear(z, self.cell.weight_ih, self.cell.bias_ih)
 
 
 class MotionDVAE(nn.Module):
