@@ -21,7 +21,15 @@ import torch
 from torch import nn
 
 from mdvae_cli.model.config import ModelConfig
-from mdvae_cli.model.encoder_loop import LOGVAR_RANGE, encoder_loop
+from mdvae_cli.model.recurrent import encoder_loop
+
+
+#: windows at most for the encoder's loop to run as one function with its backward written out
+#: (``recurrent.encoder_loop``) on a CPU: on two cores its forward and backward at batch 64 took
+#: 91 ms against autograd's 103, at 128 the same, at 256 328 against 281 (its whole-window
+#: buffers leave the caches). Larger batches, and GPUs (where the step is captured as a CUDA
+#: graph; the function there untried), step as recorded by autograd.
+FUSED_MAX_BATCH = 96
 
 
 def mlp(d_in: int, d_hidden: int, d_out: int) -> nn.Sequential:
@@ -137,7 +145,7 @@ class Encoder(nn.Module):
         g_part = nn.functional.linear(g, first.weight[:, :H], first.bias)
         if self.x_skip:
             g_part = g_part + nn.functional.linear(x, first.weight[:, H + S :])
-        if self.reads_decoder:  # the loop with its backward written out (``encoder_loop``)
+        if self.reads_decoder and x.device.type == "cpu" and x.shape[0] <= FUSED_MAX_BATCH:
             eps = None
             if sample:
                 B, T = x.shape[:2]
@@ -148,14 +156,15 @@ class Encoder(nn.Module):
                                                 decoder.init(x0), eps)  # fmt: skip
             posterior = Gaussian(mean, logvar)
             return (z, posterior, hds) if decoder_states else (z, posterior)
-        steps = EncoderSteps(self.cell, first.weight[:, H : H + S])
-        h = self.init(x0)
-        zs, means, logvars = [], [], []
+        steps = EncoderSteps(self.cell, first.weight[:, H : H + S], decoder)
+        h, hd = self.init(x0), (decoder.init(x0) if self.reads_decoder else None)
+        zs, means, logvars, hds = [], [], [], []
         # one view per frame: indexing g_part[:, t] in the loop costs a full-size gradient each
         for t, g_t in enumerate(g_part.unbind(1)):
             h = steps.encoder_state(h)
-            mean, logvar = rest(g_t + steps.state_h).chunk(2, dim=-1)
-            logvar = logvar.clamp(*LOGVAR_RANGE)
+            pre = g_t + steps.state_part(h, hd)
+            mean, logvar = rest(pre).chunk(2, dim=-1)
+            logvar = logvar.clamp(-12.0, 6.0)
             if sample:
                 eps = torch.randn(
                     mean.shape, generator=generator, dtype=mean.dtype, device=mean.device
@@ -163,11 +172,15 @@ class Encoder(nn.Module):
                 z = mean + torch.exp(0.5 * logvar) * eps
             else:
                 z = mean
-            steps.take_latent(z, last=t == x.shape[1] - 1)
+            hd = steps.take_latent(z, hd, last=t == x.shape[1] - 1)
+            if hd is not None:
+                hds.append(hd)
             zs.append(z)
             means.append(mean)
             logvars.append(logvar)
         stack = lambda v: torch.stack(v, dim=1)  # noqa: E731
+        if decoder_states:
+            return stack(zs), Gaussian(stack(means), stack(logvars)), stack(hds)
         return stack(zs), Gaussian(stack(means), stack(logvars))
 
 
@@ -185,29 +198,40 @@ def gru_update(gi: torch.Tensor, gh: torch.Tensor, h: torch.Tensor) -> torch.Ten
 
 
 class EncoderSteps:
-    """The loop of the encoder that does not read the decoder's state (the older layout) with
-    its matrix products fused: h_t is multiplied once by the head's state columns and the
-    cell's hidden weights together (same equations as ``nn.GRUCell``; the order of the
-    products differs, so results agree to float rounding). The layout that reads the
-    decoder's state runs ``encoder_loop``.
+    """The encoder's sequential loop with its matrix products fused: each step multiplies
+    each of its three changing vectors (h_t, hd_{t-1}, z_t) once, by the weights of every
+    network that reads it, instead of six separate products (same equations as
+    ``nn.GRUCell`` / ``torch.gru_cell``; the order of the products differs, so results
+    agree to float rounding).
 
-    ``cell``: the encoder's GRUCell over z_{t-1}; ``w_state``: (M, H), the head's first-layer
-    columns for h_t.
+    ``cell``: the encoder's GRUCell over z_{t-1}; ``w_state``: (M, H) or (M, 2H), the head's
+    first-layer columns for [h_t] or [h_t, hd_t]; ``decoder``: the decoder whose GRU the
+    encoder steps along, or None.
     """
 
-    def __init__(self, cell: nn.GRUCell, w_state: torch.Tensor):
+    def __init__(self, cell: nn.GRUCell, w_state: torch.Tensor, decoder: Decoder | None):
+        H = cell.hidden_size
         self.M = w_state.shape[0]
+        self.G = 3 * H
+        self.reads_decoder = w_state.shape[1] == 2 * H
         # h_t -> [state columns | the encoder cell's hidden projection for step t+1]
-        self.w_h = torch.cat([w_state, cell.weight_hh], dim=0)
+        self.w_h = torch.cat([w_state[:, :H], cell.weight_hh], dim=0)
         self.b_h = torch.cat([cell.bias_hh.new_zeros(self.M), cell.bias_hh])
         self.cell = cell
         self.gi = cell.bias_ih.expand(1, -1)  # z_0 = 0: the input projection is its bias
         self.gh = None
-        self.state_h = None
+        if self.reads_decoder:
+            rnn = decoder.rnn
+            # hd_{t-1} -> [the decoder GRU's hidden projection | state columns]
+            self.w_hd = torch.cat([rnn.weight_hh_l0, w_state[:, H:]], dim=0)
+            self.b_hd = torch.cat([rnn.bias_hh_l0, rnn.bias_hh_l0.new_zeros(self.M)])
+            # z_t -> [the decoder GRU's input projection | the encoder cell's, for step t+1]
+            self.w_z = torch.cat([rnn.weight_ih_l0, cell.weight_ih], dim=0)
+            self.b_z = torch.cat([rnn.bias_ih_l0, cell.bias_ih])
+            self.hd_proj = None
 
     def encoder_state(self, h: torch.Tensor) -> torch.Tensor:
-        """h_{t-1} (B, H) -> h_t, from z_{t-1}'s projection kept by the previous step; keeps
-        the head's first layer on h_t (``state_h``, (B, M))."""
+        """h_{t-1} (B, H) -> h_t, from z_{t-1}'s projection kept by the previous step."""
         if self.gh is None:  # first step: h_0's projection
             self.gh = nn.functional.linear(h, self.cell.weight_hh, self.cell.bias_hh)
         h_new = gru_update(self.gi, self.gh, h)
@@ -215,11 +239,24 @@ class EncoderSteps:
         self.state_h, self.gh = both[:, : self.M], both[:, self.M :]
         return h_new
 
-    def take_latent(self, z: torch.Tensor, last: bool) -> None:
-        """Feed z_t (B, L): the encoder cell's input projection for step t+1 (none after the
-        last step)."""
-        if not last:
-            self.gi = nn.functional.linear(z, self.cell.weight_ih, self.cell.bias_ih)
+    def state_part(self, h: torch.Tensor, hd: torch.Tensor | None) -> torch.Tensor:
+        """The head's first layer on [h_t, hd_{t-1}] (B, M); h_t's part is already made."""
+        if hd is None:
+            return self.state_h
+        both = torch.addmm(self.b_hd, hd, self.w_hd.t())
+        self.hd_proj = both[:, : self.G]
+        return self.state_h + both[:, self.G :]
+
+    def take_latent(self, z: torch.Tensor, hd: torch.Tensor | None, last: bool):
+        """Feed z_t (B, L): the decoder's state hd_t (or None), and the encoder cell's input
+        projection for step t+1 (skipped after the last step)."""
+        if hd is None:
+            if not last:
+                self.gi = nn.functional.linear(z, self.cell.weight_ih, self.cell.bias_ih)
+            return None
+        both = torch.addmm(self.b_z, z, self.w_z.t())
+        self.gi = both[:, self.G :]
+        return gru_update(both[:, : self.G], self.hd_proj, hd)
 
 
 class MotionDVAE(nn.Module):

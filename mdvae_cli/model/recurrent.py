@@ -3,15 +3,18 @@
 The encoder (paper Sec. 3.2, ``q(z_t | z_{1:t-1}, x_{t:T}, x0)``, in the layout that reads the
 decoder's state) steps two GRU cells and a head along the window, one frame after the other.
 Recorded operation by operation, autograd keeps ~40 small operations a frame and replays each
-one's backward with its own bookkeeping: on two CPU cores that loop was 87 ms of a 230 ms
-training step at batch 64 (60 frames), and on a GPU thousands of tiny kernels. Here the forward
-runs without recording and keeps what the backward needs; the backward forms the gates'
-derivative factors for all frames at once, walks the frames back in ~20 operations each, and
-makes each weight's gradient with one product over all frames. Same equations as
-``nn.GRUCell`` (gates in r, z, n order); results agree with autograd's to float rounding
-(``tests/test_encoder_loop.py``).
+one's backward with its own bookkeeping. Here the forward runs without recording and keeps what
+the backward needs; the backward forms the gates' derivative factors for all frames at once,
+walks the frames back in ~20 operations each, and makes each weight's gradient with one
+product over all frames. Same equations as ``nn.GRUCell`` (gates in r, z, n order); results
+agree with autograd's to float rounding (``tests/test_recurrent.py``). On two CPU cores, at
+batch 64 (60 frames), the whole encoder's forward and backward take 91 ms against 103 recorded by
+autograd; its small products (64 rows) already run near the cores' rate, so that is what there
+was to gain. At 128 windows the two are even and at 256 this is slower (328 against 281 ms:
+its whole-window buffers leave the caches), so the encoder runs it on a CPU for small batches
+only (``dvae.FUSED_MAX_BATCH``). (The same for a plain GRU layer was slower than ``nn.GRU``.)
 
-One frame t, with ``h`` the encoder's state, ``hd`` the decoder's, ``G = 3H``:
+One frame t of the encoder, with ``h`` its state, ``hd`` the decoder's, ``G = 3H``:
 
 * ``h_t = gru(gi_t, gh_t, h_{t-1})``: ``gi_t`` is z_{t-1}'s input projection (the bias for
   t = 1), ``gh_t`` h_{t-1}'s hidden projection;
@@ -31,13 +34,15 @@ from torch import nn
 LOGVAR_RANGE = (-12.0, 6.0)
 
 
-def _gru(gi: torch.Tensor, gh: torch.Tensor, h: torch.Tensor):
-    """One GRU update from its two projections.  gi, gh: (B, 3H); h: (B, H) ->
-    h' (B, H) and what its backward needs: the r and u gates (B, 2H), the candidate n (B, H)."""
+def _gru(gi: torch.Tensor, gh: torch.Tensor, h: torch.Tensor, ru: torch.Tensor, n: torch.Tensor,
+         out: torch.Tensor) -> None:  # fmt: skip
+    """One GRU update from its two projections, written into the buffers given (a window's
+    frame each: no copies later).  gi, gh: (B, 3H); h: (B, H) -> out: h' (B, H), with what its
+    backward needs: ru, the r and u gates (B, 2H), and n, the candidate (B, H)."""
     H = h.shape[-1]
-    ru = torch.sigmoid(gi[:, : 2 * H] + gh[:, : 2 * H])
-    n = torch.tanh(torch.addcmul(gi[:, 2 * H :], ru[:, :H], gh[:, 2 * H :]))
-    return torch.addcmul(n, ru[:, H:], h - n), ru, n
+    torch.add(gi[:, : 2 * H], gh[:, : 2 * H], out=ru).sigmoid_()
+    torch.addcmul(gi[:, 2 * H :], ru[:, :H], gh[:, 2 * H :], out=n).tanh_()
+    torch.sub(h, n, out=out).mul_(ru[:, H:]).add_(n)
 
 
 def _gru_factors(ru: torch.Tensor, n: torch.Tensor, hn: torch.Tensor, h_prev: torch.Tensor):
@@ -83,59 +88,59 @@ class EncoderLoop(torch.autograd.Function):
         H, L = h0.shape[-1], w_z.shape[-1]
         G = 3 * H
         lo, hi = LOGVAR_RANGE
-        # what the backward reads, per frame (the states with their starts: T + 1 of them)
-        names = ("z", "out", "hd") + (("ru", "n", "hn", "h", "rud", "nd", "hnd", "pre", "a")
-                                      if keep_for_backward else ())  # fmt: skip
-        keep: dict[str, list[torch.Tensor]] = {k: [] for k in names}
-        h, hd, gi, gh = h0, hd0, gi0.expand(B, G), gh0
-        keep["hd"].append(hd0)
-        if keep_for_backward:
-            keep["h"].append(h0)
-        logvars = []
+        f = {"dtype": g_part.dtype, "device": g_part.device}
+        # every frame's results straight into whole-window buffers, time first: the states
+        # with their starts (T + 1), each product ([s | gh'], [hp | s'], [gd | gi']), the gates,
+        # the head's sigmoid and SiLU, its output, the latents
+        hs, hds = torch.empty(T + 1, B, H, **f), torch.empty(T + 1, B, H, **f)
+        hs[0], hds[0] = h0, hd0
+        both, both2 = torch.empty(T, B, M + G, **f), torch.empty(T, B, G + M, **f)
+        both3 = torch.empty(T, B, 2 * G, **f)
+        ru, rud = torch.empty(T, B, 2 * H, **f), torch.empty(T, B, 2 * H, **f)
+        n, nd = torch.empty(T, B, H, **f), torch.empty(T, B, H, **f)
+        sig, a = torch.empty(T, B, M, **f), torch.empty(T, B, M, **f)
+        out, z = torch.empty(T, B, 2 * L, **f), torch.empty(T, B, L, **f)
+        pre = torch.empty(B, M, **f)
+        gi, gh = gi0.expand(B, G), gh0
         for t in range(T):
-            hn = gh[:, 2 * H :]
-            h, ru, n = _gru(gi, gh, h)
-            both = torch.addmm(b_h, h, w_h.t())  # [s_t | gh_{t+1}]
-            both2 = torch.addmm(b_hd, hd, w_hd.t())  # [hp_t | s'_t]
-            pre = g_part[:, t] + both[:, :M] + both2[:, G:]
-            a = nn.functional.silu(pre)
-            out = torch.addmm(b_out, a, w_out.t())
-            logvar = out[:, L:].clamp(lo, hi)
-            z = out[:, :L] if eps is None else torch.addcmul(out[:, :L], (0.5 * logvar).exp(),
-                                                                 eps[:, t])  # fmt: skip
-            both3 = torch.addmm(b_z, z, w_z.t())  # [gd_t | gi_{t+1}]
-            hnd = both2[:, 2 * H : G]
-            hd, rud, nd = _gru(both3[:, :G], both2[:, :G], hd)
-            gi, gh = both3[:, G:], both[:, M:]
-            frame = {"z": z, "out": out, "hd": hd, "ru": ru, "n": n, "hn": hn, "h": h, "rud": rud,
-                     "nd": nd, "hnd": hnd, "pre": pre, "a": a}  # fmt: skip
-            for k in names:
-                keep[k].append(frame[k])
-            logvars.append(logvar)
-        stack = {k: torch.stack(v) for k, v in keep.items()}  # (T or T + 1, B, ...)
+            _gru(gi, gh, hs[t], ru[t], n[t], hs[t + 1])
+            torch.addmm(b_h, hs[t + 1], w_h.t(), out=both[t])
+            torch.addmm(b_hd, hds[t], w_hd.t(), out=both2[t])
+            torch.add(g_part[:, t], both[t, :, :M], out=pre).add_(both2[t, :, G:])
+            torch.mul(pre, torch.sigmoid(pre, out=sig[t]), out=a[t])
+            torch.addmm(b_out, a[t], w_out.t(), out=out[t])
+            if eps is None:
+                z[t] = out[t, :, :L]
+            else:
+                std = out[t, :, L:].clamp(lo, hi).mul_(0.5).exp_()
+                torch.addcmul(out[t, :, :L], std, eps[:, t], out=z[t])
+            torch.addmm(b_z, z[t], w_z.t(), out=both3[t])
+            _gru(both3[t, :, :G], both2[t, :, :G], hds[t], rud[t], nd[t], hds[t + 1])
+            gi, gh = both3[t, :, G:], both[t, :, M:]
         if keep_for_backward:
-            ctx.save_for_backward(eps, w_h, w_hd, w_z, w_out, *stack.values())
-            ctx.names = list(stack)
+            # the hidden projections' n parts: h_{t-1}'s (gh0's, then the products') and hd's
+            hn = torch.cat([gh0[None, :, 2 * H :], both[:-1, :, M + 2 * H :]])
+            ctx.save_for_backward(eps, w_h, w_hd, w_z, w_out, hs, hds, ru, n, hn, rud, nd,
+                                  both2[:, :, 2 * H : G], sig, a, out, z)  # fmt: skip
             ctx.gi0_shape = gi0.shape
-        z, out, hd = stack["z"], stack["out"], stack["hd"]
         return (z.transpose(0, 1), out[..., :L].transpose(0, 1),
-                torch.stack(logvars, dim=1), hd[1:].transpose(0, 1))  # fmt: skip
+                out[..., L:].clamp(lo, hi).transpose(0, 1), hds[1:].transpose(0, 1))  # fmt: skip
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, dz_out, dmean_out, dlogvar_out, dhd_out):
         eps, w_h, w_hd, w_z, w_out, *kept = ctx.saved_tensors
-        s = dict(zip(ctx.names, kept, strict=True))
-        T, B, M = s["pre"].shape
+        s = dict(zip(("h", "hd", "ru", "n", "hn", "rud", "nd", "hnd", "sig", "a", "out", "z"),
+                     kept, strict=True))  # fmt: skip
+        T, B, M = s["a"].shape
         H, L = w_h.shape[-1], w_z.shape[-1]
         G = 3 * H
         lo, hi = LOGVAR_RANGE
-        f = {"dtype": s["pre"].dtype, "device": s["pre"].device}
+        f = {"dtype": s["a"].dtype, "device": s["a"].device}
         # every frame's derivative factors at once
         enc = _gru_factors(s["ru"], s["n"], s["hn"], s["h"][:-1])
         dec = _gru_factors(s["rud"], s["nd"], s["hnd"], s["hd"][:-1])
-        sig = torch.sigmoid(s["pre"])
-        silu_grad = sig * (1 + s["pre"] * (1 - sig))
+        silu_grad = torch.addcmul(s["sig"], s["a"], 1 - s["sig"])  # sig + pre sig (1 - sig)
         raw = s["out"][..., L:]
         inside = ((raw >= lo) & (raw <= hi)).to(raw.dtype)
         dz_ext, dhd_ext = dz_out.transpose(0, 1), dhd_out.transpose(0, 1)
@@ -207,3 +212,4 @@ def encoder_loop(cell: nn.GRUCell, w_state: torch.Tensor, head_out: nn.Linear, d
     # without a gradient to come (inference), the forward keeps nothing for a backward
     wanted = torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in inputs)
     return EncoderLoop.apply(*inputs, wanted)
+
