@@ -23,7 +23,6 @@ from torch import nn
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.recurrent import encoder_loop
 
-
 #: windows at most for the encoder's loop to run as one function with its backward written out
 #: (``recurrent.encoder_loop``) on a CPU: on two cores its forward and backward at batch 64 took
 #: 91 ms against autograd's 103, at 128 the same, at 256 328 against 281 (its whole-window

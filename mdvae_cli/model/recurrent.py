@@ -212,4 +212,3 @@ def encoder_loop(cell: nn.GRUCell, w_state: torch.Tensor, head_out: nn.Linear, d
     # without a gradient to come (inference), the forward keeps nothing for a backward
     wanted = torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in inputs)
     return EncoderLoop.apply(*inputs, wanted)
-
