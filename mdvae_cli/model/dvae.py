@@ -26,8 +26,9 @@ from mdvae_cli.model.recurrent import encoder_loop
 #: windows at most for the encoder's loop to run as one function with its backward written out
 #: (``recurrent.encoder_loop``) on a CPU: on two cores its forward and backward at batch 64 took
 #: 91 ms against autograd's 103, at 128 the same, at 256 328 against 281 (its whole-window
-#: buffers leave the caches). Larger batches, and GPUs (where the step is captured as a CUDA
-#: graph; the function there untried), step as recorded by autograd.
+#: buffers, fresh memory each step, fault in page by page: ``recurrent``). Larger batches, and
+#: GPUs (where the step is captured as a CUDA graph; the function there untried), step as
+#: recorded by autograd.
 FUSED_MAX_BATCH = 96
 
 

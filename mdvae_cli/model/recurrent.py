@@ -10,9 +10,12 @@ product over all frames. Same equations as ``nn.GRUCell`` (gates in r, z, n orde
 agree with autograd's to float rounding (``tests/test_recurrent.py``). On two CPU cores, at
 batch 64 (60 frames), the whole encoder's forward and backward take 91 ms against 103 recorded by
 autograd; its small products (64 rows) already run near the cores' rate, so that is what there
-was to gain. At 128 windows the two are even and at 256 this is slower (328 against 281 ms:
-its whole-window buffers leave the caches), so the encoder runs it on a CPU for small batches
-only (``dvae.FUSED_MAX_BATCH``). (The same for a plain GRU layer was slower than ``nn.GRU``.)
+was to gain. At 128 windows the two are even and at 256 this is slower (328 against 281 ms):
+its whole-window buffers are fresh memory every step, which glibc maps anew above its mmap
+threshold (32 MB at most) and the first writes fault in page by page (with
+``MALLOC_MMAP_THRESHOLD_=1000000000`` it is 248 against 276 ms there). So the encoder runs it
+on a CPU for small batches only (``dvae.FUSED_MAX_BATCH``). (The same for a plain GRU layer
+was slower than ``nn.GRU``.)
 
 One frame t of the encoder, with ``h`` its state, ``hd`` the decoder's, ``G = 3H``:
 
