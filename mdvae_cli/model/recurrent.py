@@ -75,8 +75,9 @@ def _gru_back(dh, t, factors, d_gi, d_gh):
 
 
 class EncoderLoop(torch.autograd.Function):
-    """``apply(g_part, eps, h0, hd0, gi0, gh0, w_h, b_h, w_hd, b_hd, w_z, b_z, w_out, b_out)``
-    -> z, mean, logvar (B, T, L) and the decoder's states hd_1..hd_T (B, T, H).
+    """``apply(g_part, eps, h0, hd0, gi0, gh0, w_h, b_h, w_hd, b_hd, w_z, b_z, w_out, b_out,
+    keep_for_backward)`` -> z, mean, logvar (B, T, L) and the decoder's states hd_1..hd_T
+    (B, T, H); ``keep_for_backward`` False (no gradient to come) saves nothing for a backward.
 
     g_part: (B, T, M) the head's first layer on what does not recur ([g_t, x_t], with its
     bias); eps: (B, T, L) the samples' noise, or None for the means; h0, hd0: (B, H); gi0:
