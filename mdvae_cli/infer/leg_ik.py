@@ -25,6 +25,7 @@ from mdvae_cli.geometry.rotations_np import (
 )
 from mdvae_cli.motion.contacts import FOOT_SIDE, foot_vertex_ids
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.workers import map_in_order
 
 #: per leg (left, right): hip, knee, ankle, ball-of-foot joints (SMPL indices)
 LEGS = ((1, 4, 7, 10), (2, 5, 8, 11))
@@ -117,13 +118,17 @@ def pose_legs(
     T = motion.num_frames
     pos = np.empty((T, 2, 4, 3))
     low = np.empty((T, 2)) if soles else None
-    for s in range(0, T, chunk):
+
+    def one(s: int) -> None:  # each chunk writes its own rows: the chunks side by side
         sl = slice(s, min(s + chunk, T))
         root = rotvec_to_rotmat(np.asarray(motion.root_orient[sl], dtype=np.float64))
         pelvis = motion.trans[sl] + model.pelvis
         pos[sl], G = leg_chain(root, leg_rotations(motion, sl), pelvis, model.bones)
         if low is not None:
             low[sl] = sole_heights(pos[sl], G, model)
+
+    for _ in map_in_order(one, range(0, T, chunk)):
+        pass
     return pos, low
 
 
@@ -297,7 +302,8 @@ def solve_legs(
     clearance = None if rotvecs else np.empty((B, 4))
     out = np.empty((B, 2, 3, 3)) if rotvecs else None
     rows = np.asarray(LEGS)[:, :3] - 1  # pose_body rows of hip, knee, ankle per leg
-    for s in range(0, B, CHUNK_FRAMES):
+
+    def one(s: int) -> None:  # each chunk writes its own rows: the chunks side by side
         sl = slice(s, min(s + CHUNK_FRAMES, B))
         f = frames[sl]
         root = rotvec_to_rotmat(np.asarray(motion.root_orient[f], dtype=np.float64))
@@ -311,4 +317,7 @@ def solve_legs(
         else:
             pos, G = leg_chain(root, new, pelvis, model.bones)
             clearance[sl] = feet_of(pos)[..., 2] - sole_heights(pos, G, model)[:, list(FOOT_SIDE)]
+
+    for _ in map_in_order(one, range(0, B, CHUNK_FRAMES)):
+        pass
     return clearance, out
