@@ -6,7 +6,7 @@ import torch
 
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.dvae import FUSED_MAX_BATCH, MotionDVAE
-from mdvae_cli.model.recurrent import EncoderLoop
+from mdvae_cli.model.recurrent import EncoderLoop, encoder_loop
 
 
 def _reference(enc, dec, x, x0, eps):
@@ -106,14 +106,29 @@ def test_each_input_gradient_passes_gradcheck():
         assert torch.autograd.gradcheck(f, (a,)), i
 
 
-def test_inference_keeps_nothing_and_gives_the_same_states():
+def test_inference_runs_the_recorded_loop_and_gives_the_same_states():
     m, cfg = _model(2)
     x = torch.randn(3, 7, cfg.state_dim, dtype=torch.float64)
     x0 = torch.randn(3, cfg.state_dim, dtype=torch.float64)
     kw = {"sample": False, "decoder": m.decoder, "decoder_states": True}
     z, post, hd = m.encoder(x, x0, **kw)
-    with torch.no_grad():
+    with torch.no_grad():  # inference: the loop run unrecorded (its forward is the faster one)
         z2, post2, hd2 = m.encoder(x, x0, **kw)
     assert "EncoderLoop" in type(z.grad_fn).__name__ and z2.grad_fn is None
     for a, b in ((z, z2), (post.logvar, post2.logvar), (hd, hd2)):
+        assert torch.allclose(a.detach(), b, rtol=0, atol=1e-12)
+
+
+def test_the_function_without_a_gradient_to_come_keeps_nothing():
+    m, cfg = _model(3)
+    enc, dec = m.encoder, m.decoder
+    B, T, H = 2, 5, enc.cell.hidden_size
+    g_part = torch.randn(B, T, enc.head[0].out_features, dtype=torch.float64)
+    h0, hd0 = torch.randn(B, H, dtype=torch.float64), torch.randn(B, H, dtype=torch.float64)
+    w_state = enc.head[0].weight[:, H : 3 * H]
+    with_grad = encoder_loop(enc.cell, w_state, enc.head[2], dec.rnn, g_part, h0, hd0, None)
+    with torch.no_grad():
+        without = encoder_loop(enc.cell, w_state, enc.head[2], dec.rnn, g_part, h0, hd0, None)
+    assert with_grad[0].grad_fn is not None and without[0].grad_fn is None
+    for a, b in zip(with_grad, without, strict=True):
         assert torch.equal(a.detach(), b)

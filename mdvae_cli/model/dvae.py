@@ -24,11 +24,12 @@ from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.recurrent import encoder_loop
 
 #: windows at most for the encoder's loop to run as one function with its backward written out
-#: (``recurrent.encoder_loop``) on a CPU: on two cores its forward and backward at batch 64 took
-#: 91 ms against autograd's 103, at 128 the same, at 256 328 against 281 (its whole-window
-#: buffers, fresh memory each step, fault in page by page: ``recurrent``). Larger batches, and
-#: GPUs (where the step is captured as a CUDA graph; the function there untried), step as
-#: recorded by autograd.
+#: (``recurrent.encoder_loop``) when a gradient is to come, on a CPU: on two cores its forward
+#: and backward at batch 64 took 91 ms against autograd's 103, at 128 the same, at 256 328
+#: against 281 (its whole-window buffers, fresh memory each step, fault in page by page:
+#: ``recurrent``). Larger batches, GPUs (where the step is captured as a CUDA graph; the
+#: function there untried) and inference (no gradient: the recorded loop's forward alone took
+#: 27 ms at 64 windows against the function's 37-44) step as written below.
 FUSED_MAX_BATCH = 96
 
 
@@ -145,7 +146,8 @@ class Encoder(nn.Module):
         g_part = nn.functional.linear(g, first.weight[:, :H], first.bias)
         if self.x_skip:
             g_part = g_part + nn.functional.linear(x, first.weight[:, H + S :])
-        if self.reads_decoder and x.device.type == "cpu" and x.shape[0] <= FUSED_MAX_BATCH:
+        if (self.reads_decoder and torch.is_grad_enabled() and x.device.type == "cpu"
+                and x.shape[0] <= FUSED_MAX_BATCH):  # fmt: skip
             eps = None
             if sample:
                 B, T = x.shape[:2]

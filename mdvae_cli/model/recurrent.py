@@ -13,9 +13,10 @@ autograd; its small products (64 rows) already run near the cores' rate, so that
 was to gain. At 128 windows the two are even and at 256 this is slower (328 against 281 ms):
 its whole-window buffers are fresh memory every step, which glibc maps anew above its mmap
 threshold (32 MB at most) and the first writes fault in page by page (with
-``MALLOC_MMAP_THRESHOLD_=1000000000`` it is 248 against 276 ms there). So the encoder runs it
-on a CPU for small batches only (``dvae.FUSED_MAX_BATCH``). (The same for a plain GRU layer
-was slower than ``nn.GRU``.)
+``MALLOC_MMAP_THRESHOLD_=1000000000`` it is 248 against 276 ms there). For the same reason its
+forward alone is slower than the loop run without recording. So the encoder runs it on a CPU
+for small batches, and only when a gradient is to come (``dvae.FUSED_MAX_BATCH``). (The same
+for a plain GRU layer was slower than ``nn.GRU``.)
 
 One frame t of the encoder, with ``h`` its state, ``hd`` the decoder's, ``G = 3H``:
 
