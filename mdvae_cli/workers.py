@@ -13,7 +13,7 @@ import ctypes
 import ctypes.util
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sized
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TypeVar
 
@@ -66,7 +66,11 @@ def map_in_order(
     """``fn`` over ``items`` on ``workers`` threads (None: :func:`worker_count`), results in
     the items' order. An exception in ``fn`` is raised where its result would come. While
     the threads run, torch works one thread per call (each thread is already one core's
-    worth), and its thread count is restored after."""
+    worth), and its thread count is restored after. A sized ``items`` of at most one (a
+    short take's one chunk) is worked on in place: no threads, no hand-back of memory."""
+    if isinstance(items, Sized) and len(items) <= 1:
+        yield from (fn(item) for item in items)
+        return
     workers = worker_count() if workers is None else workers
     items = iter(items)
     give_back_memory(0.0)  # what the stage before let go of: before this one's chunks

@@ -111,6 +111,17 @@ def test_each_finished_chunk_gives_its_memory_back(monkeypatch, n):
     assert given == [(0.0,)] + [()] * 5
 
 
+def test_one_chunk_is_worked_on_in_place(monkeypatch):
+    """A short take's one chunk: no pool, no hand-back of memory, the caller's thread."""
+    import threading
+
+    given, where = [], []
+    monkeypatch.setattr(workers, "give_back_memory", lambda *every: given.append(every))
+    assert list(map_in_order(lambda k: where.append(threading.get_ident()) or k, [7])) == [7]
+    assert list(map_in_order(lambda k: k, range(0))) == []
+    assert given == [] and where == [threading.get_ident()]
+
+
 def test_memory_is_given_back_at_most_every_trim_seconds(monkeypatch):
     """A trim walks every heap and makes the next chunk fault its pages in again: chunks
     finishing within ``TRIM_SECONDS`` of the last trim give nothing back."""

@@ -127,7 +127,8 @@ def pose_legs(
         if low is not None:
             low[sl] = sole_heights(pos[sl], G, model)
 
-    _each_chunk(one, T, chunk)
+    for _ in map_in_order(one, range(0, T, chunk)):
+        pass
     return pos, low
 
 
@@ -317,17 +318,6 @@ def solve_legs(
             pos, G = leg_chain(root, new, pelvis, model.bones)
             clearance[sl] = feet_of(pos)[..., 2] - sole_heights(pos, G, model)[:, list(FOOT_SIDE)]
 
-    _each_chunk(one, B, CHUNK_FRAMES)
-    return clearance, out
-
-
-def _each_chunk(one, num_frames: int, chunk: int) -> None:
-    """``one(start)`` for each chunk of ``num_frames`` frames: a long take's side by side
-    (``workers.map_in_order``), a short one's in place (no threads, no hand-back of memory)."""
-    starts = range(0, num_frames, chunk)
-    if len(starts) <= 1:
-        for s in starts:
-            one(s)
-        return
-    for _ in map_in_order(one, starts):
+    for _ in map_in_order(one, range(0, B, CHUNK_FRAMES)):
         pass
+    return clearance, out
