@@ -176,3 +176,22 @@ def test_angles_near_a_locked_input_for_a_rotation_away_from_lock_are_the_exact_
     R = euler_to_rotmat(np.array([[-0.1, np.radians(78.0), 0.09]]), "zxy")  # the output's: not
     out = rotmat_to_euler(R, "zxy", near=near)
     np.testing.assert_allclose(euler_to_rotmat(out, "zxy"), R, atol=1e-12)
+
+
+def test_quat_slerp_matches_the_torch_one_and_takes_the_short_way():
+    q0 = N.rotvec_to_quat(rotvecs((6, 4), seed=1))
+    q1 = N.rotvec_to_quat(rotvecs((6, 4), seed=2))
+    q1[0, 0] = -q0[0, 0]  # one rotation given as both signs: no turn at all
+    q1[1, 0] = q0[1, 0] + 1e-9  # nearly equal: the close branch
+    t = np.random.default_rng(3).uniform(size=(6, 1))  # one weight a row, broadcast over joints
+    got = N.quat_slerp(q0, q1, t)
+    want = T.quat_slerp(torch.as_tensor(q0), torch.as_tensor(q1), torch.as_tensor(t).expand(6, 4))
+    np.testing.assert_allclose(got, want.numpy(), atol=1e-12)
+    np.testing.assert_allclose(np.abs(np.sum(got[0, 0] * q0[0, 0])), 1.0, atol=1e-12)
+    np.testing.assert_allclose(N.quat_slerp(q0, q1, 0.0), q0, atol=1e-12)
+    ends = N.quat_slerp(q0, q1, 1.0) * np.sign(np.sum(q0 * q1, axis=-1, keepdims=True))
+    np.testing.assert_allclose(ends, q1, atol=1e-9)
+    halfway = N.quat_to_rotmat(N.quat_slerp(q0[2:], q1[2:], 0.5))  # equal angles to both ends
+    a0 = N.rotmat_to_rotvec(np.swapaxes(N.quat_to_rotmat(q0[2:]), -1, -2) @ halfway)
+    a1 = N.rotmat_to_rotvec(np.swapaxes(halfway, -1, -2) @ N.quat_to_rotmat(q1[2:]))
+    np.testing.assert_allclose(np.linalg.norm(a0, axis=-1), np.linalg.norm(a1, axis=-1), atol=1e-9)

@@ -23,7 +23,7 @@ from mdvae_cli.cli.common import (
 )
 from mdvae_cli.cli.denoise_options import denoise_options, fill_setting, fill_words
 from mdvae_cli.cli.motion_input import motion_input_options
-from mdvae_cli.cli.takes import load_joint_map, plan_take_jobs
+from mdvae_cli.cli.takes import load_joint_map, plan_take_jobs, read_ahead
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_named_file
 
@@ -87,6 +87,7 @@ def denoise(
     joint_map_file, input_format, input_fps, track, body_model, allow_pickle, as_json,
 ) -> None:  # fmt: skip
     started = time.perf_counter()  # where the system cannot tell when the process started
+    ahead = read_ahead(inputs, input_fps, joint_map_file, input_format)  # before torch loads
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.formats.registry import ReadOptions
@@ -103,7 +104,7 @@ def denoise(
     _check_outputs(mesh_dir, mesh_format, view_dir, asf)
     jobs = plan_take_jobs(inputs, out)
     body_data = load_body_model(body_model)
-    takes = TakeReader(body_data, asf, load_joint_map(joint_map_file))
+    takes = TakeReader(body_data, asf, load_joint_map(joint_map_file), ahead=ahead)
     options = ReadOptions(format=input_format, fps=input_fps, track=track,
                           allow_pickle=allow_pickle, body=body_data, missing=missing)  # fmt: skip
     runs: dict[Path, object] = {}  # source -> its FileRun

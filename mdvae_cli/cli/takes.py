@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 from pathlib import Path
@@ -152,3 +153,30 @@ def take_reading(asf: Path | None, joint_map_file: Path | None) -> dict:
         check_named_file(Path(asf), "skeleton")
     return {"skeleton": None if asf is None else Path(asf),
             "joint_map": load_joint_map(joint_map_file)}  # fmt: skip
+
+
+#: input files whose reading goes ahead while torch loads (a process each)
+READ_AHEAD_FILES = 2
+
+
+def read_ahead(inputs, fps=None, joint_map_file=None, input_format=None):
+    """Start reading the BVH takes among a command's first inputs (files named, not folders)
+    while torch and the model load: each parse in a process of its own
+    (``run.read_ahead``). -> a ``ReadAhead`` for the take reader, or None (nothing to read
+    ahead, or the system cannot). ``fps``: ``--fps``; a ``--joint-map`` or ``--format`` keeps
+    every read in this process."""
+    from mdvae_cli.formats.registry import suffix_of
+    from mdvae_cli.retarget.source_file import load_source
+    from mdvae_cli.run.read_ahead import ReadAhead
+
+    if joint_map_file is not None or input_format is not None:
+        return None
+    ahead = ReadAhead()
+    for path in dict.fromkeys(Path(p) for p in inputs[:READ_AHEAD_FILES]):
+        if path.is_file() and suffix_of(path) == ".bvh":
+            if not ahead.start(load_source, path, None, fps=fps, scale=None, joint_map=None):
+                break
+    if not ahead:
+        return None
+    atexit.register(ahead.close)
+    return ahead

@@ -24,7 +24,7 @@ from mdvae_cli.cli.common import (
     handle_errors,
 )
 from mdvae_cli.cli.motion_input import input_fps_option, one_track, track_option
-from mdvae_cli.cli.takes import take_options, take_reading
+from mdvae_cli.cli.takes import read_ahead, take_options, take_reading
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import expand_inputs
 
@@ -41,19 +41,20 @@ def motion_labels(paths: list[Path]) -> list[str]:
 
 
 def read_motions(
-    inputs, body_data, asf, joint_map_file, allow_pickle, out: Path, fps=None, track=None
+    inputs, body_data, asf, joint_map_file, allow_pickle, out: Path, fps=None, track=None,
+    ahead=None,
 ):  # fmt: skip
     """The report of reading every input file (folders: every motion file below them, in
     order) with a progress bar, and (label, Motion) for each file read: the track ``track``
     names (``--track``) of a file of several people, else its first, said in a note. A file
     that cannot be read is one ``error:`` line. fps: ``--fps``, the inputs' frame rate
-    (None: each file's own)."""
+    (None: each file's own). ahead: takes already being read (``cli.takes.read_ahead``)."""
     from mdvae_cli.formats.registry import READ_SUFFIXES, ReadOptions, read
     from mdvae_cli.retarget.take import TakeReader
 
     options = ReadOptions(allow_pickle=allow_pickle, body=body_data, fps=fps,
                           **take_reading(asf, joint_map_file))  # fmt: skip
-    takes = TakeReader(body_data, options.skeleton, options.joint_map)
+    takes = TakeReader(body_data, options.skeleton, options.joint_map, ahead=ahead)
     notes: list[str] = []
     given = [Path(p) for p in inputs]  # one missing path of several fails alone, as a bad file
     missing = [p for p in given if not p.exists()] if len(given) > 1 else []
@@ -132,15 +133,16 @@ def view(
       mdvae view noisy.npz clean.npz -o compare.html
       mdvae view noisy.npz clean.npz gt.npz studio.bvh -o compare.html --no-mesh
     """
+    out = Path(out)
+    check_output(out, (".html", ".htm"), inputs)
+    ahead = read_ahead(inputs, input_fps, joint_map_file)  # before torch loads
     from mdvae_cli.body.formats import load_body_model
     from mdvae_cli.body.skinning import BodyModel
     from mdvae_cli.view.page import build_view_page, write_view_page
 
-    out = Path(out)
-    check_output(out, (".html", ".htm"), inputs)
     body_data = load_body_model(body_model)
     report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out,
-                                 input_fps, track)  # fmt: skip
+                                 input_fps, track, ahead)  # fmt: skip
     if not items:
         report.exit()
     page = build_view_page(items, BodyModel(body_data), mesh=mesh, title=title)

@@ -11,12 +11,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_regular
 from mdvae_cli.geometry.kinematics import forward_kinematics
-from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotmat, rotmat_to_quat
+from mdvae_cli.geometry.rotations_np import quat_slerp, quat_to_rotmat, rotmat_to_quat
 from mdvae_cli.motion.motion import MAX_ANGLE_DEG, MAX_DISTANCE_M
 
 #: metres per CMU length unit (inches / 0.45); ASF ``:units length 0.45`` and cmuconvert BVH
@@ -220,10 +219,9 @@ def resample_source(src: SourceMotion, fps: float) -> SourceMotion:
         local = local[i0] * (1 - w[:, None, None]) + local[i1] * w[:, None, None]
     mid = np.flatnonzero(w > 1e-9)  # frames between two source frames (none for 120 -> 30)
     if len(mid):
-        q0 = rotmat_to_quat(torch.from_numpy(src.rotations[i0[mid]]))
-        q1 = rotmat_to_quat(torch.from_numpy(src.rotations[i1[mid]]))
-        wq = torch.from_numpy(w[mid])[:, None].expand(len(mid), src.num_joints)
-        rot[mid] = quat_to_rotmat(quat_slerp(q0, q1, wq)).numpy()
+        q0 = rotmat_to_quat(src.rotations[i0[mid]])
+        q1 = rotmat_to_quat(src.rotations[i1[mid]])
+        rot[mid] = quat_to_rotmat(quat_slerp(q0, q1, w[mid, None]))
     out = replace(src, rotations=rot, root_positions=root, fps=float(fps), info=dict(src.info),
                   notes=list(src.notes), local_positions=local, layout=None)  # fmt: skip
     return out

@@ -4,11 +4,11 @@ joints in the retarget solves)."""
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from functools import lru_cache
 
 import numpy as np
-import torch
 
 
 def forward_kinematics(local_rotmats, offsets, parents: Sequence[int], root=None):
@@ -21,7 +21,8 @@ def forward_kinematics(local_rotmats, offsets, parents: Sequence[int], root=None
     tensors (all of one kind). -> global rotations (..., J, 3, 3), positions (..., J, 3)
     """
     start = offsets[..., 0, :] if root is None else root
-    if not isinstance(local_rotmats, torch.Tensor):
+    torch = sys.modules.get("torch")  # not loaded: no tensor was given (file readers stay lean)
+    if torch is None or not isinstance(local_rotmats, torch.Tensor):
         return _numpy_levels(local_rotmats, np.asarray(offsets), parents, np.asarray(start))
     G = [local_rotmats[..., 0, :, :]]
     shape = G[0].shape[:-1]

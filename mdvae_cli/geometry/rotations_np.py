@@ -102,6 +102,23 @@ def quat_to_rotmat(quat: np.ndarray) -> np.ndarray:
     return out
 
 
+def quat_slerp(q0: np.ndarray, q1: np.ndarray, t: np.ndarray | float) -> np.ndarray:
+    """Spherical linear interpolation along the shorter arc (as ``rotations.quat_slerp``).
+
+    q0, q1: (..., 4) unit quaternions; t: scalar or (...) in [0, 1] -> (..., 4)"""
+    q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)
+    # the angle between the quaternions, accurate also when they are nearly equal
+    omega = 2.0 * np.arctan2(np.linalg.norm(q1 - q0, axis=-1), np.linalg.norm(q1 + q0, axis=-1))
+    close = omega < 1e-6
+    sin_omega = np.where(close, 1.0, np.sin(omega))
+    w0 = np.where(close, 1.0 - t, np.sin((1.0 - t) * omega) / sin_omega)
+    w1 = np.where(close, t, np.sin(t * omega) / sin_omega)
+    q = w0[..., None] * q0 + w1[..., None] * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
 def rotmat_to_rotvec(R: np.ndarray) -> np.ndarray:
     """Axis-angles with angles in [0, pi].  (..., 3, 3) -> (..., 3)"""
     return quat_to_rotvec(rotmat_to_quat(R))

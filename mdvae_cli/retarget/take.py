@@ -11,6 +11,7 @@ from __future__ import annotations
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,8 @@ from mdvae_cli.motion import cmu
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import resample_times
 from mdvae_cli.retarget.fit_shape import BodyJoints, fit_betas, skeleton_key
-from mdvae_cli.retarget.retarget import RetargetResult, import_motion, load_source
+from mdvae_cli.retarget.retarget import RetargetResult, import_motion
+from mdvae_cli.retarget.source_file import load_source
 from mdvae_cli.retarget.way_back import translation_dropped, write_back_data
 from mdvae_cli.retarget.way_back_amc import write_back_amc
 
@@ -309,12 +311,15 @@ class TakeReader:
     per skeleton.
 
     body: the body model (None: the built-in one). asf: the skeleton of every AMC take (None:
-    each one's found next to it). joint_map: SMPL joint -> source joint names.
+    each one's found next to it). joint_map: SMPL joint -> source joint names. ahead: a
+    ``run.read_ahead.ReadAhead`` that may already be reading a take's file (its
+    :func:`load_source` call), or None.
     """
 
     def __init__(self, body: BodyModelData | None = None, asf: Path | None = None,
-                 joint_map: dict[str, str] | None = None):  # fmt: skip
+                 joint_map: dict[str, str] | None = None, ahead=None):  # fmt: skip
         self.body_data, self.asf, self.joint_map = body, asf, joint_map
+        self.ahead = ahead
         self._body: BodyJoints | None = None
         self.skeletons: dict[Path, AsfSkeleton] = {}
         self.betas: dict[str, np.ndarray] = {}
@@ -364,7 +369,8 @@ class TakeReader:
         progress: (frames retargeted, frames) as the retarget goes."""
         path = Path(path)
         skeleton, found = self.skeleton(path, skeleton)
-        src = load_source(path, skeleton, fps=fps, scale=scale, joint_map=self.joint_map)
+        load = load_source if self.ahead is None else partial(self.ahead.call, load_source)
+        src = load(path, skeleton, fps=fps, scale=scale, joint_map=self.joint_map)
         key = skeleton_key(src)
         if key not in self.betas:
             try:
