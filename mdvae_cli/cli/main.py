@@ -92,7 +92,6 @@ for module in (
     eval_cmd,
     export_bvh,
     export_mesh,
-    export_bvh,
     import_cmd,
     sample,
     view_cmd,
