@@ -10,10 +10,12 @@ import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mdvae_cli.formats.npz_io import load_motion
 from mdvae_cli.formats.registry import write
+from mdvae_cli.run import read_ahead
 from mdvae_cli.run.read_ahead import ReadAhead, can_fork
 
 REPO = Path(__file__).resolve().parents[1]
@@ -165,6 +167,47 @@ def test_denoise_reads_a_bvh_ahead_and_writes_the_same_bytes(take, tmp_path):
         fresh_python(run, "denoise", str(take), "-o", str(tmp_path / name), cores=cores)
         outs.append((tmp_path / name).read_bytes())
     assert outs[0] == outs[1]
+
+
+COUNTED = """
+import sys
+from mdvae_cli.run import read_ahead
+
+taken, made_here = [], []
+call = read_ahead.ReadAhead.call
+def counted(self, fn, *args, **kwargs):
+    match = [c for c in self.children if read_ahead._same(c[0], (fn, args, kwargs))]
+    (taken if match else made_here).append(args[0].name)
+    return call(self, fn, *args, **kwargs)
+read_ahead.ReadAhead.call = counted
+from mdvae_cli.cli.main import cli
+try:
+    cli(sys.argv[1:])
+except SystemExit as exc:
+    assert exc.code in (0, None), exc.code
+print(" ".join(taken), "|", " ".join(made_here))
+"""
+
+
+@needs_fork
+def test_the_take_readers_of_denoise_and_view_take_the_childs_value(take, tmp_path):
+    """Each BVH named is parsed once, in its child: the reader's call is the one the child
+    made (a change to either would quietly read every take twice)."""
+    clean, page = tmp_path / "clean.bvh", tmp_path / "page.html"
+    out = fresh_python(COUNTED, "denoise", str(take), "-o", str(clean))
+    assert out.split() == ["walk.bvh", "|"]
+    out = fresh_python(COUNTED, "view", str(take), str(clean), "-o", str(page))
+    assert out.split() == ["walk.bvh", "clean.bvh", "|"]
+    assert page.stat().st_size > 0
+
+
+def test_calls_with_arrays_are_not_matched():
+    """Arguments that cannot say whether they are equal (arrays) make no match, no error."""
+    call = (np.add, (np.zeros(3),), {})
+    assert not read_ahead._same(call, (np.add, (np.zeros(3),), {}))
+    assert read_ahead._same(
+        (abs, (Path("a.bvh"),), {"fps": None}), (abs, (Path("a.bvh"),), {"fps": None})
+    )
 
 
 @needs_fork

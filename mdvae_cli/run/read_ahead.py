@@ -82,7 +82,7 @@ class ReadAhead:
         """``fn(*args, **kwargs)``: a child's value where one made this same call and it
         succeeded (that child is then done with), else the call made here (its error, if
         any, raised here)."""
-        match = [c for c in self.children if c[0] == (fn, args, kwargs)]
+        match = [c for c in self.children if _same(c[0], (fn, args, kwargs))]
         if not match:
             return fn(*args, **kwargs)
         child = match[0]
@@ -102,6 +102,14 @@ class ReadAhead:
             os.close(fd)
             os.kill(pid, signal.SIGKILL)
             _reap(pid)
+
+
+def _same(a: tuple, b: tuple) -> bool:
+    """Whether two calls are one (arguments that cannot say, arrays, are not)."""
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return False
 
 
 def _reap(pid: int) -> None:
