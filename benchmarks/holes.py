@@ -6,7 +6,10 @@ On the corpus's ``test`` and ``unseen_test`` clips (150 frames at 30 Hz), clean 
 take that lost markers) and with Pose-NDF noise sigma = 0.10 rad (a noisy estimate): one hole
 per clip of 5, 15, 30 or 60 frames (every joint), or one limb (arm or leg, three joints)
 missing for 45 frames (1.5 s). Each row is V2V (cm, root-relative) on the filled frames alone;
-the last rows are the default's V2V on the observed frames over its V2V on the same take
+then V2V on the observed frames, of the input and of the default's output (the context
+a fill starts from: where the denoised frames beside a hole are off by as much as the input's,
+a fill cannot be much better than slerp between them); the last
+rows are the default's V2V on the observed frames over its V2V on the same take
 without the hole (1.00 = the hole costs the rest nothing), on all of them, on those within
 :data:`NEAR_SECONDS` of the hole (where a long hole leaves the frames beside it with context on
 one side only: the take is split there) and on those beyond it; and over its V2V on the same
@@ -177,7 +180,10 @@ def split_table(
         settings = DenoiseSettings(input_kind=input_kind)
         noisy = make_noisy(clips)
         whole = frame_errors(gt, denoise(noisy, settings, denoiser, body), body)
+        given = frame_errors(gt, noisy, body)  # the input's own error: the fill's context
         table: dict[str, list[str]] = {k: [] for k in rows}
+        seen_in: list[str] = []
+        seen_out: list[str] = []
         kept: list[str] = []
         kept_near: list[str] = []
         kept_far: list[str] = []
@@ -191,6 +197,8 @@ def split_table(
                 if name.startswith("`mdvae denoise`"):
                     observed = [~m for m in missing]
                     obs, ref = pooled(errs, observed), pooled(whole, observed)
+                    seen_in.append(f"{pooled(given, observed):.2f}")
+                    seen_out.append(f"{obs:.2f}")
                     kept.append(f"{obs / ref:.3f}")
                     near = [near_hole(m, round(NEAR_SECONDS * 30)) for m in missing]
                     kept_near.append(f"{pooled(errs, near) / pooled(whole, near):.3f}")
@@ -203,6 +211,8 @@ def split_table(
                 f"{k[:14]} {v[-1]}" for k, v in table.items()))  # fmt: skip
         head = [f"V2V cm on the filled frames, {label}", *cols]
         body_rows = [[k, *v] for k, v in table.items()]
+        body_rows.append(["V2V cm on the observed frames: the input", *seen_in])
+        body_rows.append(["... the default's output", *seen_out])
         body_rows.append(["default on the observed frames / without the hole", *kept])
         body_rows.append(
             [f"... on those within {NEAR_SECONDS:g} s of the hole / without the hole", *kept_near]

@@ -1,22 +1,25 @@
 """Benchmark: denoising video-pipeline-like estimates (``mdvae add-noise --preset video``).
 
     python benchmarks/video_table.py [--corpus data/corpus] [--max-clips 64] [--val-clips 32]
-                                     [--out docs/benchmarks.md] [--tune] [--quick]
+                                     [--split test|unseen_test] [--out docs/benchmarks.md]
+                                     [--tune] [--quick]
 
-Protocol. Test-split files (30 Hz) are cut into 60-frame clips; every clip gets the video-like
+Protocol. Test-split files (30 Hz; ``--split unseen_test``: the kinds of motion no training saw,
+written to a section of their own) are cut into 60-frame clips; every clip gets the video-like
 noise (``motion.noise.VideoNoise``, the preset's defaults, a seed fixed per clip). The classical
 filters (Gaussian, Savitzky-Golay, and the One-Euro filter video-mocap tools use) are tuned by
 grid search on val clips with the same noise, for the lowest MPJPE. Rows: the noisy input, each
 tuned filter, ``mdvae denoise`` with the settings it picks for video inputs
-(``infer/input_kinds.py``), the same without the offset (the paper's regression mode), and
-``--refine 50 --outliers``. Columns: MPJPE (22 joints, world, cm), V2V (root-relative, cm),
-acceleration error (m/s^2), foot skate (cm/s: the mean horizontal speed of the foot joints
-7, 8, 10, 11 on the frames where the ground truth has them in contact: within 5 cm of the
-clip's lowest foot height and slower than 0.2 m/s) and frames/s (file to file, all test clips
-in one run). A row gives the noisy input's slow parts alone (the same draws, no jitter and no
-events): the estimator's bias, which no temporal method can tell from motion, so its MPJPE is
-about the best any of them can reach. ``--tune`` also scores candidate settings for the
-"video" row on the val clips.
+(``infer/input_kinds.py``), run as the command runs it (``infer.denoise_settings.denoise``: the
+offset, the blend, the spike and hole fills, the foot lock), the same without the offset (the
+paper's regression mode), and ``--refine 50 --outliers``. Columns: MPJPE (22 joints, world, cm),
+V2V (root-relative, cm), acceleration error (m/s^2), foot skate (cm/s: the mean horizontal speed
+of the foot joints 7, 8, 10, 11 on the frames where the ground truth has them in contact: within
+5 cm of the clip's lowest foot height and slower than 0.2 m/s) and frames/s (file to file, all
+test clips in one run). A row gives the noisy input's slow parts alone (the same draws, no
+jitter and no events): the estimator's bias, which no temporal method can tell from motion, so
+its MPJPE is about the best any of them can reach. ``--tune`` also scores candidate settings for
+the "video" row on the val clips.
 """
 
 from __future__ import annotations
@@ -39,8 +42,8 @@ from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.export import pose_motion_chunks
 from mdvae_cli.filters import gaussian_filter_motion, one_euro_filter_motion, savgol_filter_motion
-from mdvae_cli.infer.denoise import denoise_motions
-from mdvae_cli.infer.input_kinds import INPUT_KINDS, refine_config
+from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
+from mdvae_cli.infer.input_kinds import INPUT_KINDS
 from mdvae_cli.infer.settings import OUTLIER_DOF
 from mdvae_cli.model.denoiser import load_denoiser
 from mdvae_cli.motion.motion import Motion
@@ -178,9 +181,11 @@ def filter_process(name: str, params) -> Process:
 
 
 def denoise_process(denoiser, body, kind="video", **options) -> Process:
-    """``mdvae denoise`` on video inputs (the kind's row; options as the CLI's)."""
-    cfg, _ = refine_config(kind, **options)
-    return lambda ms: denoise_motions(ms, denoiser, body, refine=cfg)
+    """``mdvae denoise`` as the command runs it on an input of ``kind`` (its settings row, the
+    offset, the blend, the spike and hole fills, the foot lock); options: ``DenoiseSettings``'
+    (``refine_steps``, ``lam``, ``offset``, ``trans_offset_std``: the command's options)."""
+    settings = DenoiseSettings(input_kind=kind, **options)
+    return lambda ms: denoise(ms, settings, denoiser, body)
 
 
 def rows(best: dict, denoiser, body, steps: int) -> dict[str, Process]:
@@ -194,9 +199,9 @@ def rows(best: dict, denoiser, body, steps: int) -> dict[str, Process]:
         p = params if isinstance(params, tuple) else (params,)
         out[labels[name].format(*p)] = filter_process(name, params)
     out["`mdvae denoise` (video settings)"] = denoise_process(denoiser, body)
-    out["`mdvae denoise --no-offset`"] = denoise_process(denoiser, body, offset=False, lam=0.0)
+    out["`mdvae denoise --no-offset`"] = denoise_process(denoiser, body, offset=False)
     out[f"`mdvae denoise --refine {steps} --outliers`"] = denoise_process(
-        denoiser, body, steps=steps, lam=OUTLIER_DOF
+        denoiser, body, refine_steps=steps, lam=OUTLIER_DOF
     )
     return out
 
@@ -240,7 +245,15 @@ def build(test, val, denoiser, body, steps, seed, log=print) -> tuple[dict, dict
     return evaluate(gt, sets, body), speed, best
 
 
-def markdown(result: dict, speed: dict, best: dict, header: str) -> str:
+def section_marks(split: str) -> tuple[str, str]:
+    """The markers of the split's section in the document (the test split's: the first)."""
+    if split == "test":
+        return SECTION_BEGIN, SECTION_END
+    name = f"video_table_{split}"
+    return f"<!-- {name}:begin (written by benchmarks/video_table.py) -->", f"<!-- {name}:end -->"
+
+
+def markdown(result: dict, speed: dict, best: dict, header: str, split: str = "test") -> str:
     table = []
     gt = result["Ground truth"]
     table.append(
@@ -276,18 +289,27 @@ def markdown(result: dict, speed: dict, best: dict, header: str) -> str:
         f"error {d_accel:+.1f} %."
     )
     title = "## Video-pipeline-like noise (`benchmarks/video_table.py`)"
+    if split != "test":
+        title += f", {split}"
     md = common.markdown_table(head, table)
     reading = (
         "What the numbers mean, and how the video settings were chosen: docs/model.md, "
         '"Video-like noise" and "Denoising video estimates".'
     )
-    return f"{SECTION_BEGIN}\n{title}\n\n{header}\n\n{md}\n\n{ratio} {reading}\n{SECTION_END}\n"
+    begin, end = section_marks(split)
+    return f"{begin}\n{title}\n\n{header}\n\n{md}\n\n{ratio} {reading}\n{end}\n"
 
 
 def main(argv: Sequence[str] | None = None) -> str:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--corpus", type=Path, default=REPO / "data" / "corpus")
     p.add_argument("--max-clips", type=int, default=64)
+    p.add_argument(
+        "--split",
+        default="test",
+        choices=["test", "unseen_test"],
+        help="the clips scored (the filters are tuned on val either way)",
+    )
     p.add_argument("--val-clips", type=int, default=32)
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--threads", type=int, default=2)
@@ -302,7 +324,7 @@ def main(argv: Sequence[str] | None = None) -> str:
     torch.set_num_threads(args.threads)
     start = time.perf_counter()
     split = read_split(args.corpus / "split.json")
-    test = common.load_clips(split["test"], args.corpus, 60, max_clips=args.max_clips)
+    test = common.load_clips(split[args.split], args.corpus, 60, max_clips=args.max_clips)
     val = common.load_clips(split["val"], args.corpus, 60, max_clips=args.val_clips)
     denoiser, _ = load_denoiser(args.denoiser)
     body = BodyModel(load_body_model(None))
@@ -315,20 +337,23 @@ def main(argv: Sequence[str] | None = None) -> str:
                 )
     result, speed, best = build(test, val, denoiser, body, args.steps, args.seed)
     row = INPUT_KINDS["video"]
+    who = "held-out CMU subjects" if args.split == "test" else "kinds of motion training never saw"
+    how = "" if args.split == "test" else f" --split {args.split}"
+    seconds = time.perf_counter() - start
     header = (
-        f"{len(test)} test clips of 60 frames (30 Hz, held-out CMU subjects) with `mdvae "
+        f"{len(test)} {args.split} clips of 60 frames (30 Hz, {who}) with `mdvae "
         f"add-noise --preset video` noise (seed {args.seed}); filters tuned on {len(val)} val "
         f"clips for the lowest MPJPE; shipped weights, built-in body; video settings: λ = "
         f"{row.lam:g}, offsets {row.offset_std:g} rad / {row.trans_offset_std:g} m, "
         f"{row.offset_terms} cosines. Foot skate: the ground truth's own is the first row. "
         f"Command: `python benchmarks/video_table.py --max-clips {args.max_clips} --val-clips "
-        f"{args.val_clips}` ({time.perf_counter() - start:.0f} s, "
+        f"{args.val_clips}{how}` ({seconds:.0f} s, "
         f"{common.machine_description()['cpu']}, {args.threads} threads)."
     )
-    md = markdown(result, speed, best, header)
+    md = markdown(result, speed, best, header, args.split)
     print(md)
     if args.out is not None and not args.quick:
-        common.write_section(args.out, md, SECTION_BEGIN, SECTION_END)
+        common.write_section(args.out, md, *section_marks(args.split))
     return md
 
 

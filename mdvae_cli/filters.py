@@ -105,6 +105,30 @@ def gaussian_coefficients(sigma_frames: float) -> np.ndarray:
 CACHE_FRAMES = 4096
 
 
+def correlate_frames(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """Each frame's weighted sum of the ``len(kernel)`` frames from it on, along axis 0, where
+    they all exist ("valid" correlation).  x: (T, ...); kernel: (W,) -> (T - W + 1, ...)
+
+    Each channel's frames go through numpy's compiled one-dimensional convolution,
+    :data:`CACHE_FRAMES` frames at a time (their transposed copy stays in cache): a shifted
+    multiply-add over the whole array per tap reads it ``W`` times from memory, 2.5-7x slower
+    on a long take."""
+    x = np.asarray(x, dtype=np.float64)
+    W, T = len(kernel), x.shape[0]
+    n = max(T - W + 1, 0)
+    flat = x.reshape(T, math.prod(x.shape[1:]))
+    out = np.empty((n, flat.shape[1]))
+    taps = np.asarray(kernel, dtype=np.float64)[::-1]  # convolution flips the kernel back
+    for a in range(0, n, CACHE_FRAMES):
+        m = min(CACHE_FRAMES, n - a)
+        block = flat[a : a + m + W - 1].T.copy()
+        rows = np.empty((flat.shape[1], m))
+        for c, channel in enumerate(block):
+            rows[c] = np.convolve(channel, taps, "valid")
+        out[a : a + m] = rows.T
+    return out.reshape(n, *x.shape[1:])
+
+
 def _smooth_local_poly(
     x: np.ndarray, half: int, order: int, weight: Weights, slide: bool, at: np.ndarray | None = None
 ) -> np.ndarray:
@@ -127,15 +151,8 @@ def _smooth_local_poly(
         offsets = np.arange(-half, half + 1)
         w = np.asarray(weight(offsets), dtype=np.float64)
         c = _edge_coefficients(W, order, half, w.tobytes())  # the centre row, cached too
-        if at is None:  # every frame: shifted slices, no gathers, a piece at a time (in cache)
-            n_inner = T - W + 1
-            for a in range(0, n_inner, CACHE_FRAMES):
-                n = min(CACHE_FRAMES, n_inner - a)
-                rows = out[half + a : half + a + n]
-                np.multiply(x[a : a + n], c[0], out=rows)
-                term = np.empty_like(rows)  # one buffer: a new array each term costs more
-                for k in range(1, W):
-                    rows += np.multiply(x[a + k : a + k + n], c[k], out=term)
+        if at is None:  # every frame: one correlation with the centre row
+            out[half : T - half] = correlate_frames(x, c)
         else:
             centre = frames[inner]
             rows = c[0] * x[centre - half]

@@ -302,7 +302,10 @@ def test_lock_brings_a_sliding_foot_to_rest_and_leaves_the_rest(body):
     assert np.abs(soles_after[:40] - soles_before[:40]).max() < 4e-3
     # only hips, knees and ankles change, and only near the contact (fade 0.2 s = 6 frames)
     changed = np.abs(locked.pose_body - m.pose_body).max(axis=2)
-    assert (changed[:40][:, LEG_ROWS] > 0).all(1).sum() >= 38  # (not where already on anchor)
+    # the hips move over the held ankles on every frame of the contact but where already on
+    # anchor (a knee or ankle the solve leaves as it was may stay bit for bit)
+    assert (changed[:40][:, LEG_ROWS[:2]] > 1e-6).all(1).sum() >= 38
+    assert (changed[:40][:, LEG_ROWS] > 1e-6).sum() >= 0.9 * 40 * len(LEG_ROWS)
     assert not np.delete(changed, LEG_ROWS, axis=1).any()
     assert np.array_equal(locked.root_orient, m.root_orient)
     assert np.array_equal(locked.trans, m.trans)

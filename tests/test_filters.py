@@ -6,6 +6,8 @@ import torch
 
 from mdvae_cli.errors import InputError
 from mdvae_cli.filters import (
+    CACHE_FRAMES,
+    correlate_frames,
     gaussian_coefficients,
     gaussian_filter_motion,
     gaussian_smooth,
@@ -302,3 +304,19 @@ def test_the_smoothers_convolve_a_piece_at_a_time_with_the_same_result(monkeypat
     monkeypatch.setattr(f, "CACHE_FRAMES", 500)
     np.testing.assert_array_equal(f.gaussian_smooth(x, 2.5), whole[0])
     np.testing.assert_array_equal(f.savgol_smooth(x, 9, 2), whole[1])
+
+
+@pytest.mark.parametrize("T", [0, 2, 7, 8, CACHE_FRAMES + 11])
+def test_correlate_frames_is_the_weighted_sum_of_the_frames_ahead(T):
+    """An uneven kernel (no symmetry to hide a flip), frames across a cache block's edge and
+    channels of any shape: each row is sum_k kernel[k] x[t + k], to rounding."""
+    rng = np.random.default_rng(T)
+    x = rng.normal(size=(T, 3, 2))
+    kernel = np.array([0.5, -1.0, 2.0, 0.25, 3.0, -0.75, 1.5])
+    n = max(T - len(kernel) + 1, 0)
+    want = np.zeros((n, 3, 2))
+    for k, w in enumerate(kernel):
+        want += w * x[k : k + n]
+    got = correlate_frames(x, kernel)
+    assert got.shape == (n, 3, 2)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

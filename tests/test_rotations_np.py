@@ -195,3 +195,27 @@ def test_quat_slerp_matches_the_torch_one_and_takes_the_short_way():
     a0 = N.rotmat_to_rotvec(np.swapaxes(N.quat_to_rotmat(q0[2:]), -1, -2) @ halfway)
     a1 = N.rotmat_to_rotvec(np.swapaxes(halfway, -1, -2) @ N.quat_to_rotmat(q1[2:]))
     np.testing.assert_allclose(np.linalg.norm(a0, axis=-1), np.linalg.norm(a1, axis=-1), atol=1e-9)
+
+
+@pytest.mark.parametrize("invert_a", [False, True])
+def test_rotvec_product_is_the_torch_quaternion_product(invert_a):
+    """b then a (a inverted first: b's turn away from a), angle in [0, pi], against the torch
+    quaternions the blend used; angles near zero (the series) and past pi included."""
+    a = np.concatenate([rotvecs((40, 3), seed=2, max_angle=2.5 * np.pi).reshape(-1, 3),
+                        [[0.0, 0.0, 0.0], [1e-9, 0.0, 0.0], [0.3, -0.2, 0.1]]])  # fmt: skip
+    b = np.concatenate([rotvecs((40, 3), seed=3, max_angle=2.5 * np.pi).reshape(-1, 3),
+                        [[0.0, 0.0, 0.0], [0.0, 2e-9, 0.0], [0.3, -0.2, 0.1]]])  # fmt: skip
+    qa = T.rotvec_to_quat(torch.as_tensor(a))
+    if invert_a:
+        qa = qa * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
+    want = T.quat_to_rotvec(T.quat_multiply(qa, T.rotvec_to_quat(torch.as_tensor(b)))).numpy()
+    got = N.rotvec_product(a, b, invert_a=invert_a)
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert np.linalg.norm(got, axis=-1).max() <= np.pi + 1e-12
+    if invert_a:  # the same rotation's turn away from itself is none
+        np.testing.assert_allclose(got[-1], 0.0, atol=1e-15)
+    # shapes: any batch, and the rotation it gives is R(a) R(b)
+    got2 = N.rotvec_product(a.reshape(-1, 1, 3), b.reshape(-1, 1, 3))
+    assert got2.shape == (len(a), 1, 3)
+    both = N.rotvec_to_rotmat(a) @ N.rotvec_to_rotmat(b)
+    np.testing.assert_allclose(N.rotvec_to_rotmat(got2[:, 0]), both, atol=1e-12)

@@ -33,13 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from mdvae_cli.filters import CACHE_FRAMES, gaussian_coefficients
-from mdvae_cli.geometry.rotations import (
-    quat_multiply,
-    quat_to_rotvec,
-    rotvec_to_quat,
-    rotvec_unwrap,
-)
+from mdvae_cli.filters import CACHE_FRAMES, correlate_frames, gaussian_coefficients
+from mdvae_cli.geometry.rotations import rotvec_to_quat, rotvec_unwrap
+from mdvae_cli.geometry.rotations_np import rotvec_product
 from mdvae_cli.infer.fill import TAKE_NOISE_RAD, fill_spikes
 from mdvae_cli.infer.input_noise import ONE_AXIS_MARGIN, component_noise_variance, noise_variance
 from mdvae_cli.infer.spikes import SPIKE_FLOOR_M, SPIKE_FLOOR_RAD, spike_frames
@@ -88,22 +84,11 @@ def moving_mean(x: np.ndarray, width: int) -> np.ndarray:
 
 
 def smooth_in_time(x: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """Convolve along axis 0 with edge values repeated, by a symmetric kernel (odd length),
-    :data:`CACHE_FRAMES` frames at a time.  x: (T, ...) -> (T, ...)"""
-    r, T = len(kernel) // 2, x.shape[0]
+    """Convolve along axis 0 with edge values repeated, by a symmetric kernel (odd length;
+    ``filters.correlate_frames``).  x: (T, ...) -> (T, ...)"""
+    r = len(kernel) // 2
     padded = np.concatenate([np.repeat(x[:1], r, 0), x, np.repeat(x[-1:], r, 0)])
-    out = np.empty(x.shape)
-    for a in range(0, T, CACHE_FRAMES):
-        n = min(CACHE_FRAMES, T - a)
-        seg = padded[a : a + n + 2 * r]
-        part = kernel[r] * seg[r : r + n]
-        pair = np.empty_like(part)  # the kernel is symmetric: a tap pair at a time, in place
-        for k in range(r):
-            np.add(seg[k : k + n], seg[2 * r - k : 2 * r - k + n], out=pair)
-            pair *= kernel[k]
-            part += pair
-        out[a : a + n] = part
-    return out
+    return correlate_frames(padded, kernel)
 
 
 def kept_share(
@@ -233,16 +218,12 @@ def _blend_rotations(
     from (T, J, 3), which the spikes' fill reads again, and whether the take reads as noisy
     (:func:`noisy_take`)."""
     src = torch.as_tensor(source, dtype=torch.float64)
-    den = torch.as_tensor(denoised, dtype=torch.float64)
-    conjugate = torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=torch.float64)
     residual, unwrapped = np.empty(src.shape), np.empty(src.shape)
     before = None  # the chunk before's last frame: its rotation vector, its unwrapped quaternion
     for a in range(0, len(src), CACHE_FRAMES):  # per frame (the unwrap carried across)
         s, frames = src[a : a + CACHE_FRAMES], slice(a, a + CACHE_FRAMES)
         q_src = rotvec_to_quat(s)
-        residual[frames] = quat_to_rotvec(
-            quat_multiply(rotvec_to_quat(den[frames]) * conjugate, q_src)
-        ).numpy()
+        residual[frames] = rotvec_product(denoised[frames], source[frames], invert_a=True)
         n = len(s)
         if before is not None:  # start the sign-continuous quaternions where the last chunk ended
             s, q_src = torch.cat([before[0], s]), torch.cat([before[1], q_src])
@@ -274,8 +255,7 @@ def _blend_rotations(
     # take a whole array of them is a large share of the peak memory, and cheap to make
     for a in range(0, len(src), CACHE_FRAMES):
         frames = slice(a, a + CACHE_FRAMES)
-        q_kept = rotvec_to_quat(torch.as_tensor(kept[frames]))
-        out[frames] = quat_to_rotvec(quat_multiply(rotvec_to_quat(den[frames]), q_kept)).numpy()
+        out[frames] = rotvec_product(denoised[frames], kept[frames])
     return out, share, spikes, unwrapped, noisy
 
 
