@@ -199,6 +199,9 @@ def rows(best: dict, denoiser, body, steps: int) -> dict[str, Process]:
         p = params if isinstance(params, tuple) else (params,)
         out[labels[name].format(*p)] = filter_process(name, params)
     out["`mdvae denoise` (video settings)"] = denoise_process(denoiser, body)
+    out["`mdvae denoise --smooth 0` (its result not smoothed)"] = denoise_process(
+        denoiser, body, smooth_s=0.0
+    )
     out["`mdvae denoise --no-offset`"] = denoise_process(denoiser, body, offset=False)
     out[f"`mdvae denoise --refine {steps} --outliers`"] = denoise_process(
         denoiser, body, refine_steps=steps, lam=OUTLIER_DOF
@@ -213,6 +216,10 @@ TUNE_CANDIDATES = {
     "λ 3": {"kind": "mocap", "lam": 3.0},
     "no translation offset": {"kind": "mocap", "trans_offset_std": 0.0},
     "no offset": {"kind": "mocap", "offset": False},
+    "video row, --smooth 0": {"kind": "video", "smooth_s": 0.0},
+    "video row, --smooth 0.05": {"kind": "video", "smooth_s": 0.05},
+    "video row, --smooth 0.067": {"kind": "video", "smooth_s": 0.067},
+    "video row, --smooth 0.083": {"kind": "video", "smooth_s": 0.083},
 }
 
 
@@ -345,7 +352,8 @@ def main(argv: Sequence[str] | None = None) -> str:
         f"add-noise --preset video` noise (seed {args.seed}); filters tuned on {len(val)} val "
         f"clips for the lowest MPJPE; shipped weights, built-in body; video settings: λ = "
         f"{row.lam:g}, offsets {row.offset_std:g} rad / {row.trans_offset_std:g} m, "
-        f"{row.offset_terms} cosines. Foot skate: the ground truth's own is the first row. "
+        f"{row.offset_terms} cosines, the result smoothed over {row.smooth_s:g} s as far as the "
+        "input reads noisy. Foot skate: the ground truth's own is the first row. "
         f"Command: `python benchmarks/video_table.py --max-clips {args.max_clips} --val-clips "
         f"{args.val_clips}{how}` ({seconds:.0f} s, "
         f"{common.machine_description()['cpu']}, {args.threads} threads)."

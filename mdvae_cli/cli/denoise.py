@@ -82,8 +82,8 @@ Examples:
 @handle_errors
 def denoise(
     inputs, out, denoiser_path, optimize_steps, per_file, lr, seed, refine_steps, refine_lr,
-    refine_offset, trans_offset, offset, outliers, lam, input_kind, mirror, feet, fill, missing,
-    floor, guard, blend, loop, mesh_dir, mesh_format, view_dir, window, overlap, asf,
+    refine_offset, trans_offset, smooth, offset, outliers, lam, input_kind, mirror, feet, fill,
+    missing, floor, guard, blend, loop, mesh_dir, mesh_format, view_dir, window, overlap, asf,
     joint_map_file, input_format, input_fps, track, body_model, allow_pickle, as_json,
 ) -> None:  # fmt: skip
     started = time.perf_counter()  # where the system cannot tell when the process started
@@ -100,6 +100,7 @@ def denoise(
         offset_std=refine_offset, trans_offset_std=trans_offset, blend=blend, guard=guard,
         feet=feet, loop=loop, mirror=mirror, optimize_steps=optimize_steps, lr=lr, seed=seed,
         window=window, overlap=overlap, per_file=per_file, fill=fill_setting(fill),
+        smooth_s=smooth,
     )  # fmt: skip
     _check_outputs(mesh_dir, mesh_format, view_dir, asf)
     jobs = plan_take_jobs(inputs, out)
@@ -183,7 +184,8 @@ def _check_pairs(fields: dict, blend) -> None:
     if not (refine or fields["offset"]):
         for name, on in (("--blend", blend), ("--guard", fields["guard"]),
                          ("--refine-offset", fields["offset_std"] is not None),
-                         ("--trans-offset", fields["trans_offset_std"] is not None)):  # fmt: skip
+                         ("--trans-offset", fields["trans_offset_std"] is not None),
+                         ("--smooth", fields["smooth_s"] is not None)):  # fmt: skip
             if on:
                 raise InputError(f"{name} goes with the offset or --refine; drop --no-offset "
                                  f"(the paper's plain regression mode) or {name}")  # fmt: skip
@@ -233,8 +235,10 @@ def _print_kind_notes(chosen: dict) -> None:
     """The settings row of every input kind but mocap."""
     for kind, (_, c) in chosen.items():
         if kind != "mocap":
+            smooth = f", smoothed over {c['smooth_s']:g} s" if c.get("smooth_s") else ""
             console.print(f"[dim]note: {kind} input: λ = {c['lam']:g}, offset scales "
-                          f"{c['offset_std']:g} rad / {c['trans_offset_std']:g} m[/]")  # fmt: skip
+                          f"{c['offset_std']:g} rad / {c['trans_offset_std']:g} m"
+                          f"{smooth}[/]")  # fmt: skip
 
 
 def _ticker(progress):

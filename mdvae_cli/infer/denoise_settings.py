@@ -15,15 +15,19 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+
 from mdvae_cli.body.data import BodyModelData
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
+from mdvae_cli.filters import gaussian_filter_motion
 from mdvae_cli.infer.denoise import denoise_motions
 from mdvae_cli.infer.feet import FootLockConfig, lock_motions
+from mdvae_cli.infer.fill import TAKE_NOISE_RAD, fill_holes
 from mdvae_cli.infer.fill_choices import DEFAULT_FILL, FILLS, fill_for
 from mdvae_cli.infer.input_kinds import kind_settings, refine_config
 from mdvae_cli.infer.loop import which_loop
-from mdvae_cli.infer.noise_blend import BlendReport
+from mdvae_cli.infer.noise_blend import BlendReport, noise_level
 from mdvae_cli.infer.rest_pose import keep_rest_frames
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.time_pieces import (
@@ -52,7 +56,9 @@ class DenoiseSettings:
     optimize_steps, lr, seed: optimisation mode; window, overlap: the windows (30 Hz frames);
     rest_pose: leading rest-pose frames (an exporter's T-pose frame 0) kept as they came;
     fill: what the input's holes (``joint_mask`` False: missing frames and joints) become
-    (``infer.fill.FILLS``); "off" leaves them as the input's values as they came.
+    (``infer.fill.FILLS``); "off" leaves them as the input's values as they came;
+    smooth_s: the Gaussian (seconds) over the result after the foot lock (None: the kind's
+    row, ``KindSettings.smooth_s``; 0: none).
     """
 
     input_kind: str = "mocap"
@@ -74,6 +80,7 @@ class DenoiseSettings:
     overlap: int = 15
     rest_pose: bool = True
     fill: str = DEFAULT_FILL
+    smooth_s: float | None = None
 
     def __post_init__(self) -> None:
         if self.feet not in FEET:
@@ -86,18 +93,31 @@ class DenoiseSettings:
             )
         if self.refine_steps < 0 or self.optimize_steps < 0:
             raise InputError("refine_steps and optimize_steps must be >= 0")
+        if self.smooth_s is not None and not self.smooth_s >= 0:
+            raise InputError(f"smooth_s must be >= 0 seconds, got {self.smooth_s}")
 
     def refine(self) -> RefineConfig | None:
         """The offset / refinement settings (None: the paper's plain forward pass)."""
-        cfg, _ = self.refine_row()
+        cfg, _ = self._refine_config()
         return cfg
 
-    def refine_row(self) -> tuple[RefineConfig | None, dict]:
-        """:meth:`refine` and the settings row it came from (for reports)."""
+    def _refine_config(self) -> tuple[RefineConfig | None, dict]:
         return refine_config(
             self.input_kind, steps=self.refine_steps, lr=self.refine_lr, offset=self.offset,
             lam=self.lam, offset_std=self.offset_std, trans_offset_std=self.trans_offset_std,
         )  # fmt: skip
+
+    def refine_row(self) -> tuple[RefineConfig | None, dict]:
+        """:meth:`refine` and the settings row it came from, with :meth:`smoothing` (for
+        reports)."""
+        cfg, chosen = self._refine_config()
+        return cfg, {**chosen, "smooth_s": self.smoothing()}
+
+    def smoothing(self) -> float:
+        """The seconds of the Gaussian over the result (0: none; none in the paper's mode)."""
+        if self.untouched:
+            return 0.0
+        return kind_settings(self.input_kind).smooth_s if self.smooth_s is None else self.smooth_s
 
     @property
     def untouched(self) -> bool:
@@ -189,18 +209,50 @@ def denoise(
         # cycles are judged on the motions as denoised (rest-pose frames cut off)
         lps = loops if loops is not None else loops_of(ms, settings)
         if settings.optimize_steps:  # the networks adapt to all of the motions at once
-            return run(ms, lps, progress, on_fallback, on_blend)
+            out = run(ms, lps, progress, on_fallback, on_blend)
+            return smoothed(out, ms, lps, settings.smoothing(), settings.fill)
         feet = lock_config(settings)
 
         def lock(joined: Motion, source: Motion) -> Motion:
             return joined if feet is None else lock_motions([joined], [source], body, feet)[0]
 
         side = SIDE_BY_SIDE_REFINED if settings.refine_steps else SIDE_BY_SIDE_PIECES
-        return denoise_in_pieces(ms, lps, run, progress, on_fallback, on_blend, finish=lock,
-                                 side_by_side=side)  # fmt: skip
+        out = denoise_in_pieces(ms, lps, run, progress, on_fallback, on_blend, finish=lock,
+                                side_by_side=side)  # fmt: skip
+        return smoothed(out, ms, lps, settings.smoothing(), settings.fill)
 
     out = keep_rest_frames(motions, run_all) if settings.rest_pose else run_all(motions)
     return [unshared(o, m) for o, m in zip(out, motions, strict=True)]
+
+
+def smoothing_share(level: float) -> float:
+    """How much of the kind's smoothing a take gets from how noisy its input reads (``level``,
+    rad: ``noise_blend.noise_level``): none up to half of ``fill.TAKE_NOISE_RAD`` (a clean
+    take, or a video pipeline's output that it smoothed itself, comes back as the rest of the
+    default leaves it), all of it from ``TAKE_NOISE_RAD`` on, linear between."""
+    half = 0.5 * TAKE_NOISE_RAD
+    return float(np.clip((level - half) / half, 0.0, 1.0))
+
+
+def smoothed(
+    results: list[Motion], sources: list[Motion], loops: list[bool], seconds: float, fill: str
+) -> list[Motion]:
+    """Each result smoothed by a Gaussian of up to ``seconds`` (``KindSettings.smooth_s``; 0:
+    as they are), scaled by how noisy its source reads (:func:`smoothing_share`): rotations as
+    quaternions, the translation as it is (``filters``). A cycle stays as it is (a Gaussian
+    with ends would open its seam); with the fill "off" the source's holes are written back
+    as they came."""
+    if seconds <= 0:
+        return results
+    out = []
+    for result, source, loop in zip(results, sources, loops, strict=True):
+        share = 0.0 if loop or result.num_frames < 4 else smoothing_share(noise_level(source))
+        if share == 0.0:
+            out.append(result)
+            continue
+        smooth = gaussian_filter_motion(result, share * seconds * result.fps)
+        out.append(fill_holes(source, smooth, "off") if fill == "off" else smooth)
+    return out
 
 
 def lock_config(settings: DenoiseSettings) -> FootLockConfig | None:

@@ -31,6 +31,10 @@ class KindSettings:
     feet_as_came: whether the foot lock keeps feet that read clean as they came
         (``FootLockConfig.clean_jitter``; a video tracker's feet can read clean and still
         jitter: they are smoothed as the lock's goal whatever their jitter).
+    smooth_s: the standard deviation (seconds) of a Gaussian over the result, after the foot
+        lock, at its full on a take whose input reads noisy and none on one that reads clean
+        (``denoise_settings.smoothing_share``); 0: none. The networks were fitted to mocap
+        noise; a video tracker's jitter comes through their fast band (``--smooth``).
     """
 
     lam: float = 0.0
@@ -41,6 +45,7 @@ class KindSettings:
     trans_unit: float = 0.05
     blend_fast: bool = True
     feet_as_came: bool = True
+    smooth_s: float = 0.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -54,8 +59,11 @@ INPUT_KINDS: dict[str, KindSettings] = {
     # noise cuts the acceleration error by 17 % and foot skate by 17 % for +4 % MPJPE; lambda
     # 3, 5 and 10 score alike, 10 is --outliers. The blend's slow band only: on 40 test clips
     # with --preset video, MPJPE 10.05 -> 8.98 cm for acceleration error 6.0 -> 7.1 m/s^2 (both
-    # bands: 9.06 cm, 27.8 m/s^2)
-    "video": KindSettings(lam=10.0, blend_fast=False, feet_as_came=False),
+    # bands: 9.06 cm, 27.8 m/s^2). The result smoothed over 0.05 s (1.5 frames at 30 Hz), as
+    # far as the input reads noisy: on 32 val clips acceleration error 6.72 -> 5.48 m/s^2 and
+    # MPJPE 9.24 -> 9.19 cm; on 64 test / unseen_test clips 6.79 -> 5.19 / 9.69 -> 7.20 m/s^2
+    # for MPJPE 8.97 -> 8.93 / 9.35 -> 9.37 (0.067 s: 4.86 / 6.71 for 8.92 / 9.39)
+    "video": KindSettings(lam=10.0, blend_fast=False, feet_as_came=False, smooth_s=0.05),
 }
 
 

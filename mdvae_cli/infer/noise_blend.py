@@ -259,6 +259,17 @@ def _blend_rotations(
     return out, share, spikes, unwrapped, noisy
 
 
+def noise_level(source: Motion) -> float:
+    """How noisy a take's rotations read (rad): the median over its joints of each one's
+    white-noise standard deviation (:func:`noise_variance` of its unwrapped rotations, the
+    frames it has alone), what :func:`noisy_take` compares with ``TAKE_NOISE_RAD``."""
+    if source.num_frames < 4:
+        return 0.0
+    rot = torch.as_tensor(source.joint_rotations, dtype=torch.float64)
+    pooled = noise_variance(rotvec_unwrap(rot, dim=0).numpy(), observed(source))
+    return float(np.sqrt(np.median(pooled))) if len(pooled) else 0.0
+
+
 def noisy_take(noise_var: np.ndarray) -> bool:
     """Whether a take reads as noisy: the median of its joints' noise variances (J,) over
     ``infer.fill.TAKE_NOISE_RAD`` squared (a clean take's is 0.0005-0.0084 rad)."""
