@@ -5,21 +5,21 @@
                                      [--tune] [--quick]
 
 Protocol. Test-split files (30 Hz; ``--split unseen_test``: the kinds of motion no training saw,
-written to a section of their own) are cut into 60-frame clips; every clip gets the video-like
-noise (``motion.noise.VideoNoise``, the preset's defaults, a seed fixed per clip). The classical
-filters (Gaussian, Savitzky-Golay, and the One-Euro filter video-mocap tools use) are tuned by
-grid search on val clips with the same noise, for the lowest MPJPE. Rows: the noisy input, each
-tuned filter, ``mdvae denoise`` with the settings it picks for video inputs
-(``infer/input_kinds.py``), run as the command runs it (``infer.denoise_settings.denoise``: the
-offset, the blend, the spike and hole fills, the foot lock), the same without the offset (the
-paper's regression mode), and ``--refine 50 --outliers``. Columns: MPJPE (22 joints, world, cm),
-V2V (root-relative, cm), acceleration error (m/s^2), foot skate (cm/s: the mean horizontal speed
-of the foot joints 7, 8, 10, 11 on the frames where the ground truth has them in contact: within
-5 cm of the clip's lowest foot height and slower than 0.2 m/s) and frames/s (file to file, all
-test clips in one run). A row gives the noisy input's slow parts alone (the same draws, no
-jitter and no events): the estimator's bias, which no temporal method can tell from motion, so
-its MPJPE is about the best any of them can reach. ``--tune`` also scores candidate settings for
-the "video" row on the val clips.
+written to a section of their own) are cut into 60-frame clips (``--clip-frames``); every clip
+gets the video-like noise (``motion.noise.VideoNoise``, the preset's defaults, a seed fixed per
+clip). The classical filters (Gaussian, Savitzky-Golay, and the One-Euro filter video-mocap
+tools use) are tuned by grid search on val clips with the same noise, for the lowest MPJPE.
+Rows: the noisy input, each tuned filter, ``mdvae denoise`` with the settings it picks for video
+inputs (``infer/input_kinds.py``), run as the command runs it
+(``infer.denoise_settings.denoise``: the offset, the blend, the spike and hole fills, the foot
+lock), the same without the offset (the paper's regression mode), and ``--refine 50
+--outliers``. Columns: MPJPE (22 joints, world, cm), V2V (root-relative, cm), acceleration error
+(m/s^2), foot skate (cm/s: the mean horizontal speed of the foot joints 7, 8, 10, 11 on the
+frames where the ground truth has them in contact: within 5 cm of the clip's lowest foot height
+and slower than 0.2 m/s) and frames/s (file to file, all test clips in one run). A row gives the
+noisy input's slow parts alone (the same draws, no jitter and no events): the estimator's bias,
+which no temporal method can tell from motion, so its MPJPE is about the best any of them can
+reach. ``--tune`` also scores candidate settings for the "video" row on the val clips.
 """
 
 from __future__ import annotations
@@ -318,6 +318,7 @@ def main(argv: Sequence[str] | None = None) -> str:
         help="the clips scored (the filters are tuned on val either way)",
     )
     p.add_argument("--val-clips", type=int, default=32)
+    p.add_argument("--clip-frames", type=int, default=60, help="frames per clip (30 Hz)")
     p.add_argument("--steps", type=int, default=50)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
@@ -331,8 +332,9 @@ def main(argv: Sequence[str] | None = None) -> str:
     torch.set_num_threads(args.threads)
     start = time.perf_counter()
     split = read_split(args.corpus / "split.json")
-    test = common.load_clips(split[args.split], args.corpus, 60, max_clips=args.max_clips)
-    val = common.load_clips(split["val"], args.corpus, 60, max_clips=args.val_clips)
+    frames = args.clip_frames
+    test = common.load_clips(split[args.split], args.corpus, frames, max_clips=args.max_clips)
+    val = common.load_clips(split["val"], args.corpus, frames, max_clips=args.val_clips)
     denoiser, _ = load_denoiser(args.denoiser)
     body = BodyModel(load_body_model(None))
     if args.tune:
@@ -346,9 +348,10 @@ def main(argv: Sequence[str] | None = None) -> str:
     row = INPUT_KINDS["video"]
     who = "held-out CMU subjects" if args.split == "test" else "kinds of motion training never saw"
     how = "" if args.split == "test" else f" --split {args.split}"
+    how += "" if frames == 60 else f" --clip-frames {frames}"
     seconds = time.perf_counter() - start
     header = (
-        f"{len(test)} {args.split} clips of 60 frames (30 Hz, {who}) with `mdvae "
+        f"{len(test)} {args.split} clips of {frames} frames (30 Hz, {who}) with `mdvae "
         f"add-noise --preset video` noise (seed {args.seed}); filters tuned on {len(val)} val "
         f"clips for the lowest MPJPE; shipped weights, built-in body; video settings: λ = "
         f"{row.lam:g}, offsets {row.offset_std:g} rad / {row.trans_offset_std:g} m, "
