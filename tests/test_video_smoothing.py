@@ -74,8 +74,11 @@ def test_noise_level_reads_white_rotation_noise():
 
 def test_a_noisy_video_take_comes_back_smoother_and_a_clean_one_as_without_it():
     noisy = with_rotation_noise(walk(), 0.03)
-    on = denoise([noisy], DenoiseSettings(input_kind="video", feet="off"))[0]
+    got = {}
+    on = denoise([noisy], DenoiseSettings(input_kind="video", feet="off"),
+                 on_smooth=got.__setitem__)[0]  # fmt: skip
     off = denoise([noisy], DenoiseSettings(input_kind="video", feet="off", smooth_s=0.0))[0]
+    assert got == {0: 0.05}  # it reads noisy: all of the row's smoothing
     assert jerk(on) < 0.85 * jerk(off)
     # the same motion, its rotations within the smoothing's reach of each other
     assert np.abs(on.joint_rotations - off.joint_rotations).mean() < 0.02
@@ -107,7 +110,16 @@ def test_the_smooth_option(tmp_path):
     res = runner.invoke(cli, ["denoise", str(src), "-o", str(tmp_path / "a.npz"),
                               "--input-kind", "video", "--smooth", "0.1", "--json"])  # fmt: skip
     assert res.exit_code == 0, res.stderr
-    assert json.loads(res.stdout)["settings"]["video"]["smooth_s"] == 0.1
+    doc = json.loads(res.stdout)
+    assert doc["settings"]["video"]["smooth_s"] == 0.1
+    # what each take got: all of it, its input reading noisy; none for a clean one
+    assert doc["files"][0]["result"]["tracks"][0]["smoothed_s"] == 0.1
+    clean = tmp_path / "clean.npz"
+    clean.write_bytes((EXAMPLES / "walk.npz").read_bytes())
+    res = runner.invoke(cli, ["denoise", str(clean), "-o", str(tmp_path / "d.npz"),
+                              "--input-kind", "video", "--json"])  # fmt: skip
+    assert res.exit_code == 0, res.stderr
+    assert json.loads(res.stdout)["files"][0]["result"]["tracks"][0]["smoothed_s"] == 0.0
     res = runner.invoke(cli, ["denoise", str(src), "-o", str(tmp_path / "b.npz"),
                               "--smooth", "0.1", "--no-offset"])  # fmt: skip
     errors = [line for line in res.stderr.splitlines() if line.startswith("error:")]

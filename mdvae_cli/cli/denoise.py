@@ -235,7 +235,8 @@ def _print_kind_notes(chosen: dict) -> None:
     """The settings row of every input kind but mocap."""
     for kind, (_, c) in chosen.items():
         if kind != "mocap":
-            smooth = f", smoothed over {c['smooth_s']:g} s" if c.get("smooth_s") else ""
+            smooth = (f", smoothed over up to {c['smooth_s']:g} s as far as it reads noisy"
+                      if c.get("smooth_s") else "")  # fmt: skip
             console.print(f"[dim]note: {kind} input: λ = {c['lam']:g}, offset scales "
                           f"{c['offset_std']:g} rad / {c['trans_offset_std']:g} m"
                           f"{smooth}[/]")  # fmt: skip

@@ -155,13 +155,16 @@ def denoise(
     progress: Callable[[dict], None] | None = None,
     on_fallback: Callable[[int, float, float], None] | None = None,
     on_blend: Callable[[int, BlendReport], None] | None = None,
+    on_smooth: Callable[[int, float], None] | None = None,
 ) -> list[Motion]:
     """Denoise motions as ``mdvae denoise`` does with ``settings`` (default: its defaults).
 
     denoiser / body: None loads the shipped weights / the built-in body, a path the
     checkpoint (or run folder) / body-model file; a ``BodyModelData`` is wrapped. ``loops``: which
     motions are cycles (None: :func:`loops_of`). Optimisation mode fine-tunes a copy of the
-    denoiser, never the one passed. The callbacks: see ``infer.denoise.denoise_motions``.
+    denoiser, never the one passed. The callbacks: see ``infer.denoise.denoise_motions``;
+    ``on_smooth(motion index, seconds)``: the Gaussian each result was smoothed with
+    (:func:`smoothed`; 0: none).
     A take longer than 1.5 ``infer.time_pieces.PIECE_FRAMES`` frames that is no cycle is
     denoised a piece of time at a time and joined, its foot lock then run on the whole of it
     (memory flat in the take's length; not in optimisation mode, whose networks adapt to all
@@ -210,7 +213,7 @@ def denoise(
         lps = loops if loops is not None else loops_of(ms, settings)
         if settings.optimize_steps:  # the networks adapt to all of the motions at once
             out = run(ms, lps, progress, on_fallback, on_blend)
-            return smoothed(out, ms, lps, settings.smoothing(), settings.fill)
+            return smoothed(out, ms, lps, settings.smoothing(), settings.fill, on_smooth)
         feet = lock_config(settings)
 
         def lock(joined: Motion, source: Motion) -> Motion:
@@ -219,7 +222,7 @@ def denoise(
         side = SIDE_BY_SIDE_REFINED if settings.refine_steps else SIDE_BY_SIDE_PIECES
         out = denoise_in_pieces(ms, lps, run, progress, on_fallback, on_blend, finish=lock,
                                 side_by_side=side)  # fmt: skip
-        return smoothed(out, ms, lps, settings.smoothing(), settings.fill)
+        return smoothed(out, ms, lps, settings.smoothing(), settings.fill, on_smooth)
 
     out = keep_rest_frames(motions, run_all) if settings.rest_pose else run_all(motions)
     return [unshared(o, m) for o, m in zip(out, motions, strict=True)]
@@ -235,18 +238,25 @@ def smoothing_share(level: float) -> float:
 
 
 def smoothed(
-    results: list[Motion], sources: list[Motion], loops: list[bool], seconds: float, fill: str
+    results: list[Motion],
+    sources: list[Motion],
+    loops: list[bool],
+    seconds: float,
+    fill: str,
+    on_smooth: Callable[[int, float], None] | None = None,
 ) -> list[Motion]:
     """Each result smoothed by a Gaussian of up to ``seconds`` (``KindSettings.smooth_s``; 0:
     as they are), scaled by how noisy its source reads (:func:`smoothing_share`): rotations as
     quaternions, the translation as it is (``filters``). A cycle stays as it is (a Gaussian
     with ends would open its seam); with the fill "off" the source's holes are written back
-    as they came."""
-    if seconds <= 0:
-        return results
+    as they came. ``on_smooth(index, seconds)``: the Gaussian each one got (0: none)."""
     out = []
-    for result, source, loop in zip(results, sources, loops, strict=True):
-        share = 0.0 if loop or result.num_frames < 4 else smoothing_share(noise_level(source))
+    for i, (result, source, loop) in enumerate(zip(results, sources, loops, strict=True)):
+        share = 0.0
+        if seconds > 0 and not loop and result.num_frames >= 4:
+            share = smoothing_share(noise_level(source))
+        if on_smooth is not None:
+            on_smooth(i, share * seconds)
         if share == 0.0:
             out.append(result)
             continue

@@ -35,7 +35,8 @@ TAKE_OUTPUTS = (".bvh", ".amc")
 class TrackRun:
     """One person track of a file: ``motion`` as read (on the floor with ``floor``), where it
     goes, and once denoised ``cleaned``, whether it ran as a cycle (``loop``), the guard's
-    fallback stretches ``[start s, end s]`` and the blend's report."""
+    fallback stretches ``[start s, end s]``, the blend's report and the Gaussian (seconds)
+    its result was smoothed with (``smoothed_s``; the video row's, as far as it reads noisy)."""
 
     label: str | None
     motion: Motion
@@ -44,6 +45,7 @@ class TrackRun:
     loop: bool = False
     fallbacks: list[list[float]] = field(default_factory=list)
     blend: BlendReport | None = None
+    smoothed_s: float = 0.0
     filled: bool = True
     meshes: Path | None = None  # where --mesh-dir wrote its meshes
     page: Path | None = None  # where --view wrote its before/after page
@@ -62,6 +64,7 @@ class TrackRun:
             "fallback_share": round(min(fell, 1.0), 4),
             "input_share": None if kept is None else round(kept.input_share, 4),
             "spike_share": None if kept is None else round(kept.spike_share, 4),
+            "smoothed_s": round(self.smoothed_s, 4),
             "loop": self.loop,
             **fill_counts(self.motion, self.filled),
             **{k: str(v) for k, v in (("meshes", self.meshes), ("page", self.page)) if v},
@@ -246,10 +249,13 @@ def _denoise_group(group, settings, denoiser, body, progress) -> None:
     def blended(k: int, report: BlendReport) -> None:
         tracks[k][1].blend = report
 
+    def smoothed(k: int, seconds: float) -> None:
+        tracks[k][1].smoothed_s = seconds
+
     start = time.perf_counter()
     loops = None if settings.loop is None else [settings.loop] * len(motions)
     cleaned = denoise(motions, settings, denoiser, body, progress=progress, loops=loops,
-                      on_blend=blended, on_fallback=fell_back)  # fmt: skip
+                      on_blend=blended, on_fallback=fell_back, on_smooth=smoothed)  # fmt: skip
     seconds = time.perf_counter() - start
     frames = max(sum(m.num_frames for m in motions), 1)
     for (run, track), motion in zip(tracks, cleaned, strict=True):
