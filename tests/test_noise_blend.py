@@ -273,3 +273,27 @@ def test_the_blend_a_chunk_of_frames_at_a_time_is_the_blend_of_the_whole(monkeyp
         one = nb.smooth_in_time(x, kernel)
         monkeypatch.setattr(nb, "CACHE_FRAMES", chunk)
         np.testing.assert_array_equal(nb.smooth_in_time(x, kernel), one)
+
+
+def test_video_blend_puts_the_fast_band_back_where_the_denoiser_went_wrong():
+    """With the fast band not blended (video), jitter of the noise's size stays the
+    denoiser's; a stretch where the fast residual is ten times the noise's spread and more
+    (the denoiser's output gone wrong, not the tracker) comes back from the input."""
+    from mdvae_cli.infer.noise_blend import GONE_MARGIN, keep_unexplained
+
+    rng = np.random.default_rng(1)
+    T, std = 600, 0.01
+    jitter = rng.normal(0, std, (T, 2, 3))
+    residual = jitter.copy()
+    residual[300:360, 0] += rng.normal(0, 30 * std, (60, 3))  # joint 0 goes wrong for 2 s
+    noise = np.full(2, std**2)
+    none = np.zeros((T, 2), dtype=bool)
+    dropped, _ = keep_unexplained(residual, noise, none, 30.0, with_fast=False)
+    kept, _ = keep_unexplained(residual, noise, none, 30.0, False, None, GONE_MARGIN)
+    fast = residual - dropped  # what the slow band alone leaves out
+    gone = slice(310, 350)
+    # where it went wrong, most of the fast band comes back ...
+    assert np.abs(residual[gone, 0] - kept[gone, 0]).mean() < 0.2 * np.abs(fast[gone, 0]).mean()
+    # ... and where it is noise, none of it (joint 1 throughout, joint 0 far from the stretch)
+    np.testing.assert_allclose(kept[:, 1], dropped[:, 1], atol=1e-12)
+    np.testing.assert_allclose(kept[:200, 0], dropped[:200, 0], atol=1e-12)

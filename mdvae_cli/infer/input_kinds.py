@@ -27,7 +27,9 @@ class KindSettings:
     offset_terms: cosines in each window's slow offset (fewer: a slower offset).
     rot_unit, trans_unit: the noise levels (rad, m) the noise prior centres on.
     blend_fast: whether ``--blend`` also puts back the fast band of what the noise does not
-        explain (a video tracker's jitter is not white: its fast band would come back as jitter).
+        explain (a video tracker's jitter is not white: its fast band would come back as jitter);
+        when not, the fast band still comes back where it is far beyond the noise
+        (``noise_blend.GONE_MARGIN``: where the denoiser went wrong).
     feet_as_came: whether the foot lock keeps feet that read clean as they came
         (``FootLockConfig.clean_jitter``; a video tracker's feet can read clean and still
         jitter: they are smoothed as the lock's goal whatever their jitter).
@@ -59,10 +61,11 @@ INPUT_KINDS: dict[str, KindSettings] = {
     # noise cuts the acceleration error by 17 % and foot skate by 17 % for +4 % MPJPE; lambda
     # 3, 5 and 10 score alike, 10 is --outliers. The blend's slow band only: on 40 test clips
     # with --preset video, MPJPE 10.05 -> 8.98 cm for acceleration error 6.0 -> 7.1 m/s^2 (both
-    # bands: 9.06 cm, 27.8 m/s^2). The result smoothed over 0.05 s (1.5 frames at 30 Hz), as
-    # far as the input reads noisy: on 32 val clips acceleration error 6.72 -> 5.48 m/s^2 and
-    # MPJPE 9.24 -> 9.19 cm; on 64 test / unseen_test clips 6.79 -> 5.19 / 9.69 -> 7.20 m/s^2
-    # for MPJPE 8.97 -> 8.93 / 9.35 -> 9.37 (0.067 s: 4.86 / 6.71 for 8.92 / 9.39)
+    # bands: 9.06 cm, 27.8 m/s^2; the fast band still comes back where the denoiser went
+    # wrong, noise_blend.GONE_MARGIN). The result smoothed over 0.05 s (1.5 frames at 30 Hz),
+    # as far as the input reads noisy: on 32 val clips acceleration error 7.16 -> 5.68 m/s^2,
+    # MPJPE 9.22 -> 9.19 cm; on 64 test / unseen_test clips 7.64 -> 5.16 / 10.74 -> 6.37 for
+    # MPJPE 8.89 -> 8.86 / 9.13 -> 9.13 (0.067 s: 4.68 / 5.67 for 8.84 / 9.14)
     "video": KindSettings(lam=10.0, blend_fast=False, feet_as_came=False, smooth_s=0.05),
 }
 

@@ -49,6 +49,11 @@ BAND_SECONDS = 0.05
 #: how many times its noise variance a band's residual must exceed before any is put back
 SLOW_MARGIN = 1.0
 FAST_MARGIN = 3.0
+#: ... and where the fast band is not blended (a video take, whose tracker jitter is not
+#: white), it is still put back where its residual exceeds its noise variance this many times
+#: (ten times the noise's spread): there the denoiser went wrong, not the tracker (on video-like
+#: noise an unseen dance, CMU 05_06, came back 14 cm off against the input's 10 without it)
+GONE_MARGIN = 100.0
 #: a noisy take's translation noise on one axis (a retarget's pelvis height) is read at its
 #: share from this many times the pooled median (rotations: ``input_noise.ONE_AXIS_MARGIN``)
 TRANS_AXIS_MARGIN = 2.0
@@ -120,6 +125,7 @@ def keep_unexplained(
     fps: float,
     with_fast: bool = True,
     missing: np.ndarray | None = None,
+    gone_margin: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """What of the input's difference from the denoiser's output to keep: the part its noise
     does not explain, band by band (a slow band, where the denoiser's own errors sit, and a
@@ -128,21 +134,23 @@ def keep_unexplained(
     side that its bands and shares read (the same values as the take at once, to rounding).
 
     residual: (T, C, 3) input minus output; noise_var: (C,); spikes: (T, C) bool; with_fast:
-    False keeps none of the fast band; missing: (T, C) bool or None -> (kept residual
+    False keeps none of the fast band, or with ``gone_margin`` only where it exceeds that many
+    times its noise variance (:data:`GONE_MARGIN`); missing: (T, C) bool or None -> (kept residual
     (T, C, 3), the slow band's kept share (T, C))"""
     T = residual.shape[0]
     # a frame's shares read its bands half a share width either side, and a band reads the
     # residual a kernel's radius further
     halo = len(gaussian_coefficients(BAND_SECONDS * fps)) // 2 + _blend_width(fps) // 2 + 1
     if T <= BLEND_PIECE + 2 * halo:
-        return _keep_unexplained(residual, noise_var, spikes, fps, with_fast, missing)
+        return _keep_unexplained(residual, noise_var, spikes, fps, with_fast, missing,
+                                 gone_margin)  # fmt: skip
     kept, share = np.empty(residual.shape), np.empty(residual.shape[:2])
     for a in range(0, T, BLEND_PIECE):
         b = min(a + BLEND_PIECE, T)
         lo, hi = max(0, a - halo), min(T, b + halo)
         holes = None if missing is None else missing[lo:hi]
         part = _keep_unexplained(residual[lo:hi], noise_var, spikes[lo:hi], fps, with_fast,
-                                 holes)  # fmt: skip
+                                 holes, gone_margin)  # fmt: skip
         kept[a:b], share[a:b] = part[0][a - lo : b - lo], part[1][a - lo : b - lo]
     return kept, share
 
@@ -159,6 +167,7 @@ def _keep_unexplained(
     fps: float,
     with_fast: bool,
     missing: np.ndarray | None,
+    gone_margin: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`keep_unexplained` on the frames given, at once."""
     r = np.where(spikes[..., None], 0.0, residual)
@@ -175,9 +184,10 @@ def _keep_unexplained(
     slow_noise = SLOW_MARGIN * noise_var * (kernel**2).sum()
     seen = None if missing is None else (~missing).astype(float)
     keep_slow = kept_share((slow**2).mean(-1), slow_noise, width, seen)
-    if not with_fast:
+    if not with_fast and gone_margin is None:
         return keep_slow[..., None] * slow, keep_slow
-    fast_noise = FAST_MARGIN * noise_var * ((delta - kernel) ** 2).sum()
+    margin = FAST_MARGIN if with_fast else gone_margin
+    fast_noise = margin * noise_var * ((delta - kernel) ** 2).sum()
     keep_fast = kept_share((fast**2).mean(-1), fast_noise, width, seen)
     return keep_slow[..., None] * slow + keep_fast[..., None] * fast, keep_slow
 
@@ -242,7 +252,8 @@ def _blend_rotations(
     if missing is not None:
         spikes = spikes & ~missing
     # the residual's mean square over its components holds the noise's mean over them
-    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing)
+    gone = None if fast else GONE_MARGIN
+    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing, gone)
     # on a noisy take the root's fast band is the denoiser's: the local rotations below it were
     # made for the denoiser's root, and the input's fast turns (its noise, or motion the
     # denoiser's root lacks) turned the whole body with them (docs/model.md, "Do no harm")
@@ -296,7 +307,7 @@ def blend_translation(
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M, fps)
     kept, share = keep_unexplained(
         (source - denoised)[:, None, :], noise, spikes, fps, fast,
-        None if missing is None else missing[:, None],
+        None if missing is None else missing[:, None], None if fast else GONE_MARGIN,
     )  # fmt: skip
     return denoised + kept[:, 0], share[:, 0], spikes[:, 0]
 
