@@ -99,8 +99,8 @@ OPTIONS = [
         "foot lock, in full where the input reads noisy and not at all where it reads clean (a "
         "pipeline's output that it smoothed itself comes back as without it). The networks were "
         "fitted to mocap noise, and what a video tracker's jitter leaves in their output is "
-        "smoothed away: on video-like noise the acceleration error falls by a fifth to a "
-        "quarter at the same accuracy. 0 = none. Not with --no-offset. [default: 0.05 for "
+        "smoothed away: on video-like noise the acceleration error falls by a fifth to two "
+        "fifths at the same accuracy. 0 = none. Not with --no-offset. [default: 0.05 for "
         "video inputs, 0 for mocap]",
     ),
     click.option(
