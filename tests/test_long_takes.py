@@ -190,9 +190,9 @@ def test_the_blend_in_pieces_is_the_blend_at_once(monkeypatch):
     for fps in (30.0, 120.0):
         for missing in (None, rng.random((T, 5)) < 0.05):
             monkeypatch.setattr(nb, "BLEND_PIECE", 10**9)
-            whole = nb.keep_unexplained(residual, noise, spikes, fps, True, missing)
+            whole = nb.keep_unexplained(residual, noise, spikes, fps, nb.FAST_MARGIN, missing)
             monkeypatch.setattr(nb, "BLEND_PIECE", 173)
-            pieces = nb.keep_unexplained(residual, noise, spikes, fps, True, missing)
+            pieces = nb.keep_unexplained(residual, noise, spikes, fps, nb.FAST_MARGIN, missing)
             for w, p in zip(whole, pieces, strict=True):
                 assert w.shape == p.shape
                 assert np.abs(w - p).max() < 1e-12

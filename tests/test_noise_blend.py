@@ -242,8 +242,8 @@ def test_video_estimates_get_the_slow_band_alone():
     jitter -= np.concatenate([jitter[:1], jitter[:-1]])  # differenced: no slow content
     quiet = np.full(2, 1e-6)  # a noise estimate far too low: every bit looks unexplained
     none = np.zeros((300, 2), dtype=bool)
-    slow_only, _ = keep_unexplained(jitter, quiet, none, 30.0, with_fast=False)
-    both, _ = keep_unexplained(jitter, quiet, none, 30.0, with_fast=True)
+    slow_only, _ = keep_unexplained(jitter, quiet, none, 30.0, fast_margin=None)
+    both, _ = keep_unexplained(jitter, quiet, none, 30.0)
     assert np.abs(slow_only).mean() < 0.3 * np.abs(both).mean()
     assert np.abs(both - jitter).mean() < 0.01 * np.abs(jitter).mean()  # nearly all of it
 
@@ -288,8 +288,8 @@ def test_video_blend_puts_the_fast_band_back_where_the_denoiser_went_wrong():
     residual[300:360, 0] += rng.normal(0, 30 * std, (60, 3))  # joint 0 goes wrong for 2 s
     noise = np.full(2, std**2)
     none = np.zeros((T, 2), dtype=bool)
-    dropped, _ = keep_unexplained(residual, noise, none, 30.0, with_fast=False)
-    kept, _ = keep_unexplained(residual, noise, none, 30.0, False, None, GONE_MARGIN)
+    dropped, _ = keep_unexplained(residual, noise, none, 30.0, fast_margin=None)
+    kept, _ = keep_unexplained(residual, noise, none, 30.0, GONE_MARGIN)
     fast = residual - dropped  # what the slow band alone leaves out
     gone = slice(310, 350)
     # where it went wrong, most of the fast band comes back ...

@@ -123,9 +123,8 @@ def keep_unexplained(
     noise_var: np.ndarray,
     spikes: np.ndarray,
     fps: float,
-    with_fast: bool = True,
+    fast_margin: float | None = FAST_MARGIN,
     missing: np.ndarray | None = None,
-    gone_margin: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """What of the input's difference from the denoiser's output to keep: the part its noise
     does not explain, band by band (a slow band, where the denoiser's own errors sit, and a
@@ -133,24 +132,24 @@ def keep_unexplained(
     value. A long take goes :data:`BLEND_PIECE` frames at a time, each with the frames either
     side that its bands and shares read (the same values as the take at once, to rounding).
 
-    residual: (T, C, 3) input minus output; noise_var: (C,); spikes: (T, C) bool; with_fast:
-    False keeps none of the fast band, or with ``gone_margin`` only where it exceeds that many
-    times its noise variance (:data:`GONE_MARGIN`); missing: (T, C) bool or None -> (kept residual
-    (T, C, 3), the slow band's kept share (T, C))"""
+    residual: (T, C, 3) input minus output; noise_var: (C,); spikes: (T, C) bool;
+    fast_margin: how many times its noise variance the fast band must exceed before any of it
+    is put back (:data:`FAST_MARGIN`; :data:`GONE_MARGIN` where only a failed output is to
+    give way), None: none of it; missing: (T, C) bool or None -> (kept residual (T, C, 3),
+    the slow band's kept share (T, C))"""
     T = residual.shape[0]
     # a frame's shares read its bands half a share width either side, and a band reads the
     # residual a kernel's radius further
     halo = len(gaussian_coefficients(BAND_SECONDS * fps)) // 2 + _blend_width(fps) // 2 + 1
     if T <= BLEND_PIECE + 2 * halo:
-        return _keep_unexplained(residual, noise_var, spikes, fps, with_fast, missing,
-                                 gone_margin)  # fmt: skip
+        return _keep_unexplained(residual, noise_var, spikes, fps, fast_margin, missing)
     kept, share = np.empty(residual.shape), np.empty(residual.shape[:2])
     for a in range(0, T, BLEND_PIECE):
         b = min(a + BLEND_PIECE, T)
         lo, hi = max(0, a - halo), min(T, b + halo)
         holes = None if missing is None else missing[lo:hi]
-        part = _keep_unexplained(residual[lo:hi], noise_var, spikes[lo:hi], fps, with_fast,
-                                 holes, gone_margin)  # fmt: skip
+        part = _keep_unexplained(residual[lo:hi], noise_var, spikes[lo:hi], fps, fast_margin,
+                                 holes)  # fmt: skip
         kept[a:b], share[a:b] = part[0][a - lo : b - lo], part[1][a - lo : b - lo]
     return kept, share
 
@@ -165,9 +164,8 @@ def _keep_unexplained(
     noise_var: np.ndarray,
     spikes: np.ndarray,
     fps: float,
-    with_fast: bool,
+    fast_margin: float | None,
     missing: np.ndarray | None,
-    gone_margin: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`keep_unexplained` on the frames given, at once."""
     r = np.where(spikes[..., None], 0.0, residual)
@@ -184,10 +182,9 @@ def _keep_unexplained(
     slow_noise = SLOW_MARGIN * noise_var * (kernel**2).sum()
     seen = None if missing is None else (~missing).astype(float)
     keep_slow = kept_share((slow**2).mean(-1), slow_noise, width, seen)
-    if not with_fast and gone_margin is None:
+    if fast_margin is None:
         return keep_slow[..., None] * slow, keep_slow
-    margin = FAST_MARGIN if with_fast else gone_margin
-    fast_noise = margin * noise_var * ((delta - kernel) ** 2).sum()
+    fast_noise = fast_margin * noise_var * ((delta - kernel) ** 2).sum()
     keep_fast = kept_share((fast**2).mean(-1), fast_noise, width, seen)
     return keep_slow[..., None] * slow + keep_fast[..., None] * fast, keep_slow
 
@@ -252,15 +249,14 @@ def _blend_rotations(
     if missing is not None:
         spikes = spikes & ~missing
     # the residual's mean square over its components holds the noise's mean over them
-    gone = None if fast else GONE_MARGIN
-    kept, share = keep_unexplained(residual, noise, spikes, fps, fast, missing, gone)
+    kept, share = keep_unexplained(residual, noise, spikes, fps, _fast_margin(fast), missing)
     # on a noisy take the root's fast band is the denoiser's: the local rotations below it were
     # made for the denoiser's root, and the input's fast turns (its noise, or motion the
     # denoiser's root lacks) turned the whole body with them (docs/model.md, "Do no harm")
     if noisy and fast:
         root = None if missing is None else missing[:, :1]
         kept[:, :1], share[:, :1] = keep_unexplained(residual[:, :1], noise[:1], spikes[:, :1],
-                                                     fps, False, root)  # fmt: skip
+                                                     fps, None, root)  # fmt: skip
     out = np.empty(src.shape)
     # the denoised quaternions are made again chunk by chunk rather than kept whole: on a long
     # take a whole array of them is a large share of the peak memory, and cheap to make
@@ -268,6 +264,12 @@ def _blend_rotations(
         frames = slice(a, a + CACHE_FRAMES)
         out[frames] = rotvec_product(denoised[frames], kept[frames])
     return out, share, spikes, unwrapped, noisy
+
+
+def _fast_margin(fast: bool) -> float:
+    """The fast band's margin of a blend with (``fast``) or without it: without it, the band
+    still gives way where the denoiser's output failed (:data:`GONE_MARGIN`)."""
+    return FAST_MARGIN if fast else GONE_MARGIN
 
 
 def noise_level(source: Motion) -> float:
@@ -306,8 +308,8 @@ def blend_translation(
     noise = component_noise_variance(source[:, None, :], seen, margin=margin)  # (1,)
     spikes = spike_frames(source[:, None, :], noise, SPIKE_FLOOR_M, fps)
     kept, share = keep_unexplained(
-        (source - denoised)[:, None, :], noise, spikes, fps, fast,
-        None if missing is None else missing[:, None], None if fast else GONE_MARGIN,
+        (source - denoised)[:, None, :], noise, spikes, fps, _fast_margin(fast),
+        None if missing is None else missing[:, None],
     )  # fmt: skip
     return denoised + kept[:, 0], share[:, 0], spikes[:, 0]
 
