@@ -219,7 +219,7 @@ def test_a_one_frame_file_is_a_pose_every_command_but_denoise_takes(tmp_path):
     )
     assert res.exit_code == 0 and np.load(tmp_path / "s.npz")["poses"].shape[0] == 4
     line = one_error_line(invoke("denoise", one, "-o", tmp_path / "d.npz"))
-    assert "too short to denoise" in line and "at least 6 frames" in line
+    assert "too short to denoise" in line and "(6 frames at 30 Hz)" in line
 
 
 def test_a_file_named_twice_counts_once(tmp_path):

@@ -316,7 +316,7 @@ def test_cli_denoise_refuses_a_too_short_file_and_goes_on(tmp_path):
     out = tmp_path / "out"
     res = CliRunner().invoke(cli, ["denoise", str(src), "-o", str(out)])
     assert res.exit_code == 1 and "Traceback" not in res.output
-    assert "short.npz: too short to denoise: 0.1 s (4 frame(s) at 30 Hz)" in " ".join(
+    assert "short.npz: too short to denoise: 4 frame(s) at 30 Hz (0.1 s)" in " ".join(
         res.output.split()
     )
     assert sorted(p.name for p in out.glob("*.npz")) == ["walk.npz"]

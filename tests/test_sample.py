@@ -184,6 +184,6 @@ def test_progress_is_told_per_window_and_leaves_the_sample_as_it_is(body):
         np.testing.assert_array_equal(getattr(watched, key), getattr(plain, key))
     runner = CliRunner()
     res = runner.invoke(cli, ["sample", "--from", str(EXAMPLE), "--frames", "1080001", "-o", "x"])
-    assert res.exit_code == 1 and "1080001 is not in the range 1<=x<=1080000" in res.output
+    assert res.exit_code == 1 and "1080001 is not in the range 2<=x<=1080000" in res.output
     help_text = " ".join(runner.invoke(cli, ["sample", "--help"]).output.split())
-    assert "Frames to generate at 30 Hz (at most 1,080,000: 10 hours)." in help_text
+    assert "Frames to generate at 30 Hz (2 to 1,080,000: a motion, up to 10 hours)." in help_text

@@ -164,7 +164,11 @@ def test_smpl_arrays_in_a_pickle_are_refused_with_the_way_to_an_npz(tmp_path):
             },
             r"SMPL parameters \('global_orient', 'body_pose'\) in a layout mdvae does not know",
         ),  # fmt: skip
-        "other.pkl": ({"a": 1}, r"give --format: wham, gvhmr, .*aistpp\)$"),
+        "other.pkl": (
+            {"a": 1},
+            r"one of wham, gvhmr, .*aistpp: denoise, add-noise and "
+            r"import read it with --format\)$",
+        ),
     }
     for name, (content, message) in dumps.items():
         path = tmp_path / name

@@ -33,10 +33,10 @@ from mdvae_cli.errors import InputError
 )
 @click.option(
     "--frames",
-    type=click.IntRange(1, 1_080_000),
+    type=click.IntRange(2, 1_080_000),
     default=300,
     show_default=True,
-    help="Frames to generate at 30 Hz (at most 1,080,000: 10 hours).",
+    help="Frames to generate at 30 Hz (2 to 1,080,000: a motion, up to 10 hours).",
 )
 @click.option("-o", "--out", required=True, type=OutputPath(), help="Output .npz file.")
 @click.option(

@@ -22,7 +22,7 @@ from mdvae_cli.cli.batch import (
 )
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import check_named_file, check_regular, entry_of
-from mdvae_cli.formats.registry import READ_SUFFIXES, VIDEO_SUFFIXES
+from mdvae_cli.formats.registry import READ_SUFFIXES, VIDEO_SUFFIXES, unsupported
 
 #: what ``mdvae denoise`` reads: AMASS-style .npz, mocap takes, video pipelines' outputs
 DENOISE_SUFFIXES = READ_SUFFIXES
@@ -40,13 +40,33 @@ def is_take(path: Path | None) -> bool:
 
 
 def _form(path: Path) -> str:
-    return next(s for s in _FORM if is_kind(path, s))
+    """The input form of ``path`` (its suffix among :data:`READ_SUFFIXES`); InputError for a
+    name that says no form mdvae reads (no extension, ``take.txt``)."""
+    form = next((s for s in _FORM if is_kind(path, s)), None)
+    why = unsupported(path) if form is None else None
+    if why is not None:  # a format of its own (FBX, C3D, a video): the way forward for it
+        raise InputError(f"{path}: {why}")
+    if form is None:
+        raise InputError(
+            f"{path}: its name says no form mdvae reads; name it for what it holds: .npz, "
+            ".bvh or .amc (each also .gz), or a video pipeline's " + ", ".join(VIDEO_SUFFIXES)
+        )
+    return form
+
+
+#: forms written gzipped when their name ends in .gz (the others are written plain)
+_GZ_FORMS = (".bvh", ".amc")
 
 
 def output_name(relpath: Path) -> Path:
-    """A folder output's name: the input's, uncompressed, in the input's output form."""
+    """A folder output's name: the input's, in the input's output form: a take's name as it
+    came (``Walk.BVH``, ``zombie.bvh.gz``: written gzipped), any other's uncompressed
+    (``a.npz.gz`` -> ``a.npz``)."""
+    form = _FORM[_form(relpath)]
     plain = strip_gz(relpath)
-    return plain.with_suffix(_FORM[_form(relpath)])
+    if form in _GZ_FORMS and plain.suffix.lower() == form:
+        return relpath
+    return plain.with_suffix(form)
 
 
 def _same_form(form: str, wants: str) -> bool:
@@ -75,6 +95,9 @@ def plan_take_jobs(inputs, out) -> list[FileJob]:
     take."""
     as_folder = str(out).endswith(("/", os.sep))
     out = Path(out)
+    for p in inputs:  # a file named on the command line: its name must say its form
+        if Path(p).is_file():
+            _form(Path(p))
     one = len({entry_of(p) for p in inputs}) == 1  # a path named twice is one input
     if one and Path(inputs[0]).is_file() and not as_folder and not out.is_dir():
         src = Path(inputs[0])

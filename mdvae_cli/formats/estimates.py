@@ -54,9 +54,10 @@ def format_name(fmt: str | None) -> str | None:
 
 def read_npz_file(path: Path, name, fps, track, allow_pickle: bool, body) -> LoadedFile:
     """An ``.npz``: AMASS-style (``name`` "amass" or None), or a video pipeline's (SLAHMR,
-    TRAM: told apart by their keys when ``name`` is None)."""
+    TRAM) or AIST++ motion saved as one: told apart by their keys when ``name`` is None."""
     if name is None:
-        data_npz = _npz_keys(path) & {"sequence_results", "results", "cam_R", "track_mask"}
+        data_npz = _npz_keys(path) & {"sequence_results", "results", "cam_R", "track_mask",
+                                      "smpl_poses"}  # fmt: skip
         name = None if data_npz else "amass"
     if name == "amass":
         return _load_amass(path, fps, track, allow_pickle)
@@ -72,6 +73,8 @@ def read_data_file(path: Path, name, fps, track, body) -> LoadedFile:
     raw_bytes = read_bytes(Path(path))
     data = load_data(path, raw_bytes)
     container = pickled_container(raw_bytes)
+    if container is None and raw_bytes[:2] == b"PK" and _is_npz_name(path):
+        container = "npz"  # an archive of arrays (AIST++ motion saved by np.savez)
     del raw_bytes
     name = name or detect(data)
     inner = data.item() if isinstance(data, np.ndarray) and data.dtype.hasobject else data
@@ -83,6 +86,11 @@ def read_data_file(path: Path, name, fps, track, body) -> LoadedFile:
     if name is None:
         raise InputError(f"{path}: {_unknown_layout(inner)}")
     return _load_video(path, name, data, fps, track, body, container)
+
+
+def _is_npz_name(path: Path | str) -> bool:
+    """Whether a file's name ends in ``.npz`` (``.npz.gz`` too, any case)."""
+    return Path(path).name.lower().removesuffix(".gz").endswith(".npz")
 
 
 def _unknown_layout(data: object) -> str:
@@ -99,7 +107,10 @@ def _unknown_layout(data: object) -> str:
             f"(nor their up axis): save them as {amass}, poses = global_orient + body_pose"
         )
     video = ", ".join(f for f in FORMATS if f != "amass")
-    return f"not a motion layout this tool knows (give --format: {video})"
+    return (
+        f"not a motion layout this tool knows (if it is one of {video}: denoise, "
+        "add-noise and import read it with --format)"
+    )
 
 
 def _npz_keys(path: Path) -> set[str]:

@@ -77,6 +77,9 @@ OWN_CONTAINER = {
     "romp": "npz",
     "slahmr": "npz",
 }
+#: formats whose contents are a flat dict of arrays: one that came as an ``.npz`` (AIST++
+#: motion re-saved by ``np.savez``) goes back as one
+FLAT_FORMATS = ("aistpp",)
 #: the pickle containers, any of which a pickled format may come in and go back in
 _PICKLES = ("pickle", "joblib", "joblib-zlib", "joblib-gzip")
 #: the file names each container is written under (``.gz`` not: the pipelines do not read it)
@@ -103,6 +106,11 @@ class VideoDocument:
     container: str | None = None
 
     @property
+    def npz_born(self) -> bool:
+        """Whether this file came as an ``.npz`` of a flat format (:data:`FLAT_FORMATS`)."""
+        return self.container == "npz" and self.format in FLAT_FORMATS
+
+    @property
     def writable(self) -> bool:
         """Whether mdvae writes this format back in its own form."""
         return self.format in OWN_CONTAINER
@@ -114,10 +122,13 @@ class VideoDocument:
         names = " / ".join(CONTAINER_SUFFIXES[OWN_CONTAINER[self.format]])
         return f"a {self.format} result is written back as {names}"
 
-    def written_container(self) -> str:
+    def written_container(self, path: Path | str | None = None) -> str:
         """The container this file is written back in: the one it came in where the format
         is a pickle of some kind (a WHAM file saved compressed, or re-saved as a plain
-        pickle, comes back so), else the format's own (OWN_CONTAINER)."""
+        pickle, comes back so), or where it came as an ``.npz`` of a flat format and goes
+        to one (``path``), else the format's own (OWN_CONTAINER)."""
+        if self.npz_born and path is not None and Path(path).suffix.lower() == ".npz":
+            return "npz"
         own = OWN_CONTAINER[self.format]
         if own in _PICKLES and self.container in _PICKLES:
             return self.container
@@ -128,7 +139,10 @@ def writes_back(doc: VideoDocument | None, path: Path | str) -> bool:
     """Whether ``path`` names ``doc``'s own form (a suffix of its container, not ``.gz``)."""
     if doc is None or not doc.writable:
         return False
-    return Path(path).suffix.lower() in CONTAINER_SUFFIXES[OWN_CONTAINER[doc.format]]
+    suffix = Path(path).suffix.lower()
+    return suffix in CONTAINER_SUFFIXES[OWN_CONTAINER[doc.format]] or (
+        suffix == ".npz" and doc.npz_born
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -307,7 +321,7 @@ def write_video(
         notes.append(f"track(s) {', '.join(skipped)} written as they came")
     if doc.format == "wham" and not isinstance(data, defaultdict):
         data = defaultdict(dict, data)  # as WHAM writes it
-    write_data(data, Path(path), doc.written_container(), forbid=forbid)
+    write_data(data, Path(path), doc.written_container(path), forbid=forbid)
     notes += side_files_copied(doc.tracks, Path(path), forbid)
     return list(dict.fromkeys(notes))
 

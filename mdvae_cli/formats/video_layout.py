@@ -70,9 +70,16 @@ def track_items(data: dict) -> list[tuple[str, dict]]:
 def tracks_with_frames(items: list[tuple[str, dict]], key: str, label: str):
     """Of ``items`` (``track_items``), the tracks whose ``key`` has frames, and a note naming
     those it has none in, or that hold nothing (a tracker's empty track: skipped, written back
-    as it came), or None. InputError when no track has frames."""
-    empty = [t for t, d in items if isinstance(d, dict)
-             and (not d or (key in d and np.size(d[key]) == 0))]  # fmt: skip
+    as it came), or None. InputError when no track has frames, and when the file is not a
+    dict of per-track dicts (another pipeline's file read with the wrong ``--format``)."""
+    if not items:
+        raise InputError(f"{label}: holds no tracks (an empty dict)")
+    odd = [(t, d) for t, d in items if not isinstance(d, dict)]
+    if odd:
+        t, d = odd[0]
+        raise InputError(f"{label}: not a dict of per-track dicts with '{key}' (entry {t!r} "
+                         f"is of type {type(d).__name__}); check --format")  # fmt: skip
+    empty = [t for t, d in items if not d or (key in d and np.size(d[key]) == 0)]
     if empty and len(empty) == len(items):
         raise InputError(f"{label}: every track is empty (no frames in '{key}')")
     kept = [(t, d) for t, d in items if t not in empty]

@@ -241,6 +241,12 @@ def track_to_motion(raw: RawTrack, fps: float, body: BodyModelData, source: str)
                 f"{missing} missing frame(s) filled by interpolation and marked "
                 "unobserved in joint_mask"
             )
+            if missing > len(ids) - missing:
+                notes.append(
+                    f"the track holds {len(ids) - missing} of the {len(ids)} frames its ids "
+                    "span: most of what is written for it will be filled, not measured "
+                    "(denoise --fill off keeps the frames it has)"
+                )
     if _mean_up(root) < 0:
         notes.append("the body is upside down in this frame: is the file's frame (--format) right?")
     layout = {

@@ -51,9 +51,9 @@ def check_length(motion: Motion) -> None:
     if n < MIN_FRAMES:
         seconds = (motion.num_frames - 1) / motion.fps
         raise InputError(
-            f"too short to denoise: {seconds:.3g} s ({n} frame(s) at {MODEL_FPS:g} Hz); "
-            f"the denoiser needs at least {MIN_FRAMES} frames at {MODEL_FPS:g} Hz "
-            f"({(MIN_FRAMES - 1) / MODEL_FPS:.2g} s)"
+            f"too short to denoise: {motion.num_frames} frame(s) at {motion.fps:g} Hz "
+            f"({seconds:.3g} s); the denoiser needs {(MIN_FRAMES - 1) / MODEL_FPS:.2g} s or "
+            f"more ({MIN_FRAMES} frames at {MODEL_FPS:g} Hz)"
         )
 
 

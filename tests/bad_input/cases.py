@@ -738,7 +738,7 @@ def _gvhmr_expanded(case: Path) -> bytes:
 
 
 _REFUSED = r"refusing to load '.*' from the pickle .*nothing was run"
-_LAYOUT = r"not a motion layout this tool knows \(give --format"
+_LAYOUT = r"not a motion layout this tool knows \(if it is one of .*read it with --format"
 
 # fmt: off
 VIDEO = [

@@ -1,0 +1,152 @@
+"""What a user-level sweep over real and broken files turned up: a file without an extension,
+another pipeline's pickle read with ``--format wham``, ``--json`` when nothing could be read,
+an AIST++ motion saved as ``.npz``, the too-short message, a one-frame sample, folder
+outputs that kept neither a take's ``.gz`` nor its name's case, and a video track that is
+mostly frames it does not have."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import pickle
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mdvae_cli.formats.registry import read
+from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
+from tests.conftest import one_error_line, run_cli
+from tests.test_bvh_out import write_rig
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+@pytest.mark.parametrize("command", ["denoise", "add-noise"])
+def test_an_input_without_an_extension_is_one_clear_line(tmp_path, command):
+    src = tmp_path / "take"
+    shutil.copy(EXAMPLES / "noisy_walk.npz", src)
+    for out in (tmp_path / "out", str(tmp_path / "folder") + "/"):
+        line = one_error_line(*run_cli(command, src, "-o", out))
+        assert f"{src}: its name says no form mdvae reads" in line, line
+        assert ".npz, .bvh or .amc" in line and "StopIteration" not in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["take"]
+
+
+@pytest.mark.parametrize("fmt", ["wham", "vibe"])
+def test_another_pickle_read_as_a_per_track_format_says_so(tmp_path, fmt):
+    odd, empty = tmp_path / "odd.pkl", tmp_path / "empty.pkl"
+    odd.write_bytes(pickle.dumps({"a": 1}))
+    empty.write_bytes(pickle.dumps({}))
+    line = one_error_line(*run_cli("denoise", odd, "--format", fmt, "-o", tmp_path / "x.pkl"))
+    assert line.endswith("odd.pkl: not a dict of per-track dicts with 'pose' (entry 'a' is of "
+                         "type int); check --format"), line  # fmt: skip
+    line = one_error_line(*run_cli("denoise", empty, "--format", fmt, "-o", tmp_path / "x.pkl"))
+    assert line.endswith("empty.pkl: holds no tracks (an empty dict)"), line
+    assert not (tmp_path / "x.pkl").exists()
+
+
+def test_view_json_says_what_failed_when_nothing_could_be_read(tmp_path):
+    bad = tmp_path / "empty.bvh"
+    bad.write_text("")
+    code, out, err = run_cli("view", bad, "-o", tmp_path / "x.html", "--json")
+    assert code == 1 and "not a BVH file" in err
+    summary = json.loads(out)
+    assert summary["ok"] is False and summary["output"] is None and summary["failed"] == 1
+    assert summary["errors"][0]["file"] == str(bad)
+    assert "not a BVH file" in summary["errors"][0]["error"]
+    assert not (tmp_path / "x.html").exists()
+
+
+def _aistpp_npz(path: Path, frames: int = 90) -> dict[str, np.ndarray]:
+    """An AIST++ motion as ``np.savez`` leaves it: smpl_poses (T, 72), smpl_trans (T, 3) in
+    the dancer's scale, smpl_scaling (1,); y up, 60 fps (AIST++ stores no rate)."""
+    with np.load(EXAMPLES / "walk.npz") as z:
+        poses, trans = z["poses"][:frames, :72].copy(), z["trans"][:frames]
+    zup_to_yup = np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]])
+    poses[:, :3] = rotmat_to_rotvec(zup_to_yup @ rotvec_to_rotmat(poses[:, :3]))
+    arrays = {
+        "smpl_poses": poses.astype(np.float32),
+        "smpl_trans": (93.0 * trans @ zup_to_yup.T).astype(np.float32),
+        "smpl_scaling": np.array([93.0], np.float32),
+    }
+    np.savez(path, **arrays)
+    return arrays
+
+
+def test_an_aistpp_npz_is_read_without_format_and_goes_back_as_one(tmp_path):
+    src = tmp_path / "gWA_dance.npz"
+    arrays = _aistpp_npz(src)
+    loaded = read(src)
+    assert loaded.format == "aistpp" and loaded.tracks[0][1].fps == 60.0
+    out = tmp_path / "clean.npz"
+    code, stdout, stderr = run_cli("denoise", src, "-o", out)
+    assert code == 0, stdout + stderr
+    with np.load(out) as z:
+        assert sorted(z.files) == sorted(arrays)
+        for key, a in arrays.items():
+            assert z[key].shape == a.shape and z[key].dtype == a.dtype
+        assert z["smpl_scaling"][0] == 93.0
+        # the clean walk comes back as it went in, in the dancer's scale (the example walk's
+        # few one-frame spikes filled)
+        assert np.median(np.abs(z["smpl_poses"] - arrays["smpl_poses"])) < 0.005
+        assert np.median(np.abs(z["smpl_trans"] - arrays["smpl_trans"])) < 0.01 * 93.0
+    code, stdout, stderr = run_cli("view", src, out, "-o", tmp_path / "v.html", "--no-mesh")
+    assert code == 0, stdout + stderr
+
+
+def test_too_short_says_the_files_own_frames_and_rate(tmp_path, make_motion_file):
+    src = make_motion_file("short.npz", T=5, fps=120.0)
+    line = one_error_line(*run_cli("denoise", src, "-o", tmp_path / "o.npz"))
+    assert "too short to denoise: 5 frame(s) at 120 Hz (0.0333 s)" in line, line
+    assert "needs 0.17 s or more (6 frames at 30 Hz)" in line
+
+
+def test_sample_writes_no_one_frame_motion(tmp_path):
+    code, out, err = run_cli("sample", "--frames", "1", "-o", tmp_path / "s.bvh")
+    line = one_error_line(code, out, err)
+    assert "Invalid value for '--frames': 1 is not in the range 2<=x<=1080000" in line
+    assert not (tmp_path / "s.bvh").exists()
+
+
+def test_a_folder_run_keeps_each_takes_name_and_compression(tmp_path):
+    src = tmp_path / "in"
+    src.mkdir()
+    take = write_rig(tmp_path / "rig.bvh", T=40)
+    shutil.copy(take, src / "UP.BVH")
+    (src / "zipped.bvh.gz").write_bytes(gzip.compress(take.read_bytes()))
+    shutil.copy(take, src / "zipped.bvh")  # beside its gzipped copy: no clash now
+    (src / "walk.npz.gz").write_bytes(gzip.compress((EXAMPLES / "noisy_walk.npz").read_bytes()))
+    code, out, err = run_cli("denoise", src, "-o", tmp_path / "out")
+    assert code == 0, out + err
+    names = sorted(p.name for p in (tmp_path / "out").iterdir())
+    assert names == ["UP.BVH", "walk.npz", "zipped.bvh", "zipped.bvh.gz"]
+    text = gzip.decompress((tmp_path / "out" / "zipped.bvh.gz").read_bytes()).decode()
+    assert text.startswith("HIERARCHY") and "Frames: 40" in text
+    assert (tmp_path / "out" / "zipped.bvh").read_text() == text
+
+
+def wham_track(ids: np.ndarray) -> dict:
+    """A WHAM ``wham_output.pkl`` of one track: the example walk's first frames at the frame
+    numbers ``ids`` (T,)."""
+    T = len(ids)
+    with np.load(EXAMPLES / "walk.npz") as z:
+        pose, trans = z["poses"][:T, :72].astype(np.float32), z["trans"][:T].astype(np.float32)
+    track = {"pose": pose, "trans": trans, "pose_world": pose, "trans_world": trans,
+             "betas": np.zeros((T, 10), np.float32), "frame_ids": np.asarray(ids)}  # fmt: skip
+    return {0: track}
+
+
+def test_a_track_that_is_mostly_frames_it_lacks_says_so(tmp_path):
+    data = wham_track(np.arange(6) * 10)
+    path = tmp_path / "sparse.pkl"
+    path.write_bytes(pickle.dumps(data))
+    ((_, motion),) = read(path).tracks
+    assert motion.num_frames == 51
+    assert any("holds 6 of the 51 frames its ids span: most of what is written for it will be "
+               "filled, not measured" in n for n in motion.notes), motion.notes  # fmt: skip
+    dense = tmp_path / "dense.pkl"
+    dense.write_bytes(pickle.dumps(wham_track(np.array([0, 1, 2, 4, 5, 6]))))
+    ((_, motion),) = read(dense).tracks
+    assert not any("most of what is written" in n for n in motion.notes)
