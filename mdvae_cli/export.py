@@ -135,7 +135,12 @@ def export_mesh_sequence(
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"{out_dir} exists and is not a folder")
-    import trimesh  # heavy import, only needed here
+    from mdvae_cli.model.checkpoint import interrupts_deferred
+
+    # heavy, only needed here; trimesh's own optional imports catch BaseException, so a
+    # Ctrl-C or SIGTERM that lands while it loads would be swallowed: held, raised after
+    with interrupts_deferred():
+        import trimesh
 
     model = as_body_model(body)
     faces = np.asarray(model.data.faces, dtype=np.int64)

@@ -375,7 +375,9 @@ def test_every_denoise_option_on_an_amc_take(tmp_path):
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["files"][0]["result"]["frames"] == 160
     assert (tmp_path / "pages" / "gen_01.html").stat().st_size > 1000
-    assert not (tmp_path / "gen.asf").exists()  # given with --asf: not copied
+    # the skeleton given with --asf goes next to the output (it reads on its own)
+    assert not (tmp_path / "gen.asf").exists()
+    assert (tmp_path / "other.asf").read_bytes() == elsewhere.read_bytes()
     assert len(out.read_text().splitlines()) == len(path.read_text().splitlines())
 
 

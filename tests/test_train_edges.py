@@ -302,3 +302,40 @@ def test_a_run_folder_inside_the_data_is_named_as_such(tmp_path):
     )
     with pytest.raises(InputError, match="old_run/best.npz: a checkpoint of an mdvae run"):
         fit_dataset(tiny_fit_config(data, data / "old_run"), tmp_path / "den")
+
+
+def test_resuming_with_the_command_as_first_run_goes_on(tmp_path):
+    """The README's "add --resume to the command you ran": --split, --config (and on
+    fit-dataset --prior) given again with the run's own values used to be refused as
+    changes; another value still is."""
+    data = write_corpus(tmp_path / "data", n=3, T=70)
+    split = data / "split.json"
+    names = sorted(p.name for p in data.glob("*.npz"))
+    split.write_text(json.dumps({"train": names[:2], "val": names[2:]}))
+    config = tmp_path / "pc.json"
+    config.write_text(json.dumps({"window": 20, "stride": 5, "batch_size": 8, "epochs": 1}))
+    run = tmp_path / "run"
+    first = ["train-prior", str(data), "--split", str(split), "-o", str(run), "--config",
+             str(config), "--latent-dim", "8", "--hidden-dim", "32", "--device", "cpu"]  # fmt: skip
+    res = CliRunner().invoke(cli, [*first, "--max-steps", "1"])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(cli, [*first, "--resume", "--max-steps", "2"])
+    assert res.exit_code == 0, res.output
+    assert json.loads((run / "config.json").read_text())["split_file"] == str(split)
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"window": 20, "stride": 5, "batch_size": 4, "epochs": 1}))
+    res = CliRunner().invoke(cli, [*first[:7], str(other), *first[8:], "--resume"])
+    assert res.exit_code == 1 and "--config cannot change when resuming" in res.output
+    # an option given now wins over the file's value: the file itself is unchanged
+    res = CliRunner().invoke(cli, [*first, "--resume", "--epochs", "2", "--max-steps", "3"])
+    assert res.exit_code == 0, res.output
+
+    den = tmp_path / "den"
+    fit = ["fit-dataset", str(data), "-o", str(den), "--prior", str(run), "--epochs", "1",
+           "--batch-size", "4", "--device", "cpu"]  # fmt: skip
+    res = CliRunner().invoke(cli, [*fit, "--max-steps", "1"])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(cli, [*fit, "--resume", "--max-steps", "2"])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(cli, [*fit[:5], str(tmp_path / "elsewhere"), *fit[6:], "--resume"])
+    assert res.exit_code == 1 and "--prior cannot change when resuming" in res.output

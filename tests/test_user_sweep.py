@@ -150,3 +150,67 @@ def test_a_track_that_is_mostly_frames_it_lacks_says_so(tmp_path):
     dense.write_bytes(pickle.dumps(wham_track(np.array([0, 1, 2, 4, 5, 6]))))
     ((_, motion),) = read(dense).tracks
     assert not any("most of what is written" in n for n in motion.notes)
+
+
+def test_a_ctrl_c_while_the_mesh_library_loads_stops_the_export(tmp_path, monkeypatch):
+    """trimesh's optional imports catch BaseException: a Ctrl-C that landed while it loaded
+    was swallowed and the export ran on to exit 0. A stand-in that swallows one the same way
+    (the signal sent to this process while it "loads")."""
+    import os
+    import signal
+    import sys
+    import types
+
+    from mdvae_cli.body.builtin import builtin_body_model
+    from mdvae_cli.export import export_mesh_sequence
+    from mdvae_cli.formats.npz_io import load_motion
+
+    def loading(name, *args, **kwargs):
+        if name != "trimesh":
+            return real_import(name, *args, **kwargs)
+        try:  # as trimesh guards its optional extras
+            os.kill(os.getpid(), signal.SIGINT)
+        except BaseException:  # noqa: BLE001 - what the library does
+            pass
+        return types.ModuleType("trimesh")
+
+    import builtins
+
+    real_import = builtins.__import__
+    monkeypatch.delitem(sys.modules, "trimesh", raising=False)
+    monkeypatch.setattr(builtins, "__import__", loading)
+    motion = load_motion(EXAMPLES / "walk.npz")
+    with pytest.raises(KeyboardInterrupt):
+        export_mesh_sequence(motion, builtin_body_model(), tmp_path / "meshes")
+    monkeypatch.undo()
+    assert not (tmp_path / "meshes").exists() or not any((tmp_path / "meshes").iterdir())
+
+
+def test_the_library_denoises_a_take_under_a_float64_default(tmp_path):
+    """``torch.set_default_dtype(torch.float64)`` in the caller had left the networks in
+    float64 beside windows made in float32 (BVH and AMC takes failed); the default is the
+    caller's again after, and the result is the one made under float32."""
+    import torch
+
+    from mdvae_cli.infer.denoise_settings import DenoiseSettings, denoise
+
+    take = read(write_rig(tmp_path / "take.bvh", T=60))
+    settings = DenoiseSettings(input_kind=take.kind)
+    plain = denoise([take.single()], settings)[0]
+    torch.set_default_dtype(torch.float64)
+    try:
+        wide = denoise([take.single()], settings)[0]
+        assert torch.get_default_dtype() == torch.float64
+    finally:
+        torch.set_default_dtype(torch.float32)
+    np.testing.assert_array_equal(wide.pose_body, plain.pose_body)
+    np.testing.assert_array_equal(wide.trans, plain.trans)
+
+
+def test_spike_rad_without_spikes_is_refused(tmp_path):
+    src = EXAMPLES / "walk.npz"
+    line = one_error_line(*run_cli("add-noise", "--spike-rad", "2", src, "-o", tmp_path / "x.npz"))
+    assert line.endswith("--spike-rad only applies with --spike-frac F (the spikes it sizes)")
+    code, out, err = run_cli("add-noise", "--spike-frac", "0.01", "--spike-rad", "2", src,
+                             "-o", tmp_path / "x.npz")  # fmt: skip
+    assert code == 0, out + err

@@ -25,6 +25,7 @@ from mdvae_cli.cli.common import (
     allow_pickle_option,
     console,
     handle_errors,
+    on_command_line,
 )
 from mdvae_cli.cli.motion_input import motion_input_options, read_input
 from mdvae_cli.cli.noise_holes import HOLES, drop_holes
@@ -153,17 +154,7 @@ def add_noise(
       mdvae add-noise --sigma 0.05 --drop-frames 15x2 --drop-joints 30 clean.npz -o holes.npz
       mdvae add-noise --sigma 0.1 take.bvh -o noisy_take.bvh
     """
-    video = None
-    if preset is not None:
-        options = {"--sigma": sigma, "--joint-noise": joint_noise, "--drop-frac": drop_frac,
-                   "--spike-frac": spike_frac}  # fmt: skip
-        given = [name for name, value in options.items() if value]
-        if given:
-            raise InputError(f"--preset {preset} sets every noise itself; change its "
-                             f"parameters with --set instead of {', '.join(given)}")  # fmt: skip
-        video = PRESETS[preset].with_overrides(_parse_sets(sets))
-    elif sets:
-        raise InputError("--set changes the parameters of a --preset; give --preset too")
+    video = _video_noise(preset, sets, sigma, joint_noise, drop_frac, spike_frac)
     sigma = 0.15 if sigma is None else sigma
     settings = NoiseSettings(sigma, joint_noise, drop_frac, spike_frac, spike_rad).validate()
     jobs = plan_take_jobs(inputs, out)
@@ -239,6 +230,26 @@ def takes_as_npz(jobs: list[FileJob], out: Path, partial: bool = True) -> list[F
             job = FileJob(job.relpath, job.source, strip_gz(job.output).with_suffix(".npz"))
         fixed.append(job)
     return no_clashes(fixed)
+
+
+def _video_noise(preset, sets, sigma, joint_noise, drop_frac, spike_frac):
+    """The ``--preset`` noise with its ``--set`` changes (None without a preset); InputError
+    for the options a preset sets itself, --set without one, and --spike-rad without
+    --spike-frac."""
+    if preset is None:
+        if sets:
+            raise InputError("--set changes the parameters of a --preset; give --preset too")
+        if not spike_frac and on_command_line("spike_rad"):
+            raise InputError("--spike-rad only applies with --spike-frac F (the spikes it sizes)")
+        return None
+    options = {"--sigma": sigma, "--joint-noise": joint_noise, "--drop-frac": drop_frac,
+               "--spike-frac": spike_frac}  # fmt: skip
+    given = [name for name, value in options.items() if value]
+    given += ["--spike-rad"] * on_command_line("spike_rad")
+    if given:
+        raise InputError(f"--preset {preset} sets every noise itself; change its "
+                         f"parameters with --set instead of {', '.join(given)}")  # fmt: skip
+    return PRESETS[preset].with_overrides(_parse_sets(sets))
 
 
 COMMANDS = [add_noise]

@@ -213,9 +213,10 @@ def refuse_file_name(out: Path, what: str) -> None:
     a folder name and the result written inside it. A trailing slash asks for such a folder."""
     suffix = out.suffix
     if 1 < len(suffix) <= 6 and suffix[1:].isalpha() and not out.exists():
+        kind = ("is not what this command writes" if suffix.lower() in (".bvh", ".amc", ".npz")
+                else "is not a motion file mdvae writes")  # fmt: skip
         raise InputError(
-            f"cannot write {out}: {suffix} is not a motion file mdvae writes; name {what}, or "
-            "end the name with / for a folder"
+            f"cannot write {out}: {suffix} {kind}; name {what}, or end the name with / for a folder"
         )
 
 

@@ -183,3 +183,10 @@ def process_seconds(fallback_start: float) -> float:
     since = uptime - ticks / os.sysconf("SC_CLK_TCK")
     # /proc counts in clock ticks (10 ms): a process younger than one reads as 0
     return since if own - 0.02 <= since <= own + STARTUP_LIMIT_S else own
+
+
+def on_command_line(param: str) -> bool:
+    """Whether the command line names the option of parameter ``param`` (not its default)."""
+    ctx = click.get_current_context(silent=True)
+    given = click.core.ParameterSource.COMMANDLINE
+    return ctx is not None and ctx.get_parameter_source(param) is given

@@ -18,6 +18,7 @@ from mdvae_cli.cli.common import (
     body_model_option,
     console,
     handle_errors,
+    on_command_line,
     process_seconds,
     progress_bar,
 )
@@ -131,10 +132,11 @@ def denoise(
         with progress_bar(transient=True) as progress:
             denoise_files([runs[j.source] for j in good], settings, denoiser, body,
                           per_file=per_file, progress=_ticker(progress))  # fmt: skip
-        if settings.loop is None:  # --json: "loop" too
+        if settings.loop is None:  # --json: "loop", and the note in "notes"
             for job in good:
                 if any(t.loop for t in runs[job.source].tracks):
                     print_notes(job.relpath, [LOOP_NOTE])
+                    runs[job.source].notes.append((None, LOOP_NOTE))
     write = _writer(runs, jobs, body if good else None, mesh_dir, mesh_format, view_dir)
     write_report = run_batch(good, write, "denoise", quiet=True, within=True)
     write_report.outcomes = report.failed + write_report.outcomes
@@ -195,15 +197,8 @@ def _check_pairs(fields: dict, blend) -> None:
     needs = (("--refine-lr", "refine_lr", refine, "--refine N"),
              ("--seed", "seed", fields["optimize_steps"], "--optimize N"))  # fmt: skip
     for option, param, needed, flag in needs:
-        if not needed and _given(param):
+        if not needed and on_command_line(param):
             raise InputError(f"{option} only applies with {flag}")
-
-
-def _given(param: str) -> bool:
-    """Whether the command line names the option of parameter ``param`` (not its default)."""
-    ctx = click.get_current_context(silent=True)
-    given = click.core.ParameterSource.COMMANDLINE
-    return ctx is not None and ctx.get_parameter_source(param) is given
 
 
 def _check_outputs(mesh_dir, mesh_format, view_dir, asf) -> None:

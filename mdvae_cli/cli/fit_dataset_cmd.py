@@ -21,7 +21,9 @@ from mdvae_cli.cli.train_shared import (
     StopAfterStep,
     apply_overrides,
     note_skipped_data,
+    refuse_changes_on_resume,
     run_options,
+    same_path,
     start_config,
     summary_dict,
 )
@@ -214,8 +216,8 @@ def fit_dataset(
         },
         resume=resume,
     )
-    fixed = {"--prior": prior_path, "--init-from": init_from, "--body-model": body_model}
-    _check_starting_point(cfg, overrides, fixed, resume)
+    paths = {"--prior": prior_path, "--init-from": init_from, "--body-model": body_model}
+    _check_starting_point(cfg, overrides, paths, resume)
     with progress_bar() as progress, StopAfterStep() as stop:
         summary = run(cfg, out_dir, resume=resume, progress=FitReporter(progress),
                       max_steps=max_steps, overwrite=overwrite, stop_requested=stop)  # fmt: skip
@@ -231,10 +233,11 @@ def fit_dataset(
         _print_summary(summary, out_dir)
 
 
-def _check_starting_point(cfg, overrides: dict, fixed: dict, resume: bool) -> None:
+def _check_starting_point(cfg, overrides: dict, paths: dict, resume: bool) -> None:
     """InputError for options the run's starting point rules out: a prior or denoiser
-    settings beside --init-from, ``fixed`` (option -> value given) on --resume."""
-    if cfg.init_from is not None and fixed["--prior"] is not None:
+    settings beside --init-from, and on --resume a path in ``paths`` (option -> path or None:
+    --prior, --init-from, --body-model) other than the run's own."""
+    if cfg.init_from is not None and paths["--prior"] is not None:
         raise InputError("--init-from brings its own prior: drop --prior")
     given = [f"--{k.replace('_', '-')}" for k in ("lam", "obs_unit", "input_window")
              if overrides.get(k) is not None]  # fmt: skip
@@ -242,9 +245,12 @@ def _check_starting_point(cfg, overrides: dict, fixed: dict, resume: bool) -> No
         raise InputError(
             f"{', '.join(given)}: the denoiser --init-from starts from keeps its own settings"
         )
-    if resume and any(v is not None for v in fixed.values()):
-        named = ", ".join(k for k, v in fixed.items() if v is not None)
-        raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
+    if resume:
+        saved = {"--prior": cfg.prior, "--init-from": cfg.init_from,
+                 "--body-model": cfg.body_model}  # fmt: skip
+        refuse_changes_on_resume(
+            {k: (v, v is not None and same_path(v, saved[k])) for k, v in paths.items()}
+        )
 
 
 class FitReporter:

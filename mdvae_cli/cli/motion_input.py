@@ -115,13 +115,14 @@ def read_input(
     return loaded
 
 
-def track_option(what: str) -> Callable:
-    """``--track ID`` for the commands that take one motion of a file (eval, view, plot):
-    ``what`` they do with it."""
+def track_option(what: str, otherwise: str = "is refused") -> Callable:
+    """``--track ID`` for the commands that take one motion of a file (eval, export-bvh,
+    export-mesh, view, plot): ``what`` they do with it, and what they do ``otherwise`` with a
+    file of several people."""
     return click.option(
         "--track", default=None, metavar="ID",
         help=f"Files of several people (WHAM, PHALP, ...): {what}. Default: a file of "
-        "several people is refused (eval) or shows its first track (view, plot).",
+        f"several people {otherwise}.",
     )  # fmt: skip
 
 

@@ -38,7 +38,13 @@ from mdvae_cli.errors import InputError
     show_default=True,
     help="Frames to generate at 30 Hz (2 to 1,080,000: a motion, up to 10 hours).",
 )
-@click.option("-o", "--out", required=True, type=OutputPath(), help="Output .npz file.")
+@click.option(
+    "-o",
+    "--out",
+    required=True,
+    type=OutputPath(),
+    help="Output file: .npz (AMASS-style), or .bvh (on the SMPL skeleton).",
+)
 @click.option(
     "--prior",
     "prior_path",

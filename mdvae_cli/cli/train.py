@@ -22,7 +22,10 @@ from mdvae_cli.cli.train_shared import (
     StopAfterStep,
     apply_overrides,
     note_skipped_data,
+    refuse_changes_on_resume,
     run_options,
+    same_config,
+    same_path,
     start_config,
     summary_dict,
 )
@@ -226,12 +229,17 @@ def train_prior(
 
     if threads is not None:
         torch.set_num_threads(threads)
-    fixed = {"--split": split_file, "--body-model": body_model, "--config": config_file,
-             "--init-from": overrides["init_from"]}  # fmt: skip
-    if resume and any(v is not None for v in fixed.values()):
-        named = ", ".join(k for k, v in fixed.items() if v is not None)
-        raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
     cfg = start_config(TrainConfig, run_dir, resume, config_file, data)
+    if resume:  # the command as first run may be given again; a change is refused
+        init_from = overrides["init_from"]
+        now = {k for k, v in overrides.items() if v not in (None, ())}  # options given now
+        same_file = config_file and same_config(TrainConfig, config_file, cfg, now)
+        refuse_changes_on_resume({
+            "--split": (split_file, split_file and same_path(split_file, cfg.split_file)),
+            "--body-model": (body_model, body_model and same_path(body_model, cfg.body_model)),
+            "--config": (config_file, same_file),
+            "--init-from": (init_from, init_from and same_path(init_from, cfg.init_from)),
+        })  # fmt: skip
     if not resume:
         cfg.data = [str(p) for p in data]
         if split_file is not None:

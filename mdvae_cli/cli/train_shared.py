@@ -105,6 +105,32 @@ def start_config(cls, run_dir: Path, resume: bool, config_file: Path | None, dat
     return cfg
 
 
+def same_path(given, saved) -> bool:
+    """Whether a path given on --resume is the one the run's config.json holds."""
+    return saved is not None and Path(given).resolve() == Path(saved).resolve()
+
+
+def same_config(cls, config_file: Path, cfg, overridden=()) -> bool:
+    """Whether a ``--config`` file given on --resume says what the run's own config holds for
+    every setting it names but those an option given now sets (``overridden``): the command
+    as first run, given again."""
+    given = start_config(cls, Path("."), False, config_file)
+    named = json.loads(Path(config_file).read_text())
+    return isinstance(named, dict) and all(
+        getattr(given, k) == getattr(cfg, k)
+        for k in named
+        if hasattr(cfg, k) and k not in overridden
+    )
+
+
+def refuse_changes_on_resume(given: dict[str, tuple[object, bool]]) -> None:
+    """InputError naming the options given on --resume that say other than the run's own
+    config.json (``given``: option -> (its value or None, whether that is the run's))."""
+    named = ", ".join(k for k, (v, same) in given.items() if v is not None and not same)
+    if named:
+        raise InputError(f"{named} cannot change when resuming (the run's config.json has it)")
+
+
 def same_data_on_resume(saved: list[str], given, run_dir: Path) -> None:
     """InputError when a resumed run is given other data paths than its config.json holds
     (the run reads its own: the paths given would be ignored)."""

@@ -110,7 +110,7 @@ def inputs_argument(fn):
 @click.option("--title", default=None, help="The page's title (default: the file names).")
 @take_options
 @input_fps_option
-@track_option("show this track (its id in the file)")
+@track_option("show this track (its id in the file)", "shows its first track")
 @body_model_option
 @allow_pickle_option
 @json_option
@@ -203,7 +203,7 @@ def _read_counts(report) -> dict:
 @click.option("--title", default=None, help="The figure's title (default: the file names).")
 @take_options
 @input_fps_option
-@track_option("draw this track (its id in the file)")
+@track_option("draw this track (its id in the file)", "shows its first track")
 @body_model_option
 @allow_pickle_option
 @json_option

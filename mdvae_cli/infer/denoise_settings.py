@@ -35,6 +35,7 @@ from mdvae_cli.infer.time_pieces import (
     SIDE_BY_SIDE_REFINED,
     denoise_in_pieces,
 )
+from mdvae_cli.model.checkpoint import float32_default
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.motion.motion import Motion, check_motions, unshared
 
@@ -168,8 +169,16 @@ def denoise(
     A take longer than 1.5 ``infer.time_pieces.PIECE_FRAMES`` frames that is no cycle is
     denoised a piece of time at a time and joined, its foot lock then run on the whole of it
     (memory flat in the take's length; not in optimisation mode, whose networks adapt to all
-    of the motions at once).
+    of the motions at once). It runs with torch's default dtype float32 (as it was after).
     """
+    with float32_default():
+        return _denoise(motions, settings, denoiser, body, loops, progress, on_fallback,
+                        on_blend, on_smooth)  # fmt: skip
+
+
+def _denoise(motions, settings, denoiser, body, loops, progress, on_fallback, on_blend,
+             on_smooth) -> list[Motion]:  # fmt: skip
+    """:func:`denoise`'s work."""
     import copy
 
     motions = check_motions(motions)

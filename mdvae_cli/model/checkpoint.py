@@ -34,6 +34,20 @@ def save_checkpoint(path: Path, tensors: dict[str, torch.Tensor], meta: dict) ->
 
 
 @contextlib.contextmanager
+def float32_default():
+    """torch's default dtype float32 inside the block, and as it was after: the networks are
+    built, and the data they read made, in float32 whatever default a caller set
+    (``torch.set_default_dtype(torch.float64)`` had left the networks in float64 beside
+    windows made in float32)."""
+    before = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float32)
+    try:
+        yield
+    finally:
+        torch.set_default_dtype(before)
+
+
+@contextlib.contextmanager
 def interrupts_deferred():
     """Hold a Ctrl-C (SIGINT) or a SIGTERM back until the block is done, then raise
     KeyboardInterrupt (``errors.Terminated`` for SIGTERM) in the main thread (elsewhere Python

@@ -22,7 +22,12 @@ from torch import nn
 from mdvae_cli.body.data import NUM_BODY_JOINTS
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
-from mdvae_cli.model.checkpoint import load_checkpoint, load_weights, save_checkpoint
+from mdvae_cli.model.checkpoint import (
+    float32_default,
+    load_checkpoint,
+    load_weights,
+    save_checkpoint,
+)
 from mdvae_cli.model.config import ModelConfig, require_bool, require_int, require_number
 from mdvae_cli.model.dvae import Encoder, Gaussian, mlp
 from mdvae_cli.model.losses import gaussian_kl, inverse_gamma_expectations, inverse_gamma_kl
@@ -132,7 +137,8 @@ class X0Predictor(nn.Module):
         else:
             summary = self.rnn(yn.flip(1))[1][0]  # final state of the backward pass
         n = min(self.base_weights.shape[0], yn.shape[1])
-        w = line_start_weights(n).to(yn) if n < self.base_weights.shape[0] else self.base_weights
+        w = line_start_weights(n) if n < self.base_weights.shape[0] else self.base_weights
+        w = w.to(yn)  # float32 as built; a caller's float64 default makes the rest float64
         base = torch.einsum("k,bkd->bd", w, yn[:, :n])
         delta, logvar = self.head(torch.cat([summary, base], dim=-1)).chunk(2, dim=-1)
         return Gaussian(base + delta, (logvar - 4.0).clamp(-12.0, 4.0))
@@ -319,7 +325,7 @@ def load_denoiser(
     loads the weights shipped with the package. ``keep_rng``: torch's global random state
     is as it was (building the networks draws their first weights from it); training
     passes False, so that a seeded run draws what it always drew."""
-    with torch.random.fork_rng(devices=[], enabled=keep_rng):
+    with torch.random.fork_rng(devices=[], enabled=keep_rng), float32_default():
         return _load_denoiser(path)
 
 

@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from mdvae_cli.errors import InputError
-from mdvae_cli.model.checkpoint import load_checkpoint, load_weights
+from mdvae_cli.model.checkpoint import float32_default, load_checkpoint, load_weights
 from mdvae_cli.model.config import ModelConfig
 from mdvae_cli.model.dvae import MotionDVAE
 from mdvae_cli.model.normalizer import Normalizer
@@ -57,7 +57,7 @@ def load_prior(path: Path | str, *, keep_rng: bool = True) -> tuple[PriorModel, 
     """Load a prior from a checkpoint file (``*.npz`` + ``*.json``) or a training run folder
     (its ``best.npz``). Returns the model in eval mode and the checkpoint metadata.
     ``keep_rng``: as ``model.denoiser.load_denoiser``'s."""
-    with torch.random.fork_rng(devices=[], enabled=keep_rng):
+    with torch.random.fork_rng(devices=[], enabled=keep_rng), float32_default():
         return _load_prior(path)
 
 

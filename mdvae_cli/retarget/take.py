@@ -45,7 +45,7 @@ class Take:
     source: SourceMotion
     retarget: RetargetResult
     body: BodyJoints | None = None  #: the body it was retargeted onto
-    skeleton_file: Path | None = None  #: an AMC take's .asf, when found next to it
+    skeleton_file: Path | None = None  #: an AMC take's .asf (found next to it, or --asf)
     #: (T, J) True where ``--missing`` named a source joint missing (``formats.missing``)
     missing: np.ndarray | None = None
 
@@ -181,8 +181,8 @@ def write_take(
     in the take's own form: a BVH take as BVH (``.bvh`` or ``.bvh.gz``; its Frame Time the
     rate the take was read at, when ``--fps`` gave another), an AMC take as AMC (``.amc`` or
     ``.amc.gz``; its ASF is unchanged; AMC holds no rate). body: default the one it was read with.
-    An AMC take whose skeleton was found next to it gets a copy of that ``.asf`` next to its
-    output when none of that name is there, so the output reads on its own. -> notes for the
+    An AMC take gets a copy of its ``.asf`` (found next to it, or given with --asf) next to
+    its output when none of that name is there, so the output reads on its own. -> notes for the
     user (a move of the root the file has no channel for)."""
     out = Path(out)
     body = body if body is not None else take.body
@@ -337,8 +337,8 @@ class TakeReader:
     def skeleton(
         self, path: Path, given: Path | None = None
     ) -> tuple[AsfSkeleton | None, Path | None]:
-        """The parsed skeleton of a take (None for BVH) and the ``.asf`` found next to it
-        (None when ``given``, given to the reader, or not an AMC take)."""
+        """The parsed skeleton of a take (None for BVH) and its ``.asf`` file (``given``, the
+        reader's, or the one found next to it; None for a BVH take)."""
         if not path.name.lower().removesuffix(".gz").endswith(".amc"):
             return None, None
         found = given or self.asf or find_asf(path)
@@ -350,7 +350,7 @@ class TakeReader:
             raise InputError(f"{path}: {what}; pass --asf FILE")
         if found not in self.skeletons:
             self.skeletons[found] = load_asf(found)
-        return self.skeletons[found], (None if given or self.asf else Path(found))
+        return self.skeletons[found], Path(found)
 
     def read(
         self,
