@@ -161,6 +161,11 @@ Two folders are paired by relative path, then by name in the same sub-folder whe
 fits (walk.bvh with walk.npz or walk_clean.npz): a note says each pair made by name and each
 prediction left without ground truth; a file several predictions fit fails alone.
 
+With --json the columns are keys of each file's "result": V2V v2v_cm (root-relative) and
+v2v_abs_cm (world), MPJPE mpjpe_root_cm (root-relative) and mpjpe_cm (world), accel_gt,
+accel_pred, accel_error, then foot_skate_, foot_slide_, penetration_ and float_ with _pred
+and _gt.
+
 \b
 Example:
   mdvae eval --gt clean/ --pred denoised/ --json > scores.json
