@@ -214,3 +214,38 @@ def test_spike_rad_without_spikes_is_refused(tmp_path):
     code, out, err = run_cli("add-noise", "--spike-frac", "0.01", "--spike-rad", "2", src,
                              "-o", tmp_path / "x.npz")  # fmt: skip
     assert code == 0, out + err
+
+
+def _page_meta(path: Path) -> dict:
+    import re
+
+    text = path.read_text()
+    raw = re.search(r'id="mdvae-meta">(.*?)</script>', text, re.S)
+    return json.loads(raw.group(1))
+
+
+def test_view_names_the_track_it_shows_and_refuses_one_a_file_lacks(tmp_path):
+    one = tmp_path / "one.pkl"
+    one.write_bytes(pickle.dumps(wham_track(np.arange(40))))
+    line = one_error_line(*run_cli("view", "--track", "7", one, "-o", tmp_path / "p.html"))
+    assert line.endswith("one.pkl: no track '7' (tracks: 0)"), line
+    two = tmp_path / "two.pkl"
+    data = {**wham_track(np.arange(40)), 3: wham_track(np.arange(40))[0]}
+    two.write_bytes(pickle.dumps(data))
+    code, out, err = run_cli("view", "--track", "3", two, "-o", tmp_path / "p.html", "--no-mesh")
+    assert code == 0, out + err
+    assert [m["name"] for m in _page_meta(tmp_path / "p.html")["motions"]] == ["two.pkl track 3"]
+
+
+def test_view_tells_holes_the_file_lacks_from_frames_a_denoise_filled(tmp_path):
+    with np.load(EXAMPLES / "noisy_walk.npz") as z:
+        arrays = dict(z)
+    arrays["poses"][10:20] = np.nan
+    holes, clean = tmp_path / "holes.npz", tmp_path / "clean.npz"
+    np.savez(holes, **arrays)
+    assert run_cli("denoise", holes, "-o", clean)[0] == 0
+    code, out, err = run_cli("view", holes, clean, "-o", tmp_path / "p.html", "--no-mesh")
+    assert code == 0, out + err
+    motions = _page_meta(tmp_path / "p.html")["motions"]
+    assert [m["filled"] for m in motions] == [[[10, 20]], [[10, 20]]]
+    assert [m["missing_in_file"] for m in motions] == [True, False]

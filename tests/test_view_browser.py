@@ -199,10 +199,46 @@ def test_side_by_side_panels_each_show_their_own_motion_wherever_it_is(tmp_path,
         tab.navigate(file_url(tmp_path / "many.html"))
         tab.wait_for(READY, timeout=60)
         height = tab.evaluate("document.getElementById('plot').clientHeight")
-        assert height == 190 + 14 * 12 - 2  # less its border; it was 228 whatever the count
+        assert height == 190 + 18 * 12 - 2  # less its border; it was 228 whatever the count
         # the test hook's plot choice shows in the page's own menus (they kept the old one)
         tab.evaluate("window.mdvaeView.setPlot('height', 7, 0)")
         menus = "['series', 'joint'].map((id) => document.getElementById(id).value)"
         assert tab.evaluate(menus) == ["height", "7"]
     finally:
         browser.close()
+
+
+def test_motions_on_other_floors_and_far_apart_are_framed_whole(tmp_path, tiny_body):
+    """A video estimate in camera space beside a studio take: its floor a metre lower and
+    8 m away. Side by side, each panel aims at its own motion's floor (the camera aimed 0.9 m
+    over the lowest floor of all, cutting the other off); overlaid, the camera backs off until
+    both are in view (one was 8 m off screen); twelve motions get twelve colours."""
+    near = motion_from_arrays(motion_arrays(T=40, fps=30.0, seed=0))
+    far = near.with_body(trans=near.trans + np.array([0.0, 8.0, -1.0]))
+    path = tmp_path / "floors.html"
+    page_ = build_view_page([("near", near), ("far", far)], BodyModel(tiny_body), mesh=False)
+    write_view_page(page_, path)
+    browser = Chromium.launch()
+    try:
+        tab = browser.open_page(width=1000, height=800)
+        tab.navigate(file_url(path))
+        tab.wait_for(READY, timeout=60)
+        tab.evaluate("window.mdvaeView.seek(20)")
+        panels = tab.evaluate("window.mdvaeView.panels")
+        aims = [p["target"][2] for p in panels]
+        assert len(panels) == 2 and abs((aims[0] - aims[1]) - 1.0) < 0.05, panels
+        assert all(p["distance"] == panels[0]["distance"] for p in panels)  # no backing off
+        tab.evaluate("(() => { const el = document.getElementById('layout'); "
+                     "el.value = 'overlay'; el.dispatchEvent(new Event('change')); "
+                     "window.mdvaeView.seek(21); })()")  # fmt: skip
+        (panel,) = tab.evaluate("window.mdvaeView.panels")
+        assert panel["distance"] > 2 * panels[0]["distance"], panel
+        near_px = tab.evaluate(PANEL_PIXELS % (1, "[0xd9, 0x48, 0x0f]"))[0]  # PALETTE[0]
+        far_px = tab.evaluate(PANEL_PIXELS % (1, "[0x1c, 0x7e, 0xd6]"))[0]  # PALETTE[1]
+        assert near_px > 100 and far_px > 100, (near_px, far_px)
+        assert tab.evaluate("window.mdvaeView.errors") == [] and tab.errors() == []
+    finally:
+        browser.close()
+    from mdvae_cli.view.page import PALETTE
+
+    assert len(set(PALETTE)) == len(PALETTE) == 12

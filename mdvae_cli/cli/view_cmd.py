@@ -73,16 +73,21 @@ def read_motions(
         label, motion = loaded.tracks[0]
         if track is not None and len(loaded.tracks) > 1:
             label, motion = str(track), one_track(loaded, track)
+        elif track is not None and loaded.document is not None:  # a pipeline's one person
+            own = loaded.document.tracks[0][1].label
+            if own is not None and str(own) != str(track):
+                raise InputError(f"{job.source}: no track {track!r} (tracks: {own})")
         notes = [*loaded.notes, *motion.notes]
         if len(loaded.tracks) > 1:
             others = ", ".join(str(lab) for lab, _ in loaded.tracks if lab != label)
             notes.append(f"{len(loaded.tracks)} people tracked: showing track {label} "
                          f"(--track for {others})")  # fmt: skip
         print_notes(job.relpath, notes)
-        return motion
+        return motion, (f" track {label}" if len(loaded.tracks) > 1 else "")
 
     report = run_batch(jobs, one, "reading", quiet=True)
-    return report, [(o.job.relpath.as_posix(), o.result) for o in report.succeeded]
+    return report, [(o.job.relpath.as_posix() + o.result[1], o.result[0])
+                    for o in report.succeeded]  # fmt: skip
 
 
 def check_output(out: Path, suffixes: tuple[str, ...], inputs) -> None:

@@ -16,10 +16,9 @@ from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.motion.contacts import FOOT_JOINTS, foot_contacts
 from mdvae_cli.motion.motion import Motion
-from mdvae_cli.view.page import filled_runs
+from mdvae_cli.view.page import PALETTE, filled_runs
 from mdvae_cli.view.pose import BODY_JOINT_NAMES, BODY_PARENTS, SERIES, joint_series, pose_skeleton
 
-PALETTE = ("#d9480f", "#1c7ed6", "#2b8a3e", "#9c36b5", "#e8a33d", "#0c8599", "#c2255c")
 INK, GREY, LIGHT = "#222222", "#777777", "#e6e6e6"
 HEAD = 15
 #: the height of a filmstrip row, in metres of the scene (a body and its frame's label)

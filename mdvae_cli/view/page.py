@@ -34,6 +34,7 @@ from mdvae_cli import __version__
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.errors import InputError
 from mdvae_cli.fileio import write_atomic
+from mdvae_cli.formats.npz_holes import AS_READ
 from mdvae_cli.infer.input_noise import noise_variance
 from mdvae_cli.motion.contacts import (
     FOOT_JOINTS,
@@ -55,7 +56,9 @@ from mdvae_cli.view.pose import (
 )
 
 #: colours of the motions, in the order given (the first is usually the noisy one)
-PALETTE = ("#d9480f", "#1c7ed6", "#2b8a3e", "#9c36b5", "#e8a33d", "#0c8599", "#c2255c")
+#: one colour per motion (the page's and the figure's), twelve apart before any repeats
+PALETTE = ("#d9480f", "#1c7ed6", "#2b8a3e", "#9c36b5", "#e8a33d", "#0c8599", "#c2255c",
+           "#8d5524", "#343a40", "#74b816", "#f783ac", "#4263eb")  # fmt: skip
 #: integer units of the embedded arrays: positions in mm, quaternion components in 1/2048
 POS_SCALE = 1000
 ROT_SCALE = 2048
@@ -198,6 +201,7 @@ def build_view_page(
             "rest_joints": _round(track.posed.rest_joints),
             "contact_fraction": _round(track.contacts_bool.mean(axis=0), 3),
             "filled": filled_runs(motion),
+            "missing_in_file": bool(motion.layout.get(AS_READ)),  # NaN rows: not filled
             "floor": round(floor_height([track.posed.joints], offsets), 4),
         }
         if skin is not None:

@@ -34,17 +34,19 @@ function setupControls() {
     const li = document.createElement("li"), sw = document.createElement("span"), name = document.createElement("span"), info = document.createElement("span");
     sw.className = "swatch"; sw.style.background = tr.color;
     name.textContent = tr.name;
-    const filled = tr.filledFrames ? `, ${tr.filledFrames} filled (shaded on the plot)` : "";
+    const drawn = tr.holeWord === "missing" ? " in the file, drawn interpolated" : "";
+    const filled = tr.filledFrames ? `, ${tr.filledFrames} ${tr.holeWord}${drawn} (shaded on the plot)` : "";
     info.className = "info"; info.textContent = `${tr.T} frames, ${+tr.fps.toFixed(3)} Hz${filled}`;
     li.append(sw, name, info); legend.append(li);
   }
   // the curves keep 150 px above a left and a right contact strip per motion
-  plotCanvas.style.height = `${Math.max(230, 190 + 14 * tracks.length)}px`;
+  plotCanvas.style.height = `${Math.max(230, 190 + 18 * tracks.length)}px`;
   const timeline = $("timeline");
   timeline.max = String(state.frames - 1);
   timeline.addEventListener("input", () => setTime(Number(timeline.value) / state.fpsMax));
   $("play").addEventListener("click", () => setPlaying(!state.playing));
-  const bind = (id, apply) => { const el = $(id); el.addEventListener("change", () => { apply(el); state.dirty = true; plotCache = null; }); };
+  // a choice made, the keys play and step again (a select keeps the focus, and with it Space)
+  const bind = (id, apply) => { const el = $(id); el.addEventListener("change", () => { apply(el); state.dirty = true; plotCache = null; if (el.tagName === "SELECT") el.blur(); }); };
   bind("speed", (el) => (state.speed = Number(el.value)));
   bind("layout", (el) => (state.layout = el.value));
   bind("body", (el) => (state.body = el.value));

@@ -130,6 +130,8 @@ class Track {
     this.smooth = this.smoothRoot(0.5);
     this.filled = m.filled || []; // [start, stop) runs of frames with a joint missing in the file
     this.filledFrames = this.filled.reduce((n, r) => n + r[1] - r[0], 0);
+    // holes the file itself lacks (NaN rows) are drawn interpolated; a result's were filled
+    this.holeWord = m.missing_in_file ? "missing" : "filled";
   }
   filledAt(f) { return this.filled.some((r) => f >= r[0] && f < r[1]); }
   frameAt(time) { return clamp(Math.round(time * this.fps), 0, this.T - 1); }

@@ -8,7 +8,7 @@ function niceStep(span, count) {
 }
 
 function plotLayout(W, H) {
-  const strip = 7, rows = tracks.length * 2;
+  const strip = 9, rows = tracks.length * 2;
   const bottom = 22 + rows * strip + 8;
   return { left: 58, right: 12, top: 10, bottom, strip, W, H, ph: H - 10 - bottom, pw: W - 70 };
 }
@@ -40,7 +40,8 @@ function drawPlotBody(ctx, L, t0, t1) {
   ctx.strokeStyle = "#eee"; ctx.lineWidth = 1; ctx.textAlign = "right";
   if (!range.ok) {
     ctx.textAlign = "left";
-    ctx.fillText(`no ${label}: the ${meta.joint_names[state.joint]} has no bone out of it`, L.left + 10, L.top + L.ph / 2);
+    const why = state.joint === 0 ? "no bone into it" : "no bone out of it";
+    ctx.fillText(`no ${label}: the ${meta.joint_names[state.joint]} has ${why}`, L.left + 10, L.top + L.ph / 2);
   } else {
     const ys = niceStep(hi - lo, 5);
     for (let v = Math.ceil(lo / ys) * ys; v <= hi; v += ys) {
@@ -48,7 +49,7 @@ function drawPlotBody(ctx, L, t0, t1) {
       ctx.fillText(`${+v.toFixed(3)}`, L.left - 6, Y(v));
     }
     ctx.save(); ctx.translate(12, L.top + L.ph / 2); ctx.rotate(-Math.PI / 2); ctx.textAlign = "center";
-    ctx.fillText(label + SERIES[state.kind][1].replace("\u00b0", " (\u00b0)"), 0, 0); ctx.restore();
+    ctx.fillText(`${label} (${SERIES[state.kind][1].trim()})`, 0, 0); ctx.restore();
   }
   const xs = niceStep(Math.max(span, 1e-3), Math.max(2, Math.floor(L.pw / 110))); // one frame: one tick
   ctx.textBaseline = "top";
@@ -95,7 +96,7 @@ function drawPlotBody(ctx, L, t0, t1) {
   ctx.restore();
   // foot contact strips: per motion, left foot then right foot (ankle or toe joint planted)
   const top = L.top + L.ph + 22;
-  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.font = "7px system-ui, sans-serif";
+  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.font = "8px system-ui, sans-serif";
   tracks.forEach((tr, i) => {
     const a0 = clamp(Math.floor(t0 * tr.fps), 0, tr.T - 1), a1 = clamp(Math.ceil(t1 * tr.fps), 0, tr.T - 1);
     for (let side = 0; side < 2; side++) {

@@ -9,12 +9,17 @@ const cam = { yaw: 0, pitch: 0.28, dist: 4.6, fov: 0.62, home: 0, fixed: [] };
 let plotCache = null;
 
 // ---------------------------------------------------------------- camera
-function camera(target, x, y, w, h) {
-  const cp = Math.cos(cam.pitch);
-  const eye = [target[0] + cam.dist * cp * Math.cos(cam.yaw), target[1] + cam.dist * cp * Math.sin(cam.yaw),
-    target[2] + cam.dist * Math.sin(cam.pitch)];
+const DIST0 = cam.dist; // the distance a body is framed at before any zoom, metres
+const HALF_WIDTH = 0.8; // what a panel shows each side of its aim at DIST0, at the least (m)
+/* a panel's camera on target; ``fit`` (>= 1) moves it back until a group spread over the
+   floor is in view. The focal length keeps a narrow panel's body whole across. */
+function camera(target, x, y, w, h, fit = 1) {
+  const cp = Math.cos(cam.pitch), dist = cam.dist * fit;
+  const eye = [target[0] + dist * cp * Math.cos(cam.yaw), target[1] + dist * cp * Math.sin(cam.yaw),
+    target[2] + dist * Math.sin(cam.pitch)];
   const f = norm(sub(target, eye)), r = norm(cross(f, [0, 0, 1])), u = cross(r, f);
-  return { eye, f, r, u, focal: (0.5 * h) / Math.tan(cam.fov / 2), cx: x + w / 2, cy: y + h / 2 };
+  const focal = Math.min((0.5 * h) / Math.tan(cam.fov / 2), (0.5 * w * DIST0) / HALF_WIDTH);
+  return { eye, f, r, u, focal, cx: x + w / 2, cy: y + h / 2 };
 }
 const NEAR = 0.05;
 function toView(c, p) {
@@ -40,17 +45,28 @@ function anchors() {
   return tracks.map((tr) => { const f = tr.frameAt(state.time); return [tr.smooth[f], tr.smooth[tr.T + f]]; });
 }
 /* what a panel looks at: the middle of its motions (side by side: each panel its own motion,
-   wherever in the world it is), following them or where they were when "follow" was unset */
-function target(group) {
+   wherever in the world it is, at the height of its own floor), following them or where they
+   were when "follow" was unset; and how far the camera must back off to see them all (an
+   overlay of motions apart on the floor or at other heights: 1 for one motion) */
+function target(group, w, h) {
   const now = state.follow ? anchors() : cam.fixed;
-  let x = 0, y = 0;
-  for (const tr of group) { x += now[tr.index][0]; y += now[tr.index][1]; }
-  return [x / group.length, y / group.length, meta.floor + UP];
+  let x = 0, y = 0, low = Infinity, high = -Infinity;
+  for (const tr of group) {
+    x += now[tr.index][0]; y += now[tr.index][1];
+    low = Math.min(low, tr.floor); high = Math.max(high, tr.floor);
+  }
+  x /= group.length; y /= group.length;
+  let reach = 0;
+  for (const tr of group) reach = Math.max(reach, Math.hypot(now[tr.index][0] - x, now[tr.index][1] - y));
+  const t = Math.tan(cam.fov / 2), across = Math.max(t * (w / h), HALF_WIDTH / DIST0); // as camera() frames
+  // a motion up to ``reach`` from the aim may stand that much nearer the camera
+  const back = reach + Math.max((0.5 * (high - low) + 1.0) / t, (reach + HALF_WIDTH) / across);
+  return [[x, y, 0.5 * (low + high) + UP], Math.max(1, back / DIST0)];
 }
 
 // ---------------------------------------------------------------- drawing the scene
-function drawGrid(ctx, c, t) {
-  const step = 0.5, reach = 6, z = meta.floor;
+function drawGrid(ctx, c, t, z) {
+  const step = 0.5, reach = 6;
   const x0 = Math.round(t[0] / step) * step, y0 = Math.round(t[1] / step) * step;
   for (let i = -reach / step; i <= reach / step; i++) {
     const major = Math.abs(Math.round((x0 + i * step) / step)) % 2 === 0;
@@ -140,8 +156,9 @@ function drawSkeleton(ctx, c, tr, f, J, withMesh) {
 function drawPanel(ctx, x, y, w, h, group, overlay) {
   ctx.save();
   ctx.beginPath(); ctx.rect(x, y, w, h); ctx.clip();
-  const t = target(group), c = camera(t, x, y, w, h);
-  ctx.lineWidth = 1; drawGrid(ctx, c, t);
+  const [t, fit] = target(group, w, h), c = camera(t, x, y, w, h, fit);
+  view.panels.push({ target: t, distance: cam.dist * fit, focal: c.focal, motions: group.map((tr) => tr.index) });
+  ctx.lineWidth = 1; drawGrid(ctx, c, t, Math.min(...group.map((tr) => tr.floor)));
   const showMesh = meta.mesh && state.body !== "skeleton";
   const showSkeleton = !meta.mesh || state.body !== "mesh";
   const posed = group.map((tr) => { const f = tr.frameAt(state.time); return [tr, f, Float64Array.from(tr.pose(f))]; });
@@ -159,10 +176,18 @@ function drawPanel(ctx, x, y, w, h, group, overlay) {
   }
   if (showSkeleton) for (const [tr, f, J] of posed) drawSkeleton(ctx, c, tr, f, J, showMesh);
   ctx.font = "600 13px system-ui, sans-serif"; ctx.textBaseline = "top";
-  posed.forEach(([tr, f], i) => {
+  let line = 0;
+  posed.forEach(([tr, f]) => {
     const ended = state.time * tr.fps > tr.T - 0.5 ? "  (ended)" : "";
+    const filled = tr.filledAt(f) ? `  (${tr.holeWord})` : "";
+    const where = `frame ${f + 1}/${tr.T}${filled}${ended}`;
     ctx.fillStyle = tr.color;
-    ctx.fillText(`${tr.name}  frame ${f + 1}/${tr.T}${ended}`, x + 10, y + 8 + i * 18);
+    if (ctx.measureText(`${tr.name}  ${where}`).width <= w - 20) {
+      ctx.fillText(`${tr.name}  ${where}`, x + 10, y + 8 + 18 * line++);
+    } else { // a narrow panel: the name, then where it is, each on its own line
+      ctx.fillText(tr.name, x + 10, y + 8 + 18 * line++);
+      ctx.fillText(where, x + 10, y + 8 + 18 * line++);
+    }
   });
   ctx.restore();
 }
@@ -176,6 +201,7 @@ function render() {
   const ctx = scene.getContext("2d");
   ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
   ctx.fillStyle = "#fbfbf9"; ctx.fillRect(0, 0, W, H);
+  view.panels = []; // each panel's camera as last drawn (for tests and the curious)
   if (state.layout === "overlay" || tracks.length === 1) drawPanel(ctx, 0, 0, W, H, tracks, true);
   else {
     const n = tracks.length, w = W / n;
