@@ -4,6 +4,7 @@ fetches nothing and logs no error. Skipped where Chromium is not installed."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 
@@ -32,6 +33,19 @@ SCENE_CHANGE = """(async () => {
   let n = 0; for (let i = 0; i < a.length; i++) if (a[i] !== b[i]) n++;
   return n / a.length;
 })()"""
+
+
+@contextlib.contextmanager
+def in_browser(path):
+    """A page file opened in a fresh headless browser, ready: -> its tab."""
+    browser = Chromium.launch()
+    try:
+        tab = browser.open_page(width=1000, height=800)
+        tab.navigate(file_url(path))
+        tab.wait_for(READY, timeout=60)
+        yield tab
+    finally:
+        browser.close()
 
 
 @pytest.fixture(scope="module")
@@ -136,11 +150,7 @@ def test_filled_frames_are_marked_on_the_plot(tmp_path, tiny_body):
     assert page_.motions[0]["filled_frames"] == 10
     path = tmp_path / "holes.html"
     write_view_page(page_, path)
-    browser = Chromium.launch()
-    try:
-        tab = browser.open_page(width=1000, height=800)
-        tab.navigate(file_url(path))
-        tab.wait_for(READY, timeout=60)
+    with in_browser(path) as tab:
         assert tab.evaluate("window.mdvaeView.seek(25)")["motions"][0]["filled"] is True
         assert tab.evaluate("window.mdvaeView.seek(40)")["motions"][0]["filled"] is False
         width = tab.evaluate("document.getElementById('plot').clientWidth")
@@ -151,8 +161,6 @@ def test_filled_frames_are_marked_on_the_plot(tmp_path, tiny_body):
         assert outside != inside
         assert "10 filled" in tab.evaluate("document.getElementById('legend').textContent")
         assert tab.evaluate("window.mdvaeView.errors") == [] and tab.errors() == []
-    finally:
-        browser.close()
 
 
 #: per panel of n equal columns of the scene canvas, the pixels of colour rgb below the labels
@@ -218,11 +226,7 @@ def test_motions_on_other_floors_and_far_apart_are_framed_whole(tmp_path, tiny_b
     path = tmp_path / "floors.html"
     page_ = build_view_page([("near", near), ("far", far)], BodyModel(tiny_body), mesh=False)
     write_view_page(page_, path)
-    browser = Chromium.launch()
-    try:
-        tab = browser.open_page(width=1000, height=800)
-        tab.navigate(file_url(path))
-        tab.wait_for(READY, timeout=60)
+    with in_browser(path) as tab:
         tab.evaluate("window.mdvaeView.seek(20)")
         panels = tab.evaluate("window.mdvaeView.panels")
         aims = [p["target"][2] for p in panels]
@@ -237,8 +241,6 @@ def test_motions_on_other_floors_and_far_apart_are_framed_whole(tmp_path, tiny_b
         far_px = tab.evaluate(PANEL_PIXELS % (1, "[0x1c, 0x7e, 0xd6]"))[0]  # PALETTE[1]
         assert near_px > 100 and far_px > 100, (near_px, far_px)
         assert tab.evaluate("window.mdvaeView.errors") == [] and tab.errors() == []
-    finally:
-        browser.close()
     from mdvae_cli.view.page import PALETTE
 
     assert len(set(PALETTE)) == len(PALETTE) == 12
