@@ -249,3 +249,17 @@ def test_view_tells_holes_the_file_lacks_from_frames_a_denoise_filled(tmp_path):
     motions = _page_meta(tmp_path / "p.html")["motions"]
     assert [m["filled"] for m in motions] == [[[10, 20]], [[10, 20]]]
     assert [m["missing_in_file"] for m in motions] == [True, False]
+
+
+def test_a_one_frame_take_is_a_pose_that_opens(tmp_path):
+    """A single-pose BVH (a rig's reference pose) was refused by every command ("a motion
+    needs at least 2 frames"), while a one-frame npz opened: it imports and views now, and
+    denoise says it is too short."""
+    take = write_rig(tmp_path / "pose.bvh", T=1)
+    code, out, err = run_cli("import", take, "-o", tmp_path / "pose.npz")
+    assert code == 0, out + err
+    assert np.load(tmp_path / "pose.npz")["poses"].shape[0] == 1
+    code, out, err = run_cli("view", take, "-o", tmp_path / "pose.html", "--no-mesh")
+    assert code == 0 and "1 frames" in err, out + err
+    line = one_error_line(*run_cli("denoise", take, "-o", tmp_path / "clean.bvh"))
+    assert "too short to denoise: 1 frame(s) at 30 Hz" in line, line

@@ -211,8 +211,8 @@ def retarget(
     called with (frames solved, frames) as each chunk of a take's frames is solved.
     """
     settings = (settings or RetargetSettings()).validate()
-    if src.num_frames < 2:
-        raise InputError(f"a motion needs at least 2 frames, this one has {src.num_frames}")
+    if src.num_frames < 1:
+        raise InputError("the take holds no frame")
     jmap = build_joint_map(src)
     src, S_world = to_smpl_axes(src, jmap)
     if betas is None:
