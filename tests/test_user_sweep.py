@@ -263,3 +263,45 @@ def test_a_one_frame_take_is_a_pose_that_opens(tmp_path):
     assert code == 0 and "1 frames" in err, out + err
     line = one_error_line(*run_cli("denoise", take, "-o", tmp_path / "clean.bvh"))
     assert "too short to denoise: 1 frame(s) at 30 Hz" in line, line
+
+
+HAND_BVH = """HIERARCHY
+ROOT lHand
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT finger2-1.l
+  {
+    OFFSET 0 3 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 2 0
+    }
+  }
+  JOINT finger3-1.l
+  {
+    OFFSET 1 3 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 2 0
+    }
+  }
+}
+MOTION
+Frames: 3
+Frame Time: 0.04
+0 0 0 0 0 0 0 0 0 5 0 0
+0 0 0 1 0 0 2 0 0 6 0 0
+0 0 0 2 0 0 4 0 0 7 0 0
+"""
+
+
+def test_a_hand_rig_is_told_it_is_no_whole_body(tmp_path):
+    """A hand-only take (MocapNET's hand rig) was told to name hips and knees in a joint map."""
+    path = tmp_path / "hand.bvh"
+    path.write_text(HAND_BVH)
+    line = one_error_line(*run_cli("import", path, "-o", tmp_path / "hand.npz"))
+    assert "no joint found for left_hip" in line
+    assert line.endswith("; a hand, a face or a prop is no body to retarget")

@@ -215,15 +215,15 @@ def _find_anchors(src: SourceMotion) -> dict[str, int]:
         head = _cat_head(src, norm, anchor)
         if head is not None:
             anchor["head"] = head
-    missing = [name for smpl in _REQUIRED for name in _sides(smpl)
-               if name not in anchor and smpl != "pelvis"]  # fmt: skip
+    missing = [n for smpl in _REQUIRED[1:] for n in _sides(smpl) if n not in anchor]
     if missing:
         joints = [n for n, end in zip(src.names, src.end_site, strict=True) if not end]
-        more = ", ..." if len(joints) > 12 else ""
+        few = len(missing) > 6  # over half of the 13 limb and head joints: no body at all?
         raise InputError(
             f"cannot map the skeleton onto SMPL: no joint found for {', '.join(missing)} "
-            f"(joints: {', '.join(joints[:12])}{more}); name them in a --joint-map FILE.json, "
-            f'e.g. {{"{missing[0]}": "<joint name>"}}'
+            f"(joints: {', '.join(joints[:12])}{', ...' * (len(joints) > 12)}); name them in "
+            f'a --joint-map FILE.json, e.g. {{"{missing[0]}": "<joint name>"}}'
+            f"{'; a hand, a face or a prop is no body to retarget' * few}"
         )
     if "pelvis" not in (src.info.get("joint_map") or {}):
         # the pelvis is where the legs and the spine part: names alone mislead (MakeHuman's
