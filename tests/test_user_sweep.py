@@ -305,3 +305,37 @@ def test_a_hand_rig_is_told_it_is_no_whole_body(tmp_path):
     line = one_error_line(*run_cli("import", path, "-o", tmp_path / "hand.npz"))
     assert "no joint found for left_hip" in line
     assert line.endswith("; a hand, a face or a prop is no body to retarget")
+
+
+def _headless_rig(path: Path) -> Path:
+    """The generated rig with its Head joint gone: the neck ends in an End Site, as in the
+    Poser / DAZ figures ``hip, abdomen, chest, neck`` (three.js's pirouette.bvh)."""
+    text = write_rig(path, T=40).read_text()
+    head, motion = text.split("MOTION\n")
+    start = head.index("JOINT Head")
+    start = head.rindex("\n", 0, start) + 1
+    depth, end = 0, head.index("{", start)
+    for end in range(end, len(head)):  # the Head block, to its closing brace
+        depth += {"{": 1, "}": -1}.get(head[end], 0)
+        if depth == 0:
+            break
+    pad = head[start : head.index("JOINT Head")]
+    site = f"{pad}End Site\n{pad}{{\n{pad}  OFFSET 0 0 10\n{pad}}}"
+    head = head[:start] + site + head[end + 1 :]
+    lines = motion.splitlines()
+    rows = [" ".join(v for i, v in enumerate(r.split()) if not 18 <= i < 21) for r in lines[2:]]
+    path.write_text(head + "MOTION\n" + "\n".join(lines[:2] + rows) + "\n")
+    return path
+
+
+def test_a_rig_without_a_head_joint_takes_its_necks_end(tmp_path):
+    """A neck whose only child is an End Site: the head is there (it was refused: "no joint
+    found for head"), said in a note; the take comes back on its own skeleton."""
+    path = _headless_rig(tmp_path / "figure.bvh")
+    out = tmp_path / "clean.bvh"
+    code, stdout, stderr = run_cli("denoise", path, "-o", out)
+    assert code == 0, stdout + stderr
+    assert "no head joint: the head is at the end of Neck" in stderr.replace("\n", " ")
+    before, after = path.read_text(), out.read_text()
+    assert after.split("MOTION")[0] == before.split("MOTION")[0]
+    assert "Frames: 40" in after

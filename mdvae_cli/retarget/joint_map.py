@@ -27,6 +27,7 @@ from mdvae_cli.body.data import NUM_BODY_JOINTS, SMPL_JOINT_NAMES
 from mdvae_cli.errors import InputError
 from mdvae_cli.formats.bvh_rotations import TurnedRotations
 from mdvae_cli.formats.source import SourceMotion
+from mdvae_cli.retarget.rig_heads import cat_head, neck_end
 from mdvae_cli.retarget.sides import exchange_sides, named_sides_mirrored
 
 _N = NUM_BODY_JOINTS
@@ -38,7 +39,7 @@ _IDX = {name: i for i, name in enumerate(SMPL_JOINT_NAMES)}
 #: ``LCalf``, ``LFoot``, ``LToe0``, ``LCollarbone``, ``LUpperarm1``, ``LForearm1``, ``LPalm``; a
 #: rig built from scratch ``LLeg1``, ``LLeg2``, ``LLegAnkle``, ``LLegDigit11``,
 #: ``LArmCollarbone``, ``LArm1``, ``LArm2``, ``LArmPalm`` (the rig's name, a prefix every bone
-#: shares, is cut by :func:`shared_prefix`; its head hub: :func:`_cat_head`)
+#: shares, is cut by :func:`shared_prefix`; its head hub: ``rig_heads.cat_head``)
 _ALIASES: dict[str, tuple[str, ...]] = {
     "pelvis": ("root", "hips", "pelvis", "hip"),
     "left_hip": ("lfemur", "leftupleg", "leftthigh", "lefthip", "lthigh", "lhip", "leftupperleg",
@@ -211,8 +212,9 @@ def _find_anchors(src: SourceMotion) -> dict[str, int]:
             hit = next((norm[a] for a in names if a in norm and norm[a] not in taken), None)
             if hit is not None:
                 anchor[name] = hit
-    if "head" not in anchor:
-        head = _cat_head(src, norm, anchor)
+    if "head" not in anchor:  # a rig that names none: a CAT rig's hub, a neck's end
+        head = cat_head(src, norm, anchor)
+        head = neck_end(src, norm) if head is None else head
         if head is not None:
             anchor["head"] = head
     missing = [n for smpl in _REQUIRED[1:] for n in _sides(smpl) if n not in anchor]
@@ -231,26 +233,6 @@ def _find_anchors(src: SourceMotion) -> dict[str, int]:
         legs_and_head = [anchor["left_hip"], anchor["right_hip"], anchor["head"]]
         anchor["pelvis"] = _common_ancestor(src.parents, legs_and_head)
     return anchor
-
-
-def _cat_head(src: SourceMotion, norm: dict[str, int], anchor: dict[str, int]) -> int | None:
-    """The head of a 3ds Max CAT rig built from scratch, whose hubs are numbered as made
-    (``Hub001`` the pelvis, ``Hub002`` the ribcage, ``Hub003`` the head): of its hubs that
-    carry no arm (no shoulder below them), the deepest; None without hubs or shoulders."""
-    shoulders = [anchor[k] for k in ("left_shoulder", "right_shoulder") if k in anchor]
-    hubs = [j for name, j in norm.items() if re.fullmatch(r"hub\d+", name)]
-    if not shoulders or not hubs:
-        return None
-
-    def above(j: int) -> list[int]:
-        out = []
-        while j >= 0:
-            out.append(j)
-            j = int(src.parents[j])
-        return out
-
-    armless = [h for h in hubs if not any(h in above(s) for s in shoulders)]
-    return max(armless, key=lambda h: len(above(h)), default=None)
 
 
 def _through_zero_offsets(src: SourceMotion, j: int) -> int:
