@@ -314,8 +314,8 @@ def _headless_rig(path: Path) -> Path:
     head, motion = text.split("MOTION\n")
     start = head.index("JOINT Head")
     start = head.rindex("\n", 0, start) + 1
-    depth, end = 0, head.index("{", start)
-    for end in range(end, len(head)):  # the Head block, to its closing brace
+    depth, opened = 0, head.index("{", start)
+    for end in range(opened, len(head)):  # the Head block, to its closing brace
         depth += {"{": 1, "}": -1}.get(head[end], 0)
         if depth == 0:
             break
