@@ -60,7 +60,7 @@ function target(group, w, h) {
   for (const tr of group) reach = Math.max(reach, Math.hypot(now[tr.index][0] - x, now[tr.index][1] - y));
   const t = Math.tan(cam.fov / 2), across = Math.max(t * (w / h), HALF_WIDTH / DIST0); // as camera() frames
   // a motion up to ``reach`` from the aim may stand that much nearer the camera
-  const back = reach + Math.max((0.5 * (high - low) + 1.0) / t, (reach + HALF_WIDTH) / across);
+  const back = reach + Math.max((0.5 * (high - low) + 1.3) / t, (reach + HALF_WIDTH) / across);
   return [[x, y, 0.5 * (low + high) + UP], Math.max(1, back / DIST0)];
 }
 
