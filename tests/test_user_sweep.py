@@ -260,7 +260,7 @@ def test_a_one_frame_take_is_a_pose_that_opens(tmp_path):
     assert code == 0, out + err
     assert np.load(tmp_path / "pose.npz")["poses"].shape[0] == 1
     code, out, err = run_cli("view", take, "-o", tmp_path / "pose.html", "--no-mesh")
-    assert code == 0 and "1 frames" in err, out + err
+    assert code == 0 and "1 motion(s), 1 frame, skeleton only)" in err, out + err
     line = one_error_line(*run_cli("denoise", take, "-o", tmp_path / "clean.bvh"))
     assert "too short to denoise: 1 frame(s) at 30 Hz" in line, line
 

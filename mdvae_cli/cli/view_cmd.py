@@ -161,7 +161,7 @@ def view(
         frames = sum(m["frames"] for m in page.motions)
         console.print(
             f"wrote {escape(str(out))} ({page.num_bytes / 1e6:.2f} MB, {len(items)} motion(s), "
-            f"{frames} frames"
+            f"{frames} frame{'s' * (frames != 1)}"
             f"{', skeleton only' if not page.mesh else ''})"
         )
     report.exit()

@@ -36,7 +36,7 @@ function setupControls() {
     name.textContent = tr.name;
     const drawn = tr.holeWord === "missing" ? " in the file, drawn interpolated" : "";
     const filled = tr.filledFrames ? `, ${tr.filledFrames} ${tr.holeWord}${drawn} (shaded on the plot)` : "";
-    info.className = "info"; info.textContent = `${tr.T} frames, ${+tr.fps.toFixed(3)} Hz${filled}`;
+    info.className = "info"; info.textContent = `${tr.T} frame${tr.T === 1 ? "" : "s"}, ${+tr.fps.toFixed(3)} Hz${filled}`;
     li.append(sw, name, info); legend.append(li);
   }
   // the curves keep 150 px above a left and a right contact strip per motion
