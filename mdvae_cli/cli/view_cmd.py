@@ -150,7 +150,7 @@ def view(
     report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out,
                                  input_fps, track, ahead)  # fmt: skip
     if not items:
-        _nothing_read(report, out, as_json)
+        _nothing_read(report, as_json)
     page = build_view_page(items, BodyModel(body_data), mesh=mesh, title=title)
     write_view_page(page, out, forbid=tuple(inputs))
     summary = {"output": str(out), "bytes": page.num_bytes, "mesh": page.mesh,
@@ -167,7 +167,7 @@ def view(
     report.exit()
 
 
-def _nothing_read(report, out: Path, as_json: bool) -> None:
+def _nothing_read(report, as_json: bool) -> None:
     """End a command none of whose inputs could be read (each said why in its ``error:``
     line): exit 1, with --json its summary on stdout (nothing written)."""
     if as_json:
@@ -252,7 +252,7 @@ def plot(
     report, items = read_motions(inputs, body_data, asf, joint_map_file, allow_pickle, out,
                                  input_fps, track)  # fmt: skip
     if not items:
-        _nothing_read(report, out, as_json)
+        _nothing_read(report, as_json)
     figure = draw_figure(items, BodyModel(body_data), spec)
     data = figure_bytes(figure, out.suffix.lower()[1:])
     write_atomic(out, lambda tmp: tmp.write_bytes(data), forbid=tuple(inputs))
