@@ -146,6 +146,7 @@ def loops_of(motions: list[Motion], settings: DenoiseSettings) -> list[bool]:
     return which_loop(motions)
 
 
+@float32_default()
 def denoise(
     motions: list[Motion],
     settings: DenoiseSettings | None = None,
@@ -171,14 +172,6 @@ def denoise(
     (memory flat in the take's length; not in optimisation mode, whose networks adapt to all
     of the motions at once). It runs with torch's default dtype float32 (as it was after).
     """
-    with float32_default():
-        return _denoise(motions, settings, denoiser, body, loops, progress, on_fallback,
-                        on_blend, on_smooth)  # fmt: skip
-
-
-def _denoise(motions, settings, denoiser, body, loops, progress, on_fallback, on_blend,
-             on_smooth) -> list[Motion]:  # fmt: skip
-    """:func:`denoise`'s work."""
     import copy
 
     motions = check_motions(motions)

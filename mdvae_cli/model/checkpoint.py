@@ -38,7 +38,7 @@ def float32_default():
     """torch's default dtype float32 inside the block, and as it was after: the networks are
     built, and the data they read made, in float32 whatever default a caller set
     (``torch.set_default_dtype(torch.float64)`` had left the networks in float64 beside
-    windows made in float32)."""
+    windows made in float32). Also a decorator: ``@float32_default()``."""
     before = torch.get_default_dtype()
     torch.set_default_dtype(torch.float32)
     try:
