@@ -57,6 +57,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from mdvae_cli.body.data import SMPL_PARENTS
 from mdvae_cli.body.skinning import BodyModel
 from mdvae_cli.filters import gaussian_smooth
 from mdvae_cli.geometry.rotations_np import rotvec_to_rotmat
@@ -365,10 +366,16 @@ FOOT_CHAIN = [0, 1, 2, 4, 5, 7, 8, 10, 11]
 
 
 def without_spikes(source: Motion) -> Motion:
-    """``source`` with its spikes in :data:`FOOT_CHAIN` marked as holes (``joint_mask``)."""
+    """``source`` with its spikes in :data:`FOOT_CHAIN` marked as holes (``joint_mask``), and
+    the joints of the chain below each: the cleaned frame read there in its stead keeps them
+    where the input had them in the world (``infer.spike_worlds``), which the input's own
+    local rotations under the cleaned one would not (a pelvis spike filled under the input's
+    hips, which had undone it, turned CMU 01_03's leg 6 degrees for a frame)."""
     spikes = source_spikes(source, FOOT_CHAIN)
     if not spikes.any():
         return source
+    for j in FOOT_CHAIN[1:]:  # parents first
+        spikes[:, j] |= spikes[:, int(SMPL_PARENTS[j])]
     marked = source.with_body()
     marked.joint_mask = observed(source) & ~spikes
     return marked

@@ -38,6 +38,7 @@ from mdvae_cli.geometry.rotations import rotvec_to_quat, rotvec_unwrap
 from mdvae_cli.geometry.rotations_np import rotvec_product
 from mdvae_cli.infer.fill import TAKE_NOISE_RAD, fill_spikes
 from mdvae_cli.infer.input_noise import ONE_AXIS_MARGIN, component_noise_variance, noise_variance
+from mdvae_cli.infer.spike_worlds import keep_worlds_below_spikes
 from mdvae_cli.infer.spikes import SPIKE_FLOOR_M, SPIKE_FLOOR_RAD, spike_frames
 from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion
@@ -368,4 +369,8 @@ def blend_motion(source: Motion, denoised: Motion, fast: bool = True) -> tuple[M
     )
     if spikes.any() or trans_spikes.any():
         out = fill_spikes(source, out, spikes, trans_spikes, unwrapped)
+    if spikes.any():  # the joints below a filled one where the input had them
+        rot = keep_worlds_below_spikes(rot_src, rot_den, out.joint_rotations, spikes,
+                                       None if missing is None else ~missing)  # fmt: skip
+        out = out.with_body(root_orient=rot[:, 0].astype(dtype), pose_body=rot[:, 1:].astype(dtype))
     return out, BlendReport(float(share.mean()), float(spikes.any(axis=1).mean()))

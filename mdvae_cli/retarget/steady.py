@@ -12,6 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from mdvae_cli.filters import gaussian_smooth
+from mdvae_cli.geometry.rotations_np import (
+    quat_slerp,
+    quat_to_rotmat,
+    rotmat_to_quat,
+    rotmat_to_rotvec,
+    rotvec_to_rotmat,
+)
+from mdvae_cli.infer.spike_worlds import followed_share, world_jumps
+from mdvae_cli.infer.spikes import SPIKE_FLOOR_RAD
 
 #: where the cleaning turned a joint by this much or more (degrees), its source joint's offset
 #: from it is read wholly smoothed over time (less: in proportion from STEADY_FROM_DEG on)
@@ -20,13 +29,18 @@ STEADY_TURN_DEG = 1.0
 STEADY_FROM_DEG = 0.01
 #: the offsets' smoothing: a Gaussian of this standard deviation (seconds: one model frame)
 STEADY_SECONDS = 1.0 / 30.0
+#: an offset that leaves its neighbours' midpoint by more than this (rad) for a frame, where
+#: the cleaning turned its joint briefly, is the retarget's miss of that frame
+#: (:func:`offset_jumps`): CMU 05_06's right wrist jumped 15 and 21 degrees and back in the
+#: retarget where the file's hand moved 2
+OFFSET_JUMP_RAD = SPIKE_FLOOR_RAD
 
 
-def body_weight(turn: np.ndarray) -> np.ndarray:
+def body_weight(turn: np.ndarray, fps: float) -> np.ndarray:
     """:func:`steady_weight` of the joint the cleaning turned most, frame by frame: the fit
     spreads every joint's noise over its points, so its misses are read smoothed wherever the
-    cleaning turned any joint.  turn: (T, 22, 3, 3) -> (T,)"""
-    return steady_weight(turn).max(axis=1)
+    cleaning turned any joint.  turn: (T, 22, 3, 3) at ``fps`` -> (T,)"""
+    return steady_weight(turn, fps).max(axis=1)
 
 
 def miss_jitter(fitted: np.ndarray, target, w: np.ndarray, fps: float) -> np.ndarray:
@@ -40,17 +54,128 @@ def miss_jitter(fitted: np.ndarray, target, w: np.ndarray, fps: float) -> np.nda
     return w[:, None] * (miss - gaussian_smooth(miss, STEADY_SECONDS * fps))
 
 
-def steady_weight(turn: np.ndarray) -> np.ndarray:
-    """How wholly an offset is read smoothed where the cleaning turned a joint by ``turn``
-    (..., 3, 3): 1 from :data:`STEADY_TURN_DEG` on, 0 under :data:`STEADY_FROM_DEG` (the
-    joint left alone), in proportion between.  -> (...)"""
+def turn_angle(turn: np.ndarray) -> np.ndarray:
+    """The angle (degrees) of rotations (..., 3, 3).  -> (...)"""
     cos = np.clip((np.trace(turn, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.degrees(np.arccos(cos))
+    return np.degrees(np.arccos(cos))
+
+
+def brief_turns(turn: np.ndarray, fps: float) -> np.ndarray:
+    """Where the cleaning turned a joint by :data:`STEADY_TURN_DEG` or more for too short a
+    time to read its offset smoothed (:func:`steady_weight` under 1 there): a spike filled.
+    turn: (T, ..., 3, 3) at ``fps`` -> (T, ...) bool"""
+    angle = turn_angle(turn)
+    return (angle >= STEADY_TURN_DEG) & (lasting(angle, _radius(fps)) < STEADY_TURN_DEG)
+
+
+def offset_jumps(
+    before: np.ndarray, now: np.ndarray, after: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whether an offset jumps away at a frame and back, by more than
+    :data:`OFFSET_JUMP_RAD` and more than it moves across it (the retarget missed a joint
+    for a frame: the file's joint did not jump, the retargeted one did), and the midpoint of
+    its neighbours.  before, now, after: the offset at the frame before, at it and after,
+    (n, 3, 3) each -> (n,) bool, (n, 3, 3)"""
+    q0, q1, q2 = (rotmat_to_quat(Y) for Y in (before, now, after))
+    mid = quat_slerp(q0, q2, 0.5)
+    away = 2.0 * np.arccos(np.clip(np.abs((mid * q1).sum(-1)), 0.0, 1.0))
+    across = 2.0 * np.arccos(np.clip(np.abs((q0 * q2).sum(-1)), 0.0, 1.0))
+    return (away > OFFSET_JUMP_RAD) & (away > across), quat_to_rotmat(mid)
+
+
+def steady_weight(turn: np.ndarray, fps: float) -> np.ndarray:
+    """How wholly an offset is read smoothed where the cleaning turned a joint by ``turn``
+    (T, ..., 3, 3) at ``fps``: 1 from :data:`STEADY_TURN_DEG` on, 0 under
+    :data:`STEADY_FROM_DEG` (the joint left alone), in proportion between, of the turn as it
+    lasts (:func:`lasting`): a turn of a frame or two alone (a spike filled in a clean take)
+    leaves the offset as it was there, since the offset read smoothed at that frame alone
+    would step away from its own frames either side by the retarget's jitter (CMU 01_08
+    through its own skeleton: 5-7 degree pops in the chest where the input was smooth).
+    -> (T, ...)"""
+    angle = lasting(turn_angle(turn), _radius(fps))
     return np.clip((angle - STEADY_FROM_DEG) / (STEADY_TURN_DEG - STEADY_FROM_DEG), 0.0, 1.0)
+
+
+def _radius(fps: float) -> int:
+    """Frames either side of a frame over which a turn must last (one model frame, at least
+    one)."""
+    return max(1, int(round(STEADY_SECONDS * fps)))
+
+
+def lasting(x: np.ndarray, radius: int) -> np.ndarray:
+    """The morphological opening of ``x`` (T, ...) along time: the moving minimum over
+    2 radius + 1 frames, then the moving maximum over as many (edges repeated): a rise that
+    lasts fewer frames than that is cut down to its surroundings, a longer one kept as it
+    is, dips kept.  -> (T, ...)"""
+    return _moving(_moving(x, radius, np.min), radius, np.max)
+
+
+def _moving(x: np.ndarray, radius: int, reduce) -> np.ndarray:
+    """``reduce`` (np.min / np.max) over the frames within ``radius`` of each, along axis 0
+    with edge values repeated.  x: (T, ...) -> (T, ...)"""
+    padded = np.concatenate([np.repeat(x[:1], radius, 0), x, np.repeat(x[-1:], radius, 0)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * radius + 1, axis=0)
+    return reduce(windows, axis=-1)
 
 
 def steady_halo(fps: float) -> int:
     """Frames of context a stretch of a take needs each side for the way back's smoothed reads
     (``way_back.driven_rotations``, the pelvis's) to give its frames as the whole take's would
     (the smoothing's reach)."""
-    return int(np.ceil(4.0 * STEADY_SECONDS * fps)) + 2
+    return int(np.ceil(4.0 * STEADY_SECONDS * fps)) + 2 + 2 * _radius(fps)
+
+
+def kept_below_brief_turn(
+    G2p: np.ndarray, Gp: np.ndarray, Gj: np.ndarray, brief: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """New local rotations of a joint the cleaning does not drive, under a parent it turned
+    briefly (a spike filled): the parent's turn ``D = G2p Gp^T`` carried down only in the
+    share the joint's world rotation jumped with its parent in the file
+    (``infer.spike_worlds.followed_share``). A joint that jumped with its parent (a glitch
+    of the limb) follows it, as every undriven joint does elsewhere; one that stayed put (the
+    file's hand steady under a forearm that jumped) keeps its world rotation there.
+
+    G2p, Gp: the parent's world rotations after and before (T, 3, 3); Gj: the joint's
+    before (T, 3, 3); brief: (T,) bool (:func:`brief_turns` of the parent's driver) ->
+    (the frames (n,), the joint's local rotations there (n, 3, 3))"""
+    t = np.flatnonzero(brief[1:-1]) + 1
+    if not len(t):
+        return t, np.empty((0, 3, 3))
+    u = rotmat_to_rotvec(G2p[t] @ np.swapaxes(Gp[t], -1, -2))
+    lam = followed_share(u, world_jumps(Gj[t - 1], Gj[t], Gj[t + 1]))
+    return t, np.swapaxes(G2p[t], -1, -2) @ rotvec_to_rotmat(lam[:, None] * u) @ Gj[t]
+
+
+class BriefTurns:
+    """Where the cleaning turned each driven joint of a take briefly (:func:`brief_turns`
+    of its driver's turn), worked out once per joint asked for; a joint no SMPL joint drives
+    was turned nowhere.  turn: (T, 22, 3, 3), drive: (J,) the file joint's driver or -1."""
+
+    def __init__(self, turn: np.ndarray, drive: np.ndarray, fps: float):
+        self.turn, self.drive, self.fps = turn, drive, fps
+        self.known: dict[int, np.ndarray] = {}
+
+    def __call__(self, j: int) -> np.ndarray:
+        """(T,) bool for file joint j."""
+        if self.drive[j] < 0:
+            return np.zeros(len(self.turn), bool)
+        if j not in self.known:
+            self.known[j] = brief_turns(self.turn[:, self.drive[j]], self.fps)
+        return self.known[j]
+
+
+def brief_jumps(R, before, after, Gj, brief) -> None:
+    """Where the cleaning turned a driven joint briefly (``brief`` (T, n): a spike filled)
+    and its offset from its driver jumped there (:func:`offset_jumps`: the retarget's own
+    miss, not the file's), ``R`` (T, n, 3, 3) takes ``after`` with the offset of the frames
+    either side, in place: turned by the fill of a jump the file never had, the file's joint
+    would jump the other way (CMU 05_06's right hand: 18 degrees for a frame where it moved 2).
+    before, after, Gj: (T, n, 3, 3)."""
+    t, k = np.nonzero(brief[1 : len(R) - 1])
+    if not len(t):
+        return
+    t = t + 1
+    Y = [np.swapaxes(before[t + d, k], -1, -2) @ Gj[t + d, k] for d in (-1, 0, 1)]
+    jumped, mid = offset_jumps(*Y)
+    t, k = t[jumped], k[jumped]
+    R[t, k] = after[t, k] @ mid[jumped]

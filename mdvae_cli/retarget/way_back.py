@@ -48,7 +48,11 @@ from mdvae_cli.retarget.held_channels import constant_channels, hold_channels
 from mdvae_cli.retarget.joint_map import JointMap
 from mdvae_cli.retarget.steady import (
     STEADY_SECONDS,
+    BriefTurns,
     body_weight,
+    brief_jumps,
+    brief_turns,
+    kept_below_brief_turn,
     miss_jitter,
     steady_halo,
     steady_weight,
@@ -153,7 +157,9 @@ def smpl_change(
     turn = after @ np.swapaxes(before, -1, -2)
     fitted = _pelvis(original, body)
     shift = _pelvis(cleaned, body) - fitted
-    shift += miss_jitter(fitted, rt.targets[frames, 0], body_weight(turn), original.fps)
+    shift += miss_jitter(
+        fitted, rt.targets[frames, 0], body_weight(turn, original.fps), original.fps
+    )
     return SmplChange(turn, before, after, shift @ M / scale)
 
 
@@ -177,24 +183,24 @@ def driven_rotations(
     js = np.flatnonzero(drive >= 0)
     ds = drive[js]
     turn, Gj = change.turn[:, ds], G[:, js]  # (T, n, 3, 3): every driven joint at once
-    w = steady_weight(turn)
+    after = change.after[:, ds]
+    R = turn @ Gj
+    brief_jumps(R, change.before[:, ds], after, Gj, brief_turns(turn, fps))
+    w = steady_weight(turn, fps)
     if not w.any():
-        out[:, js] = turn @ Gj
+        out[:, js] = R
         return out
     Y = np.swapaxes(change.before[:, ds], -1, -2) @ Gj
     q = quat_continuous(rotmat_to_quat(Y))  # (T, n, 4), smoothed as sign-continuous quaternions
     steady = quat_to_rotmat(gaussian_smooth(q.reshape(len(q), -1), STEADY_SECONDS * fps)
                             .reshape(q.shape))  # fmt: skip
-    after = change.after[:, ds]
-    R = after @ steady
+    full = w == 1
+    R[full] = after[full] @ steady[full]
     part = (w > 0) & (w < 1)  # a small turn: the step towards the smoothed offset scaled by it
     if part.any():
         Yp = Y[part]
         step = rotmat_to_rotvec(np.swapaxes(Yp, -1, -2) @ steady[part])
         R[part] = after[part] @ Yp @ rotvec_to_rotmat(w[part][:, None] * step)
-    alone = w == 0  # the turn alone there, made for those frames only
-    if alone.any():
-        R[alone] = turn[alone] @ Gj[alone]
     out[:, js] = R
     return out
 
@@ -215,7 +221,7 @@ def pelvis_point(
     target = ((rt.targets[frames, 0] + rt.drop) @ np.asarray(rt.to_output)) / scale
     arm = target - anchor
     out = target + change.shift - (change.turn[:, 0] @ arm[..., None])[..., 0]
-    w = body_weight(change.turn)
+    w = body_weight(change.turn, fps)
     if w.any():  # the steady arm's difference, in the world (none where w is 0: exact)
         before, after = change.before[:, 0], change.after[:, 0]
         own = (np.swapaxes(before, -1, -2) @ arm[..., None])[..., 0]
@@ -346,10 +352,17 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     # channels as they came) and the world rotation that gives it (G2, written over)
     new = data.copy()
     L2 = np.empty_like(G2)
+    brief = BriefTurns(change.turn, drive, src.fps)
     for j in range(src.num_joints):
         p = int(src.parents[j])
         if drive[j] < 0 and p >= 0:
             L2[:, j] = L[:, j]  # not driven: its channels as they were, following its parent
+            at, Lt = kept_below_brief_turn(G2[:, p], G[:, p], G[:, j], brief(p))
+            if len(at):  # ... but where its parent was turned briefly and it stayed put
+                L2t, rows = L2[at], new[at]
+                L2t[:, j] = Lt
+                _new_angles(layout, j, L2t, data[at], rows, held)
+                L2[at], new[at] = L2t, rows
         else:
             L2[:, j] = G2[:, j] if p < 0 else np.swapaxes(G2[:, p], -1, -2) @ G2[:, j]
             _new_angles(layout, j, L2, data, new, held)

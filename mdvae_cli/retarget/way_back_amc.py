@@ -40,7 +40,7 @@ from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import axis_rotations, closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.held_channels import constant_channels
-from mdvae_cli.retarget.steady import body_weight, miss_jitter
+from mdvae_cli.retarget.steady import BriefTurns, body_weight, kept_below_brief_turn, miss_jitter
 from mdvae_cli.retarget.way_back import (
     driven_rotations,
     drivers,
@@ -88,6 +88,27 @@ def amc_pose(src: SourceMotion, layout: AmcLayout, values: dict[str, np.ndarray]
             L[:, j] = dof_rotation(layout.frame(name), angles, "".join(a for _, a in rot))
     G, P = forward_kinematics(L, t, src.parents)
     return L, t, G, P
+
+
+def _keep_below_brief_turn(src, layout, j, rotations, brief, vals, new) -> None:
+    """Bone j, not driven, where its parent was turned briefly (``brief`` (T,): a spike
+    filled) and it stayed put in the file: its world rotation kept in the share it did not
+    jump with its parent (``steady.kept_below_brief_turn``), its dofs solved for it there, in
+    place in ``new`` and ``L2``. rotations: the world rotations before and after (T, J, 3, 3)
+    and the local ones after, filled down to j's parent."""
+    G, G2, L2 = rotations
+    p = int(src.parents[j])
+    if len(_listed(layout, src.names[j])) < 3:
+        return  # a hinge cannot hold its world rotation: it follows, as before
+    t, Lt = kept_below_brief_turn(G2[:, p], G[:, p], G[:, j], brief)
+    if not len(t):
+        return
+    rot = _listed(layout, src.names[j])
+    v = _solve(src, layout, [j], Lt, {b: x[t] for b, x in vals.items()})[src.names[j]]
+    new[src.names[j]][t[:, None], [c for c, _ in rot]] = v
+    L2[t, j] = dof_rotation(
+        layout.frame(src.names[j]), v * _unit(layout), "".join(a for _, a in rot)
+    )
 
 
 def _chain(src: SourceMotion, layout: AmcLayout, drive: np.ndarray, j: int) -> list[int]:
@@ -183,7 +204,7 @@ def _carried(rt, src, layout, drive, motions, body, P, G, moved, turn) -> dict:
         if np.linalg.norm(local, axis=-1).min() < 1e-6:
             continue  # the point sits on the joint: turning cannot move it
         move = Pc[:, k] - Po[:, k]
-        move += miss_jitter(Po[:, k], rt.targets[:, k], body_weight(turn), src.fps)
+        move += miss_jitter(Po[:, k], rt.targets[:, k], body_weight(turn, src.fps), src.fps)
         out[j] = (local, target + move @ M / scale - moved)
     return out
 
@@ -216,6 +237,7 @@ def write_back_amc(
     L2, G2, P2 = L.copy(), G.copy(), P.copy()
     unit = _unit(layout)
     held = held_bones(layout, vals)
+    brief = BriefTurns(D, drive, src.fps)
     for j in range(src.num_joints):
         p = int(src.parents[j])
         chain, R = [j], None
@@ -240,6 +262,8 @@ def write_back_amc(
                 new[name][:, [c for c, _ in rot]] = v
                 k = src.index(name)
                 L2[:, k] = dof_rotation(layout.frame(name), v * unit, "".join(a for _, a in rot))
+        elif p >= 0 and j not in carried and src.names[j] not in held:
+            _keep_below_brief_turn(src, layout, j, (G, G2, L2), brief(p), vals, new)
         for k in chain:
             q = int(src.parents[k])
             if q >= 0:

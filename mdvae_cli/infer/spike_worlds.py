@@ -1,0 +1,129 @@
+"""A spike filled in one joint leaves the joints below it where the input had them.
+
+The blend fills a spike joint by joint in local rotations (``infer.fill.fill_spikes``). A take
+whose joints were solved frame by frame (a retarget's spine, a pelvis and the hips) often
+jumps in one joint's local rotation while the joint below it jumps back: the world rotation
+below stays steady. Filling the one local jump and keeping the other turns the steady part of
+the body by the jump that was filled: one-frame pops of 5-12 degrees in the chest, neck and
+arms where the input was smooth (CMU 01_08, through its ASF/AMC skeleton: 542 such frames over
+the 22 joints, 85 over 8 degrees).
+
+So each joint below a filled one takes the filled joint's world correction only in the share
+its own world rotation carried the jump in the input: ``D_c = exp(lam u_c)``, with ``u_c`` the
+correction that following its parent (and its own fill) would give it, and ``lam`` the share
+of ``u_c`` that undoes the joint's own world jump away from its neighbours' midpoint (clipped
+to [0, 1]). A glitch in one joint's rotation (its children's worlds jump with it) is filled
+below it as before; a jump its children undid leaves them as they came.
+
+Pure numpy on one motion's local rotations (T, J, 3) axis-angle, the SMPL body's tree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mdvae_cli.body.data import SMPL_PARENTS
+from mdvae_cli.geometry.kinematics import world_rotations
+from mdvae_cli.geometry.rotations_np import (
+    quat_slerp,
+    quat_to_rotmat,
+    rotmat_to_quat,
+    rotmat_to_rotvec,
+    rotvec_to_quat,
+    rotvec_to_rotmat,
+)
+
+
+def _t(R: np.ndarray) -> np.ndarray:
+    """Transpose of rotation matrices (..., 3, 3)."""
+    return np.swapaxes(R, -1, -2)
+
+
+def world_jumps(before: np.ndarray, now: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """Each rotation's turn away from the midpoint of the frames either side, in the world
+    frame: ``log(G_now M^T)``, M the two neighbours' slerp midpoint.
+
+    before, now, after: (..., 3, 3) -> (..., 3) rotation vectors"""
+    mid = quat_slerp(rotmat_to_quat(before), rotmat_to_quat(after), 0.5)
+    return rotmat_to_rotvec(now @ _t(quat_to_rotmat(mid)))
+
+
+def followed_share(u: np.ndarray, jump: np.ndarray) -> np.ndarray:
+    """The share of a correction ``u`` that undoes a joint's own jump: the projection of
+    ``-jump`` on ``u`` over ``|u|^2``, clipped to [0, 1] (1 where ``u`` is nil).
+
+    u, jump: (..., 3) rotation vectors -> (...)"""
+    uu = (u * u).sum(-1)
+    lam = np.clip(-(u * jump).sum(-1) / np.maximum(uu, 1e-12), 0.0, 1.0)
+    return np.where(uu < 1e-12, 1.0, lam)
+
+
+def nearness(source: np.ndarray, denoised: np.ndarray, blended: np.ndarray) -> np.ndarray:
+    """How near the input the blend came: 1 - angle(blended, source) / angle(denoised,
+    source), clipped to [0, 1] (1 where the denoiser's output is the input).
+
+    source, denoised, blended: (..., 3) axis-angles -> (...)"""
+    src = _t(rotvec_to_rotmat(source))
+    apart = np.linalg.norm(rotmat_to_rotvec(src @ rotvec_to_rotmat(denoised)), axis=-1)
+    off = np.linalg.norm(rotmat_to_rotvec(src @ rotvec_to_rotmat(blended)), axis=-1)
+    near = np.clip(1.0 - off / np.maximum(apart, 1e-12), 0.0, 1.0)
+    return np.where(apart < 1e-6, 1.0, near)
+
+
+def keep_worlds_below_spikes(
+    source: np.ndarray,
+    denoised: np.ndarray,
+    filled: np.ndarray,
+    spikes: np.ndarray,
+    seen: np.ndarray | None = None,
+) -> np.ndarray:
+    """``filled`` (the blend of ``denoised`` with ``source``, its spikes filled) with each
+    joint below a filled one turned by the fill only in the share its world rotation jumped
+    with it in ``source``.
+
+    source, denoised, filled: (T, J, 3) local axis-angles, the root first (the SMPL tree);
+    spikes: (T, J) bool, the blend's; seen: (T, J) bool where the source has values (None:
+    all), a joint whose chain misses one about a frame follows its parent as before. Without
+    its spike, a joint would have come back as near its input as the blend brought it on the
+    frames either side (:func:`nearness`: 1 on a clean take, where the joints below are given
+    back their input's world rotation; 0 on a noisy one, where nothing changes).
+    -> (T, J, 3)"""
+    source, filled = np.asarray(source, np.float64), np.asarray(filled, np.float64)
+    denoised = np.asarray(denoised, np.float64)
+    T, J = spikes.shape
+    frames = np.flatnonzero(spikes.any(axis=1))
+    frames = frames[(frames >= 1) & (frames <= T - 2)]
+    if not len(frames):
+        return filled
+    parents = [int(p) for p in SMPL_PARENTS[:J]]
+    around = np.stack([source[frames - 1], source[frames], source[frames + 1]])
+    G_src = world_rotations(rotvec_to_rotmat(around), parents)  # (3, n, J, 3, 3)
+    jump = world_jumps(G_src[0], G_src[1], G_src[2])  # (n, J, 3)
+    free = np.ones((len(frames), J), bool)  # the chain has values about the frame
+    if seen is not None:
+        free = seen[frames - 1] & seen[frames] & seen[frames + 1]
+        for c in range(1, J):
+            free[:, c] &= free[:, parents[c]]
+    L_fill = rotvec_to_rotmat(filled[frames])
+    spiked = spikes[frames]
+    # the blend had it not been a spike: the filled frame turned toward the input's as far
+    # as the blend turned this joint toward its input on the frames either side
+    beside = np.concatenate([frames - 1, frames + 1])
+    near = nearness(source[beside], denoised[beside], filled[beside])
+    near = 0.5 * (near[: len(frames)] + near[len(frames) :])
+    toward = quat_slerp(rotvec_to_quat(filled[frames]), rotvec_to_quat(source[frames]), near)
+    G_kept = world_rotations(
+        np.where(spiked[..., None, None], quat_to_rotmat(toward), L_fill), parents
+    )
+    G_out = np.empty_like(L_fill)
+    L_out = L_fill.copy()
+    G_out[:, 0] = L_fill[:, 0]
+    for c in range(1, J):
+        p = parents[c]
+        u = rotmat_to_rotvec(G_out[:, p] @ L_fill[:, c] @ _t(G_kept[:, c]))
+        lam = np.where(free[:, c], followed_share(u, jump[:, c]), 1.0)
+        G_out[:, c] = rotvec_to_rotmat(lam[:, None] * u) @ G_kept[:, c]
+        L_out[:, c] = _t(G_out[:, p]) @ G_out[:, c]
+    out = filled.copy()
+    out[frames] = rotmat_to_rotvec(L_out)
+    return out
