@@ -65,10 +65,17 @@ def test_a_world_jump_is_read_against_the_neighbours_midpoint():
     mid = rotvec_to_rotmat(np.array([0.0, 0.0, 0.2]))
     jump = rotvec_to_rotmat(np.array([0.05, 0.0, 0.0]))
     np.testing.assert_allclose(world_jumps(R0, jump @ mid, R2), [0.05, 0.0, 0.0], atol=1e-12)
-    u = np.array([[-0.2, 0, 0], [-0.2, 0, 0], [0.2, 0, 0], [0, 0, 0]])
-    jumps = np.array([[0.2, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.1, 0, 0]])
-    # undone wholly, half, not at all (the joint jumped the other way), no correction at all
-    np.testing.assert_allclose(followed_share(u, jumps), [1.0, 0.5, 0.0, 1.0])
+    u = np.array([[-0.2, 0, 0], [-0.2, 0, 0], [0.2, 0, 0], [0, 0, 0], [-0.2, 0, 0], [-0.2, 0, 0]])
+    jumps = np.array(
+        [[0.2, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.1, 0, 0], [0.19, 0.1, 0], [0.01, 0, 0]]
+    )
+    # undone wholly, half, not at all (the joint jumped the other way), no correction at all;
+    # within the edge of whole and of nothing: whole, nothing
+    np.testing.assert_allclose(followed_share(u, jumps), [1.0, 0.5, 0.0, 1.0, 1.0, 0.0])
+    # near half a turn the axis of a rotation vector flips: a correction that large is
+    # followed whole, whatever the joint's jump reads
+    assert followed_share(np.array([3.0, 0, 0]), np.array([-3.0, 0, 0])) == 1.0
+    assert followed_share(np.array([3.0, 0, 0]), np.array([3.0, 0, 0])) == 1.0
 
 
 def test_a_jump_the_joints_below_undid_leaves_them_where_the_input_had_them():
