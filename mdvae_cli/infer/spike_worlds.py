@@ -48,8 +48,10 @@ def world_jumps(before: np.ndarray, now: np.ndarray, after: np.ndarray) -> np.nd
     return rotmat_to_rotvec(now @ _t(quat_to_rotmat(mid)))
 
 
-#: a correction over this (rad) is followed whole: near half a turn a rotation vector's axis
-#: flips, and no share of it can be read (a 179-degree glitch of a foot kept itself)
+#: a correction over this (rad), or a jump over it in the joint's chain, is followed whole:
+#: near half a turn a rotation vector's axis flips, and no share of it can be read (a
+#: 179-degree glitch of a foot kept itself; a 150-degree glitch of a hip with one of its ankle
+#: left the ankle 70 degrees off for a frame)
 READ_TURN_RAD = 0.5 * np.pi
 
 
@@ -128,17 +130,36 @@ def keep_worlds_below_spikes(
     L_fill = rotvec_to_rotmat(filled[frames])
     L_kept = np.where(spikes[frames][..., None, None], quat_to_rotmat(toward), L_fill)
     G_kept = world_rotations(L_kept, parents)
-    course = source
-    for _ in range(2):
-        around = np.stack([course[frames - 1], source[frames], course[frames + 1]])
-        G_src = world_rotations(rotvec_to_rotmat(around), parents)  # (3, n, J, 3, 3)
-        jump = world_jumps(G_src[0], G_src[1], G_src[2])  # (n, J, 3)
-        L_out = _kept_worlds(L_fill, G_kept, jump, free, parents)
-        course = source.copy()
-        course[frames] = rotmat_to_rotvec(L_out)
+    first = rotmat_to_rotvec(_kept_worlds(L_fill, G_kept, _jumps(source, frames), free, parents))
+    # a second pass where a frame beside had a spike, read against that frame as the first
+    # pass left it
+    again = np.flatnonzero(spikes[frames - 1].any(axis=1) | spikes[frames + 1].any(axis=1))
+    if len(again):
+        at = frames[again]
+        around = [_as_left(source, frames, first, at - 1), source[at],
+                  _as_left(source, frames, first, at + 1)]  # fmt: skip
+        jump = world_jumps(*world_rotations(rotvec_to_rotmat(np.stack(around)), parents))
+        first[again] = rotmat_to_rotvec(
+            _kept_worlds(L_fill[again], G_kept[again], jump, free[again], parents)
+        )
     out = filled.copy()
-    out[frames] = course[frames]
+    out[frames] = first
     return out
+
+
+def _as_left(source: np.ndarray, frames: np.ndarray, first: np.ndarray, at: np.ndarray):
+    """The rotations of frames ``at``: the first pass's (``first`` (n, J, 3), of ``frames``)
+    where it changed them, else the source's.  -> (m, J, 3)"""
+    k = np.clip(np.searchsorted(frames, at), 0, len(frames) - 1)
+    return np.where((frames[k] == at)[:, None, None], first[k], source[at])
+
+
+def _jumps(source: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """:func:`world_jumps` of every joint at ``frames`` (n,) of ``source`` (T, J, 3).
+    -> (n, J, 3)"""
+    around = np.stack([source[frames - 1], source[frames], source[frames + 1]])
+    parents = [int(p) for p in SMPL_PARENTS[: source.shape[1]]]
+    return world_jumps(*world_rotations(rotvec_to_rotmat(around), parents))
 
 
 def _kept_worlds(L_fill, G_kept, jump, free, parents) -> np.ndarray:
@@ -148,6 +169,10 @@ def _kept_worlds(L_fill, G_kept, jump, free, parents) -> np.ndarray:
     L_fill: (n, J, 3, 3) the filled local rotations; G_kept: (n, J, 3, 3) the world rotations
     without the spikes' fill; jump: (n, J, 3) each joint's world jump in the input; free: (n,
     J) bool -> the local rotations (n, J, 3, 3)"""
+    # a chain that jumped over READ_TURN_RAD (a glitch, not a solve's jitter) follows
+    free = free & (np.linalg.norm(jump, axis=-1) <= READ_TURN_RAD)
+    for c in range(1, len(parents)):
+        free[:, c] &= free[:, parents[c]]
     G_out = np.empty_like(L_fill)
     L_out = L_fill.copy()
     G_out[:, 0] = L_fill[:, 0]

@@ -36,13 +36,6 @@ STEADY_SECONDS = 1.0 / 30.0
 OFFSET_JUMP_RAD = SPIKE_FLOOR_RAD
 
 
-def body_weight(turn: np.ndarray, fps: float) -> np.ndarray:
-    """:func:`steady_weight` of the joint the cleaning turned most, frame by frame: the fit
-    spreads every joint's noise over its points, so its misses are read smoothed wherever the
-    cleaning turned any joint.  turn: (T, 22, 3, 3) at ``fps`` -> (T,)"""
-    return steady_weight(turn, fps).max(axis=1)
-
-
 def miss_jitter(fitted: np.ndarray, target, w: np.ndarray, fps: float) -> np.ndarray:
     """What of a retargeted point's miss of its target (``fitted - target``, (T, 3) each) is
     jitter about its course over time (:data:`STEADY_SECONDS`), by ``w`` (T,) (0: none;
@@ -60,12 +53,15 @@ def turn_angle(turn: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(cos))
 
 
-def brief_turns(turn: np.ndarray, fps: float) -> np.ndarray:
-    """Where the cleaning turned a joint by :data:`STEADY_TURN_DEG` or more for too short a
-    time to read its offset smoothed (:func:`steady_weight` under 1 there): a spike filled.
-    turn: (T, ..., 3, 3) at ``fps`` -> (T, ...) bool"""
+def turn_reading(turn: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
+    """How the cleaning's turns are read, from one pass over their angles: :func:`steady_weight`
+    and where a joint was turned by :data:`STEADY_TURN_DEG` or more for too short a time to
+    read its offset smoothed (the weight under 1 there: a spike filled).
+    turn: (T, ..., 3, 3) at ``fps`` -> (weight (T, ...), brief (T, ...) bool)"""
     angle = turn_angle(turn)
-    return (angle >= STEADY_TURN_DEG) & (lasting(angle, _radius(fps)) < STEADY_TURN_DEG)
+    lasted = lasting(angle, _radius(fps))
+    weight = np.clip((lasted - STEADY_FROM_DEG) / (STEADY_TURN_DEG - STEADY_FROM_DEG), 0.0, 1.0)
+    return weight, (angle >= STEADY_TURN_DEG) & (lasted < STEADY_TURN_DEG)
 
 
 def offset_jumps(
@@ -92,8 +88,7 @@ def steady_weight(turn: np.ndarray, fps: float) -> np.ndarray:
     would step away from its own frames either side by the retarget's jitter (CMU 01_08
     through its own skeleton: 5-7 degree pops in the chest where the input was smooth).
     -> (T, ...)"""
-    angle = lasting(turn_angle(turn), _radius(fps))
-    return np.clip((angle - STEADY_FROM_DEG) / (STEADY_TURN_DEG - STEADY_FROM_DEG), 0.0, 1.0)
+    return turn_reading(turn, fps)[0]
 
 
 def _radius(fps: float) -> int:
@@ -136,7 +131,7 @@ def kept_below_brief_turn(
     file's hand steady under a forearm that jumped) keeps its world rotation there.
 
     G2p, Gp: the parent's world rotations after and before (T, 3, 3); Gj: the joint's
-    before (T, 3, 3); brief: (T,) bool (:func:`brief_turns` of the parent's driver) ->
+    before (T, 3, 3); brief: (T,) bool (:func:`turn_reading` of the parent's driver) ->
     (the frames (n,), the joint's local rotations there (n, 3, 3))"""
     t = np.flatnonzero(brief[1:-1]) + 1
     if not len(t):
@@ -144,24 +139,6 @@ def kept_below_brief_turn(
     u = rotmat_to_rotvec(G2p[t] @ np.swapaxes(Gp[t], -1, -2))
     lam = followed_share(u, world_jumps(Gj[t - 1], Gj[t], Gj[t + 1]))
     return t, np.swapaxes(G2p[t], -1, -2) @ rotvec_to_rotmat(lam[:, None] * u) @ Gj[t]
-
-
-class BriefTurns:
-    """Where the cleaning turned each driven joint of a take briefly (:func:`brief_turns`
-    of its driver's turn), worked out once per joint asked for; a joint no SMPL joint drives
-    was turned nowhere.  turn: (T, 22, 3, 3), drive: (J,) the file joint's driver or -1."""
-
-    def __init__(self, turn: np.ndarray, drive: np.ndarray, fps: float):
-        self.turn, self.drive, self.fps = turn, drive, fps
-        self.known: dict[int, np.ndarray] = {}
-
-    def __call__(self, j: int) -> np.ndarray:
-        """(T,) bool for file joint j."""
-        if self.drive[j] < 0:
-            return np.zeros(len(self.turn), bool)
-        if j not in self.known:
-            self.known[j] = brief_turns(self.turn[:, self.drive[j]], self.fps)
-        return self.known[j]
 
 
 def brief_jumps(R, before, after, Gj, brief) -> None:

@@ -40,7 +40,7 @@ from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import axis_rotations, closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.held_channels import constant_channels
-from mdvae_cli.retarget.steady import BriefTurns, body_weight, kept_below_brief_turn, miss_jitter
+from mdvae_cli.retarget.steady import kept_below_brief_turn, miss_jitter
 from mdvae_cli.retarget.way_back import (
     driven_rotations,
     drivers,
@@ -180,12 +180,13 @@ def held_bones(layout: AmcLayout, values: dict[str, np.ndarray]) -> set[str]:
     return out
 
 
-def _carried(rt, src, layout, drive, motions, body, P, G, moved, turn) -> dict:
+def _carried(rt, src, layout, drive, motions, body, P, G, moved, w) -> dict:
     """Bones no SMPL joint drives that carry an SMPL joint's point (CMU's lowerback carries
     spine1): bone -> (the point's offset in the bone's frame (T, 3), where it should go (T, 3),
     before the root's final ``moved`` (T, 3)), file units: it moves as the SMPL joint did,
-    from the course of the retarget's miss of it where the cleaning turned the joint (``turn``
-    (T, 22, 3, 3), :func:`body_weight`, :func:`miss_jitter`), as the pelvis does."""
+    from the course of the retarget's miss of it where the cleaning turned the body (``w``
+    (T,): the largest of the joints' ``steady.steady_weight``, :func:`miss_jitter`), as the
+    pelvis does."""
     M = np.asarray(rt.to_output)
     scale = layout.metres_per_unit
     jm = rt.jmap
@@ -204,7 +205,7 @@ def _carried(rt, src, layout, drive, motions, body, P, G, moved, turn) -> dict:
         if np.linalg.norm(local, axis=-1).min() < 1e-6:
             continue  # the point sits on the joint: turning cannot move it
         move = Pc[:, k] - Po[:, k]
-        move += miss_jitter(Po[:, k], rt.targets[:, k], body_weight(turn, src.fps), src.fps)
+        move += miss_jitter(Po[:, k], rt.targets[:, k], w, src.fps)
         out[j] = (local, target + move @ M / scale - moved)
     return out
 
@@ -225,19 +226,18 @@ def write_back_amc(
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     scale = layout.metres_per_unit
     change = smpl_change(rt, original, cleaned, body, scale)
-    D = change.turn
+    weight, brief = change.reading(src.fps)
     L, t, G, P = amc_pose(src, layout, vals)
     drive = drivers(rt.jmap, src.num_joints)
     driven = driven_rotations(change, G, drive, src.fps)
     a = int(rt.jmap.anchor["pelvis"])
     new_a = pelvis_point(rt, change, P[:, a], scale, src.fps)
     carried = _carried(rt, src, layout, drive, (original, cleaned), body, P, G, new_a - P[:, a],
-                       D)  # fmt: skip
+                       weight.max(axis=1))  # fmt: skip
     new = {b: v.copy() for b, v in vals.items()}
     L2, G2, P2 = L.copy(), G.copy(), P.copy()
     unit = _unit(layout)
     held = held_bones(layout, vals)
-    brief = BriefTurns(D, drive, src.fps)
     for j in range(src.num_joints):
         p = int(src.parents[j])
         chain, R = [j], None
@@ -263,7 +263,8 @@ def write_back_amc(
                 k = src.index(name)
                 L2[:, k] = dof_rotation(layout.frame(name), v * unit, "".join(a for _, a in rot))
         elif p >= 0 and j not in carried and src.names[j] not in held:
-            _keep_below_brief_turn(src, layout, j, (G, G2, L2), brief(p), vals, new)
+            turned = brief[:, drive[p]] if drive[p] >= 0 else np.zeros(T, bool)
+            _keep_below_brief_turn(src, layout, j, (G, G2, L2), turned, vals, new)
         for k in chain:
             q = int(src.parents[k])
             if q >= 0:
