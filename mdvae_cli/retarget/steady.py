@@ -5,6 +5,12 @@ with the share of the noise the fit spread over neighbouring joints: each driven
 offset from its SMPL driver, the retargeted pelvis's miss of its target and its frame. Where
 the cleaning turned the body, the way back (``way_back``, ``way_back_amc``) reads those smoothed
 over time, by the weights here; where it left the body alone, exactly as they were.
+
+A turn of a frame or two (a spike the blend filled in a clean take) is no turn of the body:
+there each offset is read as it was (:func:`lasting`), but where the retarget's own offset
+jumped on that frame (:func:`offset_jumps`) its neighbours' is used, and an undriven joint
+under the turned one keeps its world rotation in the share it did not jump with it
+(:func:`kept_below_brief_turn`).
 """
 
 from __future__ import annotations
