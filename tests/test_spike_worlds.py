@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import numpy as np
 from click.testing import CliRunner
+from test_amc_out import write_take_files
 from test_bvh_out import write_rig
 from test_noise_blend import smooth_track
 
 from mdvae_cli.body.data import SMPL_PARENTS
+from mdvae_cli.body.formats import load_body_model
 from mdvae_cli.cli.main import cli
+from mdvae_cli.formats.asf import load_asf
 from mdvae_cli.formats.bvh import load_bvh
 from mdvae_cli.formats.bvh_write import write_bvh
 from mdvae_cli.geometry.euler import rotmat_to_euler
@@ -21,12 +24,15 @@ from mdvae_cli.infer.feet import FOOT_CHAIN, without_spikes
 from mdvae_cli.infer.noise_blend import blend_motion
 from mdvae_cli.infer.spike_worlds import followed_share, keep_worlds_below_spikes, world_jumps
 from mdvae_cli.motion.motion import Motion
+from mdvae_cli.retarget.fit_shape import BodyJoints
+from mdvae_cli.retarget.source_file import load_source
 from mdvae_cli.retarget.steady import (
     kept_below_brief_turn,
     lasting,
     offset_jumps,
     steady_weight,
 )
+from mdvae_cli.retarget.take import read_take, write_take
 
 PARENTS = [int(p) for p in SMPL_PARENTS[:22]]
 SPINE1, SPINE2, SPINE3 = 3, 6, 9
@@ -215,3 +221,23 @@ def test_the_foot_locks_reference_reads_the_legs_below_a_pelvis_spike_as_cleaned
     assert not seen[t, FOOT_CHAIN].any()  # the pelvis and every leg joint below it
     assert seen[t, [3, 6, 9, 16, 20]].all()  # the spine and arms are no goal of the feet
     assert seen[np.arange(T) != t].all()
+
+
+def test_an_amc_bone_without_a_driver_keeps_its_world_under_a_one_frame_turn(tmp_path):
+    path, asf = write_take_files(tmp_path / "in", T=240)
+    skeleton = load_asf(asf)
+    take = read_take(path, BodyJoints(load_body_model(None)), source=load_source(path, skeleton))
+    t, original = 120, take.motion
+    pose = original.pose_body.copy()
+    turn = rotvec_to_rotmat(np.array([0.0, 0.25, 0.1]))
+    pose[t, 17] = rotmat_to_rotvec(turn @ rotvec_to_rotmat(pose[t, 17]))  # the left elbow
+    write_take(take, original.with_body(pose_body=pose), tmp_path / "out" / "out.amc")
+    before, after = (load_source(p, skeleton) for p in (path, tmp_path / "out" / "out.amc"))
+    G0, G1 = (world_rotations(np.asarray(m.rotations), m.parents) for m in (before, after))
+    names = list(before.names)
+    wrist, thumb = names.index("lwrist"), names.index("lthumb")  # lthumb: rx rz, undriven
+    moved = _angle(G1[t, wrist], G0[t, wrist])
+    assert moved > 0.1  # the driven wrist turned with the elbow for the frame ...
+    assert _angle(G1[t, thumb], G0[t, thumb]) < 0.5 * moved  # ... its thumb stayed near
+    rest = np.arange(len(G0)) != t
+    assert _angle(G1[rest, thumb], G0[rest, thumb]).max() < 1e-3  # the other frames as they came
