@@ -94,8 +94,9 @@ def _keep_below_brief_turn(src, layout, j, rotations, brief, vals, new) -> None:
     """Bone j, not driven, where its parent was turned briefly (``brief`` (T,): a spike
     filled) and it stayed put in the file: its world rotation kept in the share it did not
     jump with its parent (``steady.kept_below_brief_turn``), its dofs solved for it there
-    (fewer than three: as near it as they reach, ``_solve``), in place in ``new`` and ``L2``. rotations: the world rotations before and after (T, J, 3, 3)
-    and the local ones after, filled down to j's parent."""
+    (fewer than three: as near it as they reach, ``_solve``), in place in ``new`` and
+    ``L2``. rotations: the world rotations before and after (T, J, 3, 3) and the local ones
+    after, filled down to j's parent."""
     G, G2, L2 = rotations
     p = int(src.parents[j])
     if not _listed(layout, src.names[j]):
