@@ -11,9 +11,9 @@ the 22 joints, 85 over 8 degrees).
 So each joint below a filled one takes the filled joint's world correction only in the share
 its own world rotation carried the jump in the input: ``D_c = exp(lam u_c)``, with ``u_c`` the
 correction that following its parent (and its own fill) would give it, and ``lam`` the share
-of ``u_c`` that undoes the joint's own world jump away from its neighbours' midpoint (clipped
-to [0, 1]). A glitch in one joint's rotation (its children's worlds jump with it) is filled
-below it as before; a jump its children undid leaves them as they came.
+of ``u_c`` that undoes the joint's own world jump away from its neighbours' midpoint
+(:func:`followed_share`). A glitch in one joint's rotation (its children's worlds jump with
+it) is filled below it as before; a jump its children undid leaves them as they came.
 
 Pure numpy on one motion's local rotations (T, J, 3) axis-angle, the SMPL body's tree.
 """
@@ -50,8 +50,8 @@ def world_jumps(before: np.ndarray, now: np.ndarray, after: np.ndarray) -> np.nd
 
 #: a correction over this (rad), or a jump over it in the joint's chain, is followed whole:
 #: near half a turn a rotation vector's axis flips, and no share of it can be read (a
-#: 179-degree glitch of a foot kept itself; a 150-degree glitch of a hip with one of its ankle
-#: left the ankle 70 degrees off for a frame)
+#: 179-degree glitch of a foot kept itself; a 150-degree glitch of a hip on the same frame as one
+#: of its ankle left the ankle 70 degrees off)
 READ_TURN_RAD = 0.5 * np.pi
 
 
