@@ -32,7 +32,7 @@ sys.path.insert(0, str(REPO))
 from benchmarks.common import markdown_table  # noqa: E402
 from mdvae_cli.formats.asf import load_asf  # noqa: E402
 from mdvae_cli.geometry.kinematics import world_rotations  # noqa: E402
-from mdvae_cli.geometry.rotations_np import quat_slerp, rotmat_to_quat  # noqa: E402
+from mdvae_cli.infer.spike_worlds import world_jumps  # noqa: E402
 from mdvae_cli.retarget.source_file import load_source  # noqa: E402
 
 POP_DEG, BIG_POP_DEG, STILL_DEG = 5.0, 8.0, 3.0
@@ -69,10 +69,8 @@ def worlds(path: Path, asf: Path | None) -> np.ndarray:
 def off_course(G: np.ndarray) -> np.ndarray:
     """Degrees each frame's rotation leaves its neighbours' slerp midpoint (0 at the ends).
     G: (T, J, 3, 3) -> (T, J)"""
-    q = rotmat_to_quat(G)
-    mid = quat_slerp(q[:-2], q[2:], 0.5)
     out = np.zeros(G.shape[:2])
-    out[1:-1] = np.degrees(2.0 * np.arccos(np.clip(np.abs((mid * q[1:-1]).sum(-1)), 0.0, 1.0)))
+    out[1:-1] = np.degrees(np.linalg.norm(world_jumps(G[:-2], G[1:-1], G[2:]), axis=-1))
     return out
 
 

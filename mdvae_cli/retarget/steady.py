@@ -19,9 +19,6 @@ import numpy as np
 
 from mdvae_cli.filters import gaussian_smooth
 from mdvae_cli.geometry.rotations_np import (
-    quat_slerp,
-    quat_to_rotmat,
-    rotmat_to_quat,
     rotmat_to_rotvec,
     rotvec_to_rotmat,
 )
@@ -78,11 +75,11 @@ def offset_jumps(
     for a frame: the file's joint did not jump, the retargeted one did), and the midpoint of
     its neighbours.  before, now, after: the offset at the frame before, at it and after,
     (n, 3, 3) each -> (n,) bool, (n, 3, 3)"""
-    q0, q1, q2 = (rotmat_to_quat(Y) for Y in (before, now, after))
-    mid = quat_slerp(q0, q2, 0.5)
-    away = 2.0 * np.arccos(np.clip(np.abs((mid * q1).sum(-1)), 0.0, 1.0))
-    across = 2.0 * np.arccos(np.clip(np.abs((q0 * q2).sum(-1)), 0.0, 1.0))
-    return (away > OFFSET_JUMP_RAD) & (away > across), quat_to_rotmat(mid)
+    jump = world_jumps(before, now, after)  # now = exp(jump) @ midpoint
+    away = np.linalg.norm(jump, axis=-1)
+    across = np.linalg.norm(rotmat_to_rotvec(after @ np.swapaxes(before, -1, -2)), axis=-1)
+    mid = rotvec_to_rotmat(-jump) @ now
+    return (away > OFFSET_JUMP_RAD) & (away > across), mid
 
 
 def steady_weight(turn: np.ndarray, fps: float) -> np.ndarray:
@@ -145,6 +142,15 @@ def kept_below_brief_turn(
     u = rotmat_to_rotvec(G2p[t] @ np.swapaxes(Gp[t], -1, -2))
     lam = followed_share(u, world_jumps(Gj[t - 1], Gj[t], Gj[t + 1]))
     return t, np.swapaxes(G2p[t], -1, -2) @ rotvec_to_rotmat(lam[:, None] * u) @ Gj[t]
+
+
+def below_brief_turn(G2, G, brief, drive, p: int, j: int):
+    """:func:`kept_below_brief_turn` of undriven joint j under p (world rotations after
+    ``G2`` and before ``G`` (T, J, 3, 3); ``brief`` (T, 22) of the body's joints); nothing
+    where no SMPL joint drives p. -> (frames (n,), j's local rotations there (n, 3, 3))"""
+    if drive[p] < 0:
+        return np.empty(0, int), np.empty((0, 3, 3))
+    return kept_below_brief_turn(G2[:, p], G[:, p], G[:, j], brief[:, drive[p]])
 
 
 def brief_jumps(R, before, after, Gj, brief) -> None:

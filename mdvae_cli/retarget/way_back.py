@@ -48,8 +48,8 @@ from mdvae_cli.retarget.held_channels import constant_channels, hold_channels
 from mdvae_cli.retarget.joint_map import JointMap
 from mdvae_cli.retarget.steady import (
     STEADY_SECONDS,
+    below_brief_turn,
     brief_jumps,
-    kept_below_brief_turn,
     miss_jitter,
     steady_halo,
     turn_reading,
@@ -364,8 +364,7 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
         p = int(src.parents[j])
         if drive[j] < 0 and p >= 0:
             L2[:, j] = L[:, j]  # not driven: its channels as they were, following its parent
-            turned = brief[:, drive[p]] if drive[p] >= 0 else np.zeros(T, bool)
-            at, Lt = kept_below_brief_turn(G2[:, p], G[:, p], G[:, j], turned)
+            at, Lt = below_brief_turn(G2, G, brief, drive, p, j)
             if len(at):  # ... but where its parent was turned briefly and it stayed put
                 L2t, rows = L2[at], new[at]
                 L2t[:, j] = Lt

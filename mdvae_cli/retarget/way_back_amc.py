@@ -40,7 +40,7 @@ from mdvae_cli.motion.motion import Motion
 from mdvae_cli.retarget.dof_solve import axis_rotations, closest_angles
 from mdvae_cli.retarget.fit_shape import BodyJoints
 from mdvae_cli.retarget.held_channels import constant_channels
-from mdvae_cli.retarget.steady import kept_below_brief_turn, miss_jitter
+from mdvae_cli.retarget.steady import below_brief_turn, miss_jitter
 from mdvae_cli.retarget.way_back import (
     driven_rotations,
     drivers,
@@ -90,21 +90,21 @@ def amc_pose(src: SourceMotion, layout: AmcLayout, values: dict[str, np.ndarray]
     return L, t, G, P
 
 
-def _keep_below_brief_turn(src, layout, j, rotations, brief, vals, new) -> None:
-    """Bone j, not driven, where its parent was turned briefly (``brief`` (T,): a spike
-    filled) and it stayed put in the file: its world rotation kept in the share it did not
-    jump with its parent (``steady.kept_below_brief_turn``), its dofs solved for it there
-    (fewer than three: as near it as they reach, ``_solve``), in place in ``new`` and
-    ``L2``. rotations: the world rotations before and after (T, J, 3, 3) and the local ones
-    after, filled down to j's parent."""
+def _keep_below_brief_turn(src, layout, j, rotations, brief, drive, vals, new) -> None:
+    """Bone j, not driven, where its parent was turned briefly (a spike filled: ``brief``
+    (T, 22) of the body's joints, ``drive`` the bones' drivers) and it stayed put in the file:
+    its world rotation kept in the share it did not jump with its parent
+    (``steady.below_brief_turn``), its dofs solved for it there (fewer than three: as near
+    it as they reach, ``_solve``), in place in ``new`` and ``L2``. rotations: the world
+    rotations before and after (T, J, 3, 3) and the local ones after, filled down to j's
+    parent."""
     G, G2, L2 = rotations
-    p = int(src.parents[j])
-    if not _listed(layout, src.names[j]):
+    rot = _listed(layout, src.names[j])
+    if not rot:
         return  # a bone without rotation dofs cannot turn: it follows, as before
-    t, Lt = kept_below_brief_turn(G2[:, p], G[:, p], G[:, j], brief)
+    t, Lt = below_brief_turn(G2, G, brief, drive, int(src.parents[j]), j)
     if not len(t):
         return
-    rot = _listed(layout, src.names[j])
     v = _solve(src, layout, [j], Lt, {b: x[t] for b, x in vals.items()})[src.names[j]]
     new[src.names[j]][t[:, None], [c for c, _ in rot]] = v
     L2[t, j] = dof_rotation(
@@ -264,8 +264,7 @@ def write_back_amc(
                 k = src.index(name)
                 L2[:, k] = dof_rotation(layout.frame(name), v * unit, "".join(a for _, a in rot))
         elif p >= 0 and j not in carried and src.names[j] not in held:
-            turned = brief[:, drive[p]] if drive[p] >= 0 else np.zeros(T, bool)
-            _keep_below_brief_turn(src, layout, j, (G, G2, L2), turned, vals, new)
+            _keep_below_brief_turn(src, layout, j, (G, G2, L2), brief, drive, vals, new)
         for k in chain:
             q = int(src.parents[k])
             if q >= 0:
