@@ -221,19 +221,23 @@ def test_the_noise_is_each_channels_median_over_the_take():
 
 
 @pytest.mark.parametrize("name", ["back.bvh", "back.bvh.gz"])
-def test_a_bvh_is_written_in_pieces_as_one_text(tmp_path, monkeypatch, name):
-    """The writer formats and writes a few thousand rows at a time: the file is byte for byte
-    the text made at once."""
+@pytest.mark.parametrize("side_by_side", [False, True])
+def test_a_bvh_is_written_in_pieces_as_one_text(tmp_path, monkeypatch, name, side_by_side):
+    """The writer formats and writes a few thousand rows at a time, in order, also when the
+    pieces are formatted side by side on two threads (``workers.map_in_order``, as the way
+    back writes a take): the file is byte for byte the text made at once."""
     import gzip
 
     import mdvae_cli.formats.bvh_write as bw
     from mdvae_cli.formats.bvh import load_bvh
+    from mdvae_cli.workers import map_in_order
     from tests.test_bvh_out import write_rig
 
     layout = load_bvh(write_rig(tmp_path / "take.bvh", T=90)).layout
     monkeypatch.setattr(bw, "ROWS_PER_PIECE", 7)
     assert len(list(bw.motion_pieces(layout.header, layout.data, layout.frame_time))) == 14
-    bw.write_bvh(layout, layout.data, tmp_path / name)
+    rows_map = (lambda fn, items: map_in_order(fn, items, workers=2)) if side_by_side else map
+    bw.write_bvh(layout, layout.data, tmp_path / name, rows_map=rows_map)
     raw = (tmp_path / name).read_bytes()
     raw = gzip.decompress(raw) if name.endswith(".gz") else raw
     monkeypatch.setattr(bw, "ROWS_PER_PIECE", 10**6)

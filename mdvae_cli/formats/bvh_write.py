@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
@@ -113,18 +113,26 @@ def line_ending(text: str) -> str:
 
 
 def motion_pieces(
-    header: str, data: np.ndarray, frame_time: str, labels=("Frames: ", "Frame Time: ")
+    header: str,
+    data: np.ndarray,
+    frame_time: str,
+    labels=("Frames: ", "Frame Time: "),
+    rows_map: Callable = map,
 ) -> Iterator[str]:
     """A BVH file in pieces: ``header`` (through the MOTION line), the frame count, the frame
     time as given (each after its word in ``labels``, as the file spelled it), then the rows of
     ``data`` (F, C), ``ROWS_PER_PIECE`` at a time; every line ends as the header's lines do
-    (:func:`line_ending`)."""
+    (:func:`line_ending`). rows_map: how the pieces' rows are formatted, ``map(fn, starts)``
+    or one that keeps the order and runs them side by side (``workers.map_in_order``)."""
     nl = line_ending(header)
     frames, time = labels  # as the file spells them
     yield f"{header.rstrip()}{nl}{frames}{data.shape[0]}{nl}{time}{frame_time}{nl}"
-    for start in range(0, data.shape[0], ROWS_PER_PIECE):
+
+    def piece(start: int) -> str:
         rows = format_rows(data[start : start + ROWS_PER_PIECE])
-        yield rows if nl == "\n" else rows.replace("\n", nl)
+        return rows if nl == "\n" else rows.replace("\n", nl)
+
+    yield from rows_map(piece, range(0, data.shape[0], ROWS_PER_PIECE))
 
 
 def motion_text(header: str, data: np.ndarray, frame_time: str) -> str:
@@ -182,14 +190,15 @@ def frame_time_text(fps: float, like: str) -> str:
 
 def write_bvh(
     layout, data: np.ndarray, path: Path | str, forbid: tuple[Path, ...] = (),
-    fps: float | None = None,
+    fps: float | None = None, rows_map: Callable = map,
 ) -> None:  # fmt: skip
     """Write every frame ``data`` (F, C) under the file's own header (``layout``: a
     :class:`~mdvae_cli.formats.bvh.BvhLayout`), atomically, in the file's own encoding and
     line endings. fps: the rate to write when it is not the file's own (``--fps``): its
-    Frame Time as the file writes one (:func:`frame_time_text`); None keeps the file's."""
+    Frame Time as the file writes one (:func:`frame_time_text`); None keeps the file's.
+    rows_map: as :func:`motion_pieces` takes it."""
     frame_time = layout.frame_time if fps is None else frame_time_text(fps, layout.frame_time)
-    pieces = motion_pieces(layout.header, data, frame_time, layout.labels)
+    pieces = motion_pieces(layout.header, data, frame_time, layout.labels, rows_map)
     write_text(path, pieces, forbid=forbid, encoding=layout.encoding)
 
 

@@ -32,6 +32,7 @@ from mdvae_cli.retarget.retarget import RetargetResult, import_motion
 from mdvae_cli.retarget.source_file import load_source
 from mdvae_cli.retarget.way_back import translation_dropped, write_back_data
 from mdvae_cli.retarget.way_back_amc import write_back_amc
+from mdvae_cli.workers import map_in_order
 
 #: take suffixes (``.gz`` variants too); each is written back in its own form
 TAKE_SUFFIXES = (".bvh", ".amc")
@@ -200,7 +201,7 @@ def write_take(
             raise InputError(f"{take.path}: the way back gave non-finite values; nothing written")
         own = take.source.info.get("fps_in_file", take.source.fps)  # --fps: the rate used
         rate = None if abs(take.source.fps - own) <= 1e-9 * own else take.source.fps
-        write_bvh(take.source.layout, data, out, forbid=forbid, fps=rate)
+        write_bvh(take.source.layout, data, out, forbid=forbid, fps=rate, rows_map=map_in_order)
         return (
             _dropped_move(take, cleaned) if translation_dropped(take.source, take.retarget) else []
         )
