@@ -119,6 +119,64 @@ def test_a_glitch_of_one_joint_is_filled_below_it_too():
     np.testing.assert_allclose(out.pose_body[t, 6], glitch[t, 7], atol=1e-9)  # its own local
 
 
+def test_a_partly_kept_pelvis_spike_the_spine_undid_leaves_the_spine_steady():
+    """A pelvis that jumps for a frame while the spine above it holds its world rotation (a
+    retarget's pelvis spike, CMU 01_08), on a take whose pelvis the blend keeps only half of:
+    the spine's world rotation goes on as the blend turned it on the frames either side, with
+    no jump of its own (before, it took half the pelvis's fill: a pop of ~3 degrees)."""
+    T, t = 9, 4
+    source = np.zeros((T, 22, 3))
+    spike = rotvec_to_rotmat(np.array([0.0, 0.0, 0.1]))  # 5.7 degrees for one frame
+    source[t, 0] = rotmat_to_rotvec(spike)
+    source[t, SPINE1] = rotmat_to_rotvec(spike.T)  # the spine held its world rotation
+    source[t, [1, 2]] = rotmat_to_rotvec(spike.T)  # and the hips
+    lean = np.array([0.04, 0.0, 0.0])  # the denoiser leans the pelvis by 2.3 degrees
+    denoised = np.zeros((T, 22, 3))
+    denoised[:, 0] = lean
+    filled = source.copy()
+    filled[:, 0] = 0.5 * lean  # the blend kept half of the input's pelvis ...
+    filled[t, 0] = lean  # ... and filled its spike with the denoiser's
+    spikes = np.zeros((T, 22), bool)
+    spikes[t, 0] = True
+    out = keep_worlds_below_spikes(source, denoised, filled, spikes)
+    G_out = _worlds(out)
+    steady = rotvec_to_rotmat(0.5 * lean)  # the spine's world turn on the frames beside
+    for j in (SPINE1, SPINE2, SPINE3, 12, 15, 1, 2, 4, 7):
+        jump = np.linalg.norm(world_jumps(G_out[t - 1, j], G_out[t, j], G_out[t + 1, j]))
+        assert jump < 1e-6, (j, jump)
+        assert _angle(G_out[t, j], steady) < 1e-6
+    np.testing.assert_allclose(out[t, 0], lean, atol=1e-12)  # the filled pelvis as it was
+    rest = np.arange(T) != t
+    np.testing.assert_allclose(out[rest], filled[rest], atol=1e-12)
+
+
+def test_inside_a_run_of_spikes_the_joints_below_follow_the_fill():
+    """A shoulder that spikes four frames running and its elbow three (CMU 01_03's left arm):
+    where the chain has spikes on both frames beside, the joints below follow the fill, as it
+    left them. A share read frame by frame along a run is no steady course: read there, the
+    elbow and wrist jumped 12-15 degrees for two frames where the input's moved 3."""
+    T, shoulder, elbow, wrist = 10, 16, 18, 20
+    rng = np.random.default_rng(1)
+    source = np.zeros((T, 22, 3))
+    for t in range(3, 7):
+        d = rng.normal(0, 0.15, 3)
+        source[t, shoulder] = d
+        if t <= 5:
+            source[t, elbow] = -0.5 * d + rng.normal(0, 0.03, 3)  # undone in part, askew
+    denoised = np.zeros((T, 22, 3))
+    denoised[:, :, 0] = 0.02  # the denoiser: a little off the input everywhere
+    filled = source.copy()
+    filled[3:7, shoulder] = denoised[3:7, shoulder]
+    filled[3:6, elbow] = denoised[3:6, elbow]
+    spikes = np.zeros((T, 22), bool)
+    spikes[3:7, shoulder] = True
+    spikes[3:6, elbow] = True
+    out = keep_worlds_below_spikes(source, denoised, filled, spikes)
+    # frame 5: the elbow's run ends there, the shoulder's goes on; read as a share, the
+    # wrist below turned by 0.05 rad
+    np.testing.assert_allclose(out[4:6, [elbow, wrist]], filled[4:6, [elbow, wrist]], atol=1e-12)
+
+
 def test_on_a_noisy_take_nothing_is_moved_back_toward_the_input():
     T = 100
     rng = np.random.default_rng(3)
@@ -241,3 +299,26 @@ def test_an_amc_bone_without_a_driver_keeps_its_world_under_a_one_frame_turn(tmp
     assert _angle(G1[t, thumb], G0[t, thumb]) < 0.5 * moved  # ... its thumb stayed near
     rest = np.arange(len(G0)) != t
     assert _angle(G1[rest, thumb], G0[rest, thumb]).max() < 1e-3  # the other frames as they came
+
+
+def test_an_amc_bone_that_carries_a_point_keeps_its_world_under_a_one_frame_turn(tmp_path):
+    """CMU's lowerback drives no SMPL joint but carries spine1's point; a pelvis spike filled
+    for a frame moved that point by the retarget's miss of it, and the lowerback turned to
+    follow it: a pop where the file's lower back was steady (CMU 01_08: 12 of its 45)."""
+    path, asf = write_take_files(tmp_path / "in", T=240)
+    skeleton = load_asf(asf)
+    take = read_take(path, BodyJoints(load_body_model(None)), source=load_source(path, skeleton))
+    t, original = 120, take.motion
+    root = original.root_orient.copy()
+    turn = rotvec_to_rotmat(np.array([0.0, 0.0, 0.1]))
+    root[t] = rotmat_to_rotvec(turn @ rotvec_to_rotmat(root[t]))  # the pelvis, for one frame
+    write_take(take, original.with_body(root_orient=root), tmp_path / "out" / "out.amc")
+    before, after = (load_source(p, skeleton) for p in (path, tmp_path / "out" / "out.amc"))
+    G0, G1 = (world_rotations(np.asarray(m.rotations), m.parents) for m in (before, after))
+    names = list(before.names)
+    pelvis, back = names.index("root"), names.index("lowerback")
+    moved = _angle(G1[t, pelvis], G0[t, pelvis])
+    assert moved > 0.09  # the root turned with the pelvis for the frame ...
+    assert _angle(G1[t, back], G0[t, back]) < 0.1 * moved  # ... its lower back stayed put
+    rest = np.arange(len(G0)) != t
+    assert _angle(G1[rest, back], G0[rest, back]).max() < 1e-3  # the other frames as they came

@@ -103,9 +103,14 @@ def keep_worlds_below_spikes(
     its spike, a joint would have come back as near its input as the blend brought it on the
     frames either side that are no spikes of it (:func:`nearness`: 1 on a clean take, where
     the joints below are given back their input's world rotation; 0 on a noisy one, where
-    nothing changes). A jump is read against the frames either side as a first pass leaves
-    them: a spike there (spikes run two or three frames in a row on a jittery take) would
-    otherwise read as a jump of the frame between. -> (T, J, 3)"""
+    nothing changes). A joint that is no spike itself, and none of whose chain is a spike
+    on the frames either side, is held in the same share where its input was steady in the
+    world: its world change goes on as the blend made it on those frames
+    (:func:`steady_worlds`), not as far as its filled parent's would-be blend (on a take
+    whose pelvis the blend kept half of, a pelvis spike the spine had undone turned the
+    spine by half of it for the frame). A jump is read against the frames either side as a
+    first pass leaves them: a spike there (spikes run two or three frames in a row on a
+    jittery take) would otherwise read as a jump of the frame between. -> (T, J, 3)"""
     source, filled = np.asarray(source, np.float64), np.asarray(filled, np.float64)
     denoised = np.asarray(denoised, np.float64)
     T, J = spikes.shape
@@ -119,6 +124,12 @@ def keep_worlds_below_spikes(
         free = seen[frames - 1] & seen[frames] & seen[frames + 1]
         for c in range(1, J):
             free[:, c] &= free[:, parents[c]]
+    # inside a run of spikes in its chain (on the frames either side too) a joint follows:
+    # a share read frame by frame along the run is no steady course
+    chain = spikes.copy()
+    for c in range(1, J):
+        chain[:, c] |= chain[:, parents[c]]
+    free &= ~(chain[frames - 1] & chain[frames + 1])
     # the blend had it not been a spike: the filled frame turned toward the input's as far
     # as the blend turned this joint toward its input on the frames either side
     beside = np.concatenate([frames - 1, frames + 1])
@@ -130,6 +141,15 @@ def keep_worlds_below_spikes(
     L_fill = rotvec_to_rotmat(filled[frames])
     L_kept = np.where(spikes[frames][..., None, None], quat_to_rotmat(toward), L_fill)
     G_kept = world_rotations(L_kept, parents)
+    # a joint that is no spike, with none in its chain on the frames beside: as steady in the
+    # world as the input had it, as far as the blend kept its input on the frames either side
+    beside = spikes[frames - 1] | spikes[frames + 1]
+    for c in range(1, J):
+        beside[:, c] |= beside[:, parents[c]]
+    share = np.where(spikes[frames] | beside | ~free, 0.0, near)
+    if share.any():
+        steady = rotmat_to_quat(steady_worlds(source, filled, frames, parents))
+        G_kept = quat_to_rotmat(quat_slerp(rotmat_to_quat(G_kept), steady, share))
     first = rotmat_to_rotvec(_kept_worlds(L_fill, G_kept, _jumps(source, frames), free, parents))
     # a second pass where a frame beside had a spike, read against that frame as the first
     # pass left it
@@ -145,6 +165,22 @@ def keep_worlds_below_spikes(
     out = filled.copy()
     out[frames] = first
     return out
+
+
+def steady_worlds(
+    source: np.ndarray, filled: np.ndarray, frames: np.ndarray, parents
+) -> np.ndarray:
+    """Each joint's world rotation in ``source`` at ``frames``, turned by the midpoint (slerp)
+    of the turns ``filled`` gave its world rotation on the frames either side: where the input
+    was steady in the world, the blend's change carried on smoothly, with no jump of its own.
+
+    source, filled: (T, J, 3) local axis-angles; frames: (n,) in 1 .. T - 2 -> (n, J, 3, 3)"""
+    around = np.stack([source[frames - 1], source[frames], source[frames + 1]])
+    G_src = world_rotations(rotvec_to_rotmat(around), parents)
+    G_fill = world_rotations(rotvec_to_rotmat(np.stack([filled[frames - 1], filled[frames + 1]])),
+                             parents)  # fmt: skip
+    turns = rotmat_to_quat(G_fill @ _t(G_src[[0, 2]]))
+    return quat_to_rotmat(quat_slerp(turns[0], turns[1], 0.5)) @ G_src[1]
 
 
 def _as_left(source: np.ndarray, frames: np.ndarray, first: np.ndarray, at: np.ndarray):

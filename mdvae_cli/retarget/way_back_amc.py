@@ -7,7 +7,10 @@ or clavicles nothing drives) keep their values and follow their parent; the root
 SMPL pelvis did, in the file's length unit and axes. A bone that no SMPL joint's rotation
 follows but that carries an SMPL joint's point (a thorax between two driven spine bones, when
 two SMPL spine joints share one source bone) turns the least it can to take that point where
-the SMPL joint went (on CMU's noisy takes: 1.4 mm closer on 05_01, unchanged elsewhere).
+the SMPL joint went (on CMU's noisy takes: 1.4 mm closer on 05_01, unchanged elsewhere),
+except where its parent was turned for one frame (a spike filled): there the point's move is
+the retarget's miss of the turned joint, and the bone keeps its world rotation in the share it
+did not jump with its parent, as a bone that carries nothing does (``steady.below_brief_turn``).
 
 An ASF bone can only turn about its own ``dof`` axes, so its values are solved for its new
 rotation (``retarget.dof_solve``), nearest to the file's values:
@@ -263,7 +266,10 @@ def write_back_amc(
                 new[name][:, [c for c, _ in rot]] = v
                 k = src.index(name)
                 L2[:, k] = dof_rotation(layout.frame(name), v * unit, "".join(a for _, a in rot))
-        elif p >= 0 and j not in carried and src.names[j] not in held:
+        if p >= 0 and drive[j] < 0 and src.names[j] not in held and (j not in carried or a == 0):
+            # under a brief turn of its parent, a bone that stayed put in the file keeps its
+            # world rotation there (a carried one too: its point's move on that frame is the
+            # retarget's miss of the turned joint, not the file's)
             _keep_below_brief_turn(src, layout, j, (G, G2, L2), brief, drive, vals, new)
         for k in chain:
             q = int(src.parents[k])
