@@ -153,18 +153,20 @@ def below_brief_turn(G2, G, brief, drive, p: int, j: int):
     return kept_below_brief_turn(G2[:, p], G[:, p], G[:, j], brief[:, drive[p]])
 
 
-def brief_jumps(R, before, after, Gj, brief) -> None:
+def brief_jumps(R, before, after, Gj, brief) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the cleaning turned a driven joint briefly (``brief`` (T, n): a spike filled)
     and its offset from its driver jumped there (:func:`offset_jumps`: the retarget's own
     miss, not the file's), ``R`` (T, n, 3, 3) takes ``after`` with the offset of the frames
     either side, in place: turned by the fill of a jump the file never had, the file's joint
     would jump the other way (CMU 05_06's right hand: 18 degrees for a frame where it moved 2).
-    before, after, Gj: (T, n, 3, 3)."""
+    before, after, Gj: (T, n, 3, 3) -> where (frames (m,), joints (m,)) and the offset used
+    there (m, 3, 3): what reads the offset after this must read that one."""
     t, k = np.nonzero(brief[1 : len(R) - 1])
     if not len(t):
-        return
+        return t, k, np.empty((0, 3, 3))
     t = t + 1
     Y = [np.swapaxes(before[t + d, k], -1, -2) @ Gj[t + d, k] for d in (-1, 0, 1)]
     jumped, mid = offset_jumps(*Y)
-    t, k = t[jumped], k[jumped]
-    R[t, k] = after[t, k] @ mid[jumped]
+    t, k, mid = t[jumped], k[jumped], mid[jumped]
+    R[t, k] = after[t, k] @ mid
+    return t, k, mid

@@ -9,9 +9,9 @@ toes, twist and extra spine joints, props) keep their local channels and follow 
 A rotation channel that holds one value through the whole take (a hinge's other axes, feet
 a video estimate never turns) is written as it came, the joint's other channels solved for
 the cleaned rotation (``held_channels``). The pelvis point moves as the SMPL pelvis did; the
-translation goes to the channels that
-carried it (the root's, or a moving pelvis's own), in the file's units and axes; a skeleton
-with no position channels (a root with rotation channels alone) drops it and stays in place.
+translation goes to the channels that carried it (the root's, or a moving pelvis's own), in
+the file's units and axes; a skeleton with no position channels (a root with rotation
+channels alone) drops it and stays in place.
 
 Where the cleaning turned a joint, its source joint's offset from it is read smoothed over
 time (:func:`driven_rotations`): the retarget fits each frame on its own, and on a noisy take
@@ -183,7 +183,8 @@ def driven_rotations(
     :data:`STEADY_TURN_DEG` or more, ``Y`` is taken smoothed over time (:data:`STEADY_SECONDS`);
     below, the smoothing's step is scaled by the turn; where the cleaning left the driver
     alone (a turn under :data:`STEADY_FROM_DEG`), the joint is ``turn @ G`` exactly (its
-    channels as they were)."""
+    channels as they were). A ``Y`` that jumped on a frame its driver was turned alone (the
+    retarget's miss, ``steady.brief_jumps``) is its neighbours' there, smoothed or not."""
     out = G.copy()
     js = np.flatnonzero(drive >= 0)
     ds = drive[js]
@@ -192,11 +193,12 @@ def driven_rotations(
     R = turn @ Gj
     weight, brief = change.reading(fps)
     w = weight[:, ds]
-    brief_jumps(R, change.before[:, ds], after, Gj, brief[:, ds])
+    missed = brief_jumps(R, change.before[:, ds], after, Gj, brief[:, ds])
     if not w.any():
         out[:, js] = R
         return out
     Y = np.swapaxes(change.before[:, ds], -1, -2) @ Gj
+    Y[missed[0], missed[1]] = missed[2]
     q = quat_continuous(rotmat_to_quat(Y))  # (T, n, 4), smoothed as sign-continuous quaternions
     steady = quat_to_rotmat(gaussian_smooth(q.reshape(len(q), -1), STEADY_SECONDS * fps)
                             .reshape(q.shape))  # fmt: skip
@@ -254,8 +256,7 @@ def file_frames(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotation
 
 
 def file_pose(src: SourceMotion, layout: BvhLayout, data: np.ndarray, rotations=None):
-    """:func:`file_frames` and the world rotations and positions of those frames.
-    -> L (T, J, 3, 3), t (T, J, 3), G (T, J, 3, 3), P (T, J, 3)"""
+    """:func:`file_frames` and their world rotations and positions: L, t, G, P (T, J, ...)."""
     L, t = file_frames(src, layout, data, rotations)
     G, P = forward_kinematics(L, t, src.parents)
     return L, t, G, P
