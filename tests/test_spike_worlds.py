@@ -244,6 +244,31 @@ def test_a_driven_joint_keeps_its_neighbours_offset_where_the_turn_is_read_in_pa
     assert _angle(R[:, 0], G[:, 0]).max() < 1e-9
 
 
+def test_the_neighbours_offset_is_taken_only_where_it_leaves_the_joint_steadier():
+    """Where the cleaning kept most of its driver's jump (the blend held the spine's world
+    rotation there), ``after`` jumps too, and the neighbours' offset would make the file's
+    steady joint jump with it: its own offset keeps it nearer where the file had it."""
+    from mdvae_cli.retarget.steady import brief_jumps
+
+    T, t = 9, 4
+    miss = np.array([0.0, 0.0, 0.2])
+    before = np.broadcast_to(np.eye(3), (T, 1, 3, 3)).copy()
+    before[t, 0] = rotvec_to_rotmat(miss)  # the retarget's miss, over OFFSET_JUMP_RAD
+    Gj = np.broadcast_to(np.eye(3), (T, 1, 3, 3)).copy()  # the file's joint: steady
+    brief = np.zeros((T, 1), bool)
+    brief[t] = True
+    for kept, taken in ((0.0, True), (0.7, False)):
+        after = before.copy()
+        after[t, 0] = rotvec_to_rotmat(kept * miss)  # the cleaning kept this much of it
+        R = after @ np.swapaxes(before, -1, -2) @ Gj
+        own = R[t, 0].copy()
+        frames, _, _ = brief_jumps(R, before, after, Gj, brief)
+        assert (len(frames) == 1) == taken
+        jump = np.linalg.norm(world_jumps(R[t - 1, 0], R[t, 0], R[t + 1, 0]))
+        assert jump <= np.linalg.norm(world_jumps(R[t - 1, 0], own, R[t + 1, 0])) + 1e-12
+        assert jump < 0.07
+
+
 def test_an_undriven_joint_keeps_its_world_under_a_brief_turn_it_did_not_follow():
     T, t = 9, 4
     rng = np.random.default_rng(0)
