@@ -108,7 +108,8 @@ def keep_worlds_below_spikes(
     world: its world change goes on as the blend made it on those frames
     (:func:`steady_worlds`), not as far as its filled parent's would-be blend (on a take
     whose pelvis the blend kept half of, a pelvis spike the spine had undone turned the
-    spine by half of it for the frame). A jump is read against the frames either side as a
+    spine by half of it for the frame). Inside a run of spikes in its chain (on both frames
+    beside too) a joint follows the fill. A jump is read against the frames either side as a
     first pass leaves them: a spike there (spikes run two or three frames in a row on a
     jittery take) would otherwise read as a jump of the frame between. -> (T, J, 3)"""
     source, filled = np.asarray(source, np.float64), np.asarray(filled, np.float64)
@@ -143,10 +144,8 @@ def keep_worlds_below_spikes(
     G_kept = world_rotations(L_kept, parents)
     # a joint that is no spike, with none in its chain on the frames beside: as steady in the
     # world as the input had it, as far as the blend kept its input on the frames either side
-    beside = spikes[frames - 1] | spikes[frames + 1]
-    for c in range(1, J):
-        beside[:, c] |= beside[:, parents[c]]
-    share = np.where(spikes[frames] | beside | ~free, 0.0, near)
+    spiked_beside = chain[frames - 1] | chain[frames + 1]
+    share = np.where(spikes[frames] | spiked_beside | ~free, 0.0, near)
     if share.any():
         steady = rotmat_to_quat(steady_worlds(source, filled, frames, parents))
         G_kept = quat_to_rotmat(quat_slerp(rotmat_to_quat(G_kept), steady, share))
