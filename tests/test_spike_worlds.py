@@ -330,18 +330,34 @@ def test_the_foot_locks_reference_reads_the_legs_below_a_pelvis_spike_as_cleaned
     assert seen[np.arange(T) != t].all()
 
 
-def test_an_amc_bone_without_a_driver_keeps_its_world_under_a_one_frame_turn(tmp_path):
+def _amc_turned_for_a_frame(tmp_path, t: int, turned):
+    """A generated AMC take written back with ``turned(motion)`` as its cleaned SMPL motion
+    (one joint turned on frame t): the file's world rotations before and after (T, J, 3, 3)
+    and its bone names."""
     path, asf = write_take_files(tmp_path / "in", T=240)
     skeleton = load_asf(asf)
     take = read_take(path, BodyJoints(load_body_model(None)), source=load_source(path, skeleton))
-    t, original = 120, take.motion
-    pose = original.pose_body.copy()
-    turn = rotvec_to_rotmat(np.array([0.0, 0.25, 0.1]))
-    pose[t, 17] = rotmat_to_rotvec(turn @ rotvec_to_rotmat(pose[t, 17]))  # the left elbow
-    write_take(take, original.with_body(pose_body=pose), tmp_path / "out" / "out.amc")
+    write_take(take, turned(take.motion), tmp_path / "out" / "out.amc")
     before, after = (load_source(p, skeleton) for p in (path, tmp_path / "out" / "out.amc"))
     G0, G1 = (world_rotations(np.asarray(m.rotations), m.parents) for m in (before, after))
-    names = list(before.names)
+    return G0, G1, list(before.names)
+
+
+def _turned_at(x: np.ndarray, t: int, rotvec) -> np.ndarray:
+    """``x`` (T, 3) axis-angles with frame t turned by ``rotvec`` (in the world)."""
+    out = x.copy()
+    out[t] = rotmat_to_rotvec(rotvec_to_rotmat(np.array(rotvec)) @ rotvec_to_rotmat(x[t]))
+    return out
+
+
+def test_an_amc_bone_without_a_driver_keeps_its_world_under_a_one_frame_turn(tmp_path):
+    def turned(m):  # the left elbow, for one frame
+        pose = m.pose_body.copy()
+        pose[:, 17] = _turned_at(pose[:, 17], t, [0.0, 0.25, 0.1])
+        return m.with_body(pose_body=pose)
+
+    t = 120
+    G0, G1, names = _amc_turned_for_a_frame(tmp_path, t, turned)
     wrist, thumb = names.index("lwrist"), names.index("lthumb")  # lthumb: rx rz, undriven
     moved = _angle(G1[t, wrist], G0[t, wrist])
     assert moved > 0.1  # the driven wrist turned with the elbow for the frame ...
@@ -354,17 +370,10 @@ def test_an_amc_bone_that_carries_a_point_keeps_its_world_under_a_one_frame_turn
     """CMU's lowerback drives no SMPL joint but carries spine1's point; a pelvis spike filled
     for a frame moved that point by the retarget's miss of it, and the lowerback turned to
     follow it: a pop where the file's lower back was steady (CMU 01_08: 12 of its 45)."""
-    path, asf = write_take_files(tmp_path / "in", T=240)
-    skeleton = load_asf(asf)
-    take = read_take(path, BodyJoints(load_body_model(None)), source=load_source(path, skeleton))
-    t, original = 120, take.motion
-    root = original.root_orient.copy()
-    turn = rotvec_to_rotmat(np.array([0.0, 0.0, 0.1]))
-    root[t] = rotmat_to_rotvec(turn @ rotvec_to_rotmat(root[t]))  # the pelvis, for one frame
-    write_take(take, original.with_body(root_orient=root), tmp_path / "out" / "out.amc")
-    before, after = (load_source(p, skeleton) for p in (path, tmp_path / "out" / "out.amc"))
-    G0, G1 = (world_rotations(np.asarray(m.rotations), m.parents) for m in (before, after))
-    names = list(before.names)
+    t = 120
+    G0, G1, names = _amc_turned_for_a_frame(  # the pelvis, for one frame
+        tmp_path, t, lambda m: m.with_body(root_orient=_turned_at(m.root_orient, t, [0, 0, 0.1]))
+    )
     pelvis, back = names.index("root"), names.index("lowerback")
     moved = _angle(G1[t, pelvis], G0[t, pelvis])
     assert moved > 0.09  # the root turned with the pelvis for the frame ...
