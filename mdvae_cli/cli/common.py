@@ -160,9 +160,12 @@ def progress_bar(transient: bool = False) -> Progress:
     )
 
 
-#: seconds a process may take to reach a command (Python's start-up and the imports): a
-#: longer time read from ``/proc`` is taken for clocks that do not match (a container's)
-STARTUP_LIMIT_S = 60.0
+#: seconds a process may take to reach a command (Python's start-up and the imports: 0.16 s
+#: here): a longer time read from ``/proc`` is another program's or clocks that do not match
+#: (a container's). /proc dates a process from its fork, and a shell runs the last command of
+#: ``bash -c`` or ``( ... )`` in its own process: ``(pip install ... && mdvae denoise ...)``
+#: read 25 s for a command that took 1.2 (with a limit of 60 s)
+STARTUP_LIMIT_S = 2.0
 
 
 def process_seconds(fallback_start: float) -> float:
