@@ -69,3 +69,34 @@ def test_continuous_euler_keeps_each_rotation_and_steps_little():
     out = continuous_euler(R, "zxy")
     np.testing.assert_allclose(euler_to_rotmat(out, "zxy"), R, atol=1e-9)
     assert np.abs(np.diff(out, axis=0)).max() < 0.2  # radians; a frame turns ~0.05
+
+
+def _continuous_euler_frame_by_frame(R: np.ndarray, axes: str) -> np.ndarray:
+    """The definition, a frame at a time: of the two solutions, each moved by whole turns to
+    lie nearest the frame before's, the one nearer it."""
+    from mdvae_cli.geometry.euler import rotmat_to_euler
+
+    one = rotmat_to_euler(R, axes)
+    two = one * np.array([1.0, -1.0, 1.0]) + np.pi
+    out = np.empty_like(one)
+    out[0] = one[0]
+    for t in range(1, len(R)):
+        prev = out[t - 1]
+        a = one[t] + 2 * np.pi * np.round((prev - one[t]) / (2 * np.pi))
+        b = two[t] + 2 * np.pi * np.round((prev - two[t]) / (2 * np.pi))
+        pick = np.abs(b - prev).sum(-1) < np.abs(a - prev).sum(-1)
+        out[t] = np.where(pick[:, None], b, a)
+    return out
+
+
+@pytest.mark.parametrize("step", [0.05, 0.4, 1.5])
+def test_continuous_euler_on_whole_arrays_is_the_frame_by_frame_definition(step):
+    """Each frame's solution chosen by a map of the one before, worked out on whole arrays:
+    the same angles, bit for bit, as choosing them a frame at a time, through wraps of whole
+    turns and switches between the two solutions (large steps switch often)."""
+    rng = np.random.default_rng(1)
+    R = rotvec_to_rotmat(np.cumsum(rng.normal(0, step, (600, 5, 3)), axis=0))
+    for axes in ("zxy", "xyz", "yzx"):
+        want = _continuous_euler_frame_by_frame(R, axes)
+        np.testing.assert_array_equal(continuous_euler(R, axes), want)
+    assert continuous_euler(R[:1], "zxy").shape == (1, 5, 3)  # one frame: as it is
