@@ -386,7 +386,7 @@ def test_add_noise_with_holes_writes_takes_as_npz(tmp_path, make_motion_file):
 
 def test_driven_joints_read_their_offset_smoothed_where_the_cleaning_turned_them():
     from mdvae_cli.geometry.rotations_np import rotmat_to_rotvec, rotvec_to_rotmat
-    from mdvae_cli.retarget.steady import STEADY_FROM_DEG
+    from mdvae_cli.retarget.steady import STEADY_FROM_DEG, turn_reading
     from mdvae_cli.retarget.way_back import SmplChange, driven_rotations
 
     rng = np.random.default_rng(5)
@@ -402,7 +402,9 @@ def test_driven_joints_read_their_offset_smoothed_where_the_cleaning_turned_them
     def run(turn_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         turn = rotvec_to_rotmat(np.tile([0.0, 0.0, np.radians(turn_deg)], (T, 1)))
         after = turn @ before
-        change = SmplChange(turn[:, None], before[:, None], after[:, None], np.zeros((T, 3)))
+        turns = turn[:, None]
+        change = SmplChange(turns, before[:, None], after[:, None], np.zeros((T, 3)),
+                            *turn_reading(turns, fps))  # fmt: skip
         return driven_rotations(change, G, drive, fps)[:, 0], after, turn
 
     # left alone (a turn under the floor): the turn alone, exactly

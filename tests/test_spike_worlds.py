@@ -30,7 +30,7 @@ from mdvae_cli.retarget.steady import (
     kept_below_brief_turn,
     lasting,
     offset_jumps,
-    steady_weight,
+    turn_reading,
 )
 from mdvae_cli.retarget.take import read_take, write_take
 
@@ -199,9 +199,9 @@ def test_a_turn_of_a_frame_or_two_is_no_lasting_turn():
     np.testing.assert_array_equal(y[:, 1], x[:, 1])
     turn = np.tile(np.eye(3), (120, 1, 1))
     turn[60] = rotvec_to_rotmat(np.array([0.0, 0.1, 0.0]))  # a spike filled at 120 Hz
-    assert steady_weight(turn, 120.0).max() == 0.0
+    assert turn_reading(turn, 120.0)[0].max() == 0.0
     turn[30:50] = rotvec_to_rotmat(np.array([0.0, 0.1, 0.0]))  # a sixth of a second turned
-    w = steady_weight(turn, 120.0)
+    w = turn_reading(turn, 120.0)[0]
     assert w[30:50].min() == 1.0 and w[:30].max() == 0.0
 
 

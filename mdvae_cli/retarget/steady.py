@@ -43,7 +43,7 @@ OFFSET_JUMP_RAD = 0.08
 def miss_jitter(fitted: np.ndarray, target, w: np.ndarray, fps: float) -> np.ndarray:
     """What of a retargeted point's miss of its target (``fitted - target``, (T, 3) each) is
     jitter about its course over time (:data:`STEADY_SECONDS`), by ``w`` (T,) (0: none;
-    :func:`steady_weight`): added to the point's move, the move goes from the miss's course
+    :func:`turn_reading`'s weight): added to the point's move, the move goes from the miss's course
     instead of from each frame's miss.  -> (T, 3)"""
     if not w.any():
         return np.zeros_like(fitted)
@@ -58,9 +58,16 @@ def turn_angle(turn: np.ndarray) -> np.ndarray:
 
 
 def turn_reading(turn: np.ndarray, fps: float) -> tuple[np.ndarray, np.ndarray]:
-    """How the cleaning's turns are read, from one pass over their angles: :func:`steady_weight`
-    and where a joint was turned by :data:`STEADY_TURN_DEG` or more for too short a time to
-    read its offset smoothed (the weight under 1 there: a spike filled).
+    """How the cleaning's turns are read, from one pass over their angles.
+
+    weight: how wholly an offset is read smoothed where the cleaning turned a joint by
+    ``turn``: 1 from :data:`STEADY_TURN_DEG` on, 0 under :data:`STEADY_FROM_DEG` (the joint
+    left alone), in proportion between, of the turn as it lasts (:func:`lasting`). A turn of a
+    frame or two alone (a spike filled in a clean take) leaves the offset as it was there,
+    since the offset read smoothed at that frame alone would step away from its own frames
+    either side by the retarget's jitter (CMU 01_08 through its own skeleton: 5-7 degree pops
+    in the chest where the input was smooth). brief: where a joint was turned by
+    :data:`STEADY_TURN_DEG` or more for too short a time to read its offset smoothed.
     turn: (T, ..., 3, 3) at ``fps`` -> (weight (T, ...), brief (T, ...) bool)"""
     angle = turn_angle(turn)
     lasted = lasting(angle, _radius(fps))
@@ -81,18 +88,6 @@ def offset_jumps(
     across = np.linalg.norm(rotmat_to_rotvec(after @ np.swapaxes(before, -1, -2)), axis=-1)
     mid = rotvec_to_rotmat(-jump) @ now
     return (away > OFFSET_JUMP_RAD) & (away > across), mid
-
-
-def steady_weight(turn: np.ndarray, fps: float) -> np.ndarray:
-    """How wholly an offset is read smoothed where the cleaning turned a joint by ``turn``
-    (T, ..., 3, 3) at ``fps``: 1 from :data:`STEADY_TURN_DEG` on, 0 under
-    :data:`STEADY_FROM_DEG` (the joint left alone), in proportion between, of the turn as it
-    lasts (:func:`lasting`): a turn of a frame or two alone (a spike filled in a clean take)
-    leaves the offset as it was there, since the offset read smoothed at that frame alone
-    would step away from its own frames either side by the retarget's jitter (CMU 01_08
-    through its own skeleton: 5-7 degree pops in the chest where the input was smooth).
-    -> (T, ...)"""
-    return turn_reading(turn, fps)[0]
 
 
 def _radius(fps: float) -> int:

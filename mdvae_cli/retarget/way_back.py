@@ -128,20 +128,14 @@ class SmplChange(NamedTuple):
     source world -> SMPL output world): each body joint's world-space turn ``turn = M^T
     G_clean G_orig^T M`` and its world rotations ``before = M^T G_orig`` and ``after = M^T
     G_clean`` (T, 22, 3, 3 each), and the pelvis's move ``shift`` (T, 3) in file units;
-    ``steady.turn_reading`` of the turns, (T, 22) each (None: read from ``turn`` when asked)."""
+    ``weight`` and ``brief``: ``steady.turn_reading`` of the turns, (T, 22) each."""
 
     turn: np.ndarray
     before: np.ndarray
     after: np.ndarray
     shift: np.ndarray
-    weight: np.ndarray | None = None
-    brief: np.ndarray | None = None
-
-    def reading(self, fps: float) -> tuple[np.ndarray, np.ndarray]:
-        """(weight, brief) of every body joint, (T, 22) each."""
-        if self.weight is None or self.brief is None:
-            return turn_reading(self.turn, fps)
-        return self.weight, self.brief
+    weight: np.ndarray
+    brief: np.ndarray
 
 
 def smpl_change(
@@ -156,8 +150,8 @@ def smpl_change(
     noisy take that miss jitters with the noise of the joints around the pelvis (CMU 07_01 at
     120 Hz under 0.1 rad of rotation noise: 54 m/s^2 of acceleration on the height, against
     0.8 clean), and the move would write it into the root's position channels, which had none.
-    Where the cleaning turned the body (any joint's ``steady.steady_weight``), the miss is read
-    smoothed over time (:data:`STEADY_SECONDS`), as the driven joints' offsets are."""
+    Where the cleaning turned the body (any joint's ``steady.turn_reading`` weight), the miss
+    is read smoothed over time (:data:`STEADY_SECONDS`), as the driven joints' offsets are."""
     M = np.asarray(rt.to_output)
     before, after = _turned_globals(original, M), _turned_globals(cleaned, M)
     turn = after @ np.swapaxes(before, -1, -2)
@@ -191,9 +185,8 @@ def driven_rotations(
     turn, Gj = change.turn[:, ds], G[:, js]  # (T, n, 3, 3): every driven joint at once
     after = change.after[:, ds]
     R = turn @ Gj
-    weight, brief = change.reading(fps)
-    w = weight[:, ds]
-    missed = brief_jumps(R, change.before[:, ds], after, Gj, brief[:, ds])
+    w = change.weight[:, ds]
+    missed = brief_jumps(R, change.before[:, ds], after, Gj, change.brief[:, ds])
     if not w.any():
         out[:, js] = R
         return out
@@ -221,7 +214,7 @@ def pelvis_point(
     source pelvis joint (at ``anchor`` (T, 3) before) keeps its place relative to it, read in
     the retargeted pelvis's frame. That frame carries the fit's own miss of each frame's
     rotation (on a noisy take it jitters with the noise of the joints around it), so where
-    the cleaning turned the body (any joint's ``steady.steady_weight``) the joint's place in
+    the cleaning turned the body (any joint's ``steady.turn_reading`` weight) the joint's place in
     it is read smoothed over time (:data:`STEADY_SECONDS`), as the driven joints' offsets
     are: turned by the jitter instead, a pelvis joint 5 cm from the point shook the root (CMU
     05_09 at 120 Hz under 0.1 rad of noise: 41 m/s^2 on the height, 5 clean).  fps: the
@@ -230,7 +223,7 @@ def pelvis_point(
     target = ((rt.targets[frames, 0] + rt.drop) @ np.asarray(rt.to_output)) / scale
     arm = target - anchor
     out = target + change.shift - (change.turn[:, 0] @ arm[..., None])[..., 0]
-    w = change.reading(fps)[0].max(axis=1)
+    w = change.weight.max(axis=1)
     if w.any():  # the steady arm's difference, in the world (none where w is 0: exact)
         before, after = change.before[:, 0], change.after[:, 0]
         own = (np.swapaxes(before, -1, -2) @ arm[..., None])[..., 0]
@@ -360,12 +353,11 @@ def _write_back_rows(src, rt, original: Motion, cleaned: Motion, body, frames: s
     # channels as they came) and the world rotation that gives it (G2, written over)
     new = data.copy()
     L2 = np.empty_like(G2)
-    brief = change.reading(src.fps)[1]
     for j in range(src.num_joints):
         p = int(src.parents[j])
         if drive[j] < 0 and p >= 0:
             L2[:, j] = L[:, j]  # not driven: its channels as they were, following its parent
-            at, Lt = below_brief_turn(G2, G, brief, drive, p, j)
+            at, Lt = below_brief_turn(G2, G, change.brief, drive, p, j)
             if len(at):  # ... but where its parent was turned briefly and it stayed put
                 L2t, rows = L2[at], new[at]
                 L2t[:, j] = Lt

@@ -87,10 +87,16 @@ def amc_pose(src: SourceMotion, layout: AmcLayout, values: dict[str, np.ndarray]
         name = _bone(src, j)
         rot = _listed(layout, name)
         if rot:
-            angles = values[name][:, [c for c, _ in rot]] * _unit(layout)
-            L[:, j] = dof_rotation(layout.frame(name), angles, "".join(a for _, a in rot))
+            L[:, j] = _bone_rotation(layout, name, values[name][:, [c for c, _ in rot]])
     G, P = forward_kinematics(L, t, src.parents)
     return L, t, G, P
+
+
+def _bone_rotation(layout: AmcLayout, name: str, values: np.ndarray) -> np.ndarray:
+    """A bone's local rotations from its rotation dofs' values (n, k), file units, in listed
+    order.  -> (n, 3, 3)"""
+    rot = _listed(layout, name)
+    return dof_rotation(layout.frame(name), values * _unit(layout), "".join(a for _, a in rot))
 
 
 def _keep_below_brief_turn(src, layout, j, rotations, brief, drive, vals, new) -> None:
@@ -110,9 +116,7 @@ def _keep_below_brief_turn(src, layout, j, rotations, brief, drive, vals, new) -
         return
     v = _solve(src, layout, [j], Lt, {b: x[t] for b, x in vals.items()})[src.names[j]]
     new[src.names[j]][t[:, None], [c for c, _ in rot]] = v
-    L2[t, j] = dof_rotation(
-        layout.frame(src.names[j]), v * _unit(layout), "".join(a for _, a in rot)
-    )
+    L2[t, j] = _bone_rotation(layout, src.names[j], v)
 
 
 def _chain(src: SourceMotion, layout: AmcLayout, drive: np.ndarray, j: int) -> list[int]:
@@ -189,7 +193,7 @@ def _carried(rt, src, layout, drive, motions, body, P, G, moved, w) -> dict:
     spine1): bone -> (the point's offset in the bone's frame (T, 3), where it should go (T, 3),
     before the root's final ``moved`` (T, 3)), file units: it moves as the SMPL joint did,
     from the course of the retarget's miss of it where the cleaning turned the body (``w``
-    (T,): the largest of the joints' ``steady.steady_weight``, :func:`miss_jitter`), as the
+    (T,): the largest of the joints' ``steady.turn_reading`` weight, :func:`miss_jitter`), as the
     pelvis does."""
     M = np.asarray(rt.to_output)
     scale = layout.metres_per_unit
@@ -230,17 +234,15 @@ def write_back_amc(
         raise InputError(f"the SMPL motions have {cleaned.num_frames} frames, the file {T}")
     scale = layout.metres_per_unit
     change = smpl_change(rt, original, cleaned, body, scale)
-    weight, brief = change.reading(src.fps)
     L, t, G, P = amc_pose(src, layout, vals)
     drive = drivers(rt.jmap, src.num_joints)
     driven = driven_rotations(change, G, drive, src.fps)
     a = int(rt.jmap.anchor["pelvis"])
     new_a = pelvis_point(rt, change, P[:, a], scale, src.fps)
     carried = _carried(rt, src, layout, drive, (original, cleaned), body, P, G, new_a - P[:, a],
-                       weight.max(axis=1))  # fmt: skip
+                       change.weight.max(axis=1))  # fmt: skip
     new = {b: v.copy() for b, v in vals.items()}
     L2, G2, P2 = L.copy(), G.copy(), P.copy()
-    unit = _unit(layout)
     held = held_bones(layout, vals)
     for j in range(src.num_joints):
         p = int(src.parents[j])
@@ -264,13 +266,12 @@ def write_back_amc(
             for name, v in _solve(src, layout, chain, R, vals).items():
                 rot = _listed(layout, name)
                 new[name][:, [c for c, _ in rot]] = v
-                k = src.index(name)
-                L2[:, k] = dof_rotation(layout.frame(name), v * unit, "".join(a for _, a in rot))
+                L2[:, src.index(name)] = _bone_rotation(layout, name, v)
         if p >= 0 and drive[j] < 0 and src.names[j] not in held and (j not in carried or a == 0):
             # under a brief turn of its parent, a bone that stayed put in the file keeps its
             # world rotation there (a carried one too: its point's move on that frame is the
             # retarget's miss of the turned joint, not the file's)
-            _keep_below_brief_turn(src, layout, j, (G, G2, L2), brief, drive, vals, new)
+            _keep_below_brief_turn(src, layout, j, (G, G2, L2), change.brief, drive, vals, new)
         for k in chain:
             q = int(src.parents[k])
             if q >= 0:
