@@ -76,8 +76,11 @@ def test_denoise_writes_the_link_and_the_file_it_points_to(linked, tmp_path):
     assert not (out / "a/link_take.npz").is_symlink()
     assert "denoised 2 file(s)" in " ".join(err.split())
     assert "note: a/gone.npz: a broken link (to /nonexistent/x.npz); skipped" in err
+    # the same take twice: its windows share one batch, where a product may round a row
+    # differently by its place in it (3e-9 rad seen, in the slow offset's cosine fit)
     with np.load(out / "a/link_take.npz") as a, np.load(out / "b/take.npz") as b:
-        assert np.array_equal(a["poses"], b["poses"])
+        np.testing.assert_allclose(a["poses"], b["poses"], rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(a["trans"], b["trans"])
 
 
 def test_a_file_named_twice_writes_one_output(linked, tmp_path):

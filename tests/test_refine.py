@@ -25,7 +25,7 @@ from mdvae_cli.infer.closed_form import (
     offset_states,
     student_t_weights,
 )
-from mdvae_cli.infer.denoise import denoise_motions, refine_windows
+from mdvae_cli.infer.denoise import denoise_motions, refine_batches, refine_windows
 from mdvae_cli.infer.refine import Adam, refine_latents, refine_posterior
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows
@@ -345,6 +345,35 @@ def test_refine_windows_needs_the_raw_states(tiny_prior):  # noqa: F811
     assert isinstance(group, WindowGroup) and group.obs is None
     with pytest.raises(ValueError, match="raw states"):
         refine_windows(den, group, RefineConfig(steps=1))
+
+
+def test_refinement_batches_side_by_side_give_the_same_numbers_and_a_rising_count(
+    tiny_prior,  # noqa: F811
+):
+    den = _tiny_denoiser(tiny_prior)
+    body = BodyModel(builtin_body_model())
+    clip = load_motion(EXAMPLES / "noisy_walk.npz")
+    (group,) = make_windows([clip, clip, clip], den, body, observations=True)
+    assert len(group) == 6
+    cfg = RefineConfig(steps=3, batch_windows=4)
+    # one at a time: batches of 4 and the rest; side by side: up to 4 // 2, a multiple of 2
+    assert [len(b) for b in refine_batches(group, cfg)] == [4, 2]
+    batches = refine_batches(group, cfg, workers=2)
+    assert [len(b) for b in batches] == [2, 2, 1, 1]
+    assert torch.equal(torch.cat(batches), torch.arange(6))
+    # regression mode (no steps) is never split for workers
+    assert [len(b) for b in refine_batches(group, RefineConfig(steps=0, batch_windows=4), 2)] == [
+        4,
+        2,
+    ]
+    one = refine_windows(den, group, cfg)
+    told: list[dict] = []
+    two = refine_windows(den, group, cfg, progress=told.append, workers=2)
+    for k in ("root_orient", "pose_body", "trans"):
+        assert torch.allclose(getattr(one, k), getattr(two, k), atol=1e-6)
+    # four batches of three steps, told from two threads: a count that only rises, to 12
+    assert [i["step"] for i in told] == list(range(1, 13))
+    assert {i["steps"] for i in told} == {12} and {i["stage"] for i in told} == {"refine"}
 
 
 @pytest.mark.slow  # ~13 s on 2 cores

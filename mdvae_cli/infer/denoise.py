@@ -26,7 +26,7 @@ from mdvae_cli.infer.guard import fallback_stretches, guard, guard_note
 from mdvae_cli.infer.native_rate import to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
 from mdvae_cli.infer.pieces import denoise_pieces
-from mdvae_cli.infer.progress import CORE_PHASES, more_phases, phase, staged
+from mdvae_cli.infer.progress import CORE_PHASES, more_phases, phase, progress_of_runs, staged
 from mdvae_cli.infer.refine import refine_latents
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.stitch import assemble
@@ -39,6 +39,7 @@ from mdvae_cli.model.windows import uncanonicalize
 from mdvae_cli.motion.mirror import average_bodies, mirror_motion
 from mdvae_cli.motion.motion import Motion
 from mdvae_cli.motion.resample import resample_times
+from mdvae_cli.workers import map_in_order, worker_count
 
 MIN_FRAMES = 6  # at 30 Hz (0.17 s); shorter motions come out worse than they went in
 
@@ -127,43 +128,66 @@ def refine_windows(
     cfg: RefineConfig,
     progress: Callable[[dict], None] | None = None,
     fallbacks: list[tuple[int, int]] | None = None,
+    workers: int = 1,
 ) -> BodyParams:
     """Latent refinement on a group (see ``infer.refine``), back in world coordinates.
 
     The group must hold its raw states (``make_windows(..., observations=True)``).
     ``progress`` counts steps over all of the group's batches. One-frame windows are predicted.
+    With refinement steps, the batches go ``workers`` at a time side by side, torch one
+    thread in each (:func:`refine_batches`; the same numbers: each window's steps depend on
+    that window alone).
     -> BodyParams with (N, L, ...) tensors
     """
     if group.obs is None:
         raise ValueError("refinement needs the raw states: make_windows(observations=True)")
-    starts = refine_batches(group, cfg)
-    if not starts:  # one-frame windows: x0 alone, nothing to refine
+    workers = workers if cfg.steps > 0 else 1
+    batches = refine_batches(group, cfg, workers)
+    if not batches:  # one-frame windows: x0 alone, nothing to refine
         return predict_windows(denoiser, group, fallbacks=fallbacks)
     if denoiser.training:
         denoiser.eval()
-    outs = []
-    for b, i in enumerate(starts):
-        idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
-        g = group.batch(idx, with_y3d=False)
+    n = len(batches)
+    tells = progress_of_runs(staged(progress, "refine", 0, n * cfg.steps), 0, n, n)
+
+    def refine_batch(b: int) -> tuple[BodyParams, list[tuple[int, int]]]:
+        g = group.batch(batches[b], with_y3d=False)
         joints = None if g.weight is None else g.weight[..., :22]
         with torch.no_grad():
             yn = denoiser.read_holes(g.yn, g.read_weight)
         if cfg.steps == 0:  # the offset alone on regression mode's states
             with torch.no_grad():
-                x_hat = add_offset(regressor(denoiser, len(idx))(yn), g.obs, joints, cfg)
+                x_hat = add_offset(regressor(denoiser, len(g))(yn), g.obs, joints, cfg)
         else:
-            tell = staged(progress, "refine", b * cfg.steps, len(starts) * cfg.steps)
-            x_hat = refine_latents(denoiser, yn, g.obs, joints, cfg, tell)
-        x_hat = _guarded(x_hat.detach(), g, fallbacks)
-        outs.append(uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis))
+            x_hat = refine_latents(denoiser, yn, g.obs, joints, cfg, tells[b])
+        bad: list[tuple[int, int]] = []
+        x_hat = _guarded(x_hat.detach(), g, None if fallbacks is None else bad)
+        return uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis), bad
+
+    outs = []
+    for params, bad in map_in_order(refine_batch, range(n), workers):
+        outs.append(params)
+        if fallbacks is not None:
+            fallbacks += bad
     return BodyParams(
         *(torch.cat([getattr(o, k) for o in outs]) for k in ("root_orient", "pose_body", "trans"))
     )
 
 
-def refine_batches(group: WindowGroup, cfg: RefineConfig) -> range:
-    """Where the group's refinement batches start (none for one-frame windows)."""
-    return range(0, len(group) if group.moves else 0, cfg.batch_windows)
+def refine_batches(group: WindowGroup, cfg: RefineConfig, workers: int = 1) -> list[torch.Tensor]:
+    """The group's refinement batches (window indices; none for one-frame windows). One at a
+    time: ``cfg.batch_windows`` windows each, the last the rest. With steps to take and
+    ``workers`` > 1 they go side by side: a multiple of ``workers`` batches of near-equal
+    sizes, each of at most ``cfg.batch_windows // workers`` windows, so that the windows
+    refined at once, and the memory, stay as one batch's."""
+    N = len(group) if group.moves else 0
+    windows = torch.arange(N)
+    if N == 0:
+        return []
+    if workers <= 1 or cfg.steps == 0:
+        return list(windows.split(cfg.batch_windows))
+    count = -(-N // max(1, cfg.batch_windows // workers))
+    return list(windows.tensor_split(min(N, -(-count // workers) * workers)))
 
 
 def denoise_motions(
@@ -313,10 +337,11 @@ def denoise_motions(
         if not refining:
             preds = [predict_windows(denoiser, g, fallbacks=fallbacks) for g in groups]
         else:
-            steps = [len(refine_batches(g, refine)) * refine.steps for g in groups]
+            workers = worker_count()
+            steps = [len(refine_batches(g, refine, workers)) * refine.steps for g in groups]
             preds = [
                 refine_windows(denoiser, g, refine,
-                               staged(progress, "refine", done, sum(steps)), fallbacks)
+                               staged(progress, "refine", done, sum(steps)), fallbacks, workers)
                 for g, done in zip(groups, itertools.accumulate([0, *steps]), strict=False)
             ]  # fmt: skip
         phase(progress, "windows denoised", 1, CORE_PHASES)
