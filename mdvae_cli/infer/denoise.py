@@ -27,7 +27,7 @@ from mdvae_cli.infer.native_rate import to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
 from mdvae_cli.infer.pieces import denoise_pieces
 from mdvae_cli.infer.progress import CORE_PHASES, more_phases, phase, progress_of_runs, staged
-from mdvae_cli.infer.refine import refine_latents
+from mdvae_cli.infer.refine import refine_latents, window_batches
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.stitch import assemble
 from mdvae_cli.infer.window_groups import WindowGroup, make_windows, motion_window_starts
@@ -135,8 +135,8 @@ def refine_windows(
     The group must hold its raw states (``make_windows(..., observations=True)``).
     ``progress`` counts steps over all of the group's batches. One-frame windows are predicted.
     With refinement steps, the batches go ``workers`` at a time side by side, torch one
-    thread in each (:func:`refine_batches`; the same numbers: each window's steps depend on
-    that window alone).
+    thread in each (:func:`refine_batches`; each window's steps depend on that window alone,
+    so the numbers are the same but for the products' rounding).
     -> BodyParams with (N, L, ...) tensors
     """
     if group.obs is None:
@@ -175,19 +175,9 @@ def refine_windows(
 
 
 def refine_batches(group: WindowGroup, cfg: RefineConfig, workers: int = 1) -> list[torch.Tensor]:
-    """The group's refinement batches (window indices; none for one-frame windows). One at a
-    time: ``cfg.batch_windows`` windows each, the last the rest. With steps to take and
-    ``workers`` > 1 they go side by side: a multiple of ``workers`` batches of near-equal
-    sizes, each of at most ``cfg.batch_windows // workers`` windows, so that the windows
-    refined at once, and the memory, stay as one batch's."""
-    N = len(group) if group.moves else 0
-    windows = torch.arange(N)
-    if N == 0:
-        return []
-    if workers <= 1 or cfg.steps == 0:
-        return list(windows.split(cfg.batch_windows))
-    count = -(-N // max(1, cfg.batch_windows // workers))
-    return list(windows.tensor_split(min(N, -(-count // workers) * workers)))
+    """The group's refinement batches (``infer.refine.window_batches``; none for one-frame
+    windows)."""
+    return window_batches(len(group) if group.moves else 0, cfg, workers)
 
 
 def denoise_motions(

@@ -18,19 +18,21 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Iterator
+from contextlib import closing
 from dataclasses import asdict, dataclass
 
 import torch
 
 from mdvae_cli.errors import diverged
 from mdvae_cli.infer.elbo_fit import batch_order
-from mdvae_cli.infer.refine import refine_posterior
+from mdvae_cli.infer.refine import RefinedPosterior, refine_posterior, window_batches
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup
 from mdvae_cli.model.config import require_int, require_number
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.model.optim import checkpoint_in_eval, clipped_step, cosine_lr, set_lr
 from mdvae_cli.model.state import VELOCITY_DIMS
+from mdvae_cli.workers import map_in_order
 
 
 @dataclass
@@ -93,6 +95,7 @@ def refine_targets(
     stop_requested: Callable[[], bool] | None = None,
     keep: Callable[[Callable[[], Targets]], None] | None = None,
     batch: int = RefineConfig.batch_windows,
+    workers: int = 1,
 ) -> Targets:
     """Refine every window of ``group`` (its raw noisy states: ``make_windows(observations=
     True)``) for ``steps`` steps; ``progress`` gets {"step", "steps"} counted in windows.
@@ -101,7 +104,9 @@ def refine_targets(
     goes on after them (each window's steps depend on that window alone). stop_requested():
     true after a batch ends the loop there, and the targets returned cover the group's first
     windows only. keep(so_far) is called after each batch but the last, ``so_far()`` giving
-    the targets made so far (to save them now and then). batch: windows refined together.
+    the targets made so far (to save them now and then). batch: windows refined together;
+    ``workers`` > 1: batches of ``batch // workers`` side by side, torch one thread in each
+    (``infer.refine.window_batches``; the same targets).
     """
     if group.obs is None:
         raise ValueError("refinement targets need the raw states: make_windows(observations=True)")
@@ -112,20 +117,25 @@ def refine_targets(
     def so_far() -> Targets:
         return Targets(*(torch.cat(t) for t in zip(*parts, strict=True)))
 
-    for i in range(0 if start is None else len(start), len(group), cfg.batch_windows):
-        idx = torch.arange(i, min(i + cfg.batch_windows, len(group)))
+    done = 0 if start is None else len(start)
+
+    def refine(idx: torch.Tensor) -> tuple[torch.Tensor, RefinedPosterior]:
         g = group.batch(idx, with_y3d=False)
         joints = None if g.weight is None else g.weight[..., :22]
         with torch.no_grad():
             yn = denoiser.read_holes(g.yn, g.read_weight)
-        refined = refine_posterior(denoiser, yn, g.obs, joints, cfg)
-        parts.append((refined.z, refined.x0, refined.z_logvar))
-        if progress is not None:
-            progress({"step": int(idx[-1]) + 1, "steps": len(group)})
-        if stop_requested is not None and stop_requested():
-            break
-        if keep is not None and int(idx[-1]) + 1 < len(group):
-            keep(so_far)
+        return idx, refine_posterior(denoiser, yn, g.obs, joints, cfg)
+
+    batches = [done + b for b in window_batches(len(group) - done, cfg, workers)]
+    with closing(map_in_order(refine, batches, workers)) as refined_batches:
+        for idx, refined in refined_batches:
+            parts.append((refined.z, refined.x0, refined.z_logvar))
+            if progress is not None:
+                progress({"step": int(idx[-1]) + 1, "steps": len(group)})
+            if stop_requested is not None and stop_requested():
+                break
+            if keep is not None and int(idx[-1]) + 1 < len(group):
+                keep(so_far)
     return so_far()
 
 

@@ -20,6 +20,7 @@ from mdvae_cli.model.checkpoint import load_checkpoint, save_checkpoint
 from mdvae_cli.model.denoiser import Denoiser
 from mdvae_cli.train.distill import Targets, refine_targets
 from mdvae_cli.train.distributed import parameter_digest
+from mdvae_cli.workers import worker_count
 
 TARGETS_FILE = "distill_targets.npz"
 #: while targets are being made, those made so far are saved this often (seconds)
@@ -129,6 +130,7 @@ def distill_targets(
         targets[i] = refine_targets(
             denoiser, g, refine_steps, progress, start=targets[i],
             stop_requested=stop_requested, keep=lambda part, i=i: keep(i, part),
+            workers=worker_count(),
         )  # fmt: skip
         if len(targets[i]) < len(g):  # stopped
             break
