@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sized
@@ -61,13 +62,20 @@ def worker_count() -> int:
 
 
 def map_in_order(
-    fn: Callable[[A], B], items: Iterable[A], workers: int | None = None
+    fn: Callable[[A], B],
+    items: Iterable[A],
+    workers: int | None = None,
+    stop: threading.Event | None = None,
 ) -> Iterator[B]:
     """``fn`` over ``items`` on ``workers`` threads (None: :func:`worker_count`), results in
     the items' order. An exception in ``fn`` is raised where its result would come. While
     the threads run, torch works one thread per call (each thread is already one core's
     worth), and its thread count is restored after. A sized ``items`` of at most one (a
-    short take's one chunk) is worked on in place: no threads, no hand-back of memory."""
+    short take's one chunk) is worked on in place: no threads, no hand-back of memory.
+
+    The threads still running when the consumer leaves (an error, Ctrl-C, a ``break``) are
+    waited for. ``stop`` is set first: a long ``fn`` that looks at it now and then can end
+    there instead of running its course (``infer.progress.stoppable``)."""
     if isinstance(items, Sized) and len(items) <= 1:
         yield from (fn(item) for item in items)
         return
@@ -92,6 +100,8 @@ def map_in_order(
         while pending:
             yield _taken(pending.popleft())
     finally:  # a failure or a consumer that stops early: no chunk left running
+        if stop is not None:
+            stop.set()
         pool.shutdown(wait=True, cancel_futures=True)
         torch.set_num_threads(threads)
 

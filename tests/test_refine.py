@@ -2,6 +2,8 @@
 
 import copy
 import json
+import signal
+import threading
 
 import numpy as np
 import pytest
@@ -374,6 +376,28 @@ def test_refinement_batches_side_by_side_give_the_same_numbers_and_a_rising_coun
     # four batches of three steps, told from two threads: a count that only rises, to 12
     assert [i["step"] for i in told] == list(range(1, 13))
     assert {i["steps"] for i in told} == {12} and {i["stage"] for i in told} == {"refine"}
+
+
+def test_ctrl_c_stops_the_refinement_batches_side_by_side_at_their_next_step(
+    tiny_prior,  # noqa: F811
+):
+    """Ctrl-C (SIGINT to the main thread, waiting for the batches) while two batches refine
+    side by side: both end at their next step, not after their 400."""
+    den = _tiny_denoiser(tiny_prior)
+    body = BodyModel(builtin_body_model())
+    clip = load_motion(EXAMPLES / "noisy_walk.npz")
+    (group,) = make_windows([clip, clip, clip], den, body, observations=True)
+    told: list[int] = []
+    main = threading.main_thread().ident
+
+    def progress(info: dict) -> None:  # told from the batches' threads
+        told.append(info["step"])
+        if len(told) == 10:
+            signal.pthread_kill(main, signal.SIGINT)
+
+    with pytest.raises(KeyboardInterrupt):
+        refine_windows(den, group, RefineConfig(steps=400, batch_windows=4), progress, workers=2)
+    assert 10 <= len(told) < 40
 
 
 @pytest.mark.slow  # ~13 s on 2 cores

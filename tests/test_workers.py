@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from mdvae_cli import workers
+from mdvae_cli.infer.progress import Stopped, stoppable
 from mdvae_cli.workers import map_in_order
 
 
@@ -69,6 +70,41 @@ def test_a_consumer_that_stops_early_leaves_nothing_running():
     n = len(calls)
     time.sleep(0.05)
     assert len(calls) == n <= 4
+
+
+def test_a_consumer_that_leaves_tells_the_long_items_still_running_to_stop():
+    """Ctrl-C while long items run side by side: ``stop`` is set before they are waited for,
+    so that an item that looks at it ends at once instead of running its course."""
+    stop = threading.Event()
+    ended = []
+
+    def long_item(k):
+        for _ in range(500):  # 5 s unless told to stop
+            if stop.is_set():
+                ended.append(k)
+                return None
+            time.sleep(0.01)
+        return k
+
+    gen = map_in_order(lambda k: k if k == 0 else long_item(k), range(4), workers=2, stop=stop)
+    assert next(gen) == 0
+    t = time.perf_counter()
+    gen.close()  # as an interrupt raised in the consumer closes it
+    assert time.perf_counter() - t < 1.0 and stop.is_set() and ended
+
+
+def test_refinement_side_by_side_ends_at_its_next_step_when_left():
+    """A refinement's steps in a worker raise ``Stopped`` once its run is left."""
+    stop = threading.Event()
+    told = []
+    tell = stoppable(told.append, stop)
+    tell({"step": 1})
+    stop.set()
+    with pytest.raises(Stopped):
+        tell({"step": 2})
+    assert told == [{"step": 1}]
+    with pytest.raises(Stopped):
+        stoppable(None, stop)({"step": 3})
 
 
 def test_the_worker_count_follows_torch(monkeypatch):

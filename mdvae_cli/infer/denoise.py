@@ -10,6 +10,7 @@ keys and the file layout are carried through untouched.
 from __future__ import annotations
 
 import itertools
+import threading
 from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 
@@ -26,7 +27,14 @@ from mdvae_cli.infer.guard import fallback_stretches, guard, guard_note
 from mdvae_cli.infer.native_rate import to_model_rate
 from mdvae_cli.infer.noise_blend import BlendReport, blend_motion
 from mdvae_cli.infer.pieces import denoise_pieces
-from mdvae_cli.infer.progress import CORE_PHASES, more_phases, phase, progress_of_runs, staged
+from mdvae_cli.infer.progress import (
+    CORE_PHASES,
+    more_phases,
+    phase,
+    progress_of_runs,
+    staged,
+    stoppable,
+)
 from mdvae_cli.infer.refine import refine_latents, window_batches
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.stitch import assemble
@@ -149,6 +157,7 @@ def refine_windows(
         denoiser.eval()
     n = len(batches)
     tells = progress_of_runs(staged(progress, "refine", 0, n * cfg.steps), 0, n, n)
+    stop = threading.Event()  # set when the batches side by side are left (Ctrl-C)
 
     def refine_batch(b: int) -> tuple[BodyParams, list[tuple[int, int]]]:
         g = group.batch(batches[b], with_y3d=False)
@@ -159,13 +168,13 @@ def refine_windows(
             with torch.no_grad():
                 x_hat = add_offset(regressor(denoiser, len(g))(yn), g.obs, joints, cfg)
         else:
-            x_hat = refine_latents(denoiser, yn, g.obs, joints, cfg, tells[b])
+            x_hat = refine_latents(denoiser, yn, g.obs, joints, cfg, stoppable(tells[b], stop))
         bad: list[tuple[int, int]] = []
         x_hat = _guarded(x_hat.detach(), g, None if fallbacks is None else bad)
         return uncanonicalize(state_to_params(x_hat), g.frame, g.pelvis), bad
 
     outs = []
-    for params, bad in map_in_order(refine_batch, range(n), workers):
+    for params, bad in map_in_order(refine_batch, range(n), workers, stop):
         outs.append(params)
         if fallbacks is not None:
             fallbacks += bad

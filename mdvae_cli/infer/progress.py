@@ -63,3 +63,22 @@ def progress_of_runs(progress: Progress, k: int, runs: int, count: int) -> list[
         return tell
 
     return [teller(i) for i in range(count)]
+
+
+class Stopped(Exception):
+    """A run side by side told to stop: nobody will read its result (``stoppable``)."""
+
+
+def stoppable(progress: Progress, stop: threading.Event) -> Callable[[dict], None]:
+    """``progress`` (or nothing) that first raises :class:`Stopped` once ``stop`` is set: a
+    refinement going side by side (``workers.map_in_order(..., stop=stop)``) ends at its next
+    step when the command is interrupted, instead of finishing its batch first (a minute and
+    more of ``--refine`` steps on a long take, which Ctrl-C would wait for)."""
+
+    def tell(info: dict) -> None:
+        if stop.is_set():
+            raise Stopped
+        if progress is not None:
+            progress(info)
+
+    return tell

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import closing
 from dataclasses import asdict, dataclass
@@ -25,6 +26,7 @@ import torch
 
 from mdvae_cli.errors import diverged
 from mdvae_cli.infer.elbo_fit import batch_order
+from mdvae_cli.infer.progress import stoppable
 from mdvae_cli.infer.refine import RefinedPosterior, refine_posterior, window_batches
 from mdvae_cli.infer.settings import RefineConfig
 from mdvae_cli.infer.window_groups import WindowGroup
@@ -124,10 +126,11 @@ def refine_targets(
         joints = None if g.weight is None else g.weight[..., :22]
         with torch.no_grad():
             yn = denoiser.read_holes(g.yn, g.read_weight)
-        return idx, refine_posterior(denoiser, yn, g.obs, joints, cfg)
+        return idx, refine_posterior(denoiser, yn, g.obs, joints, cfg, stoppable(None, stop))
 
     batches = [done + b for b in window_batches(len(group) - done, cfg, workers)]
-    with closing(map_in_order(refine, batches, workers)) as refined_batches:
+    stop = threading.Event()  # set when the batches side by side are left (Ctrl-C)
+    with closing(map_in_order(refine, batches, workers, stop)) as refined_batches:
         for idx, refined in refined_batches:
             parts.append((refined.z, refined.x0, refined.z_logvar))
             if progress is not None:
