@@ -4,6 +4,7 @@ pieces against the same take denoised whole."""
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 
@@ -82,8 +83,11 @@ def test_hand_over_slerps_from_one_result_to_the_other():
 def _workers(monkeypatch, n: int) -> None:
     """The pieces of a take run on ``n`` threads where they may run on every core, whatever
     the machine's cores."""
-    monkeypatch.setattr(time_pieces, "map_in_order", lambda fn, items, workers=None:
-                        map_in_order(fn, items, n if workers is None else workers))  # fmt: skip
+
+    def on_n(fn, items, workers=None, stop=None):
+        return map_in_order(fn, items, n if workers is None else workers, stop)
+
+    monkeypatch.setattr(time_pieces, "map_in_order", on_n)
 
 
 def test_pieces_are_joined_with_callbacks_on_the_whole_take(monkeypatch):
@@ -135,6 +139,28 @@ def test_pieces_are_joined_with_callbacks_on_the_whole_take(monkeypatch):
     np.testing.assert_allclose(blends[0].input_share, (0.1 * 1000 + 0.2 * 1000 + 0.3 * 1000) / 3000)
     # the short take's run, then the pieces' steps summed (they may go on side by side)
     assert [t["step"] for t in told] == [1, 3, 4, 5] and {t["steps"] for t in told} == {8}
+
+
+def test_ctrl_c_stops_the_pieces_side_by_side_at_their_next_step(monkeypatch):
+    """Ctrl-C (SIGINT to the main thread, waiting for the pieces) while two pieces refine side
+    by side: each ends at the next step it tells, not after its 500 (5 s each)."""
+    _workers(monkeypatch, 2)
+    told: list[int] = []
+    main = threading.main_thread().ident
+
+    def run(ms, loops, progress, on_fallback, on_blend, piece=False):
+        for step in range(1, 501):
+            time.sleep(0.01)
+            progress({"stage": "refine", "step": step, "steps": 500})
+            told.append(step)
+            if len(told) == 10:
+                signal.pthread_kill(main, signal.SIGINT)
+        return list(ms)
+
+    start = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        denoise_in_pieces([_take(2000)], [False], run, None, None, None, piece=1000)
+    assert time.perf_counter() - start < 2.0 and len(told) < 30
 
 
 @pytest.mark.parametrize(("pieces", "side"), [(3, 4), (5, 4), (3, 2), (2, 2)])

@@ -20,6 +20,7 @@ quotes the difference, ``tests/test_time_pieces.py`` pins it).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -29,7 +30,7 @@ import torch
 from mdvae_cli.geometry.rotations import quat_slerp, quat_to_rotvec, rotvec_to_quat
 from mdvae_cli.infer.guard import guard_note, is_guard_note, merged_stretches
 from mdvae_cli.infer.noise_blend import BlendReport
-from mdvae_cli.infer.progress import progress_of_runs
+from mdvae_cli.infer.progress import progress_of_runs, stoppable
 from mdvae_cli.motion.holes import observed
 from mdvae_cli.motion.motion import Motion, slice_frames
 from mdvae_cli.workers import map_in_order
@@ -201,6 +202,7 @@ def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_
     shares, told = np.zeros(2), False
     notes: list[str] = list(m.notes)
     tells = progress_of_runs(progress, done, runs, len(plan.spans))
+    stop = threading.Event()  # set when the pieces side by side are left (Ctrl-C)
 
     def piece(k: int):
         lo, hi = plan.spans[k]
@@ -208,11 +210,12 @@ def _join(m: Motion, plan: PiecePlan, run: Run, index, progress, done, runs, on_
         reports: list[BlendReport] = []
         part = slice_frames(m, lo, hi)
         part.notes = list(m.notes)
-        r = run([part], [False], tells[k], lambda _j, a, b: falls.append((a, b)),
+        r = run([part], [False], stoppable(tells[k], stop), lambda _j, a, b: falls.append((a, b)),
                 lambda _j, rep: reports.append(rep), True)[0]  # fmt: skip
         return r, falls, reports
 
-    for k, (r, falls, reports) in enumerate(map_in_order(piece, range(len(plan.spans)), workers)):
+    pieces = map_in_order(piece, range(len(plan.spans)), workers, stop)
+    for k, (r, falls, reports) in enumerate(pieces):
         lo = plan.spans[k][0]
         own_a, own_b = plan.cuts[k], plan.cuts[k + 1]
         for a, b in falls:
