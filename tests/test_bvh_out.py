@@ -436,3 +436,19 @@ def test_a_windows_bvh_comes_back_with_its_crlf_line_ends(tmp_path):
     assert out_crlf.count(b"\n") == out_crlf.count(b"\r\n") > 40
     assert b"\r" not in out_lf
     assert out_crlf.replace(b"\r\n", b"\n") == out_lf
+
+
+def test_a_gz_output_keeps_its_own_name_inside(tmp_path):
+    """gzip keeps a name in its header (``gunzip -N`` restores it): the output's, not the
+    hidden temporary file's that the atomic write made first."""
+    import gzip
+
+    from mdvae_cli.formats.bvh_write import write_text
+
+    out = tmp_path / "clean.bvh.gz"
+    write_text(out, ["HIERARCHY\n", "MOTION\n"])
+    raw = out.read_bytes()
+    assert raw[3] & 0x08  # FNAME: a zero-terminated name after the 10-byte header
+    assert raw[10 : raw.index(b"\0", 10)] == b"clean.bvh"
+    assert gzip.decompress(raw) == b"HIERARCHY\nMOTION\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["clean.bvh.gz"]

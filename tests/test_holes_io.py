@@ -235,3 +235,26 @@ def test_prior_training_refuses_a_take_with_holes(holey, tiny_body):
 
     with pytest.raises(InputError, match="16 frame\\(s\\) with missing joints"):
         load_windows([holey()], BodyModel(tiny_body), 20, 5)
+
+
+def test_filled_spikes_are_counted_in_the_summary_and_json(tmp_path):
+    """A take with one frame of the left elbow flicked by 1 rad and back has one more frame
+    with a spike filled than the take without it (CMU 07_01's wrists and ankles flick on a
+    few frames too), said in ``--json`` (``spike_frames``) and on the summary line."""
+    from pathlib import Path
+
+    walk = load_motion(Path(__file__).resolve().parents[1] / "examples" / "walk.npz")
+    spiky = walk.with_body(pose_body=walk.pose_body.copy())
+    spiky.pose_body[40, 17] += [1.0, 0.0, 0.0]  # body joint 18, the left elbow
+    counts = []
+    for name, motion in (("clean.npz", walk), ("spiky.npz", spiky)):
+        save_motion(motion, tmp_path / name)
+        code, out, err = run("denoise", tmp_path / name, "-o", tmp_path / f"out_{name}", "--json")
+        assert code == 0, err
+        result = json.loads(out)["files"][0]["result"]
+        assert result["spike_frames"] == result["tracks"][0]["spike_frames"]
+        counts.append(result["spike_frames"])
+        code, out, err = run("denoise", tmp_path / name, "-o", tmp_path / f"again_{name}")
+        n = counts[-1]
+        assert code == 0 and f"filled {n} frame(s) with a spike" in " ".join(err.split()), err
+    assert counts[1] == counts[0] + 1

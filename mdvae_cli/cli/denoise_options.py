@@ -275,16 +275,20 @@ def fill_setting(option: str) -> str:
 
 
 def fill_words(done: list[dict]) -> str:
-    """What the summary line says of the holes (nothing when there were none)."""
+    """What the summary line says of the holes and the filled spikes (nothing when there were
+    none)."""
     from mdvae_cli.run.denoise_files import fill_totals
 
     total = fill_totals(done)
+    spikes = (f"; filled {total['spike_frames']} frame(s) with a spike (a joint away and back)"
+              if total["spike_frames"] else "")  # fmt: skip
     if total["filled_frames"]:
         return (f"; filled {total['filled_frames']} frame(s) with missing joints "
-                f"({total['filled_joints']} joint entries)")  # fmt: skip
+                f"({total['filled_joints']} joint entries){spikes}")  # fmt: skip
     if total["unfilled_frames"]:
-        return f"; {total['unfilled_frames']} frame(s) with holes left as they came (--fill off)"
-    return ""
+        return (f"; {total['unfilled_frames']} frame(s) with holes left as they came "
+                f"(--fill off){spikes}")  # fmt: skip
+    return spikes
 
 
 def denoise_options(command):

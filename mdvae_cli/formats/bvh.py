@@ -194,6 +194,20 @@ def rate_of_frame_time(text: str) -> float:
     return float(f"{fps:.{max(len(digits.digits), 4)}g}")  # as many digits as the file gave
 
 
+def _missing_motion_lines(text: str, start: int) -> str:
+    """What a MOTION section whose first lines are not ``Frames:`` then ``Frame Time:`` lacks,
+    in words (the first 200 characters after ``start`` read)."""
+    lines = text[start : start + 200].lstrip().splitlines()[:2]
+    frames = bool(lines) and lines[0].strip().lower().startswith("frames:")
+    time_line = re.compile(r"\s*frame\s+time:", re.IGNORECASE)
+    timed = any(time_line.match(line) for line in lines)
+    if frames and not timed:
+        return "MOTION section lacks its 'Frame Time:' line (after 'Frames:')"
+    if timed and not frames:
+        return "MOTION section lacks its 'Frames:' line (before 'Frame Time:')"
+    return "MOTION section lacks 'Frames:' and 'Frame Time:' lines"
+
+
 def load_bvh(
     path: Path | str,
     scale: float | None = None,
@@ -231,7 +245,7 @@ def load_bvh(
         text, split.end()
     )
     if head is None:
-        raise InputError(f"{path}: MOTION section lacks 'Frames:' and 'Frame Time:' lines")
+        raise InputError(f"{path}: {_missing_motion_lines(text, split.end())}")
     try:
         n_frames, frame_time = int(head.group(2)), float(head.group(4))
     except ValueError:
@@ -254,9 +268,17 @@ def load_bvh(
     found = count // C
     if found != n_frames:
         raise InputError(f"{path}: header says {n_frames} frames but the file holds {found}")
-    if not np.all(np.isfinite(values)):
-        raise InputError(f"{path}: motion data contains NaN or infinite values")
     data = values.reshape(found, C)
+    if not np.all(np.isfinite(values)):
+        t, c = np.argwhere(~np.isfinite(data))[0]
+        joint, kind, axis = channels[c]
+        what = f"{axis.upper()}{'rotation' if kind == 'r' else 'position'}"
+        raise InputError(
+            f"{path}: motion data holds NaN or infinite values (first at frame {t + 1}, "
+            f"{names[joint]} {what}); BVH has no missing values: a stretch written as its "
+            "joint's last good values (1/3 s or more) or a frame of zeros is read as a hole "
+            "with --missing frozen,zeros"
+        )
     layout = BvhLayout(header=header, channels=channels, data=data,
                        rows=np.arange(found), frame_time=frame_text, offsets=offsets,
                        metres_per_unit=1.0, encoding=encoding, labels=labels)  # fmt: skip

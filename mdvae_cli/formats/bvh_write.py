@@ -155,13 +155,14 @@ def write_text(
     codec = "utf-8" if encoding == "utf-8-sig" else encoding
 
     def write(tmp: Path) -> None:
+        raw = open(tmp, "wb")  # noqa: SIM115 (closed below)
+        fh = raw
         if path.suffix.lower() == ".gz":
             import gzip
 
-            fh = gzip.open(tmp, "wb", compresslevel=6)
-        else:
-            fh = open(tmp, "wb")  # noqa: SIM115 (closed below)
-        with fh:
+            # the name gzip keeps inside (``gunzip -N``) is the output's, not the temporary's
+            fh = gzip.GzipFile(filename=path.name, mode="wb", compresslevel=6, fileobj=raw)
+        with raw, fh:
             if encoding == "utf-8-sig":
                 fh.write(b"\xef\xbb\xbf")
             for piece in pieces:

@@ -64,6 +64,8 @@ class TrackRun:
             "fallback_share": round(min(fell, 1.0), 4),
             "input_share": None if kept is None else round(kept.input_share, 4),
             "spike_share": None if kept is None else round(kept.spike_share, 4),
+            # frames where a joint jumped away and back, filled (the blend's spikes)
+            "spike_frames": 0 if kept is None else round(kept.spike_share * motion.num_frames),
             "smoothed_s": round(self.smoothed_s, 4),
             "loop": self.loop,
             **fill_counts(self.motion, self.filled),
@@ -131,8 +133,9 @@ def fill_counts(source: Motion, fill: bool) -> dict:
 
 
 def fill_totals(items: Sequence[dict]) -> dict:
-    """:func:`fill_counts` summed over tracks or files."""
-    keys = ("filled_frames", "filled_joints", "unfilled_frames")
+    """:func:`fill_counts` and the filled spikes (``spike_frames``) summed over tracks or
+    files."""
+    keys = ("filled_frames", "filled_joints", "unfilled_frames", "spike_frames")
     return {k: sum(int(t.get(k) or 0) for t in items) for k in keys}
 
 
