@@ -144,7 +144,7 @@ def test_export_bvh_and_eval_read_what_denoise_reads(wham, tmp_path):
 
 def test_wrong_output_forms_are_named_in_the_users_words(wham, tmp_path):
     line = one_error(*run("denoise", wham, "-o", tmp_path / "x.bvh"))
-    assert "wham_output.pkl is a .pkl file, not a BVH take: write it as .pkl or .npz" in line
+    assert "wham_output.pkl: a .pkl file, not a BVH take: write it as .pkl or .npz" in line
     assert "is an .npz file" not in line
     line = one_error(*run("add-noise", wham, "-o", tmp_path / "clean.fbx"))
     assert "cannot write" in line and "does not write FBX; write .npz or .bvh" in line

@@ -83,7 +83,7 @@ def _wrong_form(src: Path, form: str, wants: str) -> str:
     kind = what.get(form, f"a {form} file")
     forms = ".npz" if form == ".npz" else f"{form} or .npz"
     hint = " (mdvae export-bvh turns an .npz into BVH on the SMPL skeleton)"
-    return (f"{src} is {kind}, not {what.get(wants, f'a {wants} file')}: write it as {forms}"
+    return (f"{src}: {kind}, not {what.get(wants, f'a {wants} file')}: write it as {forms}"
             + (hint if wants == ".bvh" and form == ".npz" else ""))  # fmt: skip
 
 
