@@ -67,16 +67,17 @@ class Adam:
 
 
 def window_batches(count: int, cfg: RefineConfig, workers: int = 1) -> list[torch.Tensor]:
-    """Batches of ``count`` windows' indices for refinement. One at a time:
-    ``cfg.batch_windows`` windows each, the last the rest. With steps to take and ``workers``
-    > 1 they go side by side: a multiple of ``workers`` batches of near-equal sizes, each of at
-    most ``cfg.batch_windows // workers`` windows, so that the windows refined at once, and the
+    """Batches of ``count`` windows' indices for refinement. One at a time (``workers`` 1, or
+    no steps to take: regression mode's one pass gains nothing side by side):
+    ``cfg.batch_windows`` windows each, the last the rest. Side by side: a multiple of
+    ``workers`` batches of near-equal sizes, each of at most
+    ``cfg.batch_windows // workers`` windows, so that the windows refined at once, and the
     memory, stay as one batch's. Each window's steps depend on that window alone: the batches
     change its result by no more than the products' rounding (on the shipped networks' 400
     windows of a 10-minute take, not at all)."""
-    windows = torch.arange(count)
     if count == 0:
         return []
+    windows = torch.arange(count)
     if workers <= 1 or cfg.steps == 0:
         return list(windows.split(cfg.batch_windows))
     batches = -(-count // max(1, cfg.batch_windows // workers))
